@@ -17,6 +17,8 @@ packages=(
   nlohmann-json3-dev libyaml-cpp-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # the peers the benchmarks compare against read their sample data from here
+  opencv-doc
   # the Python client example and its test (Debian's python3, not a PATH-first build)
   python3 python3-grpcio python3-grpc-tools
   # style check
