@@ -1,0 +1,75 @@
+#pragma once
+
+#include "libs/camera/pinhole_camera.h"
+#include "services/scanner/core/decoder.h"
+#include "services/scanner/core/patterns.h"
+
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <vector>
+
+namespace picking::scanner {
+
+/// A camera and a projector with their relative pose: the scanner's geometry.
+struct ScannerRig {
+  camera::PinholeCamera camera;
+  camera::PinholeCamera projector;  ///< Pixels are mirror (column, row).
+  Eigen::Isometry3d X_CameraProjector = Eigen::Isometry3d::Identity();
+};
+
+/// A rig like the paper's scanner: a 1280 x 1024 camera with an 8 mm lens (scaled to the
+/// requested camera size) and a 912 x 1140 projector, 0.15 m to the camera's right and
+/// turned towards it so that both views overlap at about 1 m. Mild lens distortion on both.
+ScannerRig MakeExampleRig(int camera_width = 1280, int camera_height = 1024);
+
+/// Analytic scene for synthetic captures, in the camera frame, metres.
+struct SyntheticPlane {
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  ///< Unit normal (either orientation).
+  double offset_m = 1.0;  ///< The plane is { p : normal . p == offset_m }.
+  double albedo = 0.8;
+};
+struct SyntheticSphere {
+  Eigen::Vector3d center_m = Eigen::Vector3d(0, 0, 1);
+  double radius_m = 0.1;
+  double albedo = 0.6;
+};
+struct SyntheticScene {
+  std::vector<SyntheticPlane> planes;
+  std::vector<SyntheticSphere> spheres;
+};
+
+/// Image formation of the synthetic capture, in 8-bit grey levels.
+struct SyntheticCaptureOptions {
+  double projector_level = 220.0;  ///< Radiance of a lit, albedo-1 surface facing the projector.
+  double ambient_level = 12.0;     ///< Radiance of albedo 1 from ambient light alone.
+  double blur_sigma_px = 0.0;      ///< Gaussian optical blur, camera pixels (0 = none).
+  double noise_sigma = 0.0;        ///< Gaussian sensor noise, grey levels (0 = none).
+  double gamma = 1.0;              ///< Response: out = 255 * (in / 255)^gamma.
+  std::uint32_t seed = 1;          ///< Seed of the noise generator.
+};
+
+/// Rendered captures with the ground truth they were rendered from.
+struct SyntheticCapture {
+  int width = 0;
+  int height = 0;
+  std::vector<std::vector<std::uint8_t>> images;  ///< In PatternSequence order.
+  /// Projector column / row (nearest mirror) whose light reaches each camera pixel, -1 where
+  /// none does (no surface, outside the projector, facing away or in shadow).
+  std::vector<std::int32_t> column;
+  std::vector<std::int32_t> row;
+  /// Depth z (metres, camera frame) of the surface each pixel sees, NaN where none.
+  std::vector<float> depth_m;
+
+  std::vector<ImageView> views() const;
+};
+
+/// Renders the pattern sequence as the rig's camera sees it on `scene` by ray casting each
+/// camera pixel centre, with shadows cast from the projector, Lambertian shading, ambient
+/// light, then blur, gamma and noise. Deterministic for a given seed.
+/// @throws std::invalid_argument for a negative blur or noise, or a gamma <= 0.
+SyntheticCapture RenderSyntheticCapture(const ScannerRig& rig, const PatternSequence& patterns,
+                                        const SyntheticScene& scene,
+                                        const SyntheticCaptureOptions& options);
+
+}  // namespace picking::scanner
