@@ -1,0 +1,297 @@
+#include "services/detector/core/detection.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+namespace picking::detector {
+namespace {
+
+using Json = nlohmann::json;
+
+// A parse or validation error naming the source and the field path.
+[[noreturn]] void Fail(const std::string& source, const std::string& field,
+                       const std::string& what) {
+  throw std::runtime_error(source + ": field '" + field + "': " + what);
+}
+
+void CheckKeys(const Json& node, const std::set<std::string>& allowed, const std::string& source,
+               const std::string& path) {
+  if (!node.is_object()) Fail(source, path, "expected an object");
+  for (const auto& [key, value] : node.items()) {
+    (void)value;
+    if (allowed.count(key) == 0) Fail(source, path.empty() ? key : path + "." + key, "unknown key");
+  }
+}
+
+Method ParseMethod(const Json& node, const std::string& source, const std::string& path) {
+  if (!node.is_string()) Fail(source, path, "expected a method name string");
+  try {
+    return MethodFromString(node.get<std::string>());
+  } catch (const std::invalid_argument& e) {
+    Fail(source, path, e.what());
+  }
+}
+
+double ParseNumber(const Json& node, const std::string& source, const std::string& path) {
+  if (!node.is_number()) Fail(source, path, "expected a number");
+  return node.get<double>();
+}
+
+Thresholds ParseThresholds(const Json& node, Thresholds base, const std::string& source,
+                           const std::string& path) {
+  CheckKeys(node, {"min_score", "min_fitness", "max_inlier_rmse_m"}, source, path);
+  if (node.contains("min_score"))
+    base.min_score = ParseNumber(node["min_score"], source, path + ".min_score");
+  if (node.contains("min_fitness"))
+    base.min_fitness = ParseNumber(node["min_fitness"], source, path + ".min_fitness");
+  if (node.contains("max_inlier_rmse_m"))
+    base.max_inlier_rmse_m =
+        ParseNumber(node["max_inlier_rmse_m"], source, path + ".max_inlier_rmse_m");
+  try {
+    base.Validate();
+  } catch (const std::invalid_argument& e) {
+    Fail(source, path, e.what());
+  }
+  return base;
+}
+
+ObjectConfig ParseObject(const Json& node, ObjectConfig base, const std::string& source,
+                         const std::string& path) {
+  CheckKeys(node, {"preferred", "fallbacks", "thresholds", "method_thresholds"}, source, path);
+  if (node.contains("preferred"))
+    base.preferred = ParseMethod(node["preferred"], source, path + ".preferred");
+  if (node.contains("fallbacks")) {
+    const Json& list = node["fallbacks"];
+    if (!list.is_array()) Fail(source, path + ".fallbacks", "expected a list of method names");
+    base.fallbacks.clear();
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      base.fallbacks.push_back(
+          ParseMethod(list[i], source, path + ".fallbacks[" + std::to_string(i) + "]"));
+    }
+  }
+  if (node.contains("thresholds")) {
+    base.thresholds =
+        ParseThresholds(node["thresholds"], base.thresholds, source, path + ".thresholds");
+  }
+  if (node.contains("method_thresholds")) {
+    const Json& map = node["method_thresholds"];
+    if (!map.is_object()) Fail(source, path + ".method_thresholds", "expected an object");
+    for (const auto& [key, value] : map.items()) {
+      const std::string sub = path + ".method_thresholds." + key;
+      Method method;
+      try {
+        method = MethodFromString(key);
+      } catch (const std::invalid_argument& e) {
+        Fail(source, sub, e.what());
+      }
+      base.method_thresholds[method] = ParseThresholds(value, base.thresholds, source, sub);
+    }
+  }
+  try {
+    base.Validate();
+  } catch (const std::invalid_argument& e) {
+    Fail(source, path, e.what());
+  }
+  return base;
+}
+
+// 1-based line of a byte offset in text.
+std::size_t LineOf(const std::string& text, std::size_t byte) {
+  byte = std::min(byte, text.size());
+  return 1 + static_cast<std::size_t>(std::count(text.begin(), text.begin() + byte, '\n'));
+}
+
+}  // namespace
+
+void PinholeCamera::Validate() const {
+  if (width <= 0 || height <= 0)
+    throw std::invalid_argument("PinholeCamera: width and height must be positive");
+  if (!(fx > 0.0) || !(fy > 0.0))
+    throw std::invalid_argument("PinholeCamera: fx and fy must be positive");
+  if (!std::isfinite(cx) || !std::isfinite(cy))
+    throw std::invalid_argument("PinholeCamera: cx and cy must be finite");
+}
+
+std::string ToString(Method method) {
+  switch (method) {
+    case Method::kPpf:
+      return "ppf";
+    case Method::kSift:
+      return "sift";
+    case Method::kRangeTemplates:
+      return "range_templates";
+  }
+  throw std::logic_error("ToString: invalid Method value");
+}
+
+Method MethodFromString(const std::string& name) {
+  if (name == "ppf") return Method::kPpf;
+  if (name == "sift") return Method::kSift;
+  if (name == "range_templates") return Method::kRangeTemplates;
+  throw std::invalid_argument("unknown detection method '" + name +
+                              "' (expected ppf, sift or range_templates)");
+}
+
+void Thresholds::Validate() const {
+  if (!(min_score >= 0.0 && min_score <= 1.0))
+    throw std::invalid_argument("min_score must be in [0, 1]");
+  if (!(min_fitness >= 0.0 && min_fitness <= 1.0))
+    throw std::invalid_argument("min_fitness must be in [0, 1]");
+  if (!(max_inlier_rmse_m > 0.0) || !std::isfinite(max_inlier_rmse_m))
+    throw std::invalid_argument("max_inlier_rmse_m must be positive and finite");
+}
+
+bool Thresholds::Accepts(const Detection& detection) const {
+  return detection.score >= min_score && detection.fitness >= min_fitness &&
+         detection.inlier_rmse_m <= max_inlier_rmse_m;
+}
+
+std::vector<Method> ObjectConfig::Order() const {
+  std::vector<Method> order{preferred};
+  order.insert(order.end(), fallbacks.begin(), fallbacks.end());
+  return order;
+}
+
+const Thresholds& ObjectConfig::ThresholdsFor(Method method) const {
+  const auto it = method_thresholds.find(method);
+  return it == method_thresholds.end() ? thresholds : it->second;
+}
+
+void ObjectConfig::Validate() const {
+  std::set<Method> seen;
+  for (Method m : Order()) {
+    if (!seen.insert(m).second)
+      throw std::invalid_argument("method '" + ToString(m) +
+                                  "' appears more than once in preferred + fallbacks");
+  }
+  thresholds.Validate();
+  for (const auto& [method, t] : method_thresholds) {
+    try {
+      t.Validate();
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument("method_thresholds." + ToString(method) + ": " + e.what());
+    }
+  }
+}
+
+DetectorConfig::DetectorConfig(ObjectConfig default_config,
+                               std::map<std::string, ObjectConfig> objects)
+    : default_(std::move(default_config)), objects_(std::move(objects)) {
+  default_.Validate();
+  for (auto& [name, config] : objects_) {
+    if (name.empty()) throw std::invalid_argument("DetectorConfig: empty item name");
+    config.item = name;
+    config.Validate();
+  }
+}
+
+DetectorConfig DetectorConfig::LoadFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error(path + ": cannot open detector configuration file");
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return Parse(buffer.str(), path);
+}
+
+DetectorConfig DetectorConfig::Parse(const std::string& text, const std::string& source_name) {
+  Json root;
+  try {
+    root = Json::parse(text);
+  } catch (const Json::parse_error& e) {
+    throw std::runtime_error(source_name + ":" + std::to_string(LineOf(text, e.byte)) +
+                             ": JSON syntax error: " + e.what());
+  }
+  CheckKeys(root, {"default", "objects"}, source_name, "");
+  ObjectConfig default_config;
+  if (root.contains("default"))
+    default_config = ParseObject(root["default"], default_config, source_name, "default");
+  default_config.item.clear();
+  std::map<std::string, ObjectConfig> objects;
+  if (root.contains("objects")) {
+    const Json& map = root["objects"];
+    if (!map.is_object()) Fail(source_name, "objects", "expected an object keyed by item name");
+    for (const auto& [name, node] : map.items()) {
+      if (name.empty()) Fail(source_name, "objects", "empty item name");
+      ObjectConfig config = ParseObject(node, default_config, source_name, "objects." + name);
+      config.item = name;
+      objects.emplace(name, std::move(config));
+    }
+  }
+  return DetectorConfig(std::move(default_config), std::move(objects));
+}
+
+ObjectConfig DetectorConfig::ForItem(const std::string& item) const {
+  const auto it = objects_.find(item);
+  if (it != objects_.end()) return it->second;
+  ObjectConfig config = default_;
+  config.item = item;
+  return config;
+}
+
+DetectionChain::DetectionChain(DetectorConfig config,
+                               std::vector<std::shared_ptr<Estimator>> estimators)
+    : config_(std::move(config)) {
+  for (const auto& estimator : estimators) {
+    if (!estimator) throw std::invalid_argument("DetectionChain: null estimator");
+    if (!estimators_.emplace(estimator->method(), estimator).second)
+      throw std::invalid_argument("DetectionChain: two estimators for method '" +
+                                  ToString(estimator->method()) + "'");
+  }
+}
+
+ChainResult DetectionChain::Run(const EstimatorInput& input) const {
+  if (input.scene == nullptr) throw std::invalid_argument("DetectionChain::Run: null scene");
+  const ObjectConfig object = config_.ForItem(input.item);
+  ChainResult result;
+  for (Method method : object.Order()) {
+    ChainAttempt attempt;
+    attempt.method = method;
+    const auto it = estimators_.find(method);
+    if (it == estimators_.end()) {
+      attempt.available = false;
+      result.attempts.push_back(std::move(attempt));
+      continue;
+    }
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<Detection> candidates;
+    try {
+      candidates = it->second->Estimate(input);
+    } catch (const std::exception& e) {
+      attempt.error = e.what();
+    }
+    attempt.duration_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    attempt.num_candidates = candidates.size();
+    const Thresholds& thresholds = object.ThresholdsFor(method);
+    // Best accepted candidate by score; if none is accepted, the best by score for the record.
+    const Detection* best = nullptr;
+    const Detection* best_accepted = nullptr;
+    for (const Detection& d : candidates) {
+      if (best == nullptr || d.score > best->score) best = &d;
+      if (thresholds.Accepts(d) && (best_accepted == nullptr || d.score > best_accepted->score))
+        best_accepted = &d;
+    }
+    if (best_accepted != nullptr) {
+      attempt.accepted = true;
+      attempt.best = *best_accepted;
+      if (attempt.best->item.empty()) attempt.best->item = input.item;
+      if (attempt.best->method.empty()) attempt.best->method = ToString(method);
+      result.detection = attempt.best;
+      result.attempts.push_back(std::move(attempt));
+      return result;
+    }
+    if (best != nullptr) attempt.best = *best;
+    result.attempts.push_back(std::move(attempt));
+  }
+  return result;
+}
+
+}  // namespace picking::detector

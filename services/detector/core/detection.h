@@ -1,0 +1,181 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+
+namespace picking::detector {
+
+/// A pinhole camera: pixel (u, v) of a point p_CameraPoint with z > 0 is
+/// (fx * x / z + cx, fy * y / z + cy). Camera frame: x right, y down, z forward (optical
+/// axis), metres. Pixel centres are at integer coordinates.
+struct PinholeCamera {
+  int width = 640;
+  int height = 480;
+  double fx = 600.0;  ///< Focal length in pixels.
+  double fy = 600.0;
+  double cx = 319.5;  ///< Principal point in pixels.
+  double cy = 239.5;
+
+  /// Throws std::invalid_argument when a size or focal length is not positive.
+  void Validate() const;
+};
+
+/// The three pose estimation methods of the detector.
+enum class Method { kPpf, kSift, kRangeTemplates };
+
+/// "ppf", "sift", "range_templates".
+std::string ToString(Method method);
+/// Inverse of ToString. Throws std::invalid_argument naming the bad value.
+Method MethodFromString(const std::string& name);
+
+/// Wall-clock durations of the stages that produced a detection, seconds.
+struct DetectionTimings {
+  double preprocess_s = 0.0;
+  double estimate_s = 0.0;
+  double refine_s = 0.0;
+  double verify_s = 0.0;
+  double total_s = 0.0;
+};
+
+/// One detected instance of an item.
+struct Detection {
+  std::string item;
+  /// Pose of the item's model frame in the robot base frame (the scene cloud's frame).
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  /// Confidence in [0, 1] (for verified detections: the supported visible surface fraction).
+  double score = 0.0;
+  /// Name of the method that produced it (ToString(Method) for the built-in ones).
+  std::string method;
+  /// Fraction of the model points used in the last alignment that have a scene partner.
+  double fitness = 0.0;
+  /// RMS distance of those partners, metres.
+  double inlier_rmse_m = 0.0;
+  DetectionTimings timings;
+};
+
+/// Acceptance thresholds of a method's detections.
+struct Thresholds {
+  double min_score = 0.5;           ///< Detection.score must be >= this; in [0, 1].
+  double min_fitness = 0.0;         ///< Detection.fitness must be >= this; in [0, 1].
+  double max_inlier_rmse_m = 0.01;  ///< Detection.inlier_rmse_m must be <= this; > 0.
+
+  /// Throws std::invalid_argument naming the bad field.
+  void Validate() const;
+  bool Accepts(const Detection& detection) const;
+};
+
+/// How one item is detected: the preferred method first, then the fallbacks in order.
+struct ObjectConfig {
+  std::string item;
+  Method preferred = Method::kPpf;
+  std::vector<Method> fallbacks;
+  Thresholds thresholds;
+  /// Per-method overrides of `thresholds`.
+  std::map<Method, Thresholds> method_thresholds;
+
+  /// preferred followed by fallbacks.
+  std::vector<Method> Order() const;
+  const Thresholds& ThresholdsFor(Method method) const;
+  /// Throws std::invalid_argument on duplicated methods or invalid thresholds.
+  void Validate() const;
+};
+
+/// Per-object detector configuration with a default for items not listed.
+///
+/// File format (JSON):
+/// ```
+/// {"default": {"preferred": "ppf", "fallbacks": ["range_templates"],
+///              "thresholds": {"min_score": 0.5, "min_fitness": 0.0,
+///                             "max_inlier_rmse_m": 0.01}},
+///  "objects": {"expo_dry_erase_board_eraser": {
+///                "preferred": "sift", "fallbacks": ["ppf", "range_templates"],
+///                "thresholds": {"min_score": 0.6},
+///                "method_thresholds": {"sift": {"min_score": 0.4}}}}}
+/// ```
+/// Every field is optional; an object's unspecified fields inherit from `default`. Unknown
+/// keys are errors.
+class DetectorConfig final {
+ public:
+  /// Every item uses `default_config` (its `item` field is ignored).
+  explicit DetectorConfig(ObjectConfig default_config = {},
+                          std::map<std::string, ObjectConfig> objects = {});
+
+  /// Throws std::runtime_error naming the file, line and field on bad content, or when the
+  /// file cannot be read.
+  static DetectorConfig LoadFile(const std::string& path);
+  /// `source_name` is used in error messages.
+  static DetectorConfig Parse(const std::string& text, const std::string& source_name = "<string>");
+
+  /// The item's configuration (the default one, with `item` set, for unlisted items).
+  ObjectConfig ForItem(const std::string& item) const;
+  const ObjectConfig& default_config() const { return default_; }
+  const std::map<std::string, ObjectConfig>& objects() const { return objects_; }
+
+ private:
+  ObjectConfig default_;
+  std::map<std::string, ObjectConfig> objects_;
+};
+
+/// What an estimator gets: the scene in the base frame and where the sensor was.
+struct EstimatorInput {
+  std::string item;
+  /// Scene cloud, points in the base frame; organised when it came from the scanner.
+  const geometry::PointCloud* scene = nullptr;
+  /// Pose of the sensor (camera) frame in the base frame at capture time.
+  Eigen::Isometry3d X_BaseSensor = Eigen::Isometry3d::Identity();
+  /// Intrinsics of the sensor, when known (needed by SIFT EPnP and range templates).
+  std::optional<PinholeCamera> camera;
+};
+
+/// A pose estimation strategy (PPF, SIFT, range templates, or a fake in tests).
+class Estimator {
+ public:
+  virtual ~Estimator() = default;
+  /// The method this estimator implements.
+  virtual Method method() const = 0;
+  /// Candidate detections of input.item, best first; empty when nothing was found. May throw
+  /// on bad input; the chain records the message and moves on to the next method.
+  virtual std::vector<Detection> Estimate(const EstimatorInput& input) = 0;
+};
+
+/// What happened when one method was tried.
+struct ChainAttempt {
+  Method method = Method::kPpf;
+  bool available = true;  ///< False when no estimator for the method was registered.
+  std::size_t num_candidates = 0;
+  std::optional<Detection> best;  ///< Best candidate, accepted or not.
+  bool accepted = false;
+  std::string error;  ///< Exception message, when the estimator threw.
+  double duration_s = 0.0;
+};
+
+struct ChainResult {
+  std::optional<Detection> detection;  ///< The accepted detection, if any.
+  std::vector<ChainAttempt> attempts;  ///< In the order tried.
+};
+
+/// Runs an item's methods in its configured order until one returns a detection that passes
+/// that method's thresholds.
+class DetectionChain final {
+ public:
+  /// Throws std::invalid_argument on a null estimator or two estimators for one method.
+  DetectionChain(DetectorConfig config, std::vector<std::shared_ptr<Estimator>> estimators);
+
+  /// Throws std::invalid_argument when input.scene is null.
+  ChainResult Run(const EstimatorInput& input) const;
+
+  const DetectorConfig& config() const { return config_; }
+
+ private:
+  DetectorConfig config_;
+  std::map<Method, std::shared_ptr<Estimator>> estimators_;
+};
+
+}  // namespace picking::detector

@@ -1,0 +1,420 @@
+#include "services/detector/core/preprocess.h"
+
+#include <pcl/features/normal_3d_omp.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/search/kdtree.h>
+#include <pcl/segmentation/extract_clusters.h>
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <unordered_map>
+
+namespace picking::detector {
+namespace {
+
+using geometry::PointCloud;
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+bool Finite(const Eigen::Vector3f& p) { return p.allFinite(); }
+
+// Keeps the points for which keep[i] is true. Organised clouds stay organised when asked
+// (dropped points become NaN); otherwise the result is an unorganised cloud.
+PointCloud Filter(const PointCloud& cloud, const std::vector<bool>& keep, bool keep_organized) {
+  PointCloud out;
+  out.frame_id = cloud.frame_id;
+  if (cloud.is_organized() && keep_organized) {
+    out = cloud;
+    for (std::size_t i = 0; i < cloud.size(); ++i) {
+      if (keep[i]) continue;
+      out.points[i].setConstant(kNaN);
+      if (out.has_normals()) out.normals[i].setConstant(kNaN);
+    }
+    return out;
+  }
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!keep[i] || !Finite(cloud.points[i])) continue;
+    out.points.push_back(cloud.points[i]);
+    if (cloud.has_normals()) out.normals.push_back(cloud.normals[i]);
+    if (cloud.has_colors()) out.colors.push_back(cloud.colors[i]);
+    if (cloud.has_intensities()) out.intensities.push_back(cloud.intensities[i]);
+  }
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+pcl::PointCloud<pcl::PointXYZ>::Ptr ToPcl(const PointCloud& cloud) {
+  auto out = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  out->points.resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const auto& p = cloud.points[i];
+    out->points[i] = pcl::PointXYZ(p.x(), p.y(), p.z());
+  }
+  out->width = static_cast<std::uint32_t>(cloud.size());
+  out->height = 1;
+  out->is_dense = false;
+  return out;
+}
+
+std::vector<int> FiniteIndices(const PointCloud& cloud) {
+  std::vector<int> indices;
+  indices.reserve(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (Finite(cloud.points[i])) indices.push_back(static_cast<int>(i));
+  return indices;
+}
+
+}  // namespace
+
+void OrientedBox::Validate() const {
+  if (!size_m.allFinite() || (size_m.array() <= 0.0).any()) {
+    std::ostringstream s;
+    s << "OrientedBox: size_m must be positive and finite, got " << size_m.transpose();
+    throw std::invalid_argument(s.str());
+  }
+  if (!X_BaseBox.matrix().allFinite())
+    throw std::invalid_argument("OrientedBox: X_BaseBox is not finite");
+}
+
+bool OrientedBox::Contains(const Eigen::Vector3d& p_BasePoint, double margin_m) const {
+  const Eigen::Vector3d p_BoxPoint = X_BaseBox.inverse() * p_BasePoint;
+  return ((p_BoxPoint.cwiseAbs() - 0.5 * size_m).array() <= margin_m).all();
+}
+
+void ValidateCloud(const PointCloud& cloud, const CloudLimits& limits) {
+  if (cloud.empty()) throw std::invalid_argument("point cloud is empty");
+  if (cloud.size() > limits.max_points) {
+    throw std::invalid_argument("point cloud has " + std::to_string(cloud.size()) +
+                                " points, more than the configured maximum of " +
+                                std::to_string(limits.max_points));
+  }
+  const auto check_channel = [&](std::size_t n, const char* name) {
+    if (n != 0 && n != cloud.size())
+      throw std::invalid_argument(std::string("point cloud channel '") + name + "' has " +
+                                  std::to_string(n) + " entries for " +
+                                  std::to_string(cloud.size()) + " points");
+  };
+  check_channel(cloud.normals.size(), "normals");
+  check_channel(cloud.colors.size(), "colors");
+  check_channel(cloud.intensities.size(), "intensities");
+  if (static_cast<std::size_t>(cloud.width) * cloud.height != cloud.size())
+    throw std::invalid_argument("point cloud width * height (" + std::to_string(cloud.width) +
+                                " * " + std::to_string(cloud.height) + ") != number of points (" +
+                                std::to_string(cloud.size()) + ")");
+  if (std::none_of(cloud.points.begin(), cloud.points.end(), Finite))
+    throw std::invalid_argument("point cloud has no finite point (all NaN)");
+}
+
+PointCloud CropToBox(const PointCloud& cloud, const OrientedBox& box, const CropOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  box.Validate();
+  // Overlap of the box's axis-aligned bounds with the cloud's finite bounds.
+  Eigen::AlignedBox3d cloud_bounds;
+  for (const auto& p : cloud.points)
+    if (Finite(p)) cloud_bounds.extend(p.cast<double>());
+  Eigen::AlignedBox3d box_bounds;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Eigen::Vector3d p_BoxCorner(((corner & 1) ? 0.5 : -0.5) * box.size_m.x(),
+                                      ((corner & 2) ? 0.5 : -0.5) * box.size_m.y(),
+                                      ((corner & 4) ? 0.5 : -0.5) * box.size_m.z());
+    box_bounds.extend(box.X_BaseBox * p_BoxCorner);
+  }
+  if (!cloud_bounds.intersects(box_bounds)) {
+    std::ostringstream s;
+    s << "CropToBox: the region (bounds " << box_bounds.min().transpose() << " .. "
+      << box_bounds.max().transpose() << ") lies outside the cloud's bounds ("
+      << cloud_bounds.min().transpose() << " .. " << cloud_bounds.max().transpose()
+      << "); check the bin/tote pose and that the scan covers it";
+    throw std::invalid_argument(s.str());
+  }
+  const Eigen::Isometry3f X_BoxBase = box.X_BaseBox.inverse().cast<float>();
+  const Eigen::Vector3f half = (0.5 * box.size_m).cast<float>();
+  std::vector<bool> keep(cloud.size(), false);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!Finite(cloud.points[i])) continue;
+    keep[i] = ((X_BoxBase * cloud.points[i]).cwiseAbs() - half).maxCoeff() <= 0.0f;
+  }
+  return Filter(cloud, keep, options.keep_organized);
+}
+
+PointCloud RemoveBoxWalls(const PointCloud& cloud, const OrientedBox& box,
+                          const WallRemovalOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  box.Validate();
+  if (!(options.margin_m >= 0.0))
+    throw std::invalid_argument("RemoveBoxWalls: margin_m must be >= 0");
+  const Eigen::Isometry3f X_BoxBase = box.X_BaseBox.inverse().cast<float>();
+  const Eigen::Vector3f half = (0.5 * box.size_m).cast<float>();
+  const float margin = static_cast<float>(options.margin_m);
+  std::vector<bool> keep(cloud.size(), true);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!Finite(cloud.points[i])) {
+      keep[i] = false;
+      continue;
+    }
+    const Eigen::Vector3f p = X_BoxBase * cloud.points[i];
+    for (int axis = 0; axis < 3 && keep[i]; ++axis) {
+      // Distance to the face must be within margin, and the point must lie over the face
+      // (within its extent on the other two axes, plus margin).
+      const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+      const bool over_face =
+          std::abs(p[a1]) <= half[a1] + margin && std::abs(p[a2]) <= half[a2] + margin;
+      if (!over_face) continue;
+      if ((options.faces & (1u << (2 * axis))) && std::abs(p[axis] + half[axis]) <= margin)
+        keep[i] = false;
+      if ((options.faces & (1u << (2 * axis + 1))) && std::abs(p[axis] - half[axis]) <= margin)
+        keep[i] = false;
+    }
+  }
+  return Filter(cloud, keep, options.keep_organized);
+}
+
+PlaneRemovalResult RemoveDominantPlane(const PointCloud& cloud,
+                                       const PlaneRemovalOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  if (!(options.distance_threshold_m > 0.0))
+    throw std::invalid_argument("RemoveDominantPlane: distance_threshold_m must be > 0");
+  if (options.max_iterations < 1)
+    throw std::invalid_argument("RemoveDominantPlane: max_iterations must be >= 1");
+  const std::vector<int> finite = FiniteIndices(cloud);
+  PlaneRemovalResult result;
+  if (finite.size() < 3) {
+    result.cloud = cloud;
+    return result;
+  }
+  std::mt19937 rng(options.seed);
+  std::uniform_int_distribution<std::size_t> pick(0, finite.size() - 1);
+  const double threshold = options.distance_threshold_m;
+  // Score hypotheses on a bounded random subset so large clouds stay fast.
+  constexpr std::size_t kScoreSamples = 4000;
+  std::vector<int> subset;
+  if (finite.size() <= kScoreSamples) {
+    subset = finite;
+  } else {
+    subset.reserve(kScoreSamples);
+    for (std::size_t i = 0; i < kScoreSamples; ++i) subset.push_back(finite[pick(rng)]);
+  }
+  Eigen::Vector4d best_plane = Eigen::Vector4d::Zero();
+  std::size_t best_count = 0;
+  for (int it = 0; it < options.max_iterations; ++it) {
+    const Eigen::Vector3d a = cloud.points[finite[pick(rng)]].cast<double>();
+    const Eigen::Vector3d b = cloud.points[finite[pick(rng)]].cast<double>();
+    const Eigen::Vector3d c = cloud.points[finite[pick(rng)]].cast<double>();
+    Eigen::Vector3d n = (b - a).cross(c - a);
+    if (n.norm() < 1e-12) continue;
+    n.normalize();
+    const double d = -n.dot(a);
+    std::size_t count = 0;
+    for (int i : subset)
+      if (std::abs(n.dot(cloud.points[i].cast<double>()) + d) <= threshold) ++count;
+    if (count > best_count) {
+      best_count = count;
+      best_plane << n, d;
+    }
+  }
+  if (best_count == 0) {
+    result.cloud = cloud;
+    return result;
+  }
+  // Least-squares refit on all inliers, then the final inlier set.
+  const auto inliers_of = [&](const Eigen::Vector4d& plane) {
+    std::vector<int> in;
+    for (int i : finite)
+      if (std::abs(plane.head<3>().dot(cloud.points[i].cast<double>()) + plane[3]) <= threshold)
+        in.push_back(i);
+    return in;
+  };
+  std::vector<int> inliers = inliers_of(best_plane);
+  if (inliers.size() >= 3) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (int i : inliers) mean += cloud.points[i].cast<double>();
+    mean /= static_cast<double>(inliers.size());
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (int i : inliers) {
+      const Eigen::Vector3d q = cloud.points[i].cast<double>() - mean;
+      cov += q * q.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+    Eigen::Vector3d n = eig.eigenvectors().col(0);
+    if (n.dot(best_plane.head<3>()) < 0.0) n = -n;
+    Eigen::Vector4d refined;
+    refined << n, -n.dot(mean);
+    std::vector<int> refined_inliers = inliers_of(refined);
+    if (refined_inliers.size() >= inliers.size()) {
+      best_plane = refined;
+      inliers = std::move(refined_inliers);
+    }
+  }
+  if (static_cast<double>(inliers.size()) <
+      options.min_inlier_fraction * static_cast<double>(finite.size())) {
+    result.cloud = cloud;
+    return result;
+  }
+  std::vector<bool> keep(cloud.size(), true);
+  for (int i : inliers) keep[i] = false;
+  result.cloud = Filter(cloud, keep, options.keep_organized);
+  result.plane = best_plane;
+  result.num_inliers = inliers.size();
+  result.removed = true;
+  return result;
+}
+
+PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_size_m, const CloudLimits& limits) {
+  ValidateCloud(cloud, limits);
+  if (!(leaf_size_m > 0.0) || !std::isfinite(leaf_size_m))
+    throw std::invalid_argument("VoxelDownsample: leaf_size_m must be positive");
+  struct Accumulator {
+    Eigen::Vector3d p = Eigen::Vector3d::Zero();
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    double intensity = 0.0;
+    int count = 0;
+    int normal_count = 0;
+    std::size_t first = 0;
+  };
+  const auto key_of = [&](const Eigen::Vector3f& p) {
+    const Eigen::Vector3d q = (p.cast<double>() / leaf_size_m).array().floor();
+    // 21 bits per axis around the origin.
+    const auto part = [](double v) {
+      return static_cast<std::uint64_t>(static_cast<std::int64_t>(v) + (1 << 20)) & 0x1FFFFF;
+    };
+    return part(q.x()) | (part(q.y()) << 21) | (part(q.z()) << 42);
+  };
+  std::unordered_map<std::uint64_t, Accumulator> voxels;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const auto& p = cloud.points[i];
+    if (!Finite(p)) continue;
+    auto [it, inserted] = voxels.try_emplace(key_of(p));
+    Accumulator& a = it->second;
+    if (inserted) a.first = i;
+    a.p += p.cast<double>();
+    ++a.count;
+    if (cloud.has_normals() && cloud.normals[i].allFinite()) {
+      a.n += cloud.normals[i].cast<double>();
+      ++a.normal_count;
+    }
+    if (cloud.has_colors())
+      a.rgb += Eigen::Vector3d(cloud.colors[i][0], cloud.colors[i][1], cloud.colors[i][2]);
+    if (cloud.has_intensities()) a.intensity += cloud.intensities[i];
+  }
+  // Output in order of first occurrence so the result is deterministic.
+  std::vector<const Accumulator*> ordered;
+  ordered.reserve(voxels.size());
+  for (const auto& [key, a] : voxels) ordered.push_back(&a);
+  std::sort(ordered.begin(), ordered.end(),
+            [](const Accumulator* l, const Accumulator* r) { return l->first < r->first; });
+  PointCloud out;
+  out.frame_id = cloud.frame_id;
+  for (const Accumulator* a : ordered) {
+    out.points.push_back((a->p / a->count).cast<float>());
+    if (cloud.has_normals()) {
+      Eigen::Vector3f n = Eigen::Vector3f::Constant(kNaN);
+      if (a->normal_count > 0 && a->n.norm() > 1e-9) n = a->n.normalized().cast<float>();
+      out.normals.push_back(n);
+    }
+    if (cloud.has_colors()) {
+      const Eigen::Vector3d c = (a->rgb / a->count).array().round();
+      out.colors.push_back({static_cast<std::uint8_t>(c[0]), static_cast<std::uint8_t>(c[1]),
+                            static_cast<std::uint8_t>(c[2])});
+    }
+    if (cloud.has_intensities())
+      out.intensities.push_back(static_cast<float>(a->intensity / a->count));
+  }
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+PointCloud EstimateNormals(const PointCloud& cloud, const NormalOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  if (options.k_neighbors < 3)
+    throw std::invalid_argument("EstimateNormals: k_neighbors must be >= 3");
+  const std::vector<int> finite = FiniteIndices(cloud);
+  auto pcl_cloud = ToPcl(cloud);
+  auto indices = pcl::make_shared<std::vector<int>>(finite);
+  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> estimator(2);
+  estimator.setInputCloud(pcl_cloud);
+  estimator.setIndices(indices);
+  estimator.setSearchMethod(pcl::make_shared<pcl::search::KdTree<pcl::PointXYZ>>());
+  estimator.setKSearch(options.k_neighbors);
+  pcl::PointCloud<pcl::Normal> normals;
+  estimator.compute(normals);
+
+  PointCloud out = cloud;
+  out.normals.assign(cloud.size(), Eigen::Vector3f::Constant(kNaN));
+  Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
+  for (int i : finite) centroid += cloud.points[i];
+  centroid /= static_cast<float>(finite.size());
+  const Eigen::Vector3f viewpoint = options.p_BaseViewpoint.cast<float>();
+  for (std::size_t k = 0; k < finite.size(); ++k) {
+    const auto& n = normals.points[k];
+    Eigen::Vector3f normal(n.normal_x, n.normal_y, n.normal_z);
+    if (!normal.allFinite() || normal.norm() < 1e-6f) continue;
+    normal.normalize();
+    const Eigen::Vector3f& p = cloud.points[finite[k]];
+    const bool flip = options.orient_outward_from_centroid ? normal.dot(p - centroid) < 0.0f
+                                                           : normal.dot(viewpoint - p) < 0.0f;
+    out.normals[finite[k]] = flip ? -normal : normal;
+  }
+  return out;
+}
+
+std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
+                                                const ClusterOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  if (!(options.tolerance_m > 0.0))
+    throw std::invalid_argument("EuclideanClusters: tolerance_m must be > 0");
+  if (options.min_size > options.max_size)
+    throw std::invalid_argument("EuclideanClusters: min_size > max_size");
+  auto pcl_cloud = ToPcl(cloud);
+  auto indices = pcl::make_shared<std::vector<int>>(FiniteIndices(cloud));
+  auto tree = pcl::make_shared<pcl::search::KdTree<pcl::PointXYZ>>();
+  tree->setInputCloud(pcl_cloud, indices);
+  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
+  extraction.setClusterTolerance(options.tolerance_m);
+  extraction.setMinClusterSize(static_cast<int>(std::min<std::size_t>(
+      options.min_size, static_cast<std::size_t>(std::numeric_limits<int>::max()))));
+  extraction.setMaxClusterSize(static_cast<int>(std::min<std::size_t>(
+      options.max_size, static_cast<std::size_t>(std::numeric_limits<int>::max()))));
+  extraction.setSearchMethod(tree);
+  extraction.setInputCloud(pcl_cloud);
+  extraction.setIndices(indices);
+  std::vector<pcl::PointIndices> clusters;
+  extraction.extract(clusters);
+  std::vector<std::vector<int>> out;
+  out.reserve(clusters.size());
+  for (auto& c : clusters) {
+    std::vector<int> members(c.indices.begin(), c.indices.end());
+    std::sort(members.begin(), members.end());
+    out.push_back(std::move(members));
+  }
+  std::stable_sort(out.begin(), out.end(),
+                   [](const auto& a, const auto& b) { return a.size() > b.size(); });
+  return out;
+}
+
+PointCloud SelectPoints(const PointCloud& cloud, const std::vector<int>& indices) {
+  PointCloud out;
+  out.frame_id = cloud.frame_id;
+  for (int i : indices) {
+    if (i < 0 || static_cast<std::size_t>(i) >= cloud.size())
+      throw std::out_of_range("SelectPoints: index " + std::to_string(i) + " out of range");
+    out.points.push_back(cloud.points[i]);
+    if (cloud.has_normals()) out.normals.push_back(cloud.normals[i]);
+    if (cloud.has_colors()) out.colors.push_back(cloud.colors[i]);
+    if (cloud.has_intensities()) out.intensities.push_back(cloud.intensities[i]);
+  }
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+}  // namespace picking::detector

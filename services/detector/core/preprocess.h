@@ -1,0 +1,142 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+
+namespace picking::detector {
+
+/// An oriented box region, e.g. a shelf bin's or the tote's inner volume.
+///
+/// The Box frame has its origin at the box centre and its axes along the box edges; the box
+/// spans [-size/2, +size/2] along each axis. `X_BaseBox` is the pose of the Box frame in the
+/// cloud's frame (normally the robot base), `size_m` the full edge lengths in metres.
+struct OrientedBox {
+  Eigen::Isometry3d X_BaseBox = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d size_m = Eigen::Vector3d::Zero();
+
+  /// Throws std::invalid_argument when a size is not positive and finite.
+  void Validate() const;
+  bool Contains(const Eigen::Vector3d& p_BasePoint, double margin_m = 0.0) const;
+};
+
+/// Faces of an OrientedBox, as bit flags, named by the Box-frame axis they are normal to.
+enum BoxFace : std::uint32_t {
+  kFaceMinX = 1u << 0,
+  kFaceMaxX = 1u << 1,
+  kFaceMinY = 1u << 2,
+  kFaceMaxY = 1u << 3,
+  kFaceMinZ = 1u << 4,  ///< The floor when the Box z axis points up.
+  kFaceMaxZ = 1u << 5,
+  kAllFaces = 63u,
+};
+
+/// Checks common to every pre-processing step.
+struct CloudLimits {
+  /// Clouds with more points than this are refused (std::invalid_argument).
+  std::size_t max_points = 5'000'000;
+};
+
+/// Throws std::invalid_argument when the cloud is empty, larger than limits.max_points, has
+/// inconsistent channel sizes or organisation, or has no finite point.
+void ValidateCloud(const geometry::PointCloud& cloud, const CloudLimits& limits = {});
+
+struct CropOptions {
+  CloudLimits limits;
+  /// Keep an organised cloud organised: points outside the box become NaN (with NaN
+  /// normals) instead of being dropped. Unorganised clouds always drop them.
+  bool keep_organized = true;
+};
+
+/// Points of `cloud` inside `box` (frames: both in the cloud's frame).
+/// Throws std::invalid_argument on an invalid cloud (see ValidateCloud) or box, and when the
+/// box does not overlap the bounding box of the cloud's finite points at all (the region is
+/// outside what the sensor saw: wrong bin pose or wrong scan).
+geometry::PointCloud CropToBox(const geometry::PointCloud& cloud, const OrientedBox& box,
+                               const CropOptions& options = {});
+
+struct WallRemovalOptions {
+  /// Points within this distance of a selected inner face (inside or outside it) are removed,
+  /// metres.
+  double margin_m = 0.01;
+  /// Which faces are walls (a shelf bin: every face but the open front; the tote: every face
+  /// but the open top).
+  std::uint32_t faces = kAllFaces & ~kFaceMaxZ;
+  /// As in CropOptions.
+  bool keep_organized = true;
+  CloudLimits limits;
+};
+
+/// Removes the points of `cloud` that lie on the selected inner faces of `box`.
+/// Throws as CropToBox (except that no overlap check is done).
+geometry::PointCloud RemoveBoxWalls(const geometry::PointCloud& cloud, const OrientedBox& box,
+                                    const WallRemovalOptions& options = {});
+
+struct PlaneRemovalOptions {
+  double distance_threshold_m = 0.005;  ///< RANSAC inlier distance.
+  int max_iterations = 500;
+  /// The plane is removed only if it holds at least this fraction of the finite points.
+  double min_inlier_fraction = 0.1;
+  std::uint32_t seed = 42;
+  bool keep_organized = true;
+  CloudLimits limits;
+};
+
+struct PlaneRemovalResult {
+  geometry::PointCloud cloud;  ///< The input without the plane's inliers.
+  /// Plane n.p + d = 0 with |n| = 1, in the cloud's frame; zero when no plane was removed.
+  Eigen::Vector4d plane = Eigen::Vector4d::Zero();
+  std::size_t num_inliers = 0;
+  bool removed = false;
+};
+
+/// Finds the dominant plane with RANSAC (3-point hypotheses, least-squares refit on the
+/// inliers) and removes its inliers. Throws as ValidateCloud.
+PlaneRemovalResult RemoveDominantPlane(const geometry::PointCloud& cloud,
+                                       const PlaneRemovalOptions& options = {});
+
+/// Voxel-grid down-sampling: one point per occupied voxel at the mean of its points (normals
+/// averaged and re-normalised, intensities and colours averaged). The result is unorganised.
+/// Throws std::invalid_argument on leaf_size_m <= 0 or an invalid cloud.
+geometry::PointCloud VoxelDownsample(const geometry::PointCloud& cloud, double leaf_size_m,
+                                     const CloudLimits& limits = {});
+
+struct NormalOptions {
+  /// Neighbours used for each normal (PCA of the k nearest points).
+  int k_neighbors = 16;
+  /// Normals are flipped to face this viewpoint (cloud frame), e.g. the sensor position.
+  Eigen::Vector3d p_BaseViewpoint = Eigen::Vector3d::Zero();
+  /// When true, normals are instead flipped to point away from the centroid of the cloud
+  /// (for closed object models).
+  bool orient_outward_from_centroid = false;
+  CloudLimits limits;
+};
+
+/// Returns `cloud` with `normals` filled (PCL NormalEstimationOMP); non-finite points and
+/// points whose neighbourhood is degenerate get NaN normals. Organisation is kept.
+/// Throws as ValidateCloud and std::invalid_argument on k_neighbors < 3.
+geometry::PointCloud EstimateNormals(const geometry::PointCloud& cloud,
+                                     const NormalOptions& options = {});
+
+struct ClusterOptions {
+  double tolerance_m = 0.01;  ///< Max gap between neighbouring points of one cluster.
+  std::size_t min_size = 50;
+  std::size_t max_size = 1'000'000;
+  CloudLimits limits;
+};
+
+/// Euclidean clusters of the finite points (pcl::EuclideanClusterExtraction), each as indices
+/// into `cloud.points`, largest first. Throws as ValidateCloud and std::invalid_argument on
+/// tolerance_m <= 0 or min_size > max_size.
+std::vector<std::vector<int>> EuclideanClusters(const geometry::PointCloud& cloud,
+                                                const ClusterOptions& options = {});
+
+/// A copy of the listed points (unorganised) with their channels.
+geometry::PointCloud SelectPoints(const geometry::PointCloud& cloud,
+                                  const std::vector<int>& indices);
+
+}  // namespace picking::detector

@@ -1,0 +1,454 @@
+#include "services/detector/core/templates.h"
+
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/point_types.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <stdexcept>
+
+#include "services/detector/core/icp.h"
+#include "services/detector/core/kdtree.h"
+#include "services/detector/core/preprocess.h"
+#include "services/detector/core/verify.h"
+
+namespace picking::detector {
+namespace {
+
+using geometry::PointCloud;
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+// Splat z-buffer; `winner` (optional) receives the index of the point that owns each pixel.
+RangeImage Render(const PointCloud& model, const Eigen::Isometry3d& X_CameraItem,
+                  const PinholeCamera& camera, double spacing_m, std::vector<int>* winner) {
+  camera.Validate();
+  if (!(spacing_m > 0.0)) throw std::invalid_argument("RenderRangeImage: spacing must be > 0");
+  RangeImage image;
+  image.width = camera.width;
+  image.height = camera.height;
+  image.depth_m.assign(static_cast<std::size_t>(camera.width) * camera.height, kNaN);
+  if (winner) winner->assign(image.depth_m.size(), -1);
+  const Eigen::Isometry3f X = X_CameraItem.cast<float>();
+  const bool normals = model.normals.size() == model.size();
+  for (std::size_t i = 0; i < model.size(); ++i) {
+    if (!model.points[i].allFinite()) continue;
+    const Eigen::Vector3f p = X * model.points[i];
+    if (p.z() <= 1e-4f) continue;
+    if (normals) {
+      const Eigen::Vector3f n = X.linear() * model.normals[i];
+      if (n.allFinite() && n.dot(p) >= 0.0f) continue;  // facing away from the camera
+    }
+    const double u = camera.fx * p.x() / p.z() + camera.cx;
+    const double v = camera.fy * p.y() / p.z() + camera.cy;
+    const int r = static_cast<int>(std::floor(0.7 * camera.fx * spacing_m / p.z()));
+    const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
+    for (int dv = -r; dv <= r; ++dv) {
+      for (int du = -r; du <= r; ++du) {
+        const int uu = ui + du, vv = vi + dv;
+        if (uu < 0 || vv < 0 || uu >= camera.width || vv >= camera.height) continue;
+        const std::size_t k = static_cast<std::size_t>(vv) * camera.width + uu;
+        float& z = image.depth_m[k];
+        if (!(z <= p.z())) {
+          z = p.z();
+          if (winner) (*winner)[k] = static_cast<int>(i);
+        }
+      }
+    }
+  }
+  return image;
+}
+
+Eigen::Matrix3d RotationZTo(const Eigen::Vector3d& direction) {
+  const Eigen::Vector3d z = direction.normalized();
+  const Eigen::Vector3d helper =
+      std::abs(z.z()) < 0.9 ? Eigen::Vector3d::UnitZ() : Eigen::Vector3d::UnitX();
+  const Eigen::Vector3d x = helper.cross(z).normalized();
+  const Eigen::Vector3d y = z.cross(x);
+  Eigen::Matrix3d R;
+  R << x, y, z;
+  return R;
+}
+
+struct Hypothesis {
+  double cost;
+  int template_index;
+  Eigen::Isometry3d X_SensorCamera;  // template camera frame -> sensor frame
+};
+
+// Two-way truncated range residual of a template placed at X_SensorCamera.
+double Cost(const RangeTemplate& t, const PinholeCamera& template_camera,
+            const Eigen::Isometry3f& X_SensorCamera, const RangeImage& scene_depth,
+            const PinholeCamera& camera, const std::vector<Eigen::Vector3f>& cluster_samples,
+            float tau) {
+  double sum_a = 0.0;
+  for (const Eigen::Vector3f& p : t.p_CameraPoints) {
+    const Eigen::Vector3f q = X_SensorCamera * p;
+    float r = tau;
+    if (q.z() > 1e-3f) {
+      const int u = static_cast<int>(std::lround(camera.fx * q.x() / q.z() + camera.cx));
+      const int v = static_cast<int>(std::lround(camera.fy * q.y() / q.z() + camera.cy));
+      if (u >= 0 && v >= 0 && u < camera.width && v < camera.height) {
+        const float zs = scene_depth.at(u, v);
+        if (std::isfinite(zs)) r = std::min(std::abs(zs - q.z()), tau);
+      }
+    }
+    sum_a += r;
+  }
+  const Eigen::Isometry3f X_CameraSensor = X_SensorCamera.inverse();
+  double sum_b = 0.0;
+  for (const Eigen::Vector3f& s : cluster_samples) {
+    const Eigen::Vector3f p = X_CameraSensor * s;
+    float r = tau;
+    if (p.z() > 1e-3f) {
+      const int u =
+          static_cast<int>(std::lround(template_camera.fx * p.x() / p.z() + template_camera.cx)) -
+          t.u0;
+      const int v =
+          static_cast<int>(std::lround(template_camera.fy * p.y() / p.z() + template_camera.cy)) -
+          t.v0;
+      if (u >= 0 && v >= 0 && u < t.image.width && v < t.image.height) {
+        const float zt = t.image.at(u, v);
+        if (std::isfinite(zt)) r = std::min(std::abs(zt - p.z()), tau);
+      }
+    }
+    sum_b += r;
+  }
+  const double mean_a = t.p_CameraPoints.empty() ? tau : sum_a / t.p_CameraPoints.size();
+  const double mean_b = cluster_samples.empty() ? tau : sum_b / cluster_samples.size();
+  return 0.5 * (mean_a + mean_b);
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3d> FibonacciSphere(int n) {
+  if (n < 1) throw std::invalid_argument("FibonacciSphere: n must be >= 1");
+  std::vector<Eigen::Vector3d> directions;
+  directions.reserve(n);
+  const double golden_angle = M_PI * (3.0 - std::sqrt(5.0));
+  for (int i = 0; i < n; ++i) {
+    const double z = 1.0 - (2.0 * i + 1.0) / n;
+    const double radius = std::sqrt(std::max(0.0, 1.0 - z * z));
+    const double phi = golden_angle * i;
+    directions.emplace_back(radius * std::cos(phi), radius * std::sin(phi), z);
+  }
+  return directions;
+}
+
+PointCloud SampleMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
+                             std::uint32_t seed) {
+  if (mesh.empty()) throw std::invalid_argument("SampleMeshSurface: mesh has no triangles");
+  if (!(spacing_m > 0.0)) throw std::invalid_argument("SampleMeshSurface: spacing_m must be > 0");
+  std::vector<double> cumulative;
+  double total = 0.0;
+  for (std::size_t k = 0; k < mesh.triangles.size(); ++k) {
+    const auto& tri = mesh.triangles[k];
+    for (std::uint32_t idx : tri)
+      if (idx >= mesh.vertices.size())
+        throw std::invalid_argument("SampleMeshSurface: triangle " + std::to_string(k) +
+                                    " has vertex index " + std::to_string(idx) + " out of range");
+    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
+    total += 0.5 * (b - a).cross(c - a).norm();
+    cumulative.push_back(total);
+  }
+  if (!(total > 0.0)) throw std::invalid_argument("SampleMeshSurface: mesh has zero area");
+  const std::size_t count = static_cast<std::size_t>(std::ceil(total / (spacing_m * spacing_m)));
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  PointCloud out;
+  out.points.reserve(count);
+  out.normals.reserve(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const double pick = uniform(rng) * total;
+    const std::size_t k = std::min<std::size_t>(
+        std::lower_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
+        cumulative.size() - 1);
+    const auto& tri = mesh.triangles[k];
+    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
+    double s = uniform(rng), t = uniform(rng);
+    if (s + t > 1.0) {
+      s = 1.0 - s;
+      t = 1.0 - t;
+    }
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    if (n.norm() < 1e-15) continue;
+    out.points.push_back((a + s * (b - a) + t * (c - a)).cast<float>());
+    out.normals.push_back(n.normalized().cast<float>());
+  }
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+PointCloud LoadModelCloud(const std::string& path) {
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  const bool ply = path.size() >= 4 && path.compare(path.size() - 4, 4, ".ply") == 0;
+  const int status = ply ? pcl::io::loadPLYFile(path, cloud) : pcl::io::loadPCDFile(path, cloud);
+  if (status < 0) throw std::runtime_error(path + ": cannot read model point cloud");
+  PointCloud out;
+  for (const auto& p : cloud.points)
+    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
+      out.points.emplace_back(p.x, p.y, p.z);
+  if (out.points.empty()) throw std::runtime_error(path + ": model point cloud has no points");
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+RangeImage RenderRangeImage(const PointCloud& model, const Eigen::Isometry3d& X_CameraItem,
+                            const PinholeCamera& camera, double point_spacing_m) {
+  return Render(model, X_CameraItem, camera, point_spacing_m, nullptr);
+}
+
+PointCloud RangeImageToCloud(const RangeImage& image, const PinholeCamera& camera) {
+  PointCloud out;
+  out.width = static_cast<std::uint32_t>(image.width);
+  out.height = static_cast<std::uint32_t>(image.height);
+  out.points.resize(image.depth_m.size());
+  for (int v = 0; v < image.height; ++v) {
+    for (int u = 0; u < image.width; ++u) {
+      const float z = image.at(u, v);
+      out.points[static_cast<std::size_t>(v) * image.width + u] =
+          std::isfinite(z) ? Eigen::Vector3f(static_cast<float>((u - camera.cx) * z / camera.fx),
+                                             static_cast<float>((v - camera.cy) * z / camera.fy), z)
+                           : Eigen::Vector3f::Constant(kNaN);
+    }
+  }
+  return out;
+}
+
+RangeTemplateSet::RangeTemplateSet(const PointCloud& model, const TemplateOptions& options) {
+  if (model.empty()) throw std::invalid_argument("RangeTemplateSet: model has no points");
+  if (model.normals.size() != model.size())
+    throw std::invalid_argument("RangeTemplateSet: model needs one normal per point");
+  if (options.num_views < 1) throw std::invalid_argument("TemplateOptions.num_views must be >= 1");
+  if (!(options.distance_m > 0.0))
+    throw std::invalid_argument("TemplateOptions.distance_m must be > 0");
+  if (options.image_size_px < 8)
+    throw std::invalid_argument("TemplateOptions.image_size_px must be >= 8");
+  if (options.max_points_per_template < 10)
+    throw std::invalid_argument("TemplateOptions.max_points_per_template must be >= 10");
+  Eigen::AlignedBox3d bounds;
+  for (const auto& p : model.points)
+    if (p.allFinite()) bounds.extend(p.cast<double>());
+  if (bounds.isEmpty()) throw std::invalid_argument("RangeTemplateSet: model has no finite point");
+  diameter_m_ = bounds.diagonal().norm();
+  p_ItemCenter_ = bounds.center();
+  if (!(diameter_m_ > 0.0)) throw std::invalid_argument("RangeTemplateSet: model has no extent");
+  if (options.distance_m <= diameter_m_)
+    throw std::invalid_argument("TemplateOptions.distance_m must exceed the model diameter");
+
+  const double f = options.image_size_px * options.distance_m / diameter_m_;
+  const int size = static_cast<int>(std::ceil(options.image_size_px * options.distance_m /
+                                              (options.distance_m - 0.5 * diameter_m_))) +
+                   4;
+  camera_.width = camera_.height = size;
+  camera_.fx = camera_.fy = f;
+  camera_.cx = camera_.cy = 0.5 * (size - 1);
+  const double pixel_m = options.distance_m / f;
+  const double spacing = options.model_spacing_m > 0.0 ? options.model_spacing_m : 0.5 * pixel_m;
+  model_ = VoxelDownsample(model, spacing);
+
+  for (const Eigen::Vector3d& d : FibonacciSphere(options.num_views)) {
+    // Camera on the sphere looking at the centre: its z axis is -d.
+    Eigen::Isometry3d X_ItemCamera = Eigen::Isometry3d::Identity();
+    X_ItemCamera.linear() = RotationZTo(-d);
+    X_ItemCamera.translation() = p_ItemCenter_ + options.distance_m * d;
+    RangeTemplate t;
+    t.X_CameraItem = X_ItemCamera.inverse();
+    std::vector<int> winner;
+    const RangeImage full = Render(model_, t.X_CameraItem, camera_, spacing, &winner);
+    int u_min = size, v_min = size, u_max = -1, v_max = -1;
+    for (int v = 0; v < size; ++v)
+      for (int u = 0; u < size; ++u)
+        if (std::isfinite(full.at(u, v))) {
+          u_min = std::min(u_min, u);
+          u_max = std::max(u_max, u);
+          v_min = std::min(v_min, v);
+          v_max = std::max(v_max, v);
+        }
+    if (u_max < 0) continue;  // nothing visible (cannot happen for a real model)
+    t.u0 = u_min;
+    t.v0 = v_min;
+    t.image.width = u_max - u_min + 1;
+    t.image.height = v_max - v_min + 1;
+    t.image.depth_m.resize(static_cast<std::size_t>(t.image.width) * t.image.height);
+    std::vector<Eigen::Vector3f> points, normals;
+    float closest = std::numeric_limits<float>::infinity();
+    const Eigen::Matrix3f R = t.X_CameraItem.linear().cast<float>();
+    for (int v = v_min; v <= v_max; ++v) {
+      for (int u = u_min; u <= u_max; ++u) {
+        const float z = full.at(u, v);
+        t.image.depth_m[static_cast<std::size_t>(v - v_min) * t.image.width + (u - u_min)] = z;
+        if (!std::isfinite(z)) continue;
+        const Eigen::Vector3f p(static_cast<float>((u - camera_.cx) * z / f),
+                                static_cast<float>((v - camera_.cy) * z / f), z);
+        points.push_back(p);
+        normals.push_back(R * model_.normals[winner[static_cast<std::size_t>(v) * size + u]]);
+        if (p.norm() < closest) {
+          closest = p.norm();
+          t.p_CameraClosest = p;
+        }
+      }
+    }
+    const std::size_t stride =
+        (points.size() + options.max_points_per_template - 1) / options.max_points_per_template;
+    for (std::size_t i = 0; i < points.size(); i += stride) {
+      t.p_CameraPoints.push_back(points[i]);
+      t.n_CameraPoints.push_back(normals[i]);
+    }
+    templates_.push_back(std::move(t));
+  }
+}
+
+std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
+                                          const PointCloud& scene,
+                                          const std::vector<std::vector<int>>& clusters,
+                                          const Eigen::Isometry3d& X_BaseSensor,
+                                          const PinholeCamera& camera,
+                                          const TemplateMatchOptions& options) {
+  camera.Validate();
+  if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
+      !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
+      options.max_cluster_points < 10)
+    throw std::invalid_argument("TemplateMatchOptions: a count or threshold is out of range");
+  const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
+  const Eigen::Isometry3f X_SensorBase_f = X_SensorBase.cast<float>();
+  // The scene's range image seen from the sensor.
+  RangeImage scene_depth;
+  scene_depth.width = camera.width;
+  scene_depth.height = camera.height;
+  scene_depth.depth_m.assign(static_cast<std::size_t>(camera.width) * camera.height, kNaN);
+  for (const auto& p_Base : scene.points) {
+    if (!p_Base.allFinite()) continue;
+    const Eigen::Vector3f p = X_SensorBase_f * p_Base;
+    if (p.z() <= 0.0f) continue;
+    const int u = static_cast<int>(std::lround(camera.fx * p.x() / p.z() + camera.cx));
+    const int v = static_cast<int>(std::lround(camera.fy * p.y() / p.z() + camera.cy));
+    if (u < 0 || v < 0 || u >= camera.width || v >= camera.height) continue;
+    float& z = scene_depth.depth_m[static_cast<std::size_t>(v) * camera.width + u];
+    if (!(z <= p.z())) z = p.z();
+  }
+  const float tau = static_cast<float>(options.truncation_m);
+  const auto& all = templates.templates();
+
+  std::vector<TemplateMatch> matches;
+  for (std::size_t c = 0; c < clusters.size(); ++c) {
+    PointCloud cluster;
+    for (int i : clusters[c]) {
+      if (i < 0 || static_cast<std::size_t>(i) >= scene.size())
+        throw std::invalid_argument("MatchTemplates: cluster " + std::to_string(c) + " has index " +
+                                    std::to_string(i) + " out of range");
+      if (scene.points[i].allFinite()) cluster.points.push_back(X_SensorBase_f * scene.points[i]);
+    }
+    if (cluster.points.size() < 10) continue;
+    cluster.width = static_cast<std::uint32_t>(cluster.points.size());
+    NormalOptions normal_options;  // viewpoint: the sensor origin
+    cluster = EstimateNormals(cluster, normal_options);
+    PointCloud target;  // points with valid normals, for ICP
+    for (std::size_t i = 0; i < cluster.size(); ++i) {
+      if (!cluster.normals[i].allFinite()) continue;
+      target.points.push_back(cluster.points[i]);
+      target.normals.push_back(cluster.normals[i]);
+    }
+    target.width = static_cast<std::uint32_t>(target.points.size());
+    if (target.size() < 10) continue;
+    const KdTree tree(target.points);
+
+    Eigen::Vector3f closest = cluster.points.front();
+    for (const auto& p : cluster.points)
+      if (p.norm() < closest.norm()) closest = p;
+    std::vector<Eigen::Vector3f> samples;
+    const std::size_t stride =
+        (cluster.size() + options.max_cluster_points - 1) / options.max_cluster_points;
+    for (std::size_t i = 0; i < cluster.size(); i += stride) samples.push_back(cluster.points[i]);
+
+    // Coarse stage: every template at every in-plane angle, closest points aligned.
+    const Eigen::Matrix3d R_align = RotationZTo(closest.cast<double>());
+    std::vector<Hypothesis> hypotheses;
+    hypotheses.reserve(all.size() * options.in_plane_steps);
+    for (int k = 0; k < options.in_plane_steps; ++k) {
+      const Eigen::Matrix3d R = R_align * Eigen::AngleAxisd(2.0 * M_PI * k / options.in_plane_steps,
+                                                            Eigen::Vector3d::UnitZ())
+                                              .toRotationMatrix();
+      for (std::size_t t = 0; t < all.size(); ++t) {
+        Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+        X.linear() = R;
+        X.translation() = closest.cast<double>() - R * all[t].p_CameraClosest.cast<double>();
+        const double cost =
+            Cost(all[t], templates.camera(), X.cast<float>(), scene_depth, camera, samples, tau);
+        hypotheses.push_back({cost, static_cast<int>(t), X});
+      }
+    }
+    const std::size_t keep = std::min<std::size_t>(options.num_refine, hypotheses.size());
+    std::partial_sort(hypotheses.begin(), hypotheses.begin() + keep, hypotheses.end(),
+                      [](const Hypothesis& a, const Hypothesis& b) { return a.cost < b.cost; });
+
+    // Fine stage: ICP of the template points on the cluster, then rescoring.
+    TemplateMatch best;
+    best.cost_m = std::numeric_limits<double>::infinity();
+    for (std::size_t h = 0; h < keep; ++h) {
+      const RangeTemplate& t = all[hypotheses[h].template_index];
+      PointCloud source;
+      source.points = t.p_CameraPoints;
+      source.normals = t.n_CameraPoints;
+      source.width = static_cast<std::uint32_t>(source.points.size());
+      IcpOptions icp;
+      icp.max_iterations = options.refine_iterations;
+      icp.max_correspondence_distance_m = static_cast<float>(2.0 * options.truncation_m);
+      icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
+      IcpResult coarse = RunIcp(source, target, tree, hypotheses[h].X_SensorCamera, icp);
+      icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
+      IcpResult fine = RunIcp(source, target, tree, coarse.X_TargetSource, icp);
+      const double cost = Cost(t, templates.camera(), fine.X_TargetSource.cast<float>(),
+                               scene_depth, camera, samples, tau);
+      if (cost < best.cost_m) {
+        best.cost_m = cost;
+        best.template_index = hypotheses[h].template_index;
+        best.cluster_index = static_cast<int>(c);
+        best.X_BaseItem = X_BaseSensor * fine.X_TargetSource * t.X_CameraItem;
+        best.fitness = fine.fitness;
+        best.inlier_rmse_m = fine.inlier_rmse_m;
+      }
+    }
+    if (!(best.cost_m < options.max_cost_m)) continue;
+
+    // Final ICP of the model's surface facing the sensor.
+    const Eigen::Isometry3d X_SensorItem = X_SensorBase * best.X_BaseItem;
+    const PointCloud& model = templates.model();
+    PointCloud facing;
+    for (std::size_t i = 0; i < model.size(); ++i) {
+      const Eigen::Vector3d p = X_SensorItem * model.points[i].cast<double>();
+      const Eigen::Vector3d n = X_SensorItem.linear() * model.normals[i].cast<double>();
+      if (n.dot(p) < 0.0) {
+        facing.points.push_back(model.points[i]);
+        facing.normals.push_back(model.normals[i]);
+      }
+    }
+    facing.width = static_cast<std::uint32_t>(facing.points.size());
+    if (facing.size() >= 10) {
+      IcpOptions icp;
+      icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
+      icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
+      const IcpResult final_icp = RunIcp(facing, target, tree, X_SensorItem, icp);
+      if (final_icp.fitness >= 0.5 * best.fitness) {
+        best.X_BaseItem = X_BaseSensor * final_icp.X_TargetSource;
+        best.fitness = final_icp.fitness;
+        best.inlier_rmse_m = final_icp.inlier_rmse_m;
+      }
+    }
+    matches.push_back(best);
+  }
+  std::sort(matches.begin(), matches.end(),
+            [](const TemplateMatch& a, const TemplateMatch& b) { return a.cost_m < b.cost_m; });
+  return matches;
+}
+
+}  // namespace picking::detector

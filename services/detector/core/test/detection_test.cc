@@ -1,0 +1,188 @@
+#include "services/detector/core/detection.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+namespace picking::detector {
+namespace {
+
+// Returns fixed candidates (or throws) and counts its calls.
+class FakeEstimator final : public Estimator {
+ public:
+  FakeEstimator(Method method, std::vector<Detection> candidates, bool throws = false)
+      : method_(method), candidates_(std::move(candidates)), throws_(throws) {}
+  Method method() const override { return method_; }
+  std::vector<Detection> Estimate(const EstimatorInput& input) override {
+    ++calls;
+    last_item = input.item;
+    if (throws_) throw std::runtime_error("fake failure");
+    return candidates_;
+  }
+  int calls = 0;
+  std::string last_item;
+
+ private:
+  Method method_;
+  std::vector<Detection> candidates_;
+  bool throws_;
+};
+
+Detection MakeDetection(double score, double x, double rmse = 0.001) {
+  Detection d;
+  d.score = score;
+  d.fitness = score;
+  d.inlier_rmse_m = rmse;
+  d.X_BaseItem.translation() = Eigen::Vector3d(x, 0, 0);
+  return d;
+}
+
+ObjectConfig Config(Method preferred, std::vector<Method> fallbacks, double min_score) {
+  ObjectConfig c;
+  c.preferred = preferred;
+  c.fallbacks = std::move(fallbacks);
+  c.thresholds.min_score = min_score;
+  return c;
+}
+
+TEST(MethodTest, StringRoundTrip) {
+  for (Method m : {Method::kPpf, Method::kSift, Method::kRangeTemplates})
+    EXPECT_EQ(MethodFromString(ToString(m)), m);
+  EXPECT_THROW(MethodFromString("linemod"), std::invalid_argument);
+}
+
+TEST(DetectionChainTest, PreferredMethodAcceptedStopsTheChain) {
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf,
+                                             std::vector<Detection>{MakeDetection(0.9, 1.0)});
+  auto sift = std::make_shared<FakeEstimator>(Method::kSift,
+                                              std::vector<Detection>{MakeDetection(0.95, 2.0)});
+  DetectionChain chain(DetectorConfig(Config(Method::kPpf, {Method::kSift}, 0.5)), {ppf, sift});
+  geometry::PointCloud scene;
+  EstimatorInput input{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
+  const ChainResult r = chain.Run(input);
+  ASSERT_TRUE(r.detection.has_value());
+  EXPECT_DOUBLE_EQ(r.detection->X_BaseItem.translation().x(), 1.0);
+  EXPECT_EQ(r.detection->method, "ppf");
+  EXPECT_EQ(r.detection->item, "duck");
+  EXPECT_EQ(ppf->calls, 1);
+  EXPECT_EQ(sift->calls, 0);
+  ASSERT_EQ(r.attempts.size(), 1u);
+  EXPECT_TRUE(r.attempts[0].accepted);
+}
+
+TEST(DetectionChainTest, FallsBackWhenBelowThresholdThrowingOrMissing) {
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf,
+                                             std::vector<Detection>{MakeDetection(0.3, 1.0)});
+  auto sift = std::make_shared<FakeEstimator>(Method::kSift, std::vector<Detection>{}, true);
+  auto templates = std::make_shared<FakeEstimator>(
+      Method::kRangeTemplates,
+      std::vector<Detection>{MakeDetection(0.55, 3.0), MakeDetection(0.8, 4.0),
+                             MakeDetection(0.9, 5.0, /*rmse=*/0.5)});
+  ObjectConfig c = Config(Method::kPpf, {Method::kSift, Method::kRangeTemplates}, 0.5);
+  DetectionChain chain(DetectorConfig(c), {ppf, sift, templates});
+  geometry::PointCloud scene;
+  const ChainResult r = chain.Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  ASSERT_TRUE(r.detection.has_value());
+  // The 0.9 candidate fails max_inlier_rmse_m; the best accepted one is 0.8.
+  EXPECT_DOUBLE_EQ(r.detection->X_BaseItem.translation().x(), 4.0);
+  EXPECT_EQ(r.detection->method, "range_templates");
+  ASSERT_EQ(r.attempts.size(), 3u);
+  EXPECT_FALSE(r.attempts[0].accepted);
+  ASSERT_TRUE(r.attempts[0].best.has_value());
+  EXPECT_DOUBLE_EQ(r.attempts[0].best->score, 0.3);
+  EXPECT_EQ(r.attempts[1].error, "fake failure");
+  EXPECT_TRUE(r.attempts[2].accepted);
+}
+
+TEST(DetectionChainTest, NothingAcceptedAndUnavailableMethodRecorded) {
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf,
+                                             std::vector<Detection>{MakeDetection(0.3, 1.0)});
+  DetectionChain chain(DetectorConfig(Config(Method::kPpf, {Method::kSift}, 0.5)), {ppf});
+  geometry::PointCloud scene;
+  const ChainResult r = chain.Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  EXPECT_FALSE(r.detection.has_value());
+  ASSERT_EQ(r.attempts.size(), 2u);
+  EXPECT_FALSE(r.attempts[1].available);
+}
+
+TEST(DetectionChainTest, PerMethodThresholdOverride) {
+  auto sift = std::make_shared<FakeEstimator>(Method::kSift,
+                                              std::vector<Detection>{MakeDetection(0.4, 1.0)});
+  ObjectConfig c = Config(Method::kSift, {}, 0.5);
+  c.method_thresholds[Method::kSift].min_score = 0.35;
+  DetectionChain chain(DetectorConfig(c), {sift});
+  geometry::PointCloud scene;
+  EXPECT_TRUE(chain.Run({"duck", &scene, {}, std::nullopt}).detection.has_value());
+}
+
+TEST(DetectionChainTest, RejectsBadConstruction) {
+  auto a = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
+  auto b = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
+  EXPECT_THROW(DetectionChain(DetectorConfig(), {a, b}), std::invalid_argument);
+  EXPECT_THROW(DetectionChain(DetectorConfig(), {nullptr}), std::invalid_argument);
+  DetectionChain chain(DetectorConfig(), {a});
+  EXPECT_THROW(chain.Run({"duck", nullptr, {}, std::nullopt}), std::invalid_argument);
+}
+
+TEST(DetectorConfigTest, ParsesDefaultsObjectsAndOverrides) {
+  const std::string text = R"({
+    "default": {"preferred": "ppf", "fallbacks": ["range_templates"],
+                "thresholds": {"min_score": 0.6, "max_inlier_rmse_m": 0.004}},
+    "objects": {
+      "expo_dry_erase_board_eraser": {"preferred": "sift", "fallbacks": ["ppf"],
+                                      "method_thresholds": {"sift": {"min_score": 0.3}}},
+      "dove_beauty_bar": {"thresholds": {"min_fitness": 0.2}}
+    }})";
+  const DetectorConfig config = DetectorConfig::Parse(text);
+  const ObjectConfig eraser = config.ForItem("expo_dry_erase_board_eraser");
+  EXPECT_EQ(eraser.Order(), (std::vector<Method>{Method::kSift, Method::kPpf}));
+  EXPECT_DOUBLE_EQ(eraser.thresholds.min_score, 0.6);  // inherited
+  EXPECT_DOUBLE_EQ(eraser.ThresholdsFor(Method::kSift).min_score, 0.3);
+  EXPECT_DOUBLE_EQ(eraser.ThresholdsFor(Method::kSift).max_inlier_rmse_m, 0.004);
+  EXPECT_DOUBLE_EQ(eraser.ThresholdsFor(Method::kPpf).min_score, 0.6);
+  const ObjectConfig dove = config.ForItem("dove_beauty_bar");
+  EXPECT_EQ(dove.Order(), (std::vector<Method>{Method::kPpf, Method::kRangeTemplates}));
+  EXPECT_DOUBLE_EQ(dove.thresholds.min_fitness, 0.2);
+  EXPECT_DOUBLE_EQ(dove.thresholds.min_score, 0.6);
+  const ObjectConfig other = config.ForItem("unknown_item");
+  EXPECT_EQ(other.item, "unknown_item");
+  EXPECT_EQ(other.preferred, Method::kPpf);
+}
+
+void ExpectParseError(const std::string& text, const std::string& fragment) {
+  try {
+    DetectorConfig::Parse(text, "detector.json");
+    FAIL() << "no error for " << text;
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("detector.json"), std::string::npos) << e.what();
+  }
+}
+
+TEST(DetectorConfigTest, ValidationErrorsNameTheField) {
+  ExpectParseError(R"({"objects": {"a": {"preferred": "linemod"}}})", "objects.a.preferred");
+  ExpectParseError(R"({"objects": {"a": {"colour": "red"}}})", "objects.a.colour");
+  ExpectParseError(R"({"default": {"thresholds": {"min_score": 1.5}}})", "default.thresholds");
+  ExpectParseError(R"({"objects": {"a": {"preferred": "sift", "fallbacks": ["sift"]}}})",
+                   "more than once");
+  ExpectParseError(R"({"objects": {"a": {"fallbacks": ["ppf", 3]}}})", "objects.a.fallbacks[1]");
+  ExpectParseError("{\n\"default\": {\n  \"preferred\": }\n}", "detector.json:3");
+}
+
+TEST(DetectorConfigTest, LoadsFileAndReportsMissingFile) {
+  const std::string path = ::testing::TempDir() + "/detector_config_test.json";
+  {
+    std::ofstream out(path);
+    out << R"({"default": {"preferred": "range_templates"}})";
+  }
+  EXPECT_EQ(DetectorConfig::LoadFile(path).ForItem("x").preferred, Method::kRangeTemplates);
+  std::remove(path.c_str());
+  EXPECT_THROW(DetectorConfig::LoadFile(path), std::runtime_error);
+}
+
+}  // namespace
+}  // namespace picking::detector

@@ -1,0 +1,84 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <memory>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+#include "services/detector/core/detection.h"
+
+namespace picking::detector {
+
+struct VerifyOptions;
+struct VerifyResult;
+
+/// A scene prepared for verifying many poses: its depth image seen from the sensor and a
+/// k-d tree of its points, both in the sensor frame.
+class VerificationScene final {
+ public:
+  /// `scene`: points in the base frame (NaN allowed); `X_BaseSensor`: pose of the camera that
+  /// saw it; `camera`: its intrinsics. Throws std::invalid_argument when the scene has no
+  /// finite point or the camera is invalid.
+  VerificationScene(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
+                    const PinholeCamera& camera);
+  ~VerificationScene();
+  VerificationScene(const VerificationScene&) = delete;
+  VerificationScene& operator=(const VerificationScene&) = delete;
+
+  const PinholeCamera& camera() const { return camera_; }
+  const Eigen::Isometry3d& X_BaseSensor() const { return X_BaseSensor_; }
+  /// Nearest measured depth (z in the sensor frame, metres) at pixel (u, v), NaN if none.
+  float DepthAt(int u, int v) const;
+
+ private:
+  friend VerifyResult Verify(const VerificationScene&, const geometry::PointCloud&,
+                             const Eigen::Isometry3d&, const VerifyOptions&);
+  struct Impl;
+  PinholeCamera camera_;
+  Eigen::Isometry3d X_BaseSensor_;
+  std::unique_ptr<Impl> impl_;
+};
+
+struct VerifyOptions {
+  /// A visible model point is supported by a scene point closer than this, metres.
+  double distance_tolerance_m = 0.005;
+  /// ... whose normal (when both have normals) is within this angle, radians.
+  double normal_tolerance_rad = 0.6;
+  /// A measured depth this much in front of a model point means the point is occluded by
+  /// something else (not counted), metres.
+  double occlusion_margin_m = 0.01;
+  /// A measured depth this much behind a model point means the model would float in space the
+  /// sensor saw as empty: a conflict, metres.
+  double conflict_margin_m = 0.01;
+  /// Model points are subsampled (deterministic stride) to at most this many.
+  int max_model_points = 4000;
+  /// Fewer unoccluded visible points than this gives score 0.
+  int min_visible_points = 20;
+};
+
+struct VerifyResult {
+  /// Fraction of the visible, unoccluded model points that are supported: [0, 1].
+  double score = 0.0;
+  std::size_t num_model_points = 0;  ///< After subsampling.
+  std::size_t num_visible = 0;       ///< Facing the sensor, in the image, not self-occluded.
+  std::size_t num_occluded = 0;      ///< Visible but behind measured scene surface.
+  std::size_t num_supported = 0;
+  std::size_t num_conflicts = 0;   ///< Visible points in measured free space.
+  double conflict_fraction = 0.0;  ///< num_conflicts / (num_visible - num_occluded).
+  double inlier_rmse_m = 0.0;      ///< RMS distance of the supported points to the scene.
+};
+
+/// Scores a pose hypothesis X_BaseItem of `model` (points with normals, item frame) against
+/// the scene: back-face culling and a point-splat z-buffer give the model points the sensor
+/// would see; each is then supported (scene point within tolerance), occluded, in conflict
+/// (free-space violation) or unsupported. Throws std::invalid_argument when the model has no
+/// normals or is empty.
+VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& model,
+                    const Eigen::Isometry3d& X_BaseItem, const VerifyOptions& options = {});
+
+/// Mean distance to the nearest neighbour over (a subsample of) the cloud's finite points,
+/// metres; 0 for fewer than two points.
+double MeanPointSpacing(const geometry::PointCloud& cloud);
+
+}  // namespace picking::detector
