@@ -1,0 +1,140 @@
+#include "services/detector/core/icp.h"
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "services/detector/core/ppf_cloud.h"
+
+namespace picking::detector {
+namespace {
+
+struct Pair {
+  std::int32_t source = 0;
+  std::int32_t target = 0;
+  float residual = 0.0f;  // signed point-to-plane
+  float distance_sq = 0.0f;
+};
+
+void Validate(const geometry::PointCloud& source, const geometry::PointCloud& target,
+              const KdTree& tree, const IcpOptions& o) {
+  CheckCloudChannels(source, "RunIcp source");
+  CheckCloudChannels(target, "RunIcp target");
+  if (source.empty()) throw std::invalid_argument("RunIcp: the source cloud is empty");
+  if (target.empty()) throw std::invalid_argument("RunIcp: the target cloud is empty");
+  if (!target.has_normals()) throw std::invalid_argument("RunIcp: the target has no normals");
+  if (tree.size() != target.size()) {
+    throw std::invalid_argument("RunIcp: the target tree indexes " + std::to_string(tree.size()) +
+                                " points, the target has " + std::to_string(target.size()));
+  }
+  auto fail = [](const std::string& what) { throw std::invalid_argument("IcpOptions: " + what); };
+  if (o.max_iterations < 1) fail("max_iterations must be >= 1");
+  if (!(o.max_correspondence_distance_m > 0.0f)) fail("max_correspondence_distance_m <= 0");
+  if (!(o.max_normal_angle_rad > 0.0f && o.max_normal_angle_rad <= M_PI)) {
+    fail("max_normal_angle_rad must be in (0, pi]");
+  }
+  if (!(o.trim_fraction > 0.0f && o.trim_fraction <= 1.0f)) fail("trim_fraction not in (0, 1]");
+  if (!(o.loss_scale_m > 0.0f)) fail("loss_scale_m must be positive");
+  if (o.min_correspondences < 6) fail("min_correspondences must be >= 6");
+}
+
+}  // namespace
+
+IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud& target,
+                 const KdTree& target_tree, const Eigen::Isometry3d& X_TargetSource_init,
+                 const IcpOptions& options) {
+  Validate(source, target, target_tree, options);
+  const bool use_normals = source.has_normals();
+  const float max_d2 =
+      options.max_correspondence_distance_m * options.max_correspondence_distance_m;
+  const float min_cos = std::cos(options.max_normal_angle_rad);
+
+  IcpResult result;
+  Eigen::Isometry3d X = X_TargetSource_init;
+  std::vector<Pair> pairs;
+  pairs.reserve(source.size());
+
+  auto correspond = [&](const Eigen::Isometry3d& X_ts) {
+    pairs.clear();
+    const Eigen::Isometry3f Xf = X_ts.cast<float>();
+    for (std::size_t i = 0; i < source.size(); ++i) {
+      const Eigen::Vector3f p = Xf * source.points[i];
+      float d2 = 0.0f;
+      const std::int32_t j = target_tree.Nearest(p, &d2, max_d2);
+      if (j == KdTree::kNone) continue;
+      const Eigen::Vector3f& n = target.normals[j];
+      if (use_normals && (Xf.linear() * source.normals[i]).dot(n) < min_cos) continue;
+      pairs.push_back({static_cast<std::int32_t>(i), j, n.dot(p - target.points[j]), d2});
+    }
+  };
+
+  for (int it = 0; it < options.max_iterations; ++it) {
+    correspond(X);
+    if (static_cast<int>(pairs.size()) < options.min_correspondences) break;
+    if (options.trim_fraction < 1.0f) {
+      const std::size_t keep = std::max<std::size_t>(
+          options.min_correspondences,
+          static_cast<std::size_t>(std::ceil(options.trim_fraction * pairs.size())));
+      if (keep < pairs.size()) {
+        std::nth_element(pairs.begin(), pairs.begin() + keep, pairs.end(),
+                         [](const Pair& a, const Pair& b) {
+                           return std::abs(a.residual) < std::abs(b.residual);
+                         });
+        pairs.resize(keep);
+      }
+    }
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    for (const Pair& pr : pairs) {
+      const Eigen::Vector3d p = X * source.points[pr.source].cast<double>();
+      const Eigen::Vector3d n = target.normals[pr.target].cast<double>();
+      const double r = pr.residual;
+      double w = 1.0;
+      const double ar = std::abs(r);
+      const double k = options.loss_scale_m;
+      if (options.loss == IcpLoss::kHuber) {
+        w = ar <= k ? 1.0 : k / ar;
+      } else if (options.loss == IcpLoss::kTukey) {
+        const double u = r / k;
+        w = ar < k ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
+      }
+      Eigen::Matrix<double, 6, 1> J;
+      J.head<3>() = p.cross(n);
+      J.tail<3>() = n;
+      A.noalias() += w * J * J.transpose();
+      b.noalias() -= w * r * J;
+    }
+    // A little damping keeps degenerate directions (a plane slides freely) at rest.
+    A.diagonal().array() += 1e-9 * std::max(1.0, A.trace());
+    const Eigen::Matrix<double, 6, 1> x = A.ldlt().solve(b);
+    if (!x.allFinite()) break;
+    const Eigen::Vector3d omega = x.head<3>();
+    const double angle = omega.norm();
+    Eigen::Isometry3d dX = Eigen::Isometry3d::Identity();
+    if (angle > 0.0) dX.linear() = Eigen::AngleAxisd(angle, omega / angle).toRotationMatrix();
+    dX.translation() = x.tail<3>();
+    X = dX * X;
+    X.linear() = Eigen::Quaterniond(X.linear()).normalized().toRotationMatrix();
+    result.iterations = it + 1;
+    if (angle < options.convergence_rotation_rad &&
+        x.tail<3>().norm() < options.convergence_translation_m) {
+      result.converged = true;
+      break;
+    }
+  }
+
+  correspond(X);
+  result.X_TargetSource = X;
+  result.correspondences = static_cast<int>(pairs.size());
+  result.fitness = static_cast<double>(pairs.size()) / static_cast<double>(source.size());
+  double sum = 0.0;
+  for (const Pair& pr : pairs) sum += pr.distance_sq;
+  result.inlier_rmse_m = pairs.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(pairs.size()));
+  return result;
+}
+
+}  // namespace picking::detector

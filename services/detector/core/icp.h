@@ -1,0 +1,55 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include "libs/geometry/point_cloud.h"
+#include "services/detector/core/kdtree.h"
+
+namespace picking::detector {
+
+/// Robust weighting of the point-to-plane residuals.
+enum class IcpLoss {
+  kLeastSquares,  ///< All correspondences weigh 1.
+  kHuber,         ///< 1 within loss_scale_m, loss_scale_m / |r| beyond.
+  kTukey,         ///< (1 - (r / loss_scale_m)^2)^2 within loss_scale_m, 0 beyond.
+};
+
+/// Options of RunIcp; defaults suit a Kinect-class scene sampled at a few millimetres.
+struct IcpOptions {
+  int max_iterations = 30;                      ///< >= 1.
+  float max_correspondence_distance_m = 0.01f;  ///< Pairs further apart are rejected (> 0).
+  /// Pairs whose normals differ by more than this are rejected (radians, (0, pi]); only
+  /// applied when the source has normals.
+  float max_normal_angle_rad = 0.6f;
+  /// Fraction of the surviving pairs with the smallest residuals kept per iteration, (0, 1].
+  float trim_fraction = 0.9f;
+  IcpLoss loss = IcpLoss::kHuber;
+  float loss_scale_m = 0.002f;  ///< > 0.
+  /// Converged when an update moves less than both thresholds.
+  double convergence_translation_m = 1e-5;
+  double convergence_rotation_rad = 1e-5;
+  int min_correspondences = 6;  ///< Fewer surviving pairs stop the iteration.
+};
+
+/// Quality figures of a registration.
+struct IcpResult {
+  Eigen::Isometry3d X_TargetSource = Eigen::Isometry3d::Identity();  ///< Proper rotation.
+  double fitness = 0.0;        ///< Source points with an accepted pair / source points.
+  double inlier_rmse_m = 0.0;  ///< RMS point-to-point distance of the accepted pairs.
+  int iterations = 0;
+  int correspondences = 0;  ///< Accepted pairs at the final pose.
+  bool converged = false;
+};
+
+/// Point-to-plane ICP of `source` (points in its frame, optional normals) onto `target`
+/// (points and unit normals in the target frame), started at X_TargetSource_init.
+/// Correspondences are nearest neighbours from `target_tree` (which must index
+/// target.points), rejected by distance and normal angle, trimmed and robustly weighted.
+/// Each step solves the linearised 6x6 system and applies the update as an exact rotation.
+/// Throws std::invalid_argument for an empty source or target, a target without normals,
+/// a tree of another size, or invalid options.
+IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud& target,
+                 const KdTree& target_tree, const Eigen::Isometry3d& X_TargetSource_init,
+                 const IcpOptions& options = {});
+
+}  // namespace picking::detector

@@ -1,0 +1,95 @@
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+
+#include "libs/geometry/point_cloud.h"
+#include "services/detector/core/kdtree.h"
+#include "services/detector/core/ppf.h"
+#include "services/detector/core/ppf_cloud.h"
+
+namespace picking::detector {
+
+/// How an ObjectModel is derived from a model cloud. Lengths relative to the model diameter.
+struct ObjectModelOptions {
+  /// PPF sampling distance and distance step (Drost's tau_d), fraction of the diameter.
+  float sampling_distance_rel = 0.03f;
+  /// Voxel of the fine cloud used for normals, fraction of the diameter.
+  float fine_voxel_rel = 0.01f;
+  /// Voxel of the cloud used by ICP and verification, fraction of the diameter.
+  float icp_voxel_rel = 0.015f;
+  /// Radius of the normal plane fit, fraction of the diameter.
+  float normal_radius_rel = 0.035f;
+  /// Keep the input normals instead of estimating them (input must have unit normals).
+  bool use_input_normals = false;
+  /// Sign of estimated normals: outward from the centroid suits closed or convex models.
+  NormalOrientation orientation = NormalOrientation::kOutwardFromCentroid;
+  Eigen::Vector3f viewpoint = Eigen::Vector3f::Zero();  ///< For kTowardViewpoint, metres.
+  PpfTableOptions table;
+  /// Models larger than this are rejected (a cloud in millimetres, or a whole scene).
+  float max_diameter_m = 2.0f;
+};
+
+/// Thrown when a model cache file cannot be used: missing, truncated, another format
+/// version or corrupt. what() names the file and the field.
+class ModelCacheError final : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// A known object as the detector uses it: in the model frame M, metres. Holds the fine
+/// cloud with normals, a coarser cloud for ICP and verification, and the PPF table trained
+/// on the sampled cloud.
+class ObjectModel final {
+ public:
+  /// File format version of Save / Load; bumped whenever the layout or the meaning of a
+  /// stored field changes.
+  static constexpr std::uint32_t kCacheVersion = 1;
+
+  /// Builds from a model cloud (points in M, metres; normals used only with
+  /// use_input_normals). Throws std::invalid_argument for an empty cloud, a cloud with no
+  /// finite point, too few points for normals, a diameter above max_diameter_m, invalid
+  /// options or too many sampled points.
+  ObjectModel(const geometry::PointCloud& cloud_M, const ObjectModelOptions& options);
+
+  /// Writes a versioned binary cache. Throws ModelCacheError when the file cannot be written.
+  void Save(const std::string& path) const;
+
+  /// Reads a cache written by Save. Throws ModelCacheError (file, field) when the file is
+  /// missing, truncated, of another version or inconsistent.
+  static ObjectModel Load(const std::string& path);
+
+  /// Loads `path` when it holds a model of this version built from the same cloud with the
+  /// same options; otherwise builds the model and rewrites the cache. `rebuilt` (optional)
+  /// tells which happened.
+  static ObjectModel LoadOrBuild(const std::string& path, const geometry::PointCloud& cloud_M,
+                                 const ObjectModelOptions& options, bool* rebuilt = nullptr);
+
+  const ObjectModelOptions& options() const { return options_; }
+  float diameter_m() const { return diameter_m_; }
+  float sampling_distance_m() const { return sampling_distance_m_; }
+  float fine_voxel_m() const { return diameter_m_ * options_.fine_voxel_rel; }
+  float normal_radius_m() const { return diameter_m_ * options_.normal_radius_rel; }
+  /// Fingerprint (FNV-1a) of the input cloud the model was built from.
+  std::uint64_t source_hash() const { return source_hash_; }
+  const geometry::PointCloud& fine_cloud() const { return fine_; }
+  const geometry::PointCloud& icp_cloud() const { return icp_; }
+  const PpfTable& table() const { return table_; }
+
+ private:
+  ObjectModel() = default;
+
+  ObjectModelOptions options_;
+  float diameter_m_ = 0.0f;
+  float sampling_distance_m_ = 0.0f;
+  std::uint64_t source_hash_ = 0;
+  geometry::PointCloud fine_;
+  geometry::PointCloud icp_;
+  PpfTable table_;
+};
+
+/// FNV-1a over the point coordinates and normals of a cloud.
+std::uint64_t HashCloud(const geometry::PointCloud& cloud);
+
+}  // namespace picking::detector

@@ -1,0 +1,194 @@
+#include "services/detector/core/ppf_cloud.h"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+
+#include "services/detector/core/kdtree.h"
+
+namespace picking::detector {
+namespace {
+
+bool PointValid(const geometry::PointCloud& cloud, std::size_t i) {
+  if (!cloud.points[i].allFinite()) return false;
+  return !cloud.has_normals() || cloud.normals[i].allFinite();
+}
+
+void PushPoint(const geometry::PointCloud& in, std::size_t i, geometry::PointCloud* out) {
+  out->points.push_back(in.points[i]);
+  if (in.has_normals()) out->normals.push_back(in.normals[i]);
+  if (in.has_colors()) out->colors.push_back(in.colors[i]);
+  if (in.has_intensities()) out->intensities.push_back(in.intensities[i]);
+}
+
+void FinishUnorganized(geometry::PointCloud* cloud) {
+  cloud->width = static_cast<std::uint32_t>(cloud->points.size());
+  cloud->height = 1;
+}
+
+}  // namespace
+
+void CheckCloudChannels(const geometry::PointCloud& cloud, const char* what) {
+  const std::size_t n = cloud.points.size();
+  auto check = [&](std::size_t size, const char* channel) {
+    if (size != 0 && size != n) {
+      throw std::invalid_argument(std::string(what) + ": " + channel + " has " +
+                                  std::to_string(size) + " entries for " + std::to_string(n) +
+                                  " points");
+    }
+  };
+  check(cloud.normals.size(), "normals");
+  check(cloud.colors.size(), "colors");
+  check(cloud.intensities.size(), "intensities");
+}
+
+geometry::PointCloud RemoveInvalidPoints(const geometry::PointCloud& cloud) {
+  CheckCloudChannels(cloud, "RemoveInvalidPoints");
+  geometry::PointCloud out;
+  out.frame_id = cloud.frame_id;
+  out.points.reserve(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (PointValid(cloud, i)) PushPoint(cloud, i, &out);
+  }
+  FinishUnorganized(&out);
+  return out;
+}
+
+geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel_m) {
+  CheckCloudChannels(cloud, "VoxelAverage");
+  if (!(voxel_m > 0.0f) || !std::isfinite(voxel_m)) {
+    throw std::invalid_argument("VoxelAverage: voxel_m must be positive, got " +
+                                std::to_string(voxel_m));
+  }
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  Eigen::Vector3f hi = -lo;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!PointValid(cloud, i)) continue;
+    lo = lo.cwiseMin(cloud.points[i]);
+    hi = hi.cwiseMax(cloud.points[i]);
+  }
+  geometry::PointCloud out;
+  out.frame_id = cloud.frame_id;
+  if (lo.x() > hi.x()) {
+    FinishUnorganized(&out);
+    return out;
+  }
+  const Eigen::Vector3f extent = (hi - lo) / voxel_m;
+  constexpr float kMaxCells = static_cast<float>(1 << 20);
+  if (extent.maxCoeff() >= kMaxCells) {
+    throw std::invalid_argument("VoxelAverage: cloud extent " +
+                                std::to_string((hi - lo).maxCoeff()) + " m spans too many " +
+                                std::to_string(voxel_m) + " m voxels");
+  }
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
+  keyed.reserve(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!PointValid(cloud, i)) continue;
+    const Eigen::Vector3f c = (cloud.points[i] - lo) / voxel_m;
+    const auto ix = static_cast<std::uint64_t>(c.x());
+    const auto iy = static_cast<std::uint64_t>(c.y());
+    const auto iz = static_cast<std::uint64_t>(c.z());
+    keyed.emplace_back((ix << 42) | (iy << 21) | iz, static_cast<std::uint32_t>(i));
+  }
+  std::sort(keyed.begin(), keyed.end());
+  for (std::size_t b = 0; b < keyed.size();) {
+    std::size_t e = b;
+    Eigen::Vector3d p_sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d n_sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d c_sum = Eigen::Vector3d::Zero();
+    double i_sum = 0.0;
+    while (e < keyed.size() && keyed[e].first == keyed[b].first) {
+      const std::uint32_t i = keyed[e].second;
+      p_sum += cloud.points[i].cast<double>();
+      if (cloud.has_normals()) n_sum += cloud.normals[i].cast<double>();
+      if (cloud.has_colors()) {
+        c_sum += Eigen::Vector3d(cloud.colors[i][0], cloud.colors[i][1], cloud.colors[i][2]);
+      }
+      if (cloud.has_intensities()) i_sum += cloud.intensities[i];
+      ++e;
+    }
+    const double count = static_cast<double>(e - b);
+    if (cloud.has_normals()) {
+      // Normals that cancel out (a thin wall seen from both sides) give no usable normal.
+      if (n_sum.norm() < 1e-6 * count) {
+        b = e;
+        continue;
+      }
+      out.normals.push_back(n_sum.normalized().cast<float>());
+    }
+    out.points.push_back((p_sum / count).cast<float>());
+    if (cloud.has_colors()) {
+      const Eigen::Vector3d c = c_sum / count;
+      out.colors.push_back({static_cast<std::uint8_t>(std::lround(c.x())),
+                            static_cast<std::uint8_t>(std::lround(c.y())),
+                            static_cast<std::uint8_t>(std::lround(c.z()))});
+    }
+    if (cloud.has_intensities()) out.intensities.push_back(static_cast<float>(i_sum / count));
+    b = e;
+  }
+  FinishUnorganized(&out);
+  return out;
+}
+
+geometry::PointCloud EstimatePcaNormals(const geometry::PointCloud& cloud,
+                                        const PcaNormalOptions& options) {
+  if (!(options.radius_m > 0.0f) || !std::isfinite(options.radius_m)) {
+    throw std::invalid_argument("EstimatePcaNormals: radius_m must be positive, got " +
+                                std::to_string(options.radius_m));
+  }
+  geometry::PointCloud valid = RemoveInvalidPoints(cloud);
+  valid.normals.clear();
+  const KdTree tree(valid.points);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : valid.points) centroid += p.cast<double>();
+  if (!valid.empty()) centroid /= static_cast<double>(valid.size());
+
+  geometry::PointCloud out;
+  out.frame_id = cloud.frame_id;
+  out.points.reserve(valid.size());
+  out.normals.reserve(valid.size());
+  std::vector<std::int32_t> neighbors;
+  for (std::size_t i = 0; i < valid.size(); ++i) {
+    const Eigen::Vector3f& p = valid.points[i];
+    tree.RadiusSearch(p, options.radius_m, &neighbors);
+    if (static_cast<int>(neighbors.size()) < std::max(3, options.min_neighbors)) continue;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (std::int32_t j : neighbors) mean += valid.points[j].cast<double>();
+    mean /= static_cast<double>(neighbors.size());
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (std::int32_t j : neighbors) {
+      const Eigen::Vector3d d = valid.points[j].cast<double>() - mean;
+      cov.noalias() += d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver;
+    solver.computeDirect(cov);
+    Eigen::Vector3d n = solver.eigenvectors().col(0);
+    if (!n.allFinite() || n.norm() < 0.5) continue;
+    n.normalize();
+    const Eigen::Vector3d reference =
+        options.orientation == NormalOrientation::kTowardViewpoint
+            ? Eigen::Vector3d(options.viewpoint.cast<double>() - p.cast<double>())
+            : Eigen::Vector3d(p.cast<double>() - centroid);
+    if (n.dot(reference) < 0.0) n = -n;
+    PushPoint(valid, i, &out);
+    out.normals.push_back(n.cast<float>());
+  }
+  FinishUnorganized(&out);
+  return out;
+}
+
+float CloudDiameter(const std::vector<Eigen::Vector3f>& points) {
+  float best = 0.0f;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    for (std::size_t j = i + 1; j < points.size(); ++j) {
+      best = std::max(best, (points[i] - points[j]).squaredNorm());
+    }
+  }
+  return std::sqrt(best);
+}
+
+}  // namespace picking::detector
