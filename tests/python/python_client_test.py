@@ -1,0 +1,72 @@
+#!/usr/bin/python3
+"""Runs the Python client example against a real picking-planner server.
+
+Usage (CTest does this): python_client_test.py BIN_DIR
+"""
+
+import os
+import pathlib
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import unittest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+CLIENT = ROOT / "clients" / "python" / "example_client.py"
+BIN_DIR = pathlib.Path(sys.argv.pop(1)) if len(sys.argv) > 1 else ROOT / "build" / "bin"
+
+
+class PlannerServer:
+    """Starts picking-planner on a free port and reads the port it reports."""
+
+    def __enter__(self):
+        self.proc = subprocess.Popen([str(BIN_DIR / "picking-planner"), "--listen=127.0.0.1:0"],
+                                     stdout=subprocess.PIPE, text=True)
+        ready, _, _ = select.select([self.proc.stdout], [], [], 60)
+        if not ready:
+            self.proc.kill()
+            raise RuntimeError("picking-planner did not report its port")
+        line = self.proc.stdout.readline().strip()
+        if not line.startswith("listening on "):
+            self.proc.kill()
+            raise RuntimeError(f"unexpected first line: {line!r}")
+        self.address = line[len("listening on "):]
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.send_signal(signal.SIGTERM)
+        self.exit_code = self.proc.wait(timeout=30)
+
+
+def run_client(address, *extra):
+    env = dict(os.environ)
+    env["PICKING_PY_STUBS"] = STUB_DIR
+    return subprocess.run(["/usr/bin/python3", str(CLIENT), "--address", address, *extra],
+                          capture_output=True, text=True, timeout=120, env=env)
+
+
+class PythonClientTest(unittest.TestCase):
+    def test_health_and_forward_kinematics(self):
+        with PlannerServer() as server:
+            result = run_client(server.address, "--joints", "0,0,0,0,0,0")
+        self.assertEqual(result.returncode, 0, result.stderr)
+        self.assertIn("health (server): SERVING", result.stdout)
+        self.assertIn("health picking.planner.v1.PlannerService: SERVING", result.stdout)
+        # UR10 factory DH chain at zero joints: x = a2 + a3, y = -(d4 + d6), z = d1 - d5.
+        self.assertIn("X_base_tool position_m: -1.1843 -0.2561 0.0116", result.stdout)
+        self.assertEqual(server.exit_code, 0)
+
+    def test_bad_request_reports_invalid_argument(self):
+        with PlannerServer() as server:
+            result = run_client(server.address, "--joints", "0,0,0,0,0")
+        self.assertEqual(result.returncode, 1)
+        self.assertIn("INVALID_ARGUMENT", result.stderr)
+        self.assertIn("6", result.stderr)
+
+
+if __name__ == "__main__":
+    with tempfile.TemporaryDirectory() as tmp:
+        STUB_DIR = tmp
+        unittest.main(verbosity=2)
