@@ -1,0 +1,22 @@
+#pragma once
+
+#include <string>
+
+#include "libs/world/mesh.h"
+
+namespace picking::world {
+
+/// Reads a binary little-endian PLY file: the vertex element with float or double x y z and
+/// optional uchar red green blue and float `albedo`, and an optional face element (a list of
+/// vertex indices; polygons are fanned into triangles). Other properties are skipped.
+/// A file without faces gives a mesh with vertices only (a point set). Throws
+/// std::runtime_error naming the file and what is wrong (ASCII format, truncation, a vertex
+/// index out of range, a missing x/y/z).
+TriangleMesh ReadPly(const std::string& path);
+
+/// Writes `mesh` as binary little-endian PLY: x y z float, red green blue uchar (when the mesh
+/// has colours), albedo float (when it has per-vertex albedo), faces as uchar-count int lists.
+/// `comment` lines go into the header. Throws std::runtime_error if it cannot be written.
+void WritePly(const std::string& path, const TriangleMesh& mesh, const std::string& comment = "");
+
+}  // namespace picking::world

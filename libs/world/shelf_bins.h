@@ -1,0 +1,64 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <string>
+#include <vector>
+
+#include "libs/world/mesh.h"
+
+namespace picking::world {
+
+/// The free volume of one shelf bin, measured from the shelf mesh, in the shelf frame S
+/// (the frame of the mesh file: x out of the bins' openings, z up, metres).
+struct BinGeometry {
+  std::string name;  ///< "bin_A".."bin_L".
+  int row = 0;       ///< 0 = top row (A-C) .. 3 = bottom row (J-L).
+  int column = 0;    ///< 0 = left seen from the front (A, D, G, J) .. 2 = right.
+  /// Free box of the bin: x from the back wall to the opening plane, y between the side
+  /// walls (closest wall over the whole depth), z from the lowest floor point to the lowest
+  /// ceiling point. Anything strictly inside does not touch the shelf except the floor where
+  /// the floor is higher than `inner_S.min().z()` (see floor_max_z_m).
+  Eigen::AlignedBox3d inner_S;
+  /// Highest floor point over the bin's depth (the pod's boards rise slightly toward the
+  /// front lip). Equal to inner_S.min().z() for a flat floor.
+  double floor_max_z_m = 0.0;
+  /// x of the opening plane (normal +x): the front edge of the bin floor.
+  double opening_x_m = 0.0;
+
+  double width_m() const { return inner_S.sizes().y(); }
+  double height_m() const { return inner_S.sizes().z(); }
+  double depth_m() const { return inner_S.sizes().x(); }
+};
+
+/// Options of MeasureBins. Defaults suit the APC 2016 Kiva pod (bins 0.25-0.30 m wide,
+/// 0.22-0.27 m tall, 0.43 m deep).
+struct MeasureBinsOptions {
+  int rows = 4;                    ///< Rows of bins expected (top row first).
+  int columns = 3;                 ///< Bins per row expected.
+  double min_row_height_m = 0.15;  ///< Free vertical gaps outside [min, max] are not rows.
+  double max_row_height_m = 0.35;
+  double min_column_width_m = 0.18;  ///< Free horizontal gaps outside [min, max] are not bins.
+  double max_column_width_m = 0.40;
+  double probe_depth_fraction = 0.5;  ///< Where the scans run: fraction of the front half's
+                                      ///< depth measured from the mesh's x centre.
+  int depth_samples = 15;             ///< Floor/ceiling/wall rays along the depth per bin.
+  int lateral_samples = 3;            ///< Floor/ceiling rays across the width per depth.
+};
+
+/// Measures the 12 bins A-L of a shelf mesh by ray casting (no dimensions are assumed).
+///
+/// 1. A vertical ray through the front half of the mesh at the centre of its width finds the
+///    free gaps between boards; the `rows` gaps whose height is plausible are the rows.
+/// 2. In each row a ray along +y at mid height finds the gaps between dividers: the columns.
+/// 3. From each bin's centre, rays to the back find the back wall; rays down over the depth
+///    find where the floor ends (the opening plane, refined by bisection to 0.5 mm); a grid of
+///    rays down, up, left and right over the depth and width gives floor, ceiling and walls.
+///
+/// Bins are returned in the order A..L (row-major from the top-left seen from the front,
+/// i.e. looking along -x; left is -y). Throws std::runtime_error naming the stage when the
+/// mesh does not show `rows` x `columns` bins.
+std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
+                                     const MeasureBinsOptions& options = {});
+
+}  // namespace picking::world

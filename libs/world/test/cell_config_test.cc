@@ -1,0 +1,112 @@
+#include "libs/world/cell_config.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "libs/world/mesh_utils.h"
+
+namespace picking::world {
+namespace {
+
+const std::string kDataDir = PICKING_DATA_DIR;
+
+std::string ValidYaml() {
+  return R"(version: 1
+robot_base:
+  X_WorldBase: {position: [0, 0, 0.7], orientation: [1, 0, 0, 0]}
+shelf:
+  X_BaseShelf: {position: [1.25, 0, -0.7], orientation: [0, 0, 0, 1]}
+  mesh: apc2016/shelf/pod_lowres.stl
+tote:
+  X_BaseTote: {position: [0.2, -0.75, -0.7], orientation: [1, 0, 0, 0]}
+  mesh: apc2016/shelf/tote_delft.stl
+table:
+  X_BaseTable: {position: [0.2, 0.8, -0.2], orientation: [1, 0, 0, 0]}
+  size_m: [0.6, 0.6, 0.5]
+)";
+}
+
+std::string FieldOfError(const std::string& yaml) {
+  try {
+    ParseCellConfig(yaml, "test.yaml", kDataDir);
+  } catch (const CellConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("test.yaml"), std::string::npos) << e.what();
+    return e.field();
+  }
+  return "<no error>";
+}
+
+std::string Replace(std::string s, const std::string& from, const std::string& to) {
+  const auto pos = s.find(from);
+  EXPECT_NE(pos, std::string::npos) << from;
+  return s.replace(pos, from.size(), to);
+}
+
+TEST(CellConfigTest, ParsesPosesAndResolvesPaths) {
+  const CellConfig c = ParseCellConfig(ValidYaml(), "test.yaml", kDataDir);
+  EXPECT_NEAR(c.floor_z_m(), -0.7, 1e-12);
+  EXPECT_TRUE(c.X_BaseShelf.translation().isApprox(Eigen::Vector3d(1.25, 0, -0.7)));
+  // Turned by 180 degrees about z: the shelf's +x (bin openings) faces the robot.
+  EXPECT_TRUE(
+      (c.X_BaseShelf.linear() * Eigen::Vector3d::UnitX()).isApprox(-Eigen::Vector3d::UnitX()));
+  EXPECT_TRUE(std::filesystem::exists(c.shelf_mesh_path));
+  EXPECT_TRUE(c.table_size_m.isApprox(Eigen::Vector3d(0.6, 0.6, 0.5)));
+}
+
+TEST(CellConfigTest, ErrorsNameTheField) {
+  EXPECT_EQ(
+      FieldOfError(Replace(ValidYaml(), "orientation: [0, 0, 0, 1]", "orientation: [0, 0, 0, 2]")),
+      "shelf.X_BaseShelf.orientation");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "[0.2, -0.75, -0.7]", "[0.2, -0.75]")),
+            "tote.X_BaseTote.position");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "[0.6, 0.6, 0.5]", "[0.6, -0.6, 0.5]")),
+            "table.size_m[1]");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "[0.6, 0.6, 0.5]", "[0.6, abc, 0.5]")),
+            "table.size_m[1]");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "tote_delft.stl", "missing.stl")), "tote.mesh");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "  size_m:", "  colour: red\n  size_m:")),
+            "table.colour");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "version: 1", "version: 2")), "version");
+  EXPECT_EQ(
+      FieldOfError(Replace(
+          ValidYaml(),
+          "robot_base:\n  X_WorldBase: {position: [0, 0, 0.7], orientation: [1, 0, 0, 0]}\n", "")),
+      "robot_base");
+  EXPECT_EQ(FieldOfError("version: 1\n  bad: [indent\n"), "");
+  EXPECT_THROW(ReadCellConfig(kDataDir + "/cell/no_such_file.yaml"), CellConfigError);
+}
+
+TEST(CellConfigTest, DefaultCellLoadsAndItsBinsAreReachable) {
+  const CellConfig config = ReadCellConfig(DefaultCellConfigPath());
+  const CellModel cell = LoadCellModel(config);
+  ASSERT_EQ(cell.bins.size(), 12u);
+  EXPECT_EQ(cell.bin("bin_E").name, "bin_E");
+  EXPECT_THROW(cell.bin("bin_Z"), std::invalid_argument);
+  // UR10 reach is about 1.3 m from the shoulder (0.1273 m above the base): every bin's opening
+  // centre must be within reach, and the shelf must not overlap the robot's base.
+  const Eigen::Vector3d p_BaseShoulder(0, 0, 0.1273);
+  for (const auto& bin : cell.bins) {
+    const Eigen::Vector3d p_ShelfOpening(bin.opening_x_m, bin.inner_S.center().y(),
+                                         bin.inner_S.center().z());
+    const Eigen::Vector3d p_BaseOpening = config.X_BaseShelf * p_ShelfOpening;
+    EXPECT_LT((p_BaseOpening - p_BaseShoulder).norm(), 1.2) << bin.name;
+    EXPECT_GT(p_BaseOpening.x(), 0.5) << bin.name;
+  }
+  // Bin A is the robot's top left: +y and highest.
+  const Eigen::Vector3d a = config.X_BaseShelf * cell.bin("bin_A").inner_S.center();
+  const Eigen::Vector3d c = config.X_BaseShelf * cell.bin("bin_C").inner_S.center();
+  const Eigen::Vector3d l = config.X_BaseShelf * cell.bin("bin_L").inner_S.center();
+  EXPECT_GT(a.y(), c.y());
+  EXPECT_GT(a.z(), l.z());
+  // Tote and table stand on the floor / above it and apart from the shelf.
+  const auto tote = Bounds(cell.tote, config.X_BaseTote);
+  EXPECT_NEAR(tote.min().z(), config.floor_z_m(), 1e-6);
+  const auto shelf = Bounds(cell.shelf, config.X_BaseShelf);
+  EXPECT_FALSE(shelf.intersects(tote));
+  EXPECT_FALSE(shelf.intersects(Bounds(cell.table, config.X_BaseTable)));
+  EXPECT_NEAR(Bounds(cell.table, config.X_BaseTable).min().z(), config.floor_z_m(), 1e-6);
+}
+
+}  // namespace
+}  // namespace picking::world
