@@ -1,0 +1,223 @@
+#include "services/scanner/core/triangulation.h"
+
+#include "services/scanner/core/band_pool.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace picking::scanner {
+namespace {
+
+constexpr int kRowsPerBand = 16;
+
+void Require(bool ok, const std::string& what) {
+  if (!ok) throw std::invalid_argument("Triangulator: " + what);
+}
+
+}  // namespace
+
+Triangulator::Triangulator(const camera::PinholeCamera& camera,
+                           const camera::PinholeCamera& projector,
+                           const Eigen::Isometry3d& X_CameraProjector,
+                           const TriangulationOptions& options)
+    : camera_width_(camera.width()),
+      camera_height_(camera.height()),
+      projector_width_(projector.width()),
+      projector_height_(projector.height()),
+      options_(options) {
+  Require(options.max_residual_projector_px >= 0,
+          "options.max_residual_projector_px must not be negative");
+  Require(options.min_depth_m > 0 && options.max_depth_m > options.min_depth_m,
+          "options need 0 < min_depth_m < max_depth_m, got [" +
+              std::to_string(options.min_depth_m) + ", " + std::to_string(options.max_depth_m) +
+              "]");
+  Require(options.min_neighbors >= 0 && options.min_neighbors <= 8,
+          "options.min_neighbors must be in [0, 8], got " + std::to_string(options.min_neighbors));
+  Require(options.neighbor_depth_tolerance_m >= 0,
+          "options.neighbor_depth_tolerance_m must not be negative");
+  Require(options.num_threads >= 0, "options.num_threads must not be negative");
+  const Eigen::Matrix3d R = X_CameraProjector.linear();
+  Require(X_CameraProjector.matrix().allFinite() &&
+              (R * R.transpose() - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+              R.determinant() > 0,
+          "X_CameraProjector must be a finite rigid transform");
+
+  pool_ = std::make_unique<BandPool>(options.num_threads);
+  projector_focal_px_ = static_cast<float>(std::min(projector.fx(), projector.fy()));
+  const Eigen::Vector3d p_CameraProjector = X_CameraProjector.translation();
+  p_CameraProjector_ = p_CameraProjector.cast<float>();
+  rays_ = camera.ComputeRayTable().xy;
+
+  const Eigen::Matrix3f R_CameraProjector = R.cast<float>();
+  projector_rays_.resize(static_cast<std::size_t>(projector_width_) * projector_height_);
+  pool_->Run(projector_height_, [&](int row) {
+    for (int column = 0; column < projector_width_; ++column) {
+      const Eigen::Vector3f e =
+          (R_CameraProjector * projector.RayDirection(Eigen::Vector2d(column, row)).cast<float>())
+              .normalized();
+      projector_rays_[static_cast<std::size_t>(row) * projector_width_ + column] =
+          Eigen::Vector4f(e.x(), e.y(), e.z(), -e.dot(p_CameraProjector_));
+    }
+  });
+}
+
+Triangulator::~Triangulator() = default;
+
+TriangulationResult Triangulator::Run(const CorrespondenceMap& map,
+                                      const ImageView* intensity) const {
+  TriangulationResult result;
+  Run(map, intensity, &result);
+  return result;
+}
+
+void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
+                       TriangulationResult* result) const {
+  Require(result != nullptr, "result is null");
+  const std::size_t n = static_cast<std::size_t>(camera_width_) * camera_height_;
+  Require(map.width == camera_width_ && map.height == camera_height_,
+          "correspondence map is " + std::to_string(map.width) + " x " +
+              std::to_string(map.height) + " but the camera is " + std::to_string(camera_width_) +
+              " x " + std::to_string(camera_height_));
+  Require(map.column.size() == n && map.row.size() == n && map.valid.size() == n,
+          "correspondence map buffers are not width * height long");
+  if (intensity != nullptr) {
+    Require(intensity->data != nullptr && intensity->width == camera_width_ &&
+                intensity->height == camera_height_ && intensity->stride_bytes >= camera_width_,
+            "intensity image is " + std::to_string(intensity->width) + " x " +
+                std::to_string(intensity->height) + " (or has no data / a short stride) but " +
+                "the camera is " + std::to_string(camera_width_) + " x " +
+                std::to_string(camera_height_));
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (map.valid[i] && (map.column[i] >= projector_width_ || map.row[i] >= projector_height_)) {
+      Require(false, "correspondence (" + std::to_string(map.column[i]) + ", " +
+                         std::to_string(map.row[i]) + ") at pixel " + std::to_string(i) +
+                         " lies outside the " + std::to_string(projector_width_) + " x " +
+                         std::to_string(projector_height_) + " projector");
+    }
+  }
+
+  geometry::PointCloud& cloud = result->cloud;
+  cloud.width = static_cast<std::uint32_t>(camera_width_);
+  cloud.height = static_cast<std::uint32_t>(camera_height_);
+  cloud.frame_id = options_.frame_id;
+  cloud.points.resize(n);
+  cloud.normals.clear();
+  cloud.colors.clear();
+  if (intensity != nullptr) {
+    cloud.intensities.resize(n);
+  } else {
+    cloud.intensities.clear();
+  }
+
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  const float residual_scale =
+      static_cast<float>(options_.max_residual_projector_px) / projector_focal_px_;
+  // ray distance <= k * distance_from_projector / f
+  const float residual_factor = residual_scale * residual_scale;
+  const float min_depth = static_cast<float>(options_.min_depth_m);
+  const float max_depth = static_cast<float>(options_.max_depth_m);
+  const Eigen::Vector3f o = p_CameraProjector_;
+  const int num_bands = (camera_height_ + kRowsPerBand - 1) / kRowsPerBand;
+  std::atomic<std::size_t> rejected_residual{0};
+  std::atomic<std::size_t> rejected_depth{0};
+
+  pool_->Run(num_bands, [&](int band) {
+    const int y0 = band * kRowsPerBand;
+    const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
+    std::size_t local_residual = 0;
+    std::size_t local_depth = 0;
+    for (int y = y0; y < y1; ++y) {
+      const std::size_t row_start = static_cast<std::size_t>(y) * camera_width_;
+      if (intensity != nullptr) {
+        const std::uint8_t* src = intensity->row(y);
+        float* dst = cloud.intensities.data() + row_start;
+        for (int x = 0; x < camera_width_; ++x) dst[x] = src[x] * (1.0f / 255.0f);
+      }
+      for (int x = 0; x < camera_width_; ++x) {
+        const std::size_t i = row_start + x;
+        Eigen::Vector3f& point = cloud.points[i];
+        if (!map.valid[i]) {
+          point.setConstant(kNaN);
+          continue;
+        }
+        // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
+        const Eigen::Vector2f& ray = rays_[i];
+        const Eigen::Vector4f& e =
+            projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
+                            map.column[i]];
+        const float dd = ray.x() * ray.x() + ray.y() * ray.y() + 1.0f;
+        const float de = ray.x() * e.x() + ray.y() * e.y() + e.z();
+        const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
+        const float ew = e.w();                                         // e . (0 - o)
+        const float denominator = dd - de * de;
+        const float t = (de * ew - dw) / denominator;
+        const float s = (dd * ew - de * dw) / denominator;
+        const Eigen::Vector3f p(t * ray.x(), t * ray.y(), t);
+        const Eigen::Vector3f q = o + s * e.head<3>();
+        if (!(denominator > 1e-9f * dd) || !(t >= min_depth && t <= max_depth) || !(s > 0)) {
+          ++local_depth;
+          point.setConstant(kNaN);
+        } else if ((p - q).squaredNorm() > residual_factor * s * s) {
+          ++local_residual;
+          point.setConstant(kNaN);
+        } else {
+          point = p;
+        }
+      }
+    }
+    rejected_residual.fetch_add(local_residual, std::memory_order_relaxed);
+    rejected_depth.fetch_add(local_depth, std::memory_order_relaxed);
+  });
+  result->num_rejected_residual = rejected_residual.load();
+  result->num_rejected_depth = rejected_depth.load();
+  result->num_removed_isolated = 0;
+
+  if (options_.remove_isolated && options_.min_neighbors > 0) {
+    // Decide from the unfiltered cloud, then remove, so the result does not depend on the
+    // order in which bands run.
+    std::vector<std::uint8_t> remove(n, 0);
+    const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
+    const int min_neighbors = options_.min_neighbors;
+    pool_->Run(num_bands, [&](int band) {
+      const int y0 = band * kRowsPerBand;
+      const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
+      for (int y = y0; y < y1; ++y) {
+        for (int x = 0; x < camera_width_; ++x) {
+          const std::size_t i = static_cast<std::size_t>(y) * camera_width_ + x;
+          const float z = cloud.points[i].z();
+          if (std::isnan(z)) continue;
+          int neighbors = 0;
+          for (int dy = -1; dy <= 1; ++dy) {
+            const int yy = y + dy;
+            if (yy < 0 || yy >= camera_height_) continue;
+            for (int dx = -1; dx <= 1; ++dx) {
+              const int xx = x + dx;
+              if ((dx == 0 && dy == 0) || xx < 0 || xx >= camera_width_) continue;
+              const float zn = cloud.points[static_cast<std::size_t>(yy) * camera_width_ + xx].z();
+              neighbors += std::abs(zn - z) <= tolerance;  // False for NaN.
+            }
+          }
+          remove[i] = neighbors < min_neighbors;
+        }
+      }
+    });
+    std::size_t removed = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (remove[i]) {
+        cloud.points[i].setConstant(kNaN);
+        ++removed;
+      }
+    }
+    result->num_removed_isolated = removed;
+  }
+  std::size_t count = 0;
+  for (const Eigen::Vector3f& p : cloud.points) count += !std::isnan(p.z());
+  result->num_points = count;
+}
+
+}  // namespace picking::scanner
