@@ -151,31 +151,56 @@ void SetCounters(benchmark::State& state, const Fixture& f) {
 }
 
 // One-time per scan: camera rays, hits, normals, albedo, shadow rays, projector coordinates.
+// The ScanGeometry is reused across scans, as the scanner's loop does.
 void BM_RayCasting(benchmark::State& state) {
   Fixture& f = Shared();
+  ScanGeometry g;
   for (auto _ : state) {
-    ScanGeometry g = f.renderer.Prepare(f.pose);
+    f.renderer.Prepare(f.pose, {}, &g);
     benchmark::DoNotOptimize(g.gain.data());
   }
   SetCounters(state, f);
 }
-BENCHMARK(BM_RayCasting)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_RayCasting)->Unit(benchmark::kMillisecond)->UseRealTime()->MeasureProcessCPUTime();
 
-// The 44 camera images from a prepared geometry. Arg: projector blur sigma in 1/10 px.
+// The 44 camera images from a prepared geometry, into reused image buffers. Arg: projector
+// blur sigma in 1/10 projector pixels (0 = off).
 void BM_Shading44(benchmark::State& state) {
   Fixture& f = Shared();
   RenderOptions options;
   options.projector_blur_sigma_px = state.range(0) / 10.0;
+  std::vector<GrayImage> images;
   for (auto _ : state) {
-    std::vector<GrayImage> images = RenderSequence(f.geometry, f.patterns, options);
+    RenderSequence(f.geometry, f.patterns, options, &images);
     benchmark::DoNotOptimize(images.data());
   }
   SetCounters(state, f);
 }
-BENCHMARK(BM_Shading44)->Arg(0)->Arg(10)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Shading44)
+    ->Arg(0)
+    ->Arg(10)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime();
 
-// A whole scan: ray casting once, then the 44 images.
+// A whole scan: ray casting once, then the 44 images, all buffers reused.
 void BM_FullScan44(benchmark::State& state) {
+  Fixture& f = Shared();
+  const RenderOptions options;
+  ScanGeometry g;
+  std::vector<GrayImage> images;
+  for (auto _ : state) {
+    f.renderer.Prepare(f.pose, {}, &g);
+    RenderSequence(g, f.patterns, options, &images);
+    benchmark::DoNotOptimize(images.data());
+  }
+  SetCounters(state, f);
+}
+BENCHMARK(BM_FullScan44)->Unit(benchmark::kMillisecond)->UseRealTime()->MeasureProcessCPUTime();
+
+// The same with fresh buffers every scan (the value-returning overloads): shows the cost of
+// allocating and first touching ~120 MB per scan.
+void BM_FullScan44Allocating(benchmark::State& state) {
   Fixture& f = Shared();
   const RenderOptions options;
   for (auto _ : state) {
@@ -185,7 +210,10 @@ void BM_FullScan44(benchmark::State& state) {
   }
   SetCounters(state, f);
 }
-BENCHMARK(BM_FullScan44)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FullScan44Allocating)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime();
 
 }  // namespace
 }  // namespace picking::simulator

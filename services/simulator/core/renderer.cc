@@ -162,19 +162,64 @@ struct SplitMix64 {
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
     return z ^ (z >> 31);
   }
-  // Standard normal approximated by the sum of four 16-bit uniforms (Irwin-Hall, n = 4):
-  // exact mean and variance, tails cut at 3.5 sigma, ample for sensor noise and ~10x
-  // cheaper than Box-Muller.
-  float Normal() {
-    const std::uint64_t r = Next();
-    const float sum =
-        static_cast<float>((r & 0xFFFF) + ((r >> 16) & 0xFFFF) + ((r >> 32) & 0xFFFF) + (r >> 48));
-    constexpr float kMean = 4.0f * 32767.5f;
-    // Variance of one discrete uniform on 0..65535 is (65536^2 - 1) / 12.
-    constexpr float kInvSigma = 1.0f / 37837.23f;  // 1 / sqrt(4 * (65536^2 - 1) / 12)
-    return (sum - kMean) * kInvSigma;
-  }
 };
+
+// Inverse of the standard normal CDF: Acklam's rational approximation (relative error
+// 1.2e-9) refined by one Halley step on erfc.
+double InverseNormalCdf(double p) {
+  static constexpr double a[] = {-3.969683028665376e+01, 2.209460984245205e+02,
+                                 -2.759285104469687e+02, 1.383577518672690e+02,
+                                 -3.066479806614716e+01, 2.506628277459239e+00};
+  static constexpr double b[] = {-5.447609879822406e+01, 1.615858368580409e+02,
+                                 -1.556989798598866e+02, 6.680131188771972e+01,
+                                 -1.328068155288572e+01};
+  static constexpr double c[] = {-7.784894002430293e-03, -3.223964580411365e-01,
+                                 -2.400758277161838e+00, -2.549732539343734e+00,
+                                 4.374664141464968e+00,  2.938163982698783e+00};
+  static constexpr double d[] = {7.784695709041462e-03, 3.224671290700398e-01,
+                                 2.445134137142996e+00, 3.754408661907416e+00};
+  constexpr double kLow = 0.02425;
+  double x;
+  if (p < kLow) {
+    const double q = std::sqrt(-2.0 * std::log(p));
+    x = (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
+        ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0);
+  } else if (p <= 1.0 - kLow) {
+    const double q = p - 0.5;
+    const double r = q * q;
+    x = (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q /
+        (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0);
+  } else {
+    const double q = std::sqrt(-2.0 * std::log(1.0 - p));
+    x = -(((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
+        ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0);
+  }
+  const double e = 0.5 * std::erfc(-x / std::sqrt(2.0)) - p;
+  constexpr double kSqrt2Pi = 2.5066282746310002;
+  const double u = e * kSqrt2Pi * std::exp(0.5 * x * x);
+  return x - u / (1.0 + 0.5 * x * u);
+}
+
+// Standard normal deviates drawn by a 16-bit index: the quantiles at (k + 0.5) / 65536,
+// scaled to unit variance (tails reach 4.3 sigma). One 64-bit random number gives four
+// deviates, which makes sensor noise cheap enough for 44 megapixel images per scan.
+constexpr int kNormalTableBits = 16;
+const std::vector<float>& NormalTable() {
+  static const std::vector<float> table = [] {
+    const int n = 1 << kNormalTableBits;
+    std::vector<double> q(n);
+    double sum2 = 0.0;
+    for (int k = 0; k < n; ++k) {
+      q[k] = InverseNormalCdf((k + 0.5) / n);
+      sum2 += q[k] * q[k];
+    }
+    const double scale = 1.0 / std::sqrt(sum2 / n);
+    std::vector<float> out(n);
+    for (int k = 0; k < n; ++k) out[k] = static_cast<float>(q[k] * scale);
+    return out;
+  }();
+  return table;
+}
 
 std::uint64_t RowSeed(std::uint64_t seed, std::uint64_t frame, int row) {
   SplitMix64 mix{seed};
@@ -257,63 +302,6 @@ void CheckProjectorImage(const ScanGeometry& g, const GrayImage& image, std::siz
   }
 }
 
-// Shading of the camera rows [row_begin, row_end) of one frame.
-template <class Light>
-void ShadeRows(const ScanGeometry& g, const Light& light, const RenderOptions& o,
-               std::uint64_t frame, int row_begin, int row_end, GrayImage* out) {
-  const float ambient_dn = static_cast<float>(255.0 * o.exposure * o.ambient);
-  const float read_var = static_cast<float>(o.read_noise_dn * o.read_noise_dn);
-  const float shot_scale =
-      o.electrons_per_dn > 0.0 ? static_cast<float>(1.0 / o.electrons_per_dn) : 0.0f;
-  const bool noisy = read_var > 0.0f || shot_scale > 0.0f;
-  const bool linear = o.camera_gamma == 1.0;
-  const double inv_gamma = 1.0 / o.camera_gamma;
-  const bool bilinear = o.sampling == ProjectorSampling::kBilinear;
-  const int pw = g.projector_width;
-  const int ph = g.projector_height;
-  for (int y = row_begin; y < row_end; ++y) {
-    SplitMix64 rng{RowSeed(o.seed, frame, y)};
-    const std::size_t row_start = std::size_t(y) * g.width;
-    std::uint8_t* dst = &out->pixels[row_start];
-    for (int x = 0; x < g.width; ++x) {
-      const std::size_t i = row_start + x;
-      float s = ambient_dn * g.albedo[i];
-      if (g.illumination[i] == Illumination::kLit) {
-        const float u = g.projector_uv[i].x();
-        const float v = g.projector_uv[i].y();
-        float l;
-        if (bilinear) {
-          const float fu = std::floor(u);
-          const float fv = std::floor(v);
-          const float au = u - fu;
-          const float av = v - fv;
-          const int u0 = std::clamp(static_cast<int>(fu), 0, pw - 1);
-          const int u1 = std::clamp(static_cast<int>(fu) + 1, 0, pw - 1);
-          const int v0 = std::clamp(static_cast<int>(fv), 0, ph - 1);
-          const int v1 = std::clamp(static_cast<int>(fv) + 1, 0, ph - 1);
-          const std::size_t r0 = std::size_t(v0) * pw;
-          const std::size_t r1 = std::size_t(v1) * pw;
-          const float top = light[r0 + u0] + au * (light[r0 + u1] - light[r0 + u0]);
-          const float bottom = light[r1 + u0] + au * (light[r1 + u1] - light[r1 + u0]);
-          l = top + av * (bottom - top);
-        } else {
-          const int ui = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
-          const int vi = std::clamp(static_cast<int>(std::lround(v)), 0, ph - 1);
-          l = light[std::size_t(vi) * pw + ui];
-        }
-        s += g.gain[i] * l;
-      }
-      if (noisy) {
-        const float var = read_var + shot_scale * std::max(s, 0.0f);
-        s += std::sqrt(var) * rng.Normal();
-      }
-      s = std::max(s, 0.0f);
-      if (!linear) s = static_cast<float>(255.0 * std::pow(s / 255.0, inv_gamma));
-      dst[x] = static_cast<std::uint8_t>(std::min(255.0f, s + 0.5f));
-    }
-  }
-}
-
 // Light of each projector value in DN per unit gain.
 std::vector<float> LightTable(const RenderOptions& o) {
   std::vector<float> lut(256);
@@ -322,6 +310,196 @@ std::vector<float> LightTable(const RenderOptions& o) {
                                 std::pow(v / 255.0, o.projector_gamma));
   }
   return lut;
+}
+
+// Per-pixel data shared by all frames of a render call: where to read the projector image
+// (index of the top-left bilinear neighbour, or -1 if unlit) and with which weights.
+struct PixelSample {
+  std::int32_t index;
+  float au;
+  float av;
+  float gain;
+};
+
+struct ShadingTable {
+  std::vector<PixelSample> samples;
+  std::vector<float> ambient_dn;  // Ambient signal per pixel, DN.
+  std::size_t du = 1;             // Offset to the right neighbour (0 for a 1-wide projector).
+  std::size_t dv = 1;             // Offset to the neighbour below.
+};
+
+ShadingTable MakeShadingTable(const ScanGeometry& g, const RenderOptions& o, int threads) {
+  ShadingTable t;
+  const int pw = g.projector_width;
+  const int ph = g.projector_height;
+  t.du = pw > 1 ? 1 : 0;
+  t.dv = ph > 1 ? static_cast<std::size_t>(pw) : 0;
+  t.samples.resize(g.size());
+  t.ambient_dn.resize(g.size());
+  const float ambient_dn = static_cast<float>(255.0 * o.exposure * o.ambient);
+  const bool bilinear = o.sampling == ProjectorSampling::kBilinear;
+  const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
+  ParallelFor(blocks, threads, [&](int b) {
+    const std::size_t begin = std::size_t(b) * kRowsPerBlock * g.width;
+    const std::size_t end = std::min(g.size(), std::size_t(b + 1) * kRowsPerBlock * g.width);
+    for (std::size_t i = begin; i < end; ++i) {
+      t.ambient_dn[i] = ambient_dn * g.albedo[i];
+      PixelSample& p = t.samples[i];
+      p = {-1, 0.0f, 0.0f, 0.0f};
+      if (g.illumination[i] != Illumination::kLit) continue;
+      const float u = g.projector_uv[i].x();
+      const float v = g.projector_uv[i].y();
+      int u0, v0;
+      if (bilinear) {
+        // Clamp so that the four neighbours exist; weights reproduce edge clamping.
+        u0 = static_cast<int>(std::floor(u));
+        v0 = static_cast<int>(std::floor(v));
+        p.au = u - static_cast<float>(u0);
+        p.av = v - static_cast<float>(v0);
+        if (u0 < 0) {
+          u0 = 0;
+          p.au = 0.0f;
+        } else if (u0 > pw - 1 - int(t.du)) {
+          u0 = pw - 1 - int(t.du);
+          p.au = t.du ? 1.0f : 0.0f;
+        }
+        if (v0 < 0) {
+          v0 = 0;
+          p.av = 0.0f;
+        } else if (v0 > ph - 1 - (t.dv ? 1 : 0)) {
+          v0 = ph - 1 - (t.dv ? 1 : 0);
+          p.av = t.dv ? 1.0f : 0.0f;
+        }
+      } else {
+        u0 = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
+        v0 = std::clamp(static_cast<int>(std::lround(v)), 0, ph - 1);
+      }
+      p.index = v0 * pw + u0;
+      p.gain = g.gain[i];
+    }
+  });
+  return t;
+}
+
+// Shades camera row y of one frame. `scratch` holds 2 * width floats.
+template <bool kBilinear, class Light>
+void ShadeRow(const ShadingTable& t, const Light& light, const RenderOptions& o,
+              std::uint64_t frame, int y, int width, float* scratch, std::uint8_t* dst) {
+  const PixelSample* samples = &t.samples[std::size_t(y) * width];
+  const float* ambient = &t.ambient_dn[std::size_t(y) * width];
+  const std::size_t du = t.du;
+  const std::size_t dv = t.dv;
+  // Pass 1 (gathers, scalar): noise-free signal.
+  float* signal = scratch;
+  for (int x = 0; x < width; ++x) {
+    const PixelSample& p = samples[x];
+    float s = ambient[x];
+    if (p.index >= 0) {
+      const std::size_t k = static_cast<std::size_t>(p.index);
+      float l;
+      if constexpr (kBilinear) {
+        const float l00 = light[k];
+        const float l01 = light[k + du];
+        const float l10 = light[k + dv];
+        const float l11 = light[k + dv + du];
+        const float top = l00 + p.au * (l01 - l00);
+        const float bottom = l10 + p.au * (l11 - l10);
+        l = top + p.av * (bottom - top);
+      } else {
+        l = light[k];
+      }
+      s += p.gain * l;
+    }
+    signal[x] = s;
+  }
+  Eigen::Map<Eigen::ArrayXf> s(signal, width);
+  // Pass 2 (SIMD through Eigen): noise, response, quantisation.
+  const float read_var = static_cast<float>(o.read_noise_dn * o.read_noise_dn);
+  const float shot_scale =
+      o.electrons_per_dn > 0.0 ? static_cast<float>(1.0 / o.electrons_per_dn) : 0.0f;
+  if (read_var > 0.0f || shot_scale > 0.0f) {
+    float* normal = scratch + width;
+    const float* table = NormalTable().data();
+    SplitMix64 rng{RowSeed(o.seed, frame, y)};
+    for (int x = 0; x < width; x += 4) {
+      std::uint64_t bits = rng.Next();
+      for (int k = 0; k < 4 && x + k < width; ++k, bits >>= 16)
+        normal[x + k] = table[bits & 0xFFFF];
+    }
+    const Eigen::Map<const Eigen::ArrayXf> n(normal, width);
+    s += (read_var + shot_scale * s.max(0.0f)).sqrt() * n;
+  }
+  s = s.max(0.0f);
+  if (o.camera_gamma != 1.0) s = 255.0f * (s * (1.0f / 255.0f)).pow(1.0f / float(o.camera_gamma));
+  s = s.min(255.0f) + 0.5f;
+  for (int x = 0; x < width; ++x) dst[x] = static_cast<std::uint8_t>(signal[x]);
+}
+
+// Shades rows [row_begin, row_end) of every frame; `lights[f]` is frame f's projector light
+// and `frame_ids[f]` its noise stream.
+template <class Light>
+void ShadeBlock(const ScanGeometry& g, const ShadingTable& t, const std::vector<Light>& lights,
+                const std::vector<std::uint64_t>& frame_ids, const RenderOptions& o, int row_begin,
+                int row_end, const std::vector<GrayImage*>& out) {
+  // Frames in the inner loop: the block's per-pixel table stays in cache across frames.
+  std::vector<float> scratch(2 * std::size_t(g.width));
+  for (std::size_t f = 0; f < lights.size(); ++f) {
+    for (int y = row_begin; y < row_end; ++y) {
+      std::uint8_t* dst = &out[f]->pixels[std::size_t(y) * g.width];
+      if (o.sampling == ProjectorSampling::kBilinear) {
+        ShadeRow<true>(t, lights[f], o, frame_ids[f], y, g.width, scratch.data(), dst);
+      } else {
+        ShadeRow<false>(t, lights[f], o, frame_ids[f], y, g.width, scratch.data(), dst);
+      }
+    }
+  }
+}
+
+// Renders images[k] as frame first_frame + k into (*out)[k], reusing its buffers.
+void Shade(const ScanGeometry& g, const std::vector<const GrayImage*>& images,
+           std::uint64_t first_frame, const RenderOptions& o, std::vector<GrayImage>* out) {
+  const int threads = ResolveThreads(o.num_threads);
+  const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
+  const ShadingTable table = MakeShadingTable(g, o, threads);
+  const std::vector<float> lut = LightTable(o);
+  out->resize(images.size());
+  std::vector<GrayImage*> targets;
+  for (GrayImage& image : *out) {
+    if (image.width != g.width || image.height != g.height || image.pixels.size() != g.size()) {
+      image = GrayImage(g.width, g.height);
+    }
+    targets.push_back(&image);
+  }
+  auto block_rows = [&](int b) {
+    return std::make_pair(b * kRowsPerBlock, std::min(g.height, (b + 1) * kRowsPerBlock));
+  };
+  if (o.projector_blur_sigma_px <= 0.0) {
+    std::vector<LutLight> lights;
+    std::vector<std::uint64_t> frame_ids;
+    for (std::size_t k = 0; k < images.size(); ++k) {
+      lights.push_back({images[k]->pixels.data(), lut.data()});
+      frame_ids.push_back(first_frame + k);
+    }
+    ParallelFor(blocks, threads, [&](int b) {
+      const auto [row_begin, row_end] = block_rows(b);
+      ShadeBlock(g, table, lights, frame_ids, o, row_begin, row_end, targets);
+    });
+    return;
+  }
+  // Blurred light is a float image per frame: one frame at a time bounds the memory.
+  for (std::size_t k = 0; k < images.size(); ++k) {
+    const GrayImage& image = *images[k];
+    std::vector<float> light(image.pixels.size());
+    for (std::size_t i = 0; i < light.size(); ++i) light[i] = lut[image.pixels[i]];
+    light = Blur(light, image.width, image.height, o.projector_blur_sigma_px, threads);
+    const std::vector<FloatLight> lights = {{light.data()}};
+    const std::vector<std::uint64_t> frame_ids = {first_frame + k};
+    const std::vector<GrayImage*> target = {targets[k]};
+    ParallelFor(blocks, threads, [&](int b) {
+      const auto [row_begin, row_end] = block_rows(b);
+      ShadeBlock(g, table, lights, frame_ids, o, row_begin, row_end, target);
+    });
+  }
 }
 
 void CheckFinite(double value, const char* field) {
@@ -510,6 +688,14 @@ std::size_t StructuredLightRenderer::num_triangles() const { return impl_->num_t
 
 ScanGeometry StructuredLightRenderer::Prepare(const ScanPose& pose,
                                               const GeometryOptions& options) const {
+  ScanGeometry geometry;
+  Prepare(pose, options, &geometry);
+  return geometry;
+}
+
+void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOptions& options,
+                                      ScanGeometry* geometry) const {
+  if (geometry == nullptr) throw std::invalid_argument("Prepare: geometry is null");
   if (!IsFinitePose(pose.X_BaseCamera)) {
     throw std::invalid_argument("Prepare: X_BaseCamera is not a finite rigid transform");
   }
@@ -530,7 +716,7 @@ ScanGeometry StructuredLightRenderer::Prepare(const ScanPose& pose,
   const int threads = ResolveThreads(options.num_threads);
   const auto rays = impl_->Rays(pose.camera, threads);
 
-  ScanGeometry g;
+  ScanGeometry& g = *geometry;
   g.width = pose.camera.width();
   g.height = pose.camera.height();
   g.projector_width = pose.projector.width();
@@ -556,85 +742,117 @@ ScanGeometry StructuredLightRenderer::Prepare(const ScanPose& pose,
 
   const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
   ParallelFor(blocks, threads, [&](int b) {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
+    // Packets of kLanes neighbouring pixels of a row: coherent camera rays traverse the BVH
+    // together; their shadow rays, which all end at the projector centre, as well.
+    constexpr int kLanes = 8;
+    RTCIntersectContext coherent;
+    rtcInitIntersectContext(&coherent);
+    coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    RTCRayHit8 packet;
+    RTCRay8 shadow;
+    alignas(32) int valid[kLanes];
+    alignas(32) int shadow_valid[kLanes];
+    Eigen::Vector3d p_BX[kLanes];
+    Eigen::Vector3d n_B[kLanes];
+    double cos_theta[kLanes];
+    double r_projector[kLanes];
+    Eigen::Vector2d uv[kLanes];
     for (int y = b * kRowsPerBlock; y < std::min(g.height, (b + 1) * kRowsPerBlock); ++y) {
-      for (int x = 0; x < g.width; ++x) {
-        const std::size_t i = std::size_t(y) * g.width + x;
-        const Eigen::Vector3d d_C = (*rays)[i].cast<double>();
-        const Eigen::Vector3d d_B = R_BC * d_C;
-        RTCRayHit rh;
-        rh.ray.org_x = static_cast<float>(p_BC.x());
-        rh.ray.org_y = static_cast<float>(p_BC.y());
-        rh.ray.org_z = static_cast<float>(p_BC.z());
-        rh.ray.dir_x = static_cast<float>(d_B.x());
-        rh.ray.dir_y = static_cast<float>(d_B.y());
-        rh.ray.dir_z = static_cast<float>(d_B.z());
-        rh.ray.tnear = 0.0f;
-        rh.ray.tfar = std::numeric_limits<float>::infinity();
-        rh.ray.time = 0.0f;
-        rh.ray.mask = 0xFFFFFFFFu;
-        rh.ray.id = 0;
-        rh.ray.flags = 0;
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-        rtcIntersect1(scene, &context, &rh);
-        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
+      for (int x0 = 0; x0 < g.width; x0 += kLanes) {
+        const std::size_t i0 = std::size_t(y) * g.width + x0;
+        const int lanes = std::min(kLanes, g.width - x0);
+        for (int k = 0; k < kLanes; ++k) {
+          valid[k] = k < lanes ? -1 : 0;
+          const Eigen::Vector3d d_B =
+              k < lanes ? Eigen::Vector3d(R_BC * (*rays)[i0 + k].cast<double>()) : R_BC.col(2);
+          packet.ray.org_x[k] = static_cast<float>(p_BC.x());
+          packet.ray.org_y[k] = static_cast<float>(p_BC.y());
+          packet.ray.org_z[k] = static_cast<float>(p_BC.z());
+          packet.ray.dir_x[k] = static_cast<float>(d_B.x());
+          packet.ray.dir_y[k] = static_cast<float>(d_B.y());
+          packet.ray.dir_z[k] = static_cast<float>(d_B.z());
+          packet.ray.tnear[k] = 0.0f;
+          packet.ray.tfar[k] = std::numeric_limits<float>::infinity();
+          packet.ray.time[k] = 0.0f;
+          packet.ray.mask[k] = 0xFFFFFFFFu;
+          packet.ray.id[k] = static_cast<unsigned>(k);
+          packet.ray.flags[k] = 0;
+          packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+          packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        }
+        rtcIntersect8(valid, scene, &coherent, &packet);
 
-        const double t = rh.ray.tfar;
-        const Eigen::Vector3d p_BX = p_BC + t * d_B;
-        Eigen::Vector3d n_B(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-        n_B.normalize();
-        if (n_B.dot(d_B) > 0.0) n_B = -n_B;  // Toward the camera.
-        const std::int32_t object_index = impl.object_of_geometry[rh.hit.geomID];
-        const float albedo = impl.objects[object_index].AlbedoAt(rh.hit.primID, rh.hit.u, rh.hit.v);
-        const Eigen::Vector3d p_CX = t * d_C;
-        g.depth_m[i] = static_cast<float>(p_CX.z());
-        g.points_camera[i] = p_CX.cast<float>();
-        g.normals_camera[i] = (R_BC.transpose() * n_B).cast<float>();
-        g.object_index[i] = object_index;
-        g.albedo[i] = albedo;
+        for (int k = 0; k < kLanes; ++k) {
+          shadow_valid[k] = 0;
+          shadow.tnear[k] = 0.0f;
+          shadow.tfar[k] = 0.0f;
+          shadow.time[k] = 0.0f;
+          shadow.mask[k] = 0xFFFFFFFFu;
+          shadow.id[k] = static_cast<unsigned>(k);
+          shadow.flags[k] = 0;
+          if (k >= lanes || packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) continue;
+          const std::size_t i = i0 + k;
+          const Eigen::Vector3d d_C = (*rays)[i].cast<double>();
+          const Eigen::Vector3d d_B = R_BC * d_C;
+          const double t = packet.ray.tfar[k];
+          p_BX[k] = p_BC + t * d_B;
+          n_B[k] = Eigen::Vector3d(packet.hit.Ng_x[k], packet.hit.Ng_y[k], packet.hit.Ng_z[k])
+                       .normalized();
+          if (n_B[k].dot(d_B) > 0.0) n_B[k] = -n_B[k];  // Toward the camera.
+          const std::int32_t object_index = impl.object_of_geometry[packet.hit.geomID[k]];
+          const float albedo = impl.objects[object_index].AlbedoAt(
+              packet.hit.primID[k], packet.hit.u[k], packet.hit.v[k]);
+          const Eigen::Vector3d p_CX = t * d_C;
+          g.depth_m[i] = static_cast<float>(p_CX.z());
+          g.points_camera[i] = p_CX.cast<float>();
+          g.normals_camera[i] = (R_BC.transpose() * n_B[k]).cast<float>();
+          g.object_index[i] = object_index;
+          g.albedo[i] = albedo;
 
-        const std::optional<Eigen::Vector2d> uv = pose.projector.Project(X_PB * p_BX);
-        if (!uv || !pose.projector.Contains(*uv)) {
-          g.illumination[i] = Illumination::kOutsideProjector;
+          const std::optional<Eigen::Vector2d> projected = pose.projector.Project(X_PB * p_BX[k]);
+          if (!projected || !pose.projector.Contains(*projected)) {
+            g.illumination[i] = Illumination::kOutsideProjector;
+            continue;
+          }
+          uv[k] = *projected;
+          const Eigen::Vector3d to_projector = p_BP - p_BX[k];
+          r_projector[k] = to_projector.norm();
+          const Eigen::Vector3d l_B = to_projector / r_projector[k];
+          cos_theta[k] = n_B[k].dot(l_B);
+          if (cos_theta[k] <= 0.0) {
+            g.illumination[i] = Illumination::kFacingAway;
+            continue;
+          }
+          const Eigen::Vector3d origin = p_BX[k] + eps * n_B[k];
+          shadow_valid[k] = -1;
+          shadow.org_x[k] = static_cast<float>(origin.x());
+          shadow.org_y[k] = static_cast<float>(origin.y());
+          shadow.org_z[k] = static_cast<float>(origin.z());
+          shadow.dir_x[k] = static_cast<float>(l_B.x());
+          shadow.dir_y[k] = static_cast<float>(l_B.y());
+          shadow.dir_z[k] = static_cast<float>(l_B.z());
+          shadow.tfar[k] = static_cast<float>(std::max(0.0, r_projector[k] - eps));
+        }
+        if (std::none_of(shadow_valid, shadow_valid + kLanes, [](int v) { return v != 0; })) {
           continue;
         }
-        const Eigen::Vector3d to_projector = p_BP - p_BX;
-        const double r = to_projector.norm();
-        const Eigen::Vector3d l_B = to_projector / r;
-        const double cos_theta = n_B.dot(l_B);
-        if (cos_theta <= 0.0) {
-          g.illumination[i] = Illumination::kFacingAway;
-          continue;
+        rtcOccluded8(shadow_valid, scene, &coherent, &shadow);
+        for (int k = 0; k < kLanes; ++k) {
+          if (shadow_valid[k] == 0) continue;
+          const std::size_t i = i0 + k;
+          if (shadow.tfar[k] < 0.0f) {  // Embree sets tfar to -inf when occluded.
+            g.illumination[i] = Illumination::kShadowed;
+            continue;
+          }
+          g.illumination[i] = Illumination::kLit;
+          g.projector_uv[i] = uv[k].cast<float>();
+          const double r = r_projector[k];
+          const double falloff = options.inverse_square_falloff ? ref2 / (r * r) : 1.0;
+          g.gain[i] = static_cast<float>(g.albedo[i] * cos_theta[k] * falloff);
         }
-        RTCRay shadow;
-        const Eigen::Vector3d origin = p_BX + eps * n_B;
-        shadow.org_x = static_cast<float>(origin.x());
-        shadow.org_y = static_cast<float>(origin.y());
-        shadow.org_z = static_cast<float>(origin.z());
-        shadow.dir_x = static_cast<float>(l_B.x());
-        shadow.dir_y = static_cast<float>(l_B.y());
-        shadow.dir_z = static_cast<float>(l_B.z());
-        shadow.tnear = 0.0f;
-        shadow.tfar = static_cast<float>(std::max(0.0, r - eps));
-        shadow.time = 0.0f;
-        shadow.mask = 0xFFFFFFFFu;
-        shadow.id = 0;
-        shadow.flags = 0;
-        rtcOccluded1(scene, &context, &shadow);
-        if (shadow.tfar < 0.0f) {  // Embree sets tfar to -inf when occluded.
-          g.illumination[i] = Illumination::kShadowed;
-          continue;
-        }
-        g.illumination[i] = Illumination::kLit;
-        g.projector_uv[i] = uv->cast<float>();
-        const double falloff = options.inverse_square_falloff ? ref2 / (r * r) : 1.0;
-        g.gain[i] = static_cast<float>(albedo * cos_theta * falloff);
       }
     }
   });
-  return g;
 }
 
 // ---------------------------------------------------------------------------------------
@@ -645,38 +863,27 @@ std::vector<GrayImage> RenderSequence(const ScanGeometry& geometry,
                                       const RenderOptions& options) {
   options.Validate();
   CheckGeometry(geometry);
+  std::vector<const GrayImage*> images;
   for (std::size_t k = 0; k < projector_images.size(); ++k) {
     CheckProjectorImage(geometry, projector_images[k], k);
+    images.push_back(&projector_images[k]);
   }
-  const int threads = ResolveThreads(options.num_threads);
-  const int blocks = (geometry.height + kRowsPerBlock - 1) / kRowsPerBlock;
-  const int frames = static_cast<int>(projector_images.size());
-  std::vector<GrayImage> out(frames, GrayImage(geometry.width, geometry.height));
-  const std::vector<float> lut = LightTable(options);
-
-  if (options.projector_blur_sigma_px <= 0.0) {
-    // One pass over (frame, row block) items keeps both threads busy across frame borders.
-    ParallelFor(frames * blocks, threads, [&](int item) {
-      const int f = item / blocks;
-      const int b = item % blocks;
-      const LutLight light{projector_images[f].pixels.data(), lut.data()};
-      ShadeRows(geometry, light, options, static_cast<std::uint64_t>(f), b * kRowsPerBlock,
-                std::min(geometry.height, (b + 1) * kRowsPerBlock), &out[f]);
-    });
-    return out;
-  }
-  for (int f = 0; f < frames; ++f) {
-    const GrayImage& image = projector_images[f];
-    std::vector<float> light(image.pixels.size());
-    for (std::size_t i = 0; i < light.size(); ++i) light[i] = lut[image.pixels[i]];
-    light = Blur(light, image.width, image.height, options.projector_blur_sigma_px, threads);
-    const FloatLight source{light.data()};
-    ParallelFor(blocks, threads, [&](int b) {
-      ShadeRows(geometry, source, options, static_cast<std::uint64_t>(f), b * kRowsPerBlock,
-                std::min(geometry.height, (b + 1) * kRowsPerBlock), &out[f]);
-    });
-  }
+  std::vector<GrayImage> out;
+  Shade(geometry, images, 0, options, &out);
   return out;
+}
+
+void RenderSequence(const ScanGeometry& geometry, const std::vector<GrayImage>& projector_images,
+                    const RenderOptions& options, std::vector<GrayImage>* camera_images) {
+  if (camera_images == nullptr) throw std::invalid_argument("RenderSequence: output is null");
+  options.Validate();
+  CheckGeometry(geometry);
+  std::vector<const GrayImage*> images;
+  for (std::size_t k = 0; k < projector_images.size(); ++k) {
+    CheckProjectorImage(geometry, projector_images[k], k);
+    images.push_back(&projector_images[k]);
+  }
+  Shade(geometry, images, 0, options, camera_images);
 }
 
 GrayImage RenderImage(const ScanGeometry& geometry, const GrayImage& projector_image,
@@ -684,29 +891,9 @@ GrayImage RenderImage(const ScanGeometry& geometry, const GrayImage& projector_i
   options.Validate();
   CheckGeometry(geometry);
   CheckProjectorImage(geometry, projector_image, 0);
-  const int threads = ResolveThreads(options.num_threads);
-  const int blocks = (geometry.height + kRowsPerBlock - 1) / kRowsPerBlock;
-  GrayImage out(geometry.width, geometry.height);
-  const std::vector<float> lut = LightTable(options);
-  std::vector<float> blurred;
-  if (options.projector_blur_sigma_px > 0.0) {
-    blurred.resize(projector_image.pixels.size());
-    for (std::size_t i = 0; i < blurred.size(); ++i) blurred[i] = lut[projector_image.pixels[i]];
-    blurred = Blur(blurred, projector_image.width, projector_image.height,
-                   options.projector_blur_sigma_px, threads);
-  }
-  ParallelFor(blocks, threads, [&](int b) {
-    const int row_begin = b * kRowsPerBlock;
-    const int row_end = std::min(geometry.height, (b + 1) * kRowsPerBlock);
-    if (blurred.empty()) {
-      ShadeRows(geometry, LutLight{projector_image.pixels.data(), lut.data()}, options, frame_index,
-                row_begin, row_end, &out);
-    } else {
-      ShadeRows(geometry, FloatLight{blurred.data()}, options, frame_index, row_begin, row_end,
-                &out);
-    }
-  });
-  return out;
+  std::vector<GrayImage> out;
+  Shade(geometry, {&projector_image}, frame_index, options, &out);
+  return std::move(out[0]);
 }
 
 geometry::PointCloud GroundTruthCloud(const ScanGeometry& g) {

@@ -101,10 +101,11 @@ enum class ProjectorSampling : std::uint8_t { kNearest, kBilinear };
 /// Options of RenderImage / RenderSequence (per pattern). The camera signal in digital
 /// numbers (DN, 0-255 full scale) of a pixel with albedo a, gain g and projector light L in
 /// [0, 1] is  s = 255 * exposure * (ambient * a + projector_brightness * g * L),  with
-/// L = (value / 255)^projector_gamma. Noise is added to s (shot noise of variance
-/// s / electrons_per_dn and read noise of sigma read_noise_dn, Gaussian approximated by a
-/// sum of four uniforms, seeded per (seed, frame, row)), then the camera response
-/// 255 * (s / 255)^(1 / camera_gamma) is rounded and clamped to 8 bits.
+/// L = (value / 255)^projector_gamma sampled at the pixel's projector coordinates. Gaussian
+/// noise of variance read_noise_dn^2 + s / electrons_per_dn (read and shot noise) is added
+/// to s, drawn from a seeded stream per (seed, frame, camera row) so the result does not
+/// depend on the thread count; then the camera response 255 * (s / 255)^(1 / camera_gamma)
+/// is rounded and clamped to 8 bits.
 struct RenderOptions {
   double ambient = 0.03;              ///< Ambient irradiance, relative to full projector (>= 0).
   double projector_brightness = 1.0;  ///< Projector white irradiance at the reference distance.
@@ -159,6 +160,10 @@ class StructuredLightRenderer final {
   /// out of range.
   ScanGeometry Prepare(const ScanPose& pose, const GeometryOptions& options = {}) const;
 
+  /// Prepare() into an existing ScanGeometry, reusing its buffers (no allocation when the
+  /// camera size is unchanged). On a thrown error `*geometry` is unchanged.
+  void Prepare(const ScanPose& pose, const GeometryOptions& options, ScanGeometry* geometry) const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
@@ -175,6 +180,11 @@ GrayImage RenderImage(const ScanGeometry& geometry, const GrayImage& projector_i
 std::vector<GrayImage> RenderSequence(const ScanGeometry& geometry,
                                       const std::vector<GrayImage>& projector_images,
                                       const RenderOptions& options);
+
+/// RenderSequence into `camera_images`, resized to the sequence length, reusing the buffers
+/// of images that already have the camera's size (a scan loop then allocates nothing).
+void RenderSequence(const ScanGeometry& geometry, const std::vector<GrayImage>& projector_images,
+                    const RenderOptions& options, std::vector<GrayImage>* camera_images);
 
 /// The ground truth as an organised point cloud in the camera frame (frame_id "camera"):
 /// points, normals and albedo as intensity; NaN where the camera sees nothing.

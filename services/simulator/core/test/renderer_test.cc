@@ -459,6 +459,40 @@ TEST(StructuredLightRendererTest, BlurKeepsFlatLightAndSoftensEdges) {
   EXPECT_EQ(RenderSequence(g, {step}, blurred)[0].pixels, RenderImage(g, step, blurred).pixels);
 }
 
+TEST(StructuredLightRendererTest, BufferReusingOverloadsGiveTheSameResult) {
+  const world::TriangleMesh plane = Square(5.0);
+  const world::TriangleMesh card = Square(0.05);
+  StructuredLightRenderer renderer(
+      {{&plane, Translation(0.0, 0.0, 0.8)}, {&card, Translation(0.0, 0.0, 0.6)}});
+  const ScanGeometry expected = renderer.Prepare(TestPose());
+  // Start from a geometry of another scan (other camera size) to check it is fully reset.
+  ScanGeometry g =
+      renderer.Prepare(ScanPose{PinholeCamera(40, 30, 50.0, 50.0, 20.0, 15.0),
+                                Eigen::Isometry3d::Identity(), TestProjector(), ProjectorPose()});
+  renderer.Prepare(TestPose(), {}, &g);
+  EXPECT_EQ(g.width, expected.width);
+  EXPECT_EQ(g.height, expected.height);
+  EXPECT_EQ(g.object_index, expected.object_index);
+  EXPECT_EQ(g.illumination, expected.illumination);
+  EXPECT_EQ(g.gain, expected.gain);
+  for (std::size_t i = 0; i < g.size(); ++i) {
+    ASSERT_EQ(std::isnan(g.depth_m[i]), std::isnan(expected.depth_m[i]));
+    if (!std::isnan(g.depth_m[i])) {
+      ASSERT_EQ(g.depth_m[i], expected.depth_m[i]);
+    }
+  }
+  const std::vector<GrayImage> projected = {Uniform(g, 255), Uniform(g, 60), Uniform(g, 0)};
+  RenderOptions options;
+  options.seed = 3;
+  std::vector<GrayImage> images(5, GrayImage(7, 7));  // Wrong count and sizes.
+  RenderSequence(g, projected, options, &images);
+  const std::vector<GrayImage> fresh = RenderSequence(g, projected, options);
+  ASSERT_EQ(images.size(), 3u);
+  for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(images[k].pixels, fresh[k].pixels);
+  RenderSequence(g, projected, options, &images);  // Same sizes: buffers reused.
+  for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(images[k].pixels, fresh[k].pixels);
+}
+
 TEST(StructuredLightRendererTest, GroundTruthCloudIsOrganised) {
   const world::TriangleMesh plane = Square(5.0);
   StructuredLightRenderer renderer({{&plane, Translation(0.0, 0.0, 0.8)}});
