@@ -101,8 +101,9 @@ PcdHeader ReadHeader(std::istream& in, const std::string& path) {
     const std::string_view key = t[0];
     const std::size_t values = t.size() - 1;
     auto numbers = [&](std::uint64_t* out) {
-      if (values != 1 || !ParseNumber(t[1], out)) {
-        fail(std::string(key) + " needs one non-negative integer");
+      if (values != 1 || !ParseNumber(t[1], out) ||
+          *out > std::numeric_limits<std::uint32_t>::max()) {
+        fail(std::string(key) + " needs one integer from 0 to 2^32 - 1");
       }
     };
     auto per_field = [&](const char* what) {

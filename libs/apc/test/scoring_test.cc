@@ -117,6 +117,27 @@ TEST(ScoringTest, TargetMustEndInTheTote) {
   EXPECT_EQ(put_back.total, 0);
 }
 
+TEST(ScoringTest, ItemBonusComesFromTheCatalogue) {
+  const ScoringInput input =
+      Honest(SmallPick(), {MoveEvent("fiskars_scissors_red", "bin_B", "tote")});
+  ScoreReport report = Score(input, TheCatalogue());
+  ASSERT_EQ(report.lines.size(), 2u);
+  EXPECT_EQ(report.lines[1].rule, ScoreRule::kItemBonus);
+  EXPECT_EQ(report.lines[1].item, "fiskars_scissors_red");
+  EXPECT_EQ(report.lines[1].points, 2);
+  // The same move with a catalogue that gives the scissors 3 bonus points.
+  std::vector<Item> items = TheCatalogue().items();
+  for (Item& item : items) {
+    if (item.name == "fiskars_scissors_red") item.bonus = 3;
+  }
+  report = Score(input, Catalogue(items));
+  EXPECT_EQ(report.total, 15 + 3);
+  // No bonus line for an item without bonus.
+  report = Score(Honest(SmallPick(), {MoveEvent("dove_beauty_bar", "bin_A", "tote")}),
+                 TheCatalogue());
+  EXPECT_EQ(CountRule(report, ScoreRule::kItemBonus), 0);
+}
+
 TEST(ScoringTest, StowPointsDependOnDestinationPopulationAtTheStart) {
   Task task = SmallPick();
   task.kind = TaskKind::kStow;
