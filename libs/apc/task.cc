@@ -224,6 +224,12 @@ std::string SerializeTask(const Task& task) {
   return document.dump(4) + "\n";
 }
 
+Task ToOutput(Task state) {
+  state.kind = TaskKind::kStow;
+  state.work_order.clear();
+  return state;
+}
+
 void WriteTaskFile(const std::string& path, const Task& task) {
   const std::string text = SerializeTask(task);
   static std::atomic<unsigned> counter{0};

@@ -75,6 +75,11 @@ Task ReadTaskFile(const std::string& path, const Catalogue& catalogue);
 /// {"bin", "item"}. Throws std::invalid_argument when a bin key is not a bin name.
 std::string SerializeTask(const Task& task);
 
+/// The output-file form of a state: same bin and tote contents, kind kStow and no work
+/// order, so that SerializeTask / WriteTaskFile write only bin_contents and tote_contents (the
+/// official output format of both tasks).
+Task ToOutput(Task state);
+
 /// Writes SerializeTask(task) to `path` atomically: a temporary file in the same folder is
 /// written, flushed and renamed over `path`, so readers never see a partial file. Throws
 /// TaskFileError when the file cannot be written (and leaves `path` untouched).

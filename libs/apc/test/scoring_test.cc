@@ -133,8 +133,8 @@ TEST(ScoringTest, ItemBonusComesFromTheCatalogue) {
   report = Score(input, Catalogue(items));
   EXPECT_EQ(report.total, 15 + 3);
   // No bonus line for an item without bonus.
-  report = Score(Honest(SmallPick(), {MoveEvent("dove_beauty_bar", "bin_A", "tote")}),
-                 TheCatalogue());
+  report =
+      Score(Honest(SmallPick(), {MoveEvent("dove_beauty_bar", "bin_A", "tote")}), TheCatalogue());
   EXPECT_EQ(CountRule(report, ScoreRule::kItemBonus), 0);
 }
 
