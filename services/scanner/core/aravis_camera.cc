@@ -1,0 +1,201 @@
+#include "services/scanner/core/aravis_camera.h"
+
+#include <arv.h>
+
+#include <stdexcept>
+
+namespace picking::scanner {
+namespace {
+
+// Throws CameraError for a set GError, freeing it.
+void Check(GError* error, const std::string& what) {
+  if (error == nullptr) return;
+  const std::string message = what + ": " + error->message;
+  g_error_free(error);
+  throw CameraError(message);
+}
+
+}  // namespace
+
+struct AravisCamera::Impl {
+  std::string device_id;
+  ArvCamera* camera = nullptr;
+  ArvStream* stream = nullptr;
+  int buffer_count = 0;
+  std::uint32_t width = 0;
+  std::uint32_t height = 0;
+  CameraSettings settings;
+  bool configured = false;
+
+  ~Impl() {
+    if (stream != nullptr) g_object_unref(stream);
+    if (camera != nullptr) g_object_unref(camera);
+  }
+
+  std::string Name() const { return "camera '" + device_id + "'"; }
+
+  void CreateStream() {
+    if (stream != nullptr) {
+      g_object_unref(stream);
+      stream = nullptr;
+    }
+    GError* error = nullptr;
+    stream = arv_camera_create_stream(camera, nullptr, nullptr, &error);
+    Check(error, Name() + ": cannot create the stream");
+    if (stream == nullptr) throw CameraError(Name() + ": cannot create the stream");
+    const guint payload = arv_camera_get_payload(camera, &error);
+    Check(error, Name() + ": cannot read the payload size");
+    for (int i = 0; i < buffer_count; ++i) {
+      arv_stream_push_buffer(stream, arv_buffer_new_allocate(payload));
+    }
+  }
+};
+
+AravisCamera::AravisCamera(const std::string& device_id, int buffer_count)
+    : impl_(std::make_unique<Impl>()) {
+  if (buffer_count < 2) throw std::invalid_argument("AravisCamera: buffer_count must be >= 2");
+  impl_->buffer_count = buffer_count;
+  GError* error = nullptr;
+  impl_->camera = arv_camera_new(device_id.empty() ? nullptr : device_id.c_str(), &error);
+  impl_->device_id = device_id.empty() ? "<first camera>" : device_id;
+  Check(error, "cannot open " + impl_->Name());
+  if (impl_->camera == nullptr) throw CameraError("cannot open " + impl_->Name());
+  if (device_id.empty()) {
+    const char* id = arv_camera_get_device_id(impl_->camera, nullptr);
+    if (id != nullptr) impl_->device_id = id;
+  }
+  arv_camera_set_pixel_format(impl_->camera, ARV_PIXEL_FORMAT_MONO_8, &error);
+  Check(error, impl_->Name() + ": cannot set pixel format Mono8");
+  gint x = 0, y = 0, width = 0, height = 0;
+  arv_camera_get_region(impl_->camera, &x, &y, &width, &height, &error);
+  Check(error, impl_->Name() + ": cannot read the image region");
+  impl_->width = static_cast<std::uint32_t>(width);
+  impl_->height = static_cast<std::uint32_t>(height);
+  arv_camera_set_acquisition_mode(impl_->camera, ARV_ACQUISITION_MODE_CONTINUOUS, &error);
+  Check(error, impl_->Name() + ": cannot set continuous acquisition");
+  impl_->CreateStream();
+}
+
+AravisCamera::~AravisCamera() = default;
+
+std::uint32_t AravisCamera::width() const { return impl_->width; }
+std::uint32_t AravisCamera::height() const { return impl_->height; }
+const std::string& AravisCamera::device_id() const { return impl_->device_id; }
+
+void AravisCamera::Configure(const CameraSettings& settings) {
+  ValidateCameraSettings(settings);
+  GError* error = nullptr;
+  ArvCamera* camera = impl_->camera;
+  arv_camera_set_exposure_time(camera, settings.exposure_us, &error);
+  Check(error,
+        impl_->Name() + ": cannot set exposure " + std::to_string(settings.exposure_us) + " us");
+  switch (settings.trigger_mode) {
+    case TriggerMode::kFreeRun:
+      arv_camera_clear_triggers(camera, &error);
+      Check(error, impl_->Name() + ": cannot switch triggers off");
+      break;
+    case TriggerMode::kSoftware:
+      arv_camera_set_trigger(camera, "Software", &error);
+      Check(error, impl_->Name() + ": cannot set software trigger");
+      break;
+    case TriggerMode::kHardware:
+      arv_camera_set_trigger(camera, settings.hardware_trigger_line.c_str(), &error);
+      Check(error, impl_->Name() + ": cannot set hardware trigger on '" +
+                       settings.hardware_trigger_line + "'");
+      break;
+  }
+  impl_->settings = settings;
+  impl_->configured = true;
+}
+
+std::vector<Frame> AravisCamera::Capture(int count) {
+  if (count <= 0) {
+    throw std::invalid_argument("AravisCamera::Capture: count must be > 0, got " +
+                                std::to_string(count));
+  }
+  if (!impl_->configured) throw CameraError(impl_->Name() + ": Capture before Configure");
+  ArvCamera* camera = impl_->camera;
+  ArvStream* stream = impl_->stream;
+  // Frames left over from an earlier capture are stale: give their buffers back.
+  while (ArvBuffer* stale = arv_stream_try_pop_buffer(stream))
+    arv_stream_push_buffer(stream, stale);
+
+  GError* error = nullptr;
+  arv_camera_start_acquisition(camera, &error);
+  Check(error, impl_->Name() + ": cannot start the acquisition");
+  std::vector<Frame> frames;
+  frames.reserve(static_cast<std::size_t>(count));
+  const auto timeout_us = static_cast<guint64>(impl_->settings.frame_timeout_s * 1e6);
+  std::string failure;
+  bool timed_out = false;
+  for (int i = 0; i < count && failure.empty(); ++i) {
+    if (impl_->settings.trigger_mode == TriggerMode::kSoftware) {
+      arv_camera_software_trigger(camera, &error);
+      if (error != nullptr) {
+        failure = impl_->Name() + ": software trigger failed: " + error->message;
+        g_clear_error(&error);
+        break;
+      }
+    }
+    ArvBuffer* buffer = arv_stream_timeout_pop_buffer(stream, timeout_us);
+    if (buffer == nullptr) {
+      timed_out = true;
+      failure = impl_->Name() + ": frame " + std::to_string(i) + " of " + std::to_string(count) +
+                " did not arrive within " + std::to_string(impl_->settings.frame_timeout_s) + " s";
+      break;
+    }
+    const ArvBufferStatus status = arv_buffer_get_status(buffer);
+    if (status != ARV_BUFFER_STATUS_SUCCESS) {
+      failure = impl_->Name() + ": frame " + std::to_string(i) + " has buffer status " +
+                std::to_string(static_cast<int>(status));
+    } else {
+      size_t size = 0;
+      const auto* data = static_cast<const std::uint8_t*>(arv_buffer_get_image_data(buffer, &size));
+      const auto w = static_cast<std::uint32_t>(arv_buffer_get_image_width(buffer));
+      const auto h = static_cast<std::uint32_t>(arv_buffer_get_image_height(buffer));
+      if (data == nullptr || size < static_cast<size_t>(w) * h) {
+        failure = impl_->Name() + ": frame " + std::to_string(i) + " is shorter than " +
+                  std::to_string(w) + " x " + std::to_string(h) + " Mono8 pixels";
+      } else {
+        Frame frame;
+        frame.image = GrayImage(w, h);
+        std::copy(data, data + static_cast<std::size_t>(w) * h, frame.image.pixels.begin());
+        frame.frame_id = arv_buffer_get_frame_id(buffer);
+        frame.timestamp_s = static_cast<double>(arv_buffer_get_timestamp(buffer)) * 1e-9;
+        frames.push_back(std::move(frame));
+      }
+    }
+    arv_stream_push_buffer(stream, buffer);
+  }
+  arv_camera_stop_acquisition(camera, &error);
+  g_clear_error(&error);
+  if (timed_out) throw CameraTimeoutError(failure);
+  if (!failure.empty()) throw CameraError(failure);
+  CheckConsecutiveFrameIds(frames);
+  return frames;
+}
+
+std::string EnableAravisFakeCamera() {
+  arv_enable_interface("Fake");
+  arv_update_device_list();
+  const unsigned int n = arv_get_n_devices();
+  for (unsigned int i = 0; i < n; ++i) {
+    const char* protocol = arv_get_device_protocol(i);
+    const char* id = arv_get_device_id(i);
+    if (protocol != nullptr && id != nullptr && std::string(protocol) == "Fake") return id;
+  }
+  throw CameraError("the Aravis fake camera did not appear after enabling the Fake interface");
+}
+
+std::vector<std::string> ListAravisCameras() {
+  arv_update_device_list();
+  std::vector<std::string> ids;
+  const unsigned int n = arv_get_n_devices();
+  for (unsigned int i = 0; i < n; ++i) {
+    const char* id = arv_get_device_id(i);
+    if (id != nullptr) ids.emplace_back(id);
+  }
+  return ids;
+}
+
+}  // namespace picking::scanner
