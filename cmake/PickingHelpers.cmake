@@ -94,6 +94,13 @@ function(picking_add_components dir)
   list(SORT children)
   foreach(child ${children})
     get_filename_component(sub ${child} DIRECTORY)
+    get_filename_component(abs ${CMAKE_CURRENT_SOURCE_DIR}/${dir}/${sub} ABSOLUTE)
+    file(RELATIVE_PATH rel ${PROJECT_SOURCE_DIR} ${abs})
+    # PICKING_ONLY (a regular expression over paths such as "libs/ur10") limits the build
+    # to some components, for working on one part of the tree.
+    if(PICKING_ONLY AND NOT rel MATCHES "${PICKING_ONLY}")
+      continue()
+    endif()
     add_subdirectory(${dir}/${sub})
   endforeach()
 endfunction()

@@ -26,8 +26,8 @@ def main(argv=None):
     parser.add_argument("--timeout-s", type=float, default=10.0)
     args = parser.parse_args(argv)
 
-    health_pb2 = picking_stubs.load("grpc.health.v1.health_pb2")
-    health_grpc = picking_stubs.load("grpc.health.v1.health_pb2_grpc")
+    health_pb2 = picking_stubs.load(picking_stubs.HEALTH_MODULE + ".health_pb2")
+    health_grpc = picking_stubs.load(picking_stubs.HEALTH_MODULE + ".health_pb2_grpc")
     robot_types = picking_stubs.load("picking.common.v1.robot_types_pb2")
     planner_pb2 = picking_stubs.load("picking.planner.v1.planner_pb2")
     planner_grpc = picking_stubs.load("picking.planner.v1.planner_pb2_grpc")

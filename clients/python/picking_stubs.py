@@ -9,9 +9,18 @@ import hashlib
 import importlib
 import os
 import pathlib
+import shutil
 import sys
+import tempfile
 
 PROTO_ROOT = pathlib.Path(__file__).resolve().parents[2] / "proto"
+
+# The vendored gRPC health contract lives at proto/grpc/health/v1/health.proto; generated
+# as is, its module "grpc.health.v1" would clash with grpcio's own "grpc" package. It is
+# generated as "grpc_health_vendored.v1.health_pb2" instead (same proto package, same wire
+# format).
+HEALTH_MODULE = "grpc_health_vendored.v1"
+_RENAMES = {"grpc/health/v1/health.proto": "grpc_health_vendored/v1/health.proto"}
 
 
 def _proto_files():
@@ -43,15 +52,20 @@ def ensure_stubs(out_dir=None):
     if not (target / ".complete").exists():
         target.mkdir(parents=True, exist_ok=True)
         well_known = pathlib.Path(grpc_tools.__file__).parent / "_proto"
-        args = ["grpc_tools.protoc", f"-I{PROTO_ROOT}", f"-I{well_known}",
-                f"--python_out={target}", f"--grpc_python_out={target}"]
-        args += [str(f.relative_to(PROTO_ROOT)) for f in files]
-        if protoc.main(args) != 0:
-            raise RuntimeError("grpc_tools.protoc failed on " + str(PROTO_ROOT))
-        # Generated packages need __init__.py files to import as packages.
-        for d in target.rglob("*"):
-            if d.is_dir():
-                (d / "__init__.py").touch()
+        with tempfile.TemporaryDirectory() as staging:
+            staged = []
+            for f in files:
+                rel = str(f.relative_to(PROTO_ROOT))
+                dest = pathlib.Path(staging) / _RENAMES.get(rel, rel)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(f, dest)
+                staged.append(_RENAMES.get(rel, rel))
+            args = ["grpc_tools.protoc", f"-I{staging}", f"-I{well_known}",
+                    f"--python_out={target}", f"--grpc_python_out={target}"] + staged
+            if protoc.main(args) != 0:
+                raise RuntimeError("grpc_tools.protoc failed on " + str(PROTO_ROOT))
+        # No __init__.py files: the generated folders stay namespace packages, so that
+        # "google.rpc" here and protobuf's "google.protobuf" both import.
         (target / ".complete").touch()
     if str(target) not in sys.path:
         sys.path.insert(0, str(target))
