@@ -1,0 +1,92 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <string>
+#include <vector>
+
+#include "libs/ur10/kinematics.h"
+#include "services/robot/core/trajectory.h"
+
+namespace picking::robot {
+
+/// An axis-aligned box in the robot base frame, metres.
+struct Box {
+  std::string name;
+  Eigen::Vector3d min_m = Eigen::Vector3d::Zero();
+  Eigen::Vector3d max_m = Eigen::Vector3d::Zero();
+  bool Contains(const Eigen::Vector3d& p_Base) const {
+    return (p_Base.array() >= min_m.array()).all() && (p_Base.array() <= max_m.array()).all();
+  }
+};
+
+/// Limits every motion must respect. All in the robot base frame, SI units.
+struct SafetyLimits {
+  JointVector min_position_rad = JointVector::Constant(-6.283185307179586);
+  JointVector max_position_rad = JointVector::Constant(6.283185307179586);
+  JointVector max_velocity_rad_s = JointVector::Constant(1.0);
+  JointVector max_acceleration_rad_s2 = JointVector::Constant(1.0);
+  /// The tool centre point must stay inside this box.
+  Box workspace{"workspace", Eigen::Vector3d::Constant(-1.5), Eigen::Vector3d::Constant(1.5)};
+  /// The tool centre point must never enter any of these boxes.
+  std::vector<Box> forbidden_zones;
+  /// Largest TCP linear speed, m/s.
+  double max_tool_speed_m_s = 0.5;
+
+  /// Joint limits of the model, the given workspace and tool speed.
+  static SafetyLimits FromModel(const ur10::Ur10Model& model, const Box& workspace,
+                                double max_tool_speed_m_s);
+  /// @throws std::invalid_argument naming the field: non-finite values, min >= max,
+  /// non-positive speeds/accelerations, an empty workspace box or forbidden zone.
+  void Validate() const;
+};
+
+/// Outcome of a safety check: ok, or the reason naming the joint, waypoint or limit.
+struct SafetyCheck {
+  bool ok = true;
+  std::string reason;
+  static SafetyCheck Ok() { return {}; }
+  static SafetyCheck Fail(std::string why) { return {false, std::move(why)}; }
+  explicit operator bool() const { return ok; }
+};
+
+/// Validates joint targets, straight TCP moves and trajectories against SafetyLimits.
+/// NaN or infinity anywhere is refused. Thread-safe (const).
+class SafetyChecker final {
+ public:
+  /// @param X_ToolTcp pose of the tool centre point in the flange frame.
+  /// @throws std::invalid_argument if `limits` are invalid (see SafetyLimits::Validate).
+  SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimits limits,
+                const Eigen::Isometry3d& X_ToolTcp = Eigen::Isometry3d::Identity());
+
+  const SafetyLimits& limits() const { return limits_; }
+  /// The kinematics (with the safety position limits applied to IK).
+  const ur10::Ur10Kinematics& kinematics() const { return kinematics_; }
+  const Eigen::Isometry3d& X_ToolTcp() const { return X_ToolTcp_; }
+
+  /// Joint positions within limits, TCP inside the workspace and outside every forbidden zone.
+  SafetyCheck CheckJointTarget(const JointVector& q_rad) const;
+
+  /// A straight TCP line from FK(q_start) to X_BaseTcp_goal: every intermediate pose (sampled
+  /// every `step_m` / 0.02 rad) reachable on the start's IK branch without a joint jump, and
+  /// every sampled TCP position inside the workspace and outside the forbidden zones; the
+  /// requested TCP speed (if > 0) within max_tool_speed_m_s.
+  SafetyCheck CheckLinearMove(const JointVector& q_start_rad,
+                              const Eigen::Isometry3d& X_BaseTcp_goal, double tool_speed_m_s = 0.0,
+                              double step_m = 0.005) const;
+
+  /// Every waypoint as CheckJointTarget, time finite, starting >= 0 and strictly increasing,
+  /// finite-difference joint speeds and accelerations and TCP speed within the limits
+  /// (relative slack `tolerance` for the rounding of sampled profiles). The robot is taken to
+  /// be at rest before the first and after the last waypoint.
+  SafetyCheck CheckTrajectory(const JointTrajectory& trajectory, double tolerance = 1e-6) const;
+
+ private:
+  SafetyCheck CheckTcp(const Eigen::Vector3d& p_BaseTcp, const std::string& where) const;
+
+  ur10::Ur10Kinematics kinematics_;
+  SafetyLimits limits_;
+  Eigen::Isometry3d X_ToolTcp_;
+};
+
+}  // namespace picking::robot
