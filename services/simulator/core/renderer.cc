@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <thread>
+#include <type_traits>
 #include <utility>
 
 namespace picking::simulator {
@@ -27,23 +28,31 @@ int ResolveThreads(int requested) {
   return hw == 0 ? 1 : static_cast<int>(hw);
 }
 
-// Calls f(i) for i in [0, n) on `threads` threads (the caller's included), items taken in
-// order from a shared counter. `f` must not throw.
+// Calls f(i, worker) for i in [0, n) on up to `threads` threads (the caller's included,
+// worker 0), items taken in order from a shared counter; worker < min(threads, n). `f` must
+// not throw. Also accepts f(i).
 template <class F>
 void ParallelFor(int n, int threads, const F& f) {
+  auto call = [&f](int i, int worker) {
+    if constexpr (std::is_invocable_v<const F&, int, int>) {
+      f(i, worker);
+    } else {
+      f(i);
+    }
+  };
   threads = std::min(threads, n);
   if (threads <= 1) {
-    for (int i = 0; i < n; ++i) f(i);
+    for (int i = 0; i < n; ++i) call(i, 0);
     return;
   }
   std::atomic<int> next{0};
-  auto worker = [&]() {
-    for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) f(i);
+  auto worker = [&](int id) {
+    for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) call(i, id);
   };
   std::vector<std::thread> pool;
   pool.reserve(threads - 1);
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-  worker();
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker, t);
+  worker(0);
   for (auto& th : pool) th.join();
 }
 
@@ -240,9 +249,11 @@ struct FloatLight {
   float operator[](std::size_t i) const { return pixels[i]; }
 };
 
-// Separable Gaussian blur with clamped borders of a width x height float image.
-std::vector<float> Blur(const std::vector<float>& in, int width, int height, double sigma,
-                        int threads) {
+// Separable Gaussian blur with clamped borders of the width x height float image `image`,
+// in place; `tmp` is scratch of the same size (both reused across frames: fresh memory costs
+// more in page faults than the blur itself).
+void Blur(std::vector<float>* image, std::vector<float>* scratch, int width, int height,
+          double sigma, int threads) {
   const int radius = std::max(1, static_cast<int>(std::ceil(3.0 * sigma)));
   std::vector<float> kernel(2 * radius + 1);
   double sum = 0.0;
@@ -251,33 +262,39 @@ std::vector<float> Blur(const std::vector<float>& in, int width, int height, dou
     sum += kernel[k + radius];
   }
   for (float& w : kernel) w = static_cast<float>(w / sum);
-  std::vector<float> tmp(in.size()), out(in.size());
+  std::vector<float>& in = *image;
+  std::vector<float>& out = *image;
+  std::vector<float>& tmp = *scratch;
+  tmp.resize(in.size());
   const int blocks = (height + kRowsPerBlock - 1) / kRowsPerBlock;
+  // Both passes run over contiguous rows with the tap loop outside, so they vectorise.
   ParallelFor(blocks, threads, [&](int b) {
+    std::vector<float> padded(width + 2 * radius);
     for (int y = b * kRowsPerBlock; y < std::min(height, (b + 1) * kRowsPerBlock); ++y) {
       const float* row = &in[std::size_t(y) * width];
-      for (int x = 0; x < width; ++x) {
-        float acc = 0.0f;
-        for (int k = -radius; k <= radius; ++k) {
-          acc += kernel[k + radius] * row[std::clamp(x + k, 0, width - 1)];
-        }
-        tmp[std::size_t(y) * width + x] = acc;
+      for (int x = -radius; x < width + radius; ++x) {
+        padded[x + radius] = row[std::clamp(x, 0, width - 1)];
+      }
+      float* dst = &tmp[std::size_t(y) * width];
+      std::fill(dst, dst + width, 0.0f);
+      for (int k = 0; k <= 2 * radius; ++k) {
+        const float w = kernel[k];
+        const float* src = &padded[k];
+        for (int x = 0; x < width; ++x) dst[x] += w * src[x];
       }
     }
   });
   ParallelFor(blocks, threads, [&](int b) {
     for (int y = b * kRowsPerBlock; y < std::min(height, (b + 1) * kRowsPerBlock); ++y) {
-      for (int x = 0; x < width; ++x) {
-        float acc = 0.0f;
-        for (int k = -radius; k <= radius; ++k) {
-          acc +=
-              kernel[k + radius] * tmp[std::size_t(std::clamp(y + k, 0, height - 1)) * width + x];
-        }
-        out[std::size_t(y) * width + x] = acc;
+      float* dst = &out[std::size_t(y) * width];
+      std::fill(dst, dst + width, 0.0f);
+      for (int k = -radius; k <= radius; ++k) {
+        const float w = kernel[k + radius];
+        const float* src = &tmp[std::size_t(std::clamp(y + k, 0, height - 1)) * width];
+        for (int x = 0; x < width; ++x) dst[x] += w * src[x];
       }
     }
   });
-  return out;
 }
 
 void CheckGeometry(const ScanGeometry& g) {
@@ -312,8 +329,8 @@ std::vector<float> LightTable(const RenderOptions& o) {
   return lut;
 }
 
-// Per-pixel data shared by all frames of a render call: where to read the projector image
-// (index of the top-left bilinear neighbour, or -1 if unlit) and with which weights.
+// Where the surface of a camera pixel reads the projector image (index of the top-left
+// bilinear neighbour, or -1 if unlit) and with which weights; shared by all frames.
 struct PixelSample {
   std::int32_t index;
   float au;
@@ -321,74 +338,76 @@ struct PixelSample {
   float gain;
 };
 
-struct ShadingTable {
+// Shading data of one block of camera rows, built per block so that it stays in cache while
+// all frames are shaded and no image-sized table is allocated.
+struct BlockTable {
   std::vector<PixelSample> samples;
   std::vector<float> ambient_dn;  // Ambient signal per pixel, DN.
-  std::size_t du = 1;             // Offset to the right neighbour (0 for a 1-wide projector).
-  std::size_t dv = 1;             // Offset to the neighbour below.
+  std::vector<float> scratch;     // 2 * width floats for ShadeRow.
 };
 
-ShadingTable MakeShadingTable(const ScanGeometry& g, const RenderOptions& o, int threads) {
-  ShadingTable t;
-  const int pw = g.projector_width;
-  const int ph = g.projector_height;
-  t.du = pw > 1 ? 1 : 0;
-  t.dv = ph > 1 ? static_cast<std::size_t>(pw) : 0;
-  t.samples.resize(g.size());
-  t.ambient_dn.resize(g.size());
-  const float ambient_dn = static_cast<float>(255.0 * o.exposure * o.ambient);
-  const bool bilinear = o.sampling == ProjectorSampling::kBilinear;
-  const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
-  ParallelFor(blocks, threads, [&](int b) {
-    const std::size_t begin = std::size_t(b) * kRowsPerBlock * g.width;
-    const std::size_t end = std::min(g.size(), std::size_t(b + 1) * kRowsPerBlock * g.width);
-    for (std::size_t i = begin; i < end; ++i) {
-      t.ambient_dn[i] = ambient_dn * g.albedo[i];
-      PixelSample& p = t.samples[i];
-      p = {-1, 0.0f, 0.0f, 0.0f};
-      if (g.illumination[i] != Illumination::kLit) continue;
-      const float u = g.projector_uv[i].x();
-      const float v = g.projector_uv[i].y();
-      int u0, v0;
-      if (bilinear) {
-        // Clamp so that the four neighbours exist; weights reproduce edge clamping.
-        u0 = static_cast<int>(std::floor(u));
-        v0 = static_cast<int>(std::floor(v));
-        p.au = u - static_cast<float>(u0);
-        p.av = v - static_cast<float>(v0);
-        if (u0 < 0) {
-          u0 = 0;
-          p.au = 0.0f;
-        } else if (u0 > pw - 1 - int(t.du)) {
-          u0 = pw - 1 - int(t.du);
-          p.au = t.du ? 1.0f : 0.0f;
-        }
-        if (v0 < 0) {
-          v0 = 0;
-          p.av = 0.0f;
-        } else if (v0 > ph - 1 - (t.dv ? 1 : 0)) {
-          v0 = ph - 1 - (t.dv ? 1 : 0);
-          p.av = t.dv ? 1.0f : 0.0f;
-        }
-      } else {
-        u0 = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
-        v0 = std::clamp(static_cast<int>(std::lround(v)), 0, ph - 1);
-      }
-      p.index = v0 * pw + u0;
-      p.gain = g.gain[i];
-    }
-  });
-  return t;
+// Offsets to the right and lower projector neighbours (0 for a 1-wide / 1-high projector).
+std::size_t RightOffset(const ScanGeometry& g) { return g.projector_width > 1 ? 1 : 0; }
+std::size_t DownOffset(const ScanGeometry& g) {
+  return g.projector_height > 1 ? static_cast<std::size_t>(g.projector_width) : 0;
 }
 
-// Shades camera row y of one frame. `scratch` holds 2 * width floats.
+void FillBlockTable(const ScanGeometry& g, const RenderOptions& o, int row_begin, int row_end,
+                    BlockTable* t) {
+  const int pw = g.projector_width;
+  const int ph = g.projector_height;
+  const int u_last = pw - 1 - static_cast<int>(RightOffset(g));
+  const int v_last = ph - 1 - (DownOffset(g) ? 1 : 0);
+  const std::size_t begin = std::size_t(row_begin) * g.width;
+  const std::size_t count = std::size_t(row_end - row_begin) * g.width;
+  t->samples.resize(count);
+  t->ambient_dn.resize(count);
+  t->scratch.resize(2 * std::size_t(g.width));
+  const float ambient_dn = static_cast<float>(255.0 * o.exposure * o.ambient);
+  const bool bilinear = o.sampling == ProjectorSampling::kBilinear;
+  for (std::size_t j = 0; j < count; ++j) {
+    const std::size_t i = begin + j;
+    t->ambient_dn[j] = ambient_dn * g.albedo[i];
+    PixelSample& p = t->samples[j];
+    p = {-1, 0.0f, 0.0f, 0.0f};
+    if (g.illumination[i] != Illumination::kLit) continue;
+    const float u = g.projector_uv[i].x();
+    const float v = g.projector_uv[i].y();
+    int u0, v0;
+    if (bilinear) {
+      // Clamp so that the four neighbours exist; the weights reproduce edge clamping.
+      u0 = static_cast<int>(std::floor(u));
+      v0 = static_cast<int>(std::floor(v));
+      p.au = u - static_cast<float>(u0);
+      p.av = v - static_cast<float>(v0);
+      if (u0 < 0) {
+        u0 = 0;
+        p.au = 0.0f;
+      } else if (u0 > u_last) {
+        u0 = u_last;
+        p.au = u_last < pw - 1 ? 1.0f : 0.0f;
+      }
+      if (v0 < 0) {
+        v0 = 0;
+        p.av = 0.0f;
+      } else if (v0 > v_last) {
+        v0 = v_last;
+        p.av = v_last < ph - 1 ? 1.0f : 0.0f;
+      }
+    } else {
+      u0 = std::clamp(static_cast<int>(std::lround(u)), 0, pw - 1);
+      v0 = std::clamp(static_cast<int>(std::lround(v)), 0, ph - 1);
+    }
+    p.index = v0 * pw + u0;
+    p.gain = g.gain[i];
+  }
+}
+
+// Shades one camera row of one frame from its table entries.
 template <bool kBilinear, class Light>
-void ShadeRow(const ShadingTable& t, const Light& light, const RenderOptions& o,
-              std::uint64_t frame, int y, int width, float* scratch, std::uint8_t* dst) {
-  const PixelSample* samples = &t.samples[std::size_t(y) * width];
-  const float* ambient = &t.ambient_dn[std::size_t(y) * width];
-  const std::size_t du = t.du;
-  const std::size_t dv = t.dv;
+void ShadeRow(const PixelSample* samples, const float* ambient, std::size_t du, std::size_t dv,
+              const Light& light, const RenderOptions& o, std::uint64_t frame, int y, int width,
+              float* scratch, std::uint8_t* dst) {
   // Pass 1 (gathers, scalar): noise-free signal.
   float* signal = scratch;
   for (int x = 0; x < width; ++x) {
@@ -423,8 +442,9 @@ void ShadeRow(const ShadingTable& t, const Light& light, const RenderOptions& o,
     SplitMix64 rng{RowSeed(o.seed, frame, y)};
     for (int x = 0; x < width; x += 4) {
       std::uint64_t bits = rng.Next();
-      for (int k = 0; k < 4 && x + k < width; ++k, bits >>= 16)
+      for (int k = 0; k < 4 && x + k < width; ++k, bits >>= 16) {
         normal[x + k] = table[bits & 0xFFFF];
+      }
     }
     const Eigen::Map<const Eigen::ArrayXf> n(normal, width);
     s += (read_var + shot_scale * s.max(0.0f)).sqrt() * n;
@@ -435,21 +455,28 @@ void ShadeRow(const ShadingTable& t, const Light& light, const RenderOptions& o,
   for (int x = 0; x < width; ++x) dst[x] = static_cast<std::uint8_t>(signal[x]);
 }
 
-// Shades rows [row_begin, row_end) of every frame; `lights[f]` is frame f's projector light
-// and `frame_ids[f]` its noise stream.
+// Shades rows [row_begin, row_end) of every frame; `lights[f]` is frame f's projector light,
+// `frame_ids[f]` its noise stream and `out[f]` its image.
 template <class Light>
-void ShadeBlock(const ScanGeometry& g, const ShadingTable& t, const std::vector<Light>& lights,
+void ShadeBlock(const ScanGeometry& g, const std::vector<Light>& lights,
                 const std::vector<std::uint64_t>& frame_ids, const RenderOptions& o, int row_begin,
-                int row_end, const std::vector<GrayImage*>& out) {
-  // Frames in the inner loop: the block's per-pixel table stays in cache across frames.
-  std::vector<float> scratch(2 * std::size_t(g.width));
+                int row_end, const std::vector<GrayImage*>& out, BlockTable* table) {
+  FillBlockTable(g, o, row_begin, row_end, table);
+  const std::size_t du = RightOffset(g);
+  const std::size_t dv = DownOffset(g);
+  // Frames in the inner loop: the block's table stays in cache across frames.
   for (std::size_t f = 0; f < lights.size(); ++f) {
     for (int y = row_begin; y < row_end; ++y) {
+      const std::size_t offset = std::size_t(y - row_begin) * g.width;
+      const PixelSample* samples = &table->samples[offset];
+      const float* ambient = &table->ambient_dn[offset];
       std::uint8_t* dst = &out[f]->pixels[std::size_t(y) * g.width];
       if (o.sampling == ProjectorSampling::kBilinear) {
-        ShadeRow<true>(t, lights[f], o, frame_ids[f], y, g.width, scratch.data(), dst);
+        ShadeRow<true>(samples, ambient, du, dv, lights[f], o, frame_ids[f], y, g.width,
+                       table->scratch.data(), dst);
       } else {
-        ShadeRow<false>(t, lights[f], o, frame_ids[f], y, g.width, scratch.data(), dst);
+        ShadeRow<false>(samples, ambient, du, dv, lights[f], o, frame_ids[f], y, g.width,
+                        table->scratch.data(), dst);
       }
     }
   }
@@ -460,7 +487,6 @@ void Shade(const ScanGeometry& g, const std::vector<const GrayImage*>& images,
            std::uint64_t first_frame, const RenderOptions& o, std::vector<GrayImage>* out) {
   const int threads = ResolveThreads(o.num_threads);
   const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
-  const ShadingTable table = MakeShadingTable(g, o, threads);
   const std::vector<float> lut = LightTable(o);
   out->resize(images.size());
   std::vector<GrayImage*> targets;
@@ -470,8 +496,13 @@ void Shade(const ScanGeometry& g, const std::vector<const GrayImage*>& images,
     }
     targets.push_back(&image);
   }
-  auto block_rows = [&](int b) {
-    return std::make_pair(b * kRowsPerBlock, std::min(g.height, (b + 1) * kRowsPerBlock));
+  std::vector<BlockTable> tables(std::max(1, std::min(threads, blocks)));
+  auto shade = [&](const auto& lights, const std::vector<std::uint64_t>& frame_ids,
+                   const std::vector<GrayImage*>& target) {
+    ParallelFor(blocks, threads, [&](int b, int worker) {
+      ShadeBlock(g, lights, frame_ids, o, b * kRowsPerBlock,
+                 std::min(g.height, (b + 1) * kRowsPerBlock), target, &tables[worker]);
+    });
   };
   if (o.projector_blur_sigma_px <= 0.0) {
     std::vector<LutLight> lights;
@@ -480,25 +511,30 @@ void Shade(const ScanGeometry& g, const std::vector<const GrayImage*>& images,
       lights.push_back({images[k]->pixels.data(), lut.data()});
       frame_ids.push_back(first_frame + k);
     }
-    ParallelFor(blocks, threads, [&](int b) {
-      const auto [row_begin, row_end] = block_rows(b);
-      ShadeBlock(g, table, lights, frame_ids, o, row_begin, row_end, targets);
-    });
+    shade(lights, frame_ids, targets);
     return;
   }
-  // Blurred light is a float image per frame: one frame at a time bounds the memory.
-  for (std::size_t k = 0; k < images.size(); ++k) {
-    const GrayImage& image = *images[k];
-    std::vector<float> light(image.pixels.size());
-    for (std::size_t i = 0; i < light.size(); ++i) light[i] = lut[image.pixels[i]];
-    light = Blur(light, image.width, image.height, o.projector_blur_sigma_px, threads);
-    const std::vector<FloatLight> lights = {{light.data()}};
-    const std::vector<std::uint64_t> frame_ids = {first_frame + k};
-    const std::vector<GrayImage*> target = {targets[k]};
-    ParallelFor(blocks, threads, [&](int b) {
-      const auto [row_begin, row_end] = block_rows(b);
-      ShadeBlock(g, table, lights, frame_ids, o, row_begin, row_end, target);
-    });
+  // Blurred light is a float image per frame: a few frames at a time bound the memory while
+  // each block table still serves several frames.
+  constexpr std::size_t kBlurChunk = 4;
+  std::vector<std::vector<float>> light(std::min(kBlurChunk, images.size()));
+  std::vector<float> scratch;
+  for (std::size_t first = 0; first < images.size(); first += kBlurChunk) {
+    const std::size_t count = std::min(kBlurChunk, images.size() - first);
+    std::vector<FloatLight> lights;
+    std::vector<std::uint64_t> frame_ids;
+    std::vector<GrayImage*> chunk_targets;
+    for (std::size_t c = 0; c < count; ++c) {
+      const GrayImage& image = *images[first + c];
+      std::vector<float>& l = light[c];
+      l.resize(image.pixels.size());
+      for (std::size_t i = 0; i < l.size(); ++i) l[i] = lut[image.pixels[i]];
+      Blur(&l, &scratch, image.width, image.height, o.projector_blur_sigma_px, threads);
+      lights.push_back({l.data()});
+      frame_ids.push_back(first_frame + first + c);
+      chunk_targets.push_back(targets[first + c]);
+    }
+    shade(lights, frame_ids, chunk_targets);
   }
 }
 

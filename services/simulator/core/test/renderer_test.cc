@@ -456,7 +456,14 @@ TEST(StructuredLightRendererTest, BlurKeepsFlatLightAndSoftensEdges) {
   };
   EXPECT_GT(count_between(RenderImage(g, step, blurred)),
             3 * count_between(RenderImage(g, step, sharp)));
-  EXPECT_EQ(RenderSequence(g, {step}, blurred)[0].pixels, RenderImage(g, step, blurred).pixels);
+  // A sequence longer than the blur's frame chunk gives each frame's own image and noise.
+  blurred.read_noise_dn = 1.5;
+  const std::vector<GrayImage> sequence = {step, flat, step, Uniform(g, 0), step, flat, step};
+  const std::vector<GrayImage> images = RenderSequence(g, sequence, blurred);
+  ASSERT_EQ(images.size(), sequence.size());
+  for (std::size_t k = 0; k < sequence.size(); ++k) {
+    EXPECT_EQ(images[k].pixels, RenderImage(g, sequence[k], blurred, k).pixels) << k;
+  }
 }
 
 TEST(StructuredLightRendererTest, BufferReusingOverloadsGiveTheSameResult) {
