@@ -564,6 +564,54 @@ TEST_F(PointCloudIoTest, MalformedAsciiPcdBodiesNameLineAndPoint) {
   ExpectReadError(path, {"line 15", "more points than POINTS declares"});
 }
 
+// Random truncations and byte changes never crash the readers: each file either reads as a
+// consistent cloud or raises PointCloudIoError.
+TEST_F(PointCloudIoTest, CorruptedFilesReadOrThrowTheIoError) {
+  std::mt19937 rng(2016);
+  PointCloud small = SyntheticCloud();
+  std::vector<std::string> sources;
+  for (PointCloudFormat format : kAllFormats) {
+    const std::string path = Path(std::string("source") + Extension(format));
+    WritePointCloud(path, small, format);
+    sources.push_back(ReadBytes(path));
+  }
+  sources.push_back(ReadBytes(kMilk));
+  sources.push_back(BinaryPlyWithLists(false));
+  int errors = 0, reads = 0;
+  for (std::size_t s = 0; s < sources.size(); ++s) {
+    const std::string& original = sources[s];
+    const bool ply = original.rfind("ply", 0) == 0;
+    const std::string path = Path(ply ? "mutant.ply" : "mutant.pcd");
+    for (int trial = 0; trial < 60; ++trial) {
+      std::string bytes = original;
+      std::uniform_int_distribution<std::size_t> position(0, bytes.size() - 1);
+      if (trial % 3 == 0) {
+        bytes.resize(position(rng));
+      } else {
+        const int changes = 1 + trial % 4;
+        for (int c = 0; c < changes; ++c) {
+          // Half of the changes hit the header (first 200 bytes).
+          const std::size_t at =
+              c % 2 == 0 ? position(rng) % std::min<std::size_t>(200, bytes.size()) : position(rng);
+          bytes[at] = static_cast<char>(std::uniform_int_distribution<int>(0, 255)(rng));
+        }
+      }
+      WriteBytes(path, bytes);
+      try {
+        const PointCloud cloud = ReadPointCloud(path);
+        EXPECT_NO_THROW(ValidatePointCloud(cloud, "mutant"));
+        ++reads;
+      } catch (const PointCloudIoError& e) {
+        EXPECT_EQ(e.path(), path);
+        ++errors;
+      }
+    }
+  }
+  // Both outcomes occur: most truncations are detected, some byte changes only alter values.
+  EXPECT_GT(errors, 100);
+  EXPECT_GT(reads, 10);
+}
+
 TEST_F(PointCloudIoTest, UnknownFormatAndMissingFile) {
   const std::string path = Path("cloud.xyz");
   WriteBytes(path, "1 2 3\n");
