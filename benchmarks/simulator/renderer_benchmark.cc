@@ -215,6 +215,33 @@ BENCHMARK(BM_FullScan44Allocating)
     ->UseRealTime()
     ->MeasureProcessCPUTime();
 
+// Moving one item (an item picked or dropped): vertex update and BVH rebuild.
+void BM_MoveObject(benchmark::State& state) {
+  Fixture& f = Shared();
+  const std::size_t item = f.cell.objects.size() - 1;
+  const Eigen::Isometry3d X_BaseItem = f.cell.objects[item].X_BaseObject;
+  int step = 0;
+  for (auto _ : state) {
+    Eigen::Isometry3d X = X_BaseItem;
+    X.translation().x() += 0.001 * (++step % 10);
+    f.renderer.SetObjectPose(item, X);
+  }
+  f.renderer.SetObjectPose(item, X_BaseItem);
+  SetCounters(state, f);
+}
+BENCHMARK(BM_MoveObject)->Unit(benchmark::kMillisecond)->UseRealTime()->MeasureProcessCPUTime();
+
+// Building the scene from scratch (copy of the meshes, Embree BVH build).
+void BM_BuildScene(benchmark::State& state) {
+  Fixture& f = Shared();
+  for (auto _ : state) {
+    StructuredLightRenderer renderer(f.cell.objects);
+    benchmark::DoNotOptimize(renderer.num_triangles());
+  }
+  SetCounters(state, f);
+}
+BENCHMARK(BM_BuildScene)->Unit(benchmark::kMillisecond)->UseRealTime()->MeasureProcessCPUTime();
+
 }  // namespace
 }  // namespace picking::simulator
 
