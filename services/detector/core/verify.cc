@@ -181,7 +181,11 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   }
   const std::size_t considered = result.num_visible - result.num_occluded;
   if (considered >= static_cast<std::size_t>(std::max(1, options.min_visible_points))) {
-    result.score = static_cast<double>(result.num_supported) / static_cast<double>(considered);
+    result.score =
+        std::clamp((static_cast<double>(result.num_supported) -
+                    options.conflict_weight * static_cast<double>(result.num_conflicts)) /
+                       static_cast<double>(considered),
+                   0.0, 1.0);
     result.conflict_fraction =
         static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
   }

@@ -51,6 +51,9 @@ struct VerifyOptions {
   /// A measured depth this much behind a model point means the model would float in space the
   /// sensor saw as empty: a conflict, metres.
   double conflict_margin_m = 0.01;
+  /// Each conflict cancels this many supported points in the score: a surface the sensor
+  /// saw through is strong evidence against the pose.
+  double conflict_weight = 1.0;
   /// Model points are subsampled (deterministic stride) to at most this many.
   int max_model_points = 4000;
   /// Fewer unoccluded visible points than this gives score 0.
@@ -58,7 +61,7 @@ struct VerifyOptions {
 };
 
 struct VerifyResult {
-  /// Fraction of the visible, unoccluded model points that are supported: [0, 1].
+  /// (supported - conflict_weight * conflicts) / (visible - occluded), clamped to [0, 1].
   double score = 0.0;
   std::size_t num_model_points = 0;  ///< After subsampling.
   std::size_t num_visible = 0;       ///< Facing the sensor, in the image, not self-occluded.

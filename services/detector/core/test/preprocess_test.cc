@@ -1,0 +1,196 @@
+#include "services/detector/core/preprocess.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+namespace picking::detector {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+geometry::PointCloud Unorganised(std::vector<Eigen::Vector3f> points) {
+  geometry::PointCloud c;
+  c.points = std::move(points);
+  c.width = static_cast<std::uint32_t>(c.points.size());
+  return c;
+}
+
+// A shelf bin 0.3 x 0.25 x 0.2 m, rotated and translated, filled with points on its inner
+// floor, walls and an item in the middle; plus points outside the bin.
+struct BinScene {
+  OrientedBox bin;
+  geometry::PointCloud cloud;
+  std::size_t num_item_points = 0;
+};
+
+BinScene MakeBinScene() {
+  BinScene s;
+  s.bin.size_m = Eigen::Vector3d(0.3, 0.25, 0.2);
+  s.bin.X_BaseBox =
+      Eigen::Translation3d(0.8, 0.1, 1.2) * Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ());
+  std::vector<Eigen::Vector3f> p_Bin;
+  for (double a = -0.145; a <= 0.145; a += 0.005)
+    for (double b = -0.12; b <= 0.12; b += 0.005) p_Bin.emplace_back(a, b, -0.098);  // floor
+  for (double b = -0.12; b <= 0.12; b += 0.005)
+    for (double c = -0.095; c <= 0.095; c += 0.005) {
+      p_Bin.emplace_back(-0.148, b, c);  // left wall
+      p_Bin.emplace_back(0.148, b, c);   // right wall
+    }
+  const std::size_t walls = p_Bin.size();
+  for (double a = -0.03; a <= 0.03; a += 0.004)
+    for (double b = -0.03; b <= 0.03; b += 0.004) p_Bin.emplace_back(a, b, -0.05);  // item
+  s.num_item_points = p_Bin.size() - walls;
+  for (const auto& p : p_Bin)
+    s.cloud.points.push_back((s.bin.X_BaseBox * p.cast<double>()).cast<float>());
+  for (int i = 0; i < 100; ++i)  // outside the bin
+    s.cloud.points.push_back(
+        (s.bin.X_BaseBox * Eigen::Vector3d(0.3 + 0.001 * i, 0.0, 0.0)).cast<float>());
+  s.cloud.points.push_back(Eigen::Vector3f::Constant(kNaN));
+  s.cloud.width = static_cast<std::uint32_t>(s.cloud.points.size());
+  return s;
+}
+
+TEST(PreprocessTest, CropAndWallRemovalKeepOnlyTheItem) {
+  const BinScene s = MakeBinScene();
+  const geometry::PointCloud cropped = CropToBox(s.cloud, s.bin);
+  EXPECT_EQ(cropped.size(), s.cloud.size() - 101);
+  for (const auto& p : cropped.points) EXPECT_TRUE(s.bin.Contains(p.cast<double>(), 1e-6));
+  WallRemovalOptions walls;
+  walls.margin_m = 0.01;
+  walls.faces = kAllFaces & ~kFaceMaxY;  // open front
+  const geometry::PointCloud item = RemoveBoxWalls(cropped, s.bin, walls);
+  EXPECT_EQ(item.size(), s.num_item_points);
+}
+
+TEST(PreprocessTest, OrganisedCloudStaysOrganised) {
+  geometry::PointCloud c;
+  c.width = 4;
+  c.height = 2;
+  for (int i = 0; i < 8; ++i) c.points.emplace_back(0.1f * i, 0.0f, 1.0f);
+  c.intensities.assign(8, 0.5f);
+  OrientedBox box;
+  box.X_BaseBox.translation() = Eigen::Vector3d(0.15, 0.0, 1.0);
+  box.size_m = Eigen::Vector3d(0.2, 0.1, 0.1);
+  const geometry::PointCloud out = CropToBox(c, box);
+  ASSERT_EQ(out.size(), 8u);
+  EXPECT_EQ(out.height, 2u);
+  int finite = 0;
+  for (const auto& p : out.points) finite += p.allFinite();
+  EXPECT_EQ(finite, 2);  // x = 0.1 and 0.2
+  CropOptions drop;
+  drop.keep_organized = false;
+  const geometry::PointCloud dropped = CropToBox(c, box, drop);
+  EXPECT_EQ(dropped.size(), 2u);
+  EXPECT_EQ(dropped.intensities.size(), 2u);
+}
+
+TEST(PreprocessTest, ClearErrors) {
+  const BinScene s = MakeBinScene();
+  EXPECT_THROW(CropToBox(geometry::PointCloud{}, s.bin), std::invalid_argument);
+  geometry::PointCloud nan_only = Unorganised({Eigen::Vector3f::Constant(kNaN)});
+  try {
+    CropToBox(nan_only, s.bin);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("NaN"), std::string::npos);
+  }
+  OrientedBox far = s.bin;
+  far.X_BaseBox.translation() += Eigen::Vector3d(5, 0, 0);
+  try {
+    CropToBox(s.cloud, far);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("outside the cloud's bounds"), std::string::npos);
+  }
+  CropOptions small;
+  small.limits.max_points = 10;
+  EXPECT_THROW(CropToBox(s.cloud, s.bin, small), std::invalid_argument);
+  OrientedBox flat = s.bin;
+  flat.size_m.z() = 0.0;
+  EXPECT_THROW(CropToBox(s.cloud, flat), std::invalid_argument);
+  geometry::PointCloud bad_channel = s.cloud;
+  bad_channel.intensities.assign(3, 0.0f);
+  EXPECT_THROW(ValidateCloud(bad_channel), std::invalid_argument);
+}
+
+TEST(PreprocessTest, RansacRemovesTheDominantPlane) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> uniform(-0.2f, 0.2f);
+  std::normal_distribution<float> noise(0.0f, 0.001f);
+  const Eigen::Vector3f n = Eigen::Vector3f(0.1f, -0.2f, 1.0f).normalized();
+  const Eigen::Vector3f e1 = n.unitOrthogonal(), e2 = n.cross(e1);
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 3000; ++i)
+    points.push_back(0.5f * n + uniform(rng) * e1 + uniform(rng) * e2 + noise(rng) * n);
+  for (int i = 0; i < 500; ++i)  // a blob above the plane
+    points.push_back(0.6f * n + 0.1f * uniform(rng) * Eigen::Vector3f(1, 1, 1).normalized() +
+                     0.1f * uniform(rng) * e1);
+  const PlaneRemovalResult r = RemoveDominantPlane(Unorganised(points));
+  ASSERT_TRUE(r.removed);
+  const Eigen::Vector3d plane_n = r.plane.head<3>();
+  EXPECT_GT(std::abs(plane_n.dot(n.cast<double>())), 0.999);
+  EXPECT_NEAR(std::abs(r.plane[3]), 0.5, 0.003);
+  EXPECT_GE(r.num_inliers, 2950u);
+  EXPECT_LE(r.num_inliers, 3000u);
+  EXPECT_NEAR(static_cast<double>(r.cloud.size()), 500.0, 10.0);
+}
+
+TEST(PreprocessTest, VoxelDownsampleAveragesPerVoxel) {
+  geometry::PointCloud c = Unorganised({{0.001f, 0.001f, 0.001f},
+                                        {0.003f, 0.003f, 0.003f},
+                                        {0.011f, 0.001f, 0.001f},
+                                        {kNaN, 0.0f, 0.0f}});
+  c.intensities = {0.2f, 0.4f, 1.0f, 0.0f};
+  const geometry::PointCloud out = VoxelDownsample(c, 0.01);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_TRUE(out.points[0].isApprox(Eigen::Vector3f(0.002f, 0.002f, 0.002f)));
+  EXPECT_FLOAT_EQ(out.intensities[0], 0.3f);
+  EXPECT_FLOAT_EQ(out.intensities[1], 1.0f);
+  EXPECT_THROW(VoxelDownsample(c, 0.0), std::invalid_argument);
+}
+
+TEST(PreprocessTest, NormalsOfASphereFaceTheViewpointOrOutward) {
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 2000; ++i) {
+    const double z = 1.0 - (2.0 * i + 1.0) / 2000.0, r = std::sqrt(1 - z * z);
+    const double phi = 2.399963 * i;
+    points.emplace_back(0.1 * r * std::cos(phi), 0.1 * r * std::sin(phi), 0.1 * z);
+  }
+  NormalOptions outward;
+  outward.orient_outward_from_centroid = true;
+  const geometry::PointCloud out = EstimateNormals(Unorganised(points), outward);
+  for (std::size_t i = 0; i < out.size(); ++i)
+    EXPECT_GT(out.normals[i].dot(out.points[i].normalized()), 0.99f);
+  NormalOptions view;
+  view.p_BaseViewpoint = Eigen::Vector3d(0, 0, 2);
+  const geometry::PointCloud towards = EstimateNormals(Unorganised(points), view);
+  for (std::size_t i = 0; i < towards.size(); ++i)
+    EXPECT_GE(towards.normals[i].dot(Eigen::Vector3f(0, 0, 2) - towards.points[i]), 0.0f);
+}
+
+TEST(PreprocessTest, EuclideanClustersBySizeAndGap) {
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 200; ++i) points.emplace_back(0.002f * (i % 20), 0.002f * (i / 20), 0.0f);
+  for (int i = 0; i < 100; ++i)
+    points.emplace_back(0.5f + 0.002f * (i % 10), 0.002f * (i / 10), 0.0f);
+  for (int i = 0; i < 5; ++i) points.emplace_back(-0.5f, 0.002f * i, 0.0f);
+  points.push_back(Eigen::Vector3f::Constant(kNaN));
+  ClusterOptions options;
+  options.tolerance_m = 0.005;
+  options.min_size = 10;
+  const auto clusters = EuclideanClusters(Unorganised(points), options);
+  ASSERT_EQ(clusters.size(), 2u);
+  EXPECT_EQ(clusters[0].size(), 200u);
+  EXPECT_EQ(clusters[1].size(), 100u);
+  EXPECT_EQ(clusters[1].front(), 200);
+  options.max_size = 150;
+  EXPECT_EQ(EuclideanClusters(Unorganised(points), options).size(), 1u);
+  options.min_size = 200;
+  EXPECT_THROW(EuclideanClusters(Unorganised(points), options), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::detector

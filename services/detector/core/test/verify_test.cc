@@ -1,0 +1,122 @@
+#include "services/detector/core/verify.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "services/detector/core/templates.h"
+
+namespace picking::detector {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+world::TriangleMesh BoxMesh(const Eigen::Vector3f& size) {
+  world::TriangleMesh mesh;
+  const Eigen::Vector3f h = 0.5f * size;
+  for (int i = 0; i < 8; ++i)
+    mesh.vertices.emplace_back((i & 1) ? h.x() : -h.x(), (i & 2) ? h.y() : -h.y(),
+                               (i & 4) ? h.z() : -h.z());
+  mesh.triangles = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+                    {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
+  return mesh;
+}
+
+class VerifyTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    model_ = SampleMeshSurface(BoxMesh({0.1f, 0.06f, 0.03f}), 0.0015, 3);
+    camera_.width = 320;
+    camera_.height = 240;
+    camera_.fx = camera_.fy = 300.0;
+    camera_.cx = 159.5;
+    camera_.cy = 119.5;
+    X_BaseSensor_ = Eigen::Translation3d(0.0, 0.0, 0.7) *
+                    Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()) *
+                    Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY());
+    X_BaseItem_ =
+        Eigen::Translation3d(0.02, 0.01, 0.015) * Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ());
+    // Floor z = 0 and the box, ray cast through a dense splat render of the model.
+    const RangeImage object =
+        RenderRangeImage(model_, X_BaseSensor_.inverse() * X_BaseItem_, camera_, 0.0015);
+    std::mt19937 rng(1);
+    std::normal_distribution<float> noise(0.0f, 0.0005f);
+    scene_.width = camera_.width;
+    scene_.height = camera_.height;
+    for (int v = 0; v < camera_.height; ++v) {
+      for (int u = 0; u < camera_.width; ++u) {
+        const Eigen::Vector3d d((u - camera_.cx) / camera_.fx, (v - camera_.cy) / camera_.fy, 1.0);
+        const Eigen::Vector3d d_Base = X_BaseSensor_.linear() * d;
+        double z = d_Base.z() < 0 ? -X_BaseSensor_.translation().z() / d_Base.z()
+                                  : std::numeric_limits<double>::infinity();
+        if (std::isfinite(object.at(u, v))) z = std::min<double>(z, object.at(u, v));
+        const Eigen::Vector3f p = (X_BaseSensor_ * (d * (z + noise(rng)))).cast<float>();
+        scene_.points.push_back(std::isfinite(z) ? p : Eigen::Vector3f::Constant(kNaN));
+      }
+    }
+  }
+
+  geometry::PointCloud model_, scene_;
+  PinholeCamera camera_;
+  Eigen::Isometry3d X_BaseSensor_, X_BaseItem_;
+};
+
+TEST_F(VerifyTest, TruePoseScoresHigh) {
+  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
+  const VerifyResult r = Verify(scene, model_, X_BaseItem_);
+  EXPECT_GT(r.score, 0.8);
+  EXPECT_GT(r.num_visible, 100u);
+  EXPECT_LT(r.num_visible, r.num_model_points);  // the back faces are culled
+  EXPECT_LT(r.conflict_fraction, 0.05);
+  EXPECT_LT(r.inlier_rmse_m, 0.003);
+}
+
+TEST_F(VerifyTest, ShiftedPoseScoresLow) {
+  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
+  const double true_score = Verify(scene, model_, X_BaseItem_).score;
+  for (const Eigen::Vector3d& shift :
+       {Eigen::Vector3d(0.02, 0, 0), Eigen::Vector3d(0, 0.02, 0), Eigen::Vector3d(0, 0, 0.02)}) {
+    Eigen::Isometry3d X = X_BaseItem_;
+    X.translation() += shift;
+    const VerifyResult r = Verify(scene, model_, X);
+    EXPECT_LT(r.score, 0.6) << shift.transpose();
+    EXPECT_LT(r.score, true_score - 0.3) << shift.transpose();
+  }
+  // Lifted 2 cm: the model floats where the sensor saw through to the box top and floor.
+  Eigen::Isometry3d lifted = X_BaseItem_;
+  lifted.translation().z() += 0.02;
+  EXPECT_GT(Verify(scene, model_, lifted).num_conflicts, 50u);
+}
+
+TEST_F(VerifyTest, AbsentObjectScoresNearZero) {
+  Eigen::Isometry3d elsewhere = X_BaseItem_;
+  elsewhere.translation() += Eigen::Vector3d(-0.15, 0.1, 0.0);  // empty floor
+  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
+  const VerifyResult r = Verify(scene, model_, elsewhere);
+  EXPECT_LT(r.score, 0.1);
+  EXPECT_GT(r.num_conflicts, 0u);
+  // Below the floor: hidden behind measured surface, nothing to confirm.
+  Eigen::Isometry3d below = X_BaseItem_;
+  below.translation().z() -= 0.1;
+  const VerifyResult hidden = Verify(scene, model_, below);
+  EXPECT_EQ(hidden.score, 0.0);
+  EXPECT_GT(hidden.num_occluded, 0u);
+}
+
+TEST_F(VerifyTest, RejectsBadInput) {
+  geometry::PointCloud all_nan = scene_;
+  for (auto& p : all_nan.points) p.setConstant(kNaN);
+  EXPECT_THROW(VerificationScene(all_nan, X_BaseSensor_, camera_), std::invalid_argument);
+  PinholeCamera bad = camera_;
+  bad.fx = 0.0;
+  EXPECT_THROW(VerificationScene(scene_, X_BaseSensor_, bad), std::invalid_argument);
+  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
+  geometry::PointCloud no_normals = model_;
+  no_normals.normals.clear();
+  EXPECT_THROW(Verify(scene, no_normals, X_BaseItem_), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::detector
