@@ -40,6 +40,7 @@ void Validate(const geometry::PointCloud& source, const geometry::PointCloud& ta
   if (!(o.trim_fraction > 0.0f && o.trim_fraction <= 1.0f)) fail("trim_fraction not in (0, 1]");
   if (!(o.loss_scale_m > 0.0f)) fail("loss_scale_m must be positive");
   if (o.min_correspondences < 6) fail("min_correspondences must be >= 6");
+  if (!(o.max_step_rotation_rad > 0.0)) fail("max_step_rotation_rad must be positive");
 }
 
 }  // namespace
@@ -110,8 +111,14 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     }
     // A little damping keeps degenerate directions (a plane slides freely) at rest.
     A.diagonal().array() += 1e-9 * std::max(1.0, A.trace());
-    const Eigen::Matrix<double, 6, 1> x = A.ldlt().solve(b);
+    Eigen::Matrix<double, 6, 1> x = A.ldlt().solve(b);
     if (!x.allFinite()) break;
+    // Trust region: a poorly constrained system (faces sliding along each other) must not
+    // jump beyond the correspondence distance or by more than max_step_rotation_rad.
+    const double scale =
+        std::min({1.0, options.max_correspondence_distance_m / std::max(1e-12, x.tail<3>().norm()),
+                  options.max_step_rotation_rad / std::max(1e-12, x.head<3>().norm())});
+    x *= scale;
     const Eigen::Vector3d omega = x.head<3>();
     const double angle = omega.norm();
     Eigen::Isometry3d dX = Eigen::Isometry3d::Identity();

@@ -26,8 +26,11 @@ struct IcpOptions {
   IcpLoss loss = IcpLoss::kHuber;
   float loss_scale_m = 0.002f;  ///< > 0.
   /// Converged when an update moves less than both thresholds.
-  double convergence_translation_m = 1e-5;
-  double convergence_rotation_rad = 1e-5;
+  double convergence_translation_m = 1e-4;
+  double convergence_rotation_rad = 1e-4;
+  /// Largest rotation of one update, radians (> 0); the translation of one update is
+  /// limited to max_correspondence_distance_m.
+  double max_step_rotation_rad = 0.1;
   int min_correspondences = 6;  ///< Fewer surviving pairs stop the iteration.
 };
 

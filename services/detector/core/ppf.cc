@@ -106,9 +106,14 @@ float PpfQuantizer::AlphaBinCenter(int bin) const {
 }
 
 bool PpfQuantizer::IsPlanar(const Eigen::Vector4f& f) const {
-  constexpr float kHalfPi = 0.5f * kPi;
-  return f[3] < angle_step_rad_ && std::abs(f[1] - kHalfPi) < angle_step_rad_ &&
-         std::abs(f[2] - kHalfPi) < angle_step_rad_;
+  // Decided on the quantised cells, so that the skipped set is exactly a set of table keys:
+  // normals in the first angle cell, both normal-to-d angles in the cells next to 90 deg.
+  const auto cell = [this](float a) {
+    return std::clamp(static_cast<int>(a / angle_step_rad_), 0, angle_cells_ - 1);
+  };
+  const int right_angle = cell(0.5f * kPi);
+  return cell(f[3]) == 0 && std::abs(cell(f[1]) - right_angle) <= 1 &&
+         std::abs(cell(f[2]) - right_angle) <= 1;
 }
 
 Eigen::Isometry3f AlignToXAxis(const Eigen::Vector3f& p, const Eigen::Vector3f& n) {

@@ -44,9 +44,10 @@ class PpfQuantizer final {
   /// Centre of an alpha bin, radians in [-pi, pi).
   float AlphaBinCenter(int bin) const;
 
-  /// True for a nearly coplanar pair: normals parallel within one angle step and both at
-  /// 90 degrees to d within one angle step. Such a pair constrains only the plane, not the
-  /// position or rotation within it, and there are very many of them on planar objects.
+  /// True for a nearly coplanar pair: the angle between the normals in the first angle cell
+  /// and both normal-to-d angles in the cell of 90 degrees or a neighbouring one. Such a pair
+  /// constrains only the plane, not the position or rotation within it, and there are very many of
+  /// them on planar objects.
   bool IsPlanar(const Eigen::Vector4f& feature) const;
 
  private:
@@ -72,7 +73,7 @@ struct PpfTableOptions {
   int angle_bins = 30;
   /// Store the nearly coplanar pairs (see PpfQuantizer::IsPlanar). Matching decides how
   /// to weight them; false saves memory and time when matching never uses them.
-  bool store_planar_pairs = true;
+  bool store_planar_pairs = false;
 };
 
 /// The global model description of Drost et al.: every ordered pair of sampled model points,

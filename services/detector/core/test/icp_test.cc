@@ -1,0 +1,101 @@
+#include "services/detector/core/icp.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "services/detector/core/model.h"
+#include "services/detector/core/ppf_detector.h"
+#include "services/detector/core/test/ppf_test_util.h"
+
+namespace picking::detector {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+class IcpMilkTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    const geometry::PointCloud milk = testing::LoadPcd(testing::PointCloudPath("milk.pcd"));
+    model_ = new ObjectModel(milk, ObjectModelOptions{});
+    scene_ = new PpfScene(PreparePpfScene(
+        testing::LoadPcd(testing::PointCloudPath("milk_cartoon_all_small_clorox.pcd")), *model_));
+  }
+  static void TearDownTestSuite() {
+    delete model_;
+    delete scene_;
+  }
+  static ObjectModel* model_;
+  static PpfScene* scene_;
+};
+ObjectModel* IcpMilkTest::model_ = nullptr;
+PpfScene* IcpMilkTest::scene_ = nullptr;
+
+// The milk model's true pose in the scene is the identity.
+TEST_F(IcpMilkTest, ConvergesFromSmallPerturbations) {
+  std::mt19937 rng(42);
+  for (IcpLoss loss : {IcpLoss::kLeastSquares, IcpLoss::kHuber, IcpLoss::kTukey}) {
+    for (int trial = 0; trial < 3; ++trial) {
+      // Rotation about the carton's centroid (it stands about 0.8 m from the camera).
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (const auto& p : model_->icp_cloud().points) centroid += p.cast<double>();
+      centroid /= static_cast<double>(model_->icp_cloud().size());
+      const Eigen::Isometry3d start = Eigen::Translation3d(centroid) *
+                                      testing::Perturbation(&rng, 4.0 * kDeg, 0.006) *
+                                      Eigen::Translation3d(-centroid);
+      IcpOptions options;
+      options.loss = loss;
+      options.max_correspondence_distance_m = 0.02f;
+      options.loss_scale_m = 0.005f;
+      options.max_iterations = 60;
+      const IcpResult r =
+          RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree, start, options);
+      const Eigen::Isometry3d identity = Eigen::Isometry3d::Identity();
+      EXPECT_LT(testing::TranslationError(r.X_TargetSource, identity), 0.002)
+          << "loss " << static_cast<int>(loss) << " trial " << trial;
+      EXPECT_LT(testing::RotationErrorRad(r.X_TargetSource, identity), 1.0 * kDeg);
+      EXPECT_TRUE(r.converged);
+      EXPECT_GT(r.fitness, 0.9);
+      EXPECT_LT(r.inlier_rmse_m, 0.003);
+      EXPECT_NEAR(r.X_TargetSource.linear().determinant(), 1.0, 1e-9);
+    }
+  }
+}
+
+TEST_F(IcpMilkTest, TrimmingAndRejectionLimitCorrespondences) {
+  IcpOptions options;
+  options.trim_fraction = 1.0f;
+  options.max_iterations = 1;
+  const IcpResult all = RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree,
+                               Eigen::Isometry3d::Identity(), options);
+  // Far away start: nothing within the correspondence distance.
+  Eigen::Isometry3d far = Eigen::Isometry3d::Identity();
+  far.translation() = Eigen::Vector3d(0, 0, 5.0);
+  const IcpResult none = RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree, far, options);
+  EXPECT_GT(all.fitness, 0.95);
+  EXPECT_EQ(none.correspondences, 0);
+  EXPECT_EQ(none.fitness, 0.0);
+  EXPECT_FALSE(none.converged);
+  EXPECT_TRUE(none.X_TargetSource.isApprox(far));
+}
+
+TEST_F(IcpMilkTest, RejectsBadInput) {
+  const KdTree& tree = scene_->fine_tree;
+  EXPECT_THROW(RunIcp(geometry::PointCloud{}, scene_->fine, tree, Eigen::Isometry3d::Identity()),
+               std::invalid_argument);
+  geometry::PointCloud no_normals = scene_->fine;
+  no_normals.normals.clear();
+  EXPECT_THROW(RunIcp(model_->icp_cloud(), no_normals, tree, Eigen::Isometry3d::Identity()),
+               std::invalid_argument);
+  IcpOptions bad;
+  bad.trim_fraction = 0.0f;
+  EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad),
+               std::invalid_argument);
+  const KdTree other(model_->icp_cloud().points);
+  EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, other, Eigen::Isometry3d::Identity()),
+               std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::detector
