@@ -1,0 +1,244 @@
+#include "services/simulator/core/layout.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "libs/apc/bins.h"
+#include "libs/world/mesh_utils.h"
+
+namespace picking::simulator {
+
+LayoutError::LayoutError(const std::string& container, const std::string& what)
+    : std::runtime_error("layout of " + container + ": " + what), container_(container) {}
+
+namespace {
+
+// An item's footprint and height in the region frame: a rectangle turned by `yaw` about z.
+struct Footprint {
+  Eigen::Vector2d centre;
+  double yaw = 0.0;
+  Eigen::Vector2d half;  // half extents along the rotated axes
+  double z_bottom = 0.0, z_top = 0.0;
+  bool flat_top = true;
+
+  Eigen::Matrix2d R() const { return Eigen::Rotation2Dd(yaw).toRotationMatrix(); }
+  bool Contains(const Eigen::Vector2d& p, double margin = 0.0) const {
+    const Eigen::Vector2d local = R().transpose() * (p - centre);
+    return std::abs(local.x()) <= half.x() + margin && std::abs(local.y()) <= half.y() + margin;
+  }
+};
+
+// Separating axis test of two rectangles in the plane (touching counts as overlap).
+bool Overlap2d(const Footprint& a, const Footprint& b, double gap) {
+  const Eigen::Matrix2d ra = a.R(), rb = b.R();
+  const Eigen::Vector2d d = b.centre - a.centre;
+  for (const Eigen::Matrix2d* r : {&ra, &rb}) {
+    for (int k = 0; k < 2; ++k) {
+      const Eigen::Vector2d axis = r->col(k);
+      const double pa =
+          a.half.x() * std::abs(axis.dot(ra.col(0))) + a.half.y() * std::abs(axis.dot(ra.col(1)));
+      const double pb =
+          b.half.x() * std::abs(axis.dot(rb.col(0))) + b.half.y() * std::abs(axis.dot(rb.col(1)));
+      if (std::abs(axis.dot(d)) > pa + pb + gap) return false;
+    }
+  }
+  return true;
+}
+
+bool FlatTopped(const world::ItemModel& model) {
+  return model.shape.kind == world::ShapeKind::kBox || model.shape.kind == world::ShapeKind::kScan;
+}
+
+}  // namespace
+
+std::vector<LayoutRegion> LayoutRegions(const world::CellModel& cell,
+                                        const LayoutOptions& options) {
+  std::vector<LayoutRegion> regions;
+  for (const auto& bin : cell.bins) {
+    LayoutRegion r;
+    r.name = bin.name;
+    r.X_BaseRegion = cell.config.X_BaseShelf;
+    const Eigen::Vector3d lo =
+        bin.inner_S.min() + Eigen::Vector3d(options.wall_margin_m, options.wall_margin_m, 0.0);
+    const Eigen::Vector3d hi =
+        bin.inner_S.max() -
+        Eigen::Vector3d(options.opening_margin_m, options.wall_margin_m, options.wall_margin_m);
+    r.box_R = Eigen::AlignedBox3d(lo, hi);
+    regions.push_back(r);
+  }
+  // The tote: its bounding box less the wall thickness, measured by rays from the centre.
+  LayoutRegion tote;
+  tote.name = "tote";
+  tote.X_BaseRegion = cell.config.X_BaseTote;
+  const Eigen::AlignedBox3d box = world::Bounds(cell.tote);
+  const double wall = 0.015;
+  tote.box_R = Eigen::AlignedBox3d(
+      Eigen::Vector3d(box.min().x() + wall, box.min().y() + wall, box.min().z()),
+      Eigen::Vector3d(box.max().x() - wall, box.max().y() - wall,
+                      box.max().z() + options.tote_stack_height_m));
+  regions.push_back(tote);
+  return regions;
+}
+
+LayoutPlanner::LayoutPlanner(const world::CellModel& cell, const world::ItemModelLibrary& models,
+                             const RayScene& static_scene, LayoutOptions options)
+    : cell_(cell),
+      models_(models),
+      static_scene_(static_scene),
+      options_(options),
+      regions_(LayoutRegions(cell, options)) {
+  if (options_.candidates_per_item < 1) {
+    throw std::invalid_argument("LayoutOptions::candidates_per_item must be >= 1");
+  }
+}
+
+std::vector<PlacedItem> LayoutPlanner::Plan(const apc::Task& task, std::uint32_t seed) const {
+  // Validate every name before any work, so the error names the first unknown item.
+  for (const auto& [bin, items] : task.bin_contents) {
+    if (!apc::IsBinName(bin)) throw LayoutError(bin, "not a bin name");
+    for (const auto& item : items) models_.catalogue().at(item);
+  }
+  for (const auto& item : task.tote_contents) models_.catalogue().at(item);
+  std::vector<PlacedItem> placed;
+  std::uint32_t k = 0;
+  for (const auto& [bin, items] : task.bin_contents) {
+    const auto more = PlaceIn(bin, items, {}, seed * 7919u + (++k));
+    placed.insert(placed.end(), more.begin(), more.end());
+  }
+  const auto tote = PlaceIn("tote", task.tote_contents, {}, seed * 7919u + 1000u);
+  placed.insert(placed.end(), tote.begin(), tote.end());
+  return placed;
+}
+
+std::vector<PlacedItem> LayoutPlanner::PlaceIn(const std::string& region_name,
+                                               const std::vector<std::string>& items,
+                                               const std::vector<PlacedItem>& existing,
+                                               std::uint32_t seed) const {
+  const auto region_it = std::find_if(regions_.begin(), regions_.end(),
+                                      [&](const LayoutRegion& r) { return r.name == region_name; });
+  if (region_it == regions_.end()) throw LayoutError(region_name, "unknown bin or container");
+  const LayoutRegion& region = *region_it;
+  const Eigen::Isometry3d X_RegionBase = region.X_BaseRegion.inverse();
+
+  std::vector<Footprint> occupied;
+  for (const PlacedItem& p : existing) {
+    const auto model = models_.Get(p.name);
+    const Eigen::AlignedBox3d b = world::Bounds(model->mesh, X_RegionBase * p.X_BaseItem);
+    Footprint f;
+    f.centre = b.center().head<2>();
+    f.half = 0.5 * b.sizes().head<2>();
+    f.z_bottom = b.min().z();
+    f.z_top = b.max().z();
+    f.flat_top = FlatTopped(*model);
+    occupied.push_back(f);
+  }
+
+  std::vector<std::shared_ptr<const world::ItemModel>> models;
+  for (const auto& name : items) models.push_back(models_.Get(name));
+  std::vector<std::size_t> order(items.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    const Eigen::Vector3d sa = models[a]->box_I.sizes(), sb = models[b]->box_I.sizes();
+    return sa.x() * sa.y() > sb.x() * sb.y();
+  });
+
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const Eigen::AlignedBox3d& box = region.box_R;
+  std::vector<PlacedItem> placed(items.size());
+  constexpr int kGrid = 5;
+  for (std::size_t idx : order) {
+    const world::ItemModel& model = *models[idx];
+    const Eigen::Vector3d size = model.box_I.sizes();
+    bool found = false;
+    Footprint best;
+    for (int c = 0; c < options_.candidates_per_item; ++c) {
+      Footprint f;
+      f.yaw = (unit(rng) < 0.5 ? 0.0 : M_PI / 2) + (2 * unit(rng) - 1) * options_.yaw_jitter_rad;
+      f.half = 0.5 * size.head<2>();
+      f.flat_top = FlatTopped(model);
+      const Eigen::Matrix2d R = f.R();
+      // Axis-aligned half extents of the turned footprint.
+      const Eigen::Vector2d ext(std::abs(R(0, 0)) * f.half.x() + std::abs(R(0, 1)) * f.half.y(),
+                                std::abs(R(1, 0)) * f.half.x() + std::abs(R(1, 1)) * f.half.y());
+      const double x_lo = box.min().x() + ext.x(), x_hi = box.max().x() - ext.x();
+      const double y_lo = box.min().y() + ext.y(), y_hi = box.max().y() - ext.y();
+      if (x_lo > x_hi || y_lo > y_hi) continue;
+      f.centre =
+          Eigen::Vector2d(x_lo + unit(rng) * (x_hi - x_lo), y_lo + unit(rng) * (y_hi - y_lo));
+      // Support: the floor (rays into the static cell) and the tops of overlapping items.
+      double support = -std::numeric_limits<double>::infinity();
+      double floor_support = support;
+      std::vector<std::pair<Eigen::Vector2d, double>> samples;  // local footprint coords, height
+      bool floor_everywhere = true;
+      for (int i = 0; i < kGrid && floor_everywhere; ++i) {
+        for (int j = 0; j < kGrid; ++j) {
+          const Eigen::Vector2d local((2.0 * i / (kGrid - 1) - 1) * f.half.x(),
+                                      (2.0 * j / (kGrid - 1) - 1) * f.half.y());
+          const Eigen::Vector2d p = f.centre + R * local;
+          const Eigen::Vector3d p_Base =
+              region.X_BaseRegion * Eigen::Vector3d(p.x(), p.y(), box.max().z());
+          const Eigen::Vector3d down = region.X_BaseRegion.linear() * -Eigen::Vector3d::UnitZ();
+          const auto hit = static_scene_.Cast(p_Base, down, box.sizes().z() + 0.05);
+          if (!hit) {
+            floor_everywhere = false;
+            break;
+          }
+          const double h = (X_RegionBase * hit->p_BaseHit).z();
+          samples.push_back({local, h});
+          support = std::max(support, h);
+          floor_support = support;
+        }
+      }
+      if (!floor_everywhere) continue;
+      for (const Footprint& o : occupied) {
+        if (!Overlap2d(f, o, options_.clearance_m)) continue;
+        for (auto& [local, h] : samples) {
+          if (o.Contains(f.centre + R * local)) h = std::max(h, o.flat_top ? o.z_top : 1e9);
+        }
+        support = std::max(support, o.z_top);
+      }
+      if (support > 1e8) continue;  // over a round item
+      f.z_bottom = support + options_.clearance_m;
+      f.z_top = f.z_bottom + size.z();
+      if (f.z_top > box.max().z()) continue;
+      // Stable: on the floor (whose slight slope toward the pod's lip is tolerated), or the
+      // samples carrying it on items surround its centre.
+      const bool on_floor = floor_support >= support - 1e-9;
+      Eigen::Vector2d lo(1e9, 1e9), hi(-1e9, -1e9);
+      for (const auto& [local, h] : samples) {
+        if (h >= support - 0.003) {
+          lo = lo.cwiseMin(local);
+          hi = hi.cwiseMax(local);
+        }
+      }
+      const double inset = 0.25;
+      if (!on_floor && !(lo.x() <= -inset * f.half.x() && hi.x() >= inset * f.half.x() &&
+                         lo.y() <= -inset * f.half.y() && hi.y() >= inset * f.half.y())) {
+        continue;
+      }
+      if (!found || f.z_bottom < best.z_bottom - 1e-9) {
+        best = f;
+        found = true;
+      }
+    }
+    if (!found) {
+      throw LayoutError(region_name, "no room for '" + model.item->name + "' (" +
+                                         std::to_string(items.size()) + " items to place)");
+    }
+    occupied.push_back(best);
+    Eigen::Isometry3d X_RegionItem = Eigen::Isometry3d::Identity();
+    X_RegionItem.translation() =
+        Eigen::Vector3d(best.centre.x(), best.centre.y(), best.z_bottom - model.box_I.min().z());
+    X_RegionItem.linear() =
+        Eigen::AngleAxisd(best.yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    // Centre of the bounding box is the item frame origin up to box_I's offset.
+    X_RegionItem.translation().head<2>() -=
+        (X_RegionItem.linear() * model.box_I.center()).head<2>();
+    placed[idx] = {model.item->name, region_name, region.X_BaseRegion * X_RegionItem};
+  }
+  return placed;
+}
+
+}  // namespace picking::simulator

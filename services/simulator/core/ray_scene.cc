@@ -1,0 +1,122 @@
+#include "services/simulator/core/ray_scene.h"
+
+#include <embree3/rtcore.h>
+
+#include <stdexcept>
+#include <string>
+
+#include "libs/world/mesh_utils.h"
+
+namespace picking::simulator {
+
+struct RayScene::Impl {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+  bool committed = false;
+  std::vector<int> object_of_geometry;                // Embree geometry id -> object id
+  std::vector<std::vector<Eigen::Vector3d>> normals;  // per geometry, per triangle
+};
+
+RayScene::RayScene() : impl_(std::make_unique<Impl>()) {
+  impl_->device = rtcNewDevice("threads=1");
+  if (impl_->device == nullptr) {
+    throw std::runtime_error("RayScene: rtcNewDevice failed (error " +
+                             std::to_string(rtcGetDeviceError(nullptr)) + ")");
+  }
+  impl_->scene = rtcNewScene(impl_->device);
+  rtcSetSceneFlags(impl_->scene, RTC_SCENE_FLAG_ROBUST);
+}
+
+RayScene::~RayScene() {
+  if (impl_->scene != nullptr) rtcReleaseScene(impl_->scene);
+  if (impl_->device != nullptr) rtcReleaseDevice(impl_->device);
+}
+
+void RayScene::Add(int object_id, const world::TriangleMesh& mesh,
+                   const Eigen::Isometry3d& X_BaseObject) {
+  if (impl_->committed) throw std::logic_error("RayScene::Add after Commit");
+  if (!X_BaseObject.matrix().allFinite()) {
+    throw std::invalid_argument("RayScene::Add: pose of '" + mesh.name + "' is not finite");
+  }
+  world::Validate(mesh);
+  if (mesh.empty()) return;
+  RTCGeometry geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(
+      geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertices.size()));
+  const Eigen::Isometry3f X = X_BaseObject.cast<float>();
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const Eigen::Vector3f p = X * mesh.vertices[i];
+    vb[3 * i] = p.x();
+    vb[3 * i + 1] = p.y();
+    vb[3 * i + 2] = p.z();
+  }
+  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0,
+                                                            RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
+                                                            mesh.triangles.size()));
+  std::vector<Eigen::Vector3d> normals(mesh.triangles.size());
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    for (int k = 0; k < 3; ++k) ib[3 * t + k] = mesh.triangles[t][k];
+    normals[t] = X_BaseObject.linear() * world::FaceNormal(mesh, t).cast<double>();
+  }
+  rtcCommitGeometry(geom);
+  const unsigned id = rtcAttachGeometry(impl_->scene, geom);
+  rtcReleaseGeometry(geom);
+  if (impl_->object_of_geometry.size() <= id) {
+    impl_->object_of_geometry.resize(id + 1, -1);
+    impl_->normals.resize(id + 1);
+  }
+  impl_->object_of_geometry[id] = object_id;
+  impl_->normals[id] = std::move(normals);
+}
+
+void RayScene::Commit() {
+  if (impl_->committed) return;
+  rtcCommitScene(impl_->scene);
+  impl_->committed = true;
+}
+
+std::optional<RayHit> RayScene::Cast(const Eigen::Vector3d& p_BaseOrigin,
+                                     const Eigen::Vector3d& direction_Base, double t_max,
+                                     int ignore_object_id, double t_min) const {
+  if (!impl_->committed) throw std::logic_error("RayScene::Cast before Commit");
+  if (!p_BaseOrigin.allFinite() || !direction_Base.allFinite() || !(direction_Base.norm() > 0.0)) {
+    throw std::invalid_argument("RayScene::Cast: ray origin or direction not finite or zero");
+  }
+  const Eigen::Vector3d d = direction_Base.normalized();
+  double start = t_min;
+  for (int guard = 0; guard < 64; ++guard) {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit rh;
+    rh.ray.org_x = static_cast<float>(p_BaseOrigin.x());
+    rh.ray.org_y = static_cast<float>(p_BaseOrigin.y());
+    rh.ray.org_z = static_cast<float>(p_BaseOrigin.z());
+    rh.ray.dir_x = static_cast<float>(d.x());
+    rh.ray.dir_y = static_cast<float>(d.y());
+    rh.ray.dir_z = static_cast<float>(d.z());
+    rh.ray.tnear = static_cast<float>(start);
+    rh.ray.tfar = static_cast<float>(std::min<double>(t_max, std::numeric_limits<float>::max()));
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.flags = 0;
+    rh.ray.time = 0.0f;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(impl_->scene, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
+    const int object = impl_->object_of_geometry[rh.hit.geomID];
+    if (object == ignore_object_id && ignore_object_id != -1) {
+      start = std::nextafter(rh.ray.tfar, std::numeric_limits<float>::max());
+      continue;
+    }
+    RayHit hit;
+    hit.distance_m = rh.ray.tfar;
+    hit.object_id = object;
+    hit.triangle = rh.hit.primID;
+    hit.p_BaseHit = p_BaseOrigin + hit.distance_m * d;
+    hit.n_Base = impl_->normals[rh.hit.geomID][rh.hit.primID];
+    return hit;
+  }
+  return std::nullopt;
+}
+
+}  // namespace picking::simulator

@@ -1,0 +1,53 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <limits>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "libs/world/mesh.h"
+
+namespace picking::simulator {
+
+/// Nearest surface along a ray, in the base frame.
+struct RayHit {
+  double distance_m = 0.0;  ///< Along the (normalised) ray direction.
+  int object_id = -1;       ///< Id given to RayScene::Add.
+  std::uint32_t triangle = 0;
+  Eigen::Vector3d p_BaseHit = Eigen::Vector3d::Zero();
+  /// Unit geometric normal (triangle winding: outward for well-formed meshes), base frame.
+  Eigen::Vector3d n_Base = Eigen::Vector3d::UnitZ();
+};
+
+/// Ray casting against a set of placed meshes with Embree (embree 3: one device and one
+/// static scene per RayScene). Build with Add() and Commit(); Cast() is const and thread safe
+/// after Commit(). Not copyable.
+class RayScene final {
+ public:
+  RayScene();
+  ~RayScene();
+  RayScene(const RayScene&) = delete;
+  RayScene& operator=(const RayScene&) = delete;
+
+  /// Adds `mesh` placed at X_BaseObject (vertices are copied and transformed). `object_id` is
+  /// reported in hits (several meshes may share an id). Throws std::logic_error after Commit,
+  /// std::invalid_argument for an invalid mesh or a non-finite pose. Empty meshes are ignored.
+  void Add(int object_id, const world::TriangleMesh& mesh, const Eigen::Isometry3d& X_BaseObject);
+  /// Builds the acceleration structure. Idempotent.
+  void Commit();
+
+  /// Nearest hit in (t_min, t_max] along `origin + t * direction.normalized()`, skipping
+  /// surfaces of `ignore_object_id` (-1: none). Both faces count. Throws std::logic_error
+  /// before Commit, std::invalid_argument for a non-finite or zero ray.
+  std::optional<RayHit> Cast(const Eigen::Vector3d& p_BaseOrigin,
+                             const Eigen::Vector3d& direction_Base, double t_max,
+                             int ignore_object_id = -1, double t_min = 0.0) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace picking::simulator

@@ -1,0 +1,436 @@
+#include "services/simulator/core/sim_world.h"
+
+#include <Eigen/SVD>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "libs/apc/bins.h"
+#include "libs/world/mesh_utils.h"
+
+namespace picking::simulator {
+namespace {
+
+bool IsRigid(const Eigen::Isometry3d& X) {
+  if (!X.matrix().allFinite()) return false;
+  const Eigen::Matrix3d R = X.linear();
+  return (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+         std::abs(R.determinant() - 1.0) < 1e-6;
+}
+
+}  // namespace
+
+SimWorld::SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModelLibrary> models,
+                   SimOptions options, std::shared_ptr<const ur10::Ur10Kinematics> kinematics)
+    : cell_(std::move(cell)),
+      models_(std::move(models)),
+      options_(options),
+      kinematics_(std::move(kinematics)) {
+  if (!models_) throw std::invalid_argument("SimWorld: no item model library");
+  if (!(options_.cup_radius_m > 0) || options_.rim_samples < 3 ||
+      !(options_.contact_stiffness_n_per_m > 0) || !(options_.contact_force_threshold_n > 0) ||
+      !(options_.seal_flatness_tolerance_m > 0) || !(options_.seal_angle_tolerance_rad > 0) ||
+      !(options_.seal_max_gap_m >= 0) || !(options_.seal_lookback_m >= 0) ||
+      !(options_.drop_event_height_m > 0) || !(options_.settle_tolerance_m > 0) ||
+      !IsRigid(options_.X_FlangeTool)) {
+    throw std::invalid_argument(
+        "SimOptions: cup_radius_m, stiffness, force threshold, tolerances and drop height must "
+        "be positive, rim_samples >= 3, X_FlangeTool rigid");
+  }
+  static_scene_ = std::make_unique<RayScene>();
+  static_scene_->Add(kShelfId, cell_.shelf, cell_.config.X_BaseShelf);
+  static_scene_->Add(kToteId, cell_.tote, cell_.config.X_BaseTote);
+  static_scene_->Add(kTableId, cell_.table, cell_.config.X_BaseTable);
+  static_scene_->Commit();
+  regions_ = LayoutRegions(cell_, LayoutOptions{});
+}
+
+SimWorld::~SimWorld() = default;
+
+void SimWorld::ValidatePose(const Eigen::Isometry3d& X, const std::string& what) const {
+  if (!X.matrix().allFinite()) throw std::invalid_argument(what + ": pose is not finite");
+  if (!IsRigid(X)) throw std::invalid_argument(what + ": pose is not a rigid transform");
+}
+
+void SimWorld::LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutOptions& layout) {
+  const LayoutPlanner planner(cell_, *models_, *static_scene_, layout);
+  const std::vector<PlacedItem> placed = planner.Plan(task, seed);  // may throw: no change yet
+  std::vector<ItemState> items;
+  std::vector<std::shared_ptr<const world::ItemModel>> item_models;
+  int id = 0;
+  for (const PlacedItem& p : placed) {
+    items.push_back({++id, p.name, p.X_BaseItem, p.container});
+    item_models.push_back(models_->Get(p.name));
+  }
+  items_ = std::move(items);
+  item_models_ = std::move(item_models);
+  events_.clear();
+  vacuum_on_ = false;
+  attached_ = 0;
+  X_ToolItem_ = Eigen::Isometry3d::Identity();
+  pending_settle_box_.reset();
+  MarkMoved();
+}
+
+int SimWorld::AddItem(const std::string& name, const std::string& container, std::uint32_t seed) {
+  auto model = models_->Get(name);  // throws UnknownItemError
+  std::vector<PlacedItem> existing;
+  for (const ItemState& s : items_) {
+    if (s.container == container) existing.push_back({s.name, s.container, s.X_BaseItem});
+  }
+  const LayoutPlanner planner(cell_, *models_, *static_scene_);
+  const auto placed = planner.PlaceIn(container, {name}, existing, seed);
+  int id = 1;
+  for (const ItemState& s : items_) id = std::max(id, s.id + 1);
+  items_.push_back({id, name, placed.front().X_BaseItem, container});
+  item_models_.push_back(std::move(model));
+  MarkMoved();
+  return id;
+}
+
+const ItemState& SimWorld::item(int item_id) const {
+  for (const ItemState& s : items_) {
+    if (s.id == item_id) return s;
+  }
+  throw std::out_of_range("no item with id " + std::to_string(item_id));
+}
+
+ItemState& SimWorld::Mutable(int item_id) {
+  return const_cast<ItemState&>(static_cast<const SimWorld*>(this)->item(item_id));
+}
+
+const world::ItemModel& SimWorld::model(int item_id) const {
+  for (std::size_t i = 0; i < items_.size(); ++i) {
+    if (items_[i].id == item_id) return *item_models_[i];
+  }
+  throw std::out_of_range("no item with id " + std::to_string(item_id));
+}
+
+std::vector<ItemState> SimWorld::ItemsIn(const std::string& container) const {
+  if (!apc::IsBinName(container) && container != kTote && container != kGripper &&
+      container != kTable && container != kOutside) {
+    throw std::invalid_argument("unknown container '" + container + "'");
+  }
+  std::vector<ItemState> out;
+  for (const ItemState& s : items_) {
+    if (s.container == container) out.push_back(s);
+  }
+  return out;
+}
+
+SimState SimWorld::state() const {
+  return {items_, X_BaseTool_, q_rad_, vacuum_on_, attached_, X_ToolItem_, events_};
+}
+
+void SimWorld::SetToolPose(const Eigen::Isometry3d& X_BaseTool) {
+  ValidatePose(X_BaseTool, "SetToolPose");
+  X_BaseTool_ = X_BaseTool;
+  q_rad_.reset();
+  if (attached_ != 0) {
+    ItemState& s = Mutable(attached_);
+    s.X_BaseItem = X_BaseTool_ * X_ToolItem_;
+    MarkMoved();
+    if (pending_settle_box_ &&
+        !pending_settle_box_->intersects(world::Bounds(model(attached_).mesh, s.X_BaseItem))) {
+      pending_settle_box_.reset();
+      SettleAll();
+    }
+  }
+}
+
+void SimWorld::SetJointPositions(const ur10::JointVector& q_rad) {
+  if (!kinematics_) throw std::logic_error("SetJointPositions: the world has no UR10 kinematics");
+  if (!q_rad.allFinite()) throw std::invalid_argument("SetJointPositions: non-finite angle");
+  const Eigen::Isometry3d X = kinematics_->ForwardKinematics(q_rad) * options_.X_FlangeTool;
+  SetToolPose(X);
+  q_rad_ = q_rad;
+}
+
+const RayScene& SimWorld::ItemScene() const {
+  if (!item_scene_) {
+    auto scene = std::make_unique<RayScene>();
+    scene->Add(kShelfId, cell_.shelf, cell_.config.X_BaseShelf);
+    scene->Add(kToteId, cell_.tote, cell_.config.X_BaseTote);
+    scene->Add(kTableId, cell_.table, cell_.config.X_BaseTable);
+    for (std::size_t i = 0; i < items_.size(); ++i) {
+      scene->Add(items_[i].id, item_models_[i]->mesh, items_[i].X_BaseItem);
+    }
+    scene->Commit();
+    item_scene_ = std::move(scene);
+  }
+  return *item_scene_;
+}
+
+GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
+  if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
+    throw std::invalid_argument("GuardedMove: max_distance_m must be positive and finite");
+  }
+  const RayScene& scene = ItemScene();
+  const Eigen::Vector3d z = X_BaseTool_.linear().col(2);
+  const Eigen::Vector3d x = X_BaseTool_.linear().col(0), y = X_BaseTool_.linear().col(1);
+  GuardedMoveResult result;
+  std::optional<RayHit> first;
+  for (int k = -1; k < options_.rim_samples; ++k) {
+    Eigen::Vector3d p = X_BaseTool_.translation();
+    if (k >= 0) {
+      const double a = 2 * M_PI * k / options_.rim_samples;
+      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
+    }
+    const auto hit = scene.Cast(p, z, max_distance_m + 1.0, attached_ == 0 ? -1 : attached_);
+    if (hit && (!first || hit->distance_m < first->distance_m)) first = hit;
+  }
+  const double penetration_to_stop =
+      options_.contact_force_threshold_n / options_.contact_stiffness_n_per_m;
+  double travel = max_distance_m;
+  if (first && first->distance_m + penetration_to_stop <= max_distance_m) {
+    travel = first->distance_m + penetration_to_stop;
+    result.contact = true;
+  }
+  if (first && first->distance_m < travel) {
+    result.force_n = options_.contact_stiffness_n_per_m * (travel - first->distance_m);
+    result.p_BaseContact = first->p_BaseHit;
+    result.contact_item_id = first->object_id > 0 ? first->object_id : 0;
+    result.contact_object = first->object_id > 0           ? item(first->object_id).name
+                            : first->object_id == kShelfId ? "shelf"
+                            : first->object_id == kToteId  ? "tote"
+                                                           : "table";
+  }
+  result.travelled_m = travel;
+  Eigen::Isometry3d X = X_BaseTool_;
+  X.translation() += travel * z;
+  SetToolPose(X);
+  return result;
+}
+
+SuctionResult SimWorld::SuctionOn() {
+  SuctionResult result;
+  vacuum_on_ = true;
+  if (attached_ != 0) {
+    result.sealed = true;
+    result.attached_item_id = attached_;
+    return result;
+  }
+  const RayScene& scene = ItemScene();
+  const Eigen::Vector3d z = X_BaseTool_.linear().col(2);
+  const Eigen::Vector3d x = X_BaseTool_.linear().col(0), y = X_BaseTool_.linear().col(1);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<double> gaps;  // distance of each hit in front of the lip plane
+  int object = 0;
+  bool same = true;
+  // Rays reach past the sealing gap so a tilted surface is still measured (and refused).
+  const double reach =
+      options_.seal_lookback_m + options_.seal_max_gap_m + 2 * options_.cup_radius_m;
+  for (int k = -1; k < options_.rim_samples; ++k) {
+    Eigen::Vector3d p = X_BaseTool_.translation() - options_.seal_lookback_m * z;
+    if (k >= 0) {
+      const double a = 2 * M_PI * k / options_.rim_samples;
+      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
+    }
+    const auto hit = scene.Cast(p, z, reach);
+    if (!hit) {
+      result.reason = k < 0 ? "no surface under the cup centre" : "a lip point meets no surface";
+      return result;
+    }
+    if (k < 0) {
+      object = hit->object_id;
+    } else if (hit->object_id != object) {
+      same = false;
+    }
+    points.push_back(hit->p_BaseHit);
+    gaps.push_back(hit->distance_m - options_.seal_lookback_m);
+  }
+  if (!same) {
+    result.reason = "the lip spans more than one object";
+    return result;
+  }
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::MatrixXd A(points.size(), 3);
+  for (std::size_t i = 0; i < points.size(); ++i) A.row(i) = (points[i] - mean).transpose();
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeThinV);
+  Eigen::Vector3d normal = svd.matrixV().col(2);
+  if (normal.dot(z) > 0) normal = -normal;
+  double flat = 0.0;
+  for (const auto& p : points) flat = std::max(flat, std::abs((p - mean).dot(normal)));
+  result.flatness_m = flat;
+  result.angle_rad = std::acos(std::clamp(normal.dot(-z), -1.0, 1.0));
+  if (flat > options_.seal_flatness_tolerance_m) {
+    result.reason = "surface under the lip is not flat enough";
+    return result;
+  }
+  if (result.angle_rad > options_.seal_angle_tolerance_rad) {
+    result.reason = "surface is tilted too far from the cup axis";
+    return result;
+  }
+  if (*std::max_element(gaps.begin(), gaps.end()) > options_.seal_max_gap_m) {
+    result.reason = "the lip does not touch the surface";
+    return result;
+  }
+  result.sealed = true;
+  if (object > 0) {
+    ItemState& s = Mutable(object);
+    attached_ = object;
+    X_ToolItem_ = X_BaseTool_.inverse() * s.X_BaseItem;
+    s.container = kGripper;
+    result.attached_item_id = object;
+    Log(EventKind::kAttached, s, 0.0);
+    MarkMoved();
+    // Items resting on the picked one lose their support once it has moved away.
+    pending_settle_box_ = world::Bounds(model(object).mesh, s.X_BaseItem);
+  }
+  return result;
+}
+
+int SimWorld::SuctionOff() {
+  vacuum_on_ = false;
+  if (attached_ == 0) return 0;
+  const int id = attached_;
+  attached_ = 0;
+  X_ToolItem_ = Eigen::Isometry3d::Identity();
+  pending_settle_box_.reset();
+  Drop(Mutable(id), EventKind::kReleased);
+  SettleAll();
+  return id;
+}
+
+void SimWorld::SetItemPose(int item_id, const Eigen::Isometry3d& X_BaseItem) {
+  ItemState& s = Mutable(item_id);  // throws for unknown id
+  ValidatePose(X_BaseItem, "SetItemPose(" + std::to_string(item_id) + ")");
+  if (item_id == attached_) {
+    throw std::invalid_argument("SetItemPose: item " + std::to_string(item_id) +
+                                " is in the gripper");
+  }
+  s.X_BaseItem = X_BaseItem;
+  s.container = ClassifyContainer(model(item_id), X_BaseItem);
+  MarkMoved();
+}
+
+std::string SimWorld::ClassifyContainer(const world::ItemModel& model,
+                                        const Eigen::Isometry3d& X_BaseItem) const {
+  const Eigen::Vector3d c_Base = X_BaseItem * model.box_I.center();
+  for (const auto& bin : cell_.bins) {
+    const Eigen::Vector3d c_S = cell_.config.X_BaseShelf.inverse() * c_Base;
+    if (bin.inner_S.contains(c_S)) return bin.name;
+  }
+  const Eigen::AlignedBox3d tote = world::Bounds(cell_.tote);
+  const Eigen::Vector3d c_T = cell_.config.X_BaseTote.inverse() * c_Base;
+  if (tote.contains(c_T)) return kTote;
+  const Eigen::Vector3d c_Table = cell_.config.X_BaseTable.inverse() * c_Base;
+  const Eigen::Vector3d& size = cell_.config.table_size_m;
+  if (std::abs(c_Table.x()) <= 0.5 * size.x() && std::abs(c_Table.y()) <= 0.5 * size.y() &&
+      c_Table.z() >= 0.0 && c_Table.z() <= 0.3) {
+    return kTable;
+  }
+  return kOutside;
+}
+
+double SimWorld::SupportBelow(int self_id, const world::ItemModel& model,
+                              const Eigen::Isometry3d& X_BaseItem, double from_z) const {
+  const RayScene& scene = ItemScene();
+  const Eigen::AlignedBox3d box = world::Bounds(model.mesh, X_BaseItem);
+  double support = cell_.config.floor_z_m();
+  constexpr int kGrid = 5;
+  for (int i = 0; i < kGrid; ++i) {
+    for (int j = 0; j < kGrid; ++j) {
+      const double fx = 0.02 + 0.96 * i / (kGrid - 1), fy = 0.02 + 0.96 * j / (kGrid - 1);
+      const Eigen::Vector3d p(box.min().x() + fx * box.sizes().x(),
+                              box.min().y() + fy * box.sizes().y(), from_z);
+      const auto hit = scene.Cast(p, -Eigen::Vector3d::UnitZ(), 100.0, self_id);
+      if (hit) support = std::max(support, hit->p_BaseHit.z());
+    }
+  }
+  return support;
+}
+
+void SimWorld::Drop(ItemState& s, EventKind kind) {
+  const world::ItemModel& m = model(s.id);
+  // Turn the item onto the face whose normal points most nearly down.
+  const Eigen::Matrix3d R = s.X_BaseItem.linear();
+  int best_axis = 2;
+  double best_sign = -1.0, best = -2.0;
+  for (int a = 0; a < 3; ++a) {
+    for (double sign : {1.0, -1.0}) {
+      const double down = (sign * R.col(a)).dot(-Eigen::Vector3d::UnitZ());
+      if (down > best + 1e-12) {
+        best = down;
+        best_axis = a;
+        best_sign = sign;
+      }
+    }
+  }
+  const Eigen::Vector3d axis_Base = best_sign * R.col(best_axis);
+  const Eigen::Matrix3d turn =
+      Eigen::Quaterniond::FromTwoVectors(axis_Base, -Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Eigen::Vector3d c_Base = s.X_BaseItem * m.box_I.center();
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = turn * R;
+  X.translation() = c_Base - X.linear() * m.box_I.center();  // turn about the box centre
+  const Eigen::AlignedBox3d before = world::Bounds(m.mesh, X);
+  const double support = SupportBelow(s.id, m, X, before.max().z());
+  const double fall = std::max(0.0, before.min().z() - support);
+  X.translation().z() += support + 0.0005 - before.min().z();
+  s.X_BaseItem = X;
+  s.container = ClassifyContainer(m, X);
+  MarkMoved();
+  Log(kind, s, fall);
+  if (fall > options_.drop_event_height_m) Log(EventKind::kDropped, s, fall);
+  if (s.container == kOutside) Log(EventKind::kOutside, s, fall);
+}
+
+void SimWorld::SettleAll() {
+  // Lowest first, so an item falls onto already settled ones.
+  for (int pass = 0; pass < 4; ++pass) {
+    std::vector<int> ids;
+    for (const ItemState& s : items_) {
+      if (s.id != attached_) ids.push_back(s.id);
+    }
+    std::sort(ids.begin(), ids.end(), [&](int a, int b) {
+      return world::Bounds(model(a).mesh, item(a).X_BaseItem).min().z() <
+             world::Bounds(model(b).mesh, item(b).X_BaseItem).min().z();
+    });
+    bool moved = false;
+    for (int id : ids) {
+      ItemState& s = Mutable(id);
+      const world::ItemModel& m = model(id);
+      const Eigen::AlignedBox3d box = world::Bounds(m.mesh, s.X_BaseItem);
+      const double support = SupportBelow(id, m, s.X_BaseItem, box.min().z() + 1e-4);
+      if (box.min().z() - support > options_.settle_tolerance_m) {
+        Drop(s, EventKind::kFell);
+        moved = true;
+      }
+    }
+    if (!moved) break;
+  }
+}
+
+void SimWorld::Log(EventKind kind, const ItemState& s, double drop_height_m) {
+  Event e;
+  e.sequence = events_.size() + 1;
+  e.kind = kind;
+  e.item_id = s.id;
+  e.item_name = s.name;
+  e.container = s.container;
+  e.drop_height_m = drop_height_m;
+  events_.push_back(e);
+}
+
+std::vector<SceneObject> SimWorld::SceneMeshes() const {
+  std::vector<SceneObject> objects;
+  objects.push_back({&cell_.shelf, cell_.config.X_BaseShelf});
+  objects.push_back({&cell_.tote, cell_.config.X_BaseTote});
+  objects.push_back({&cell_.table, cell_.config.X_BaseTable});
+  for (std::size_t i = 0; i < items_.size(); ++i) {
+    objects.push_back({&item_models_[i]->mesh, items_[i].X_BaseItem});
+  }
+  return objects;
+}
+
+std::vector<std::string> SimWorld::SceneNames() const {
+  std::vector<std::string> names = {"shelf", "tote", "table"};
+  for (const ItemState& s : items_) names.push_back(s.name);
+  return names;
+}
+
+}  // namespace picking::simulator

@@ -1,0 +1,232 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "libs/apc/task.h"
+#include "libs/ur10/kinematics.h"
+#include "libs/world/cell_config.h"
+#include "libs/world/item_models.h"
+#include "services/simulator/core/layout.h"
+#include "services/simulator/core/ray_scene.h"
+#include "services/simulator/core/renderer.h"
+
+namespace picking::simulator {
+
+/// Container names: "bin_A".."bin_L", "tote", "gripper", "table", "outside" (anywhere else,
+/// which the APC rules penalise).
+inline constexpr const char* kTote = "tote";
+inline constexpr const char* kGripper = "gripper";
+inline constexpr const char* kTable = "table";
+inline constexpr const char* kOutside = "outside";
+
+/// Ground truth of one item instance.
+struct ItemState {
+  int id = 0;                                                    ///< Unique in the world, from 1.
+  std::string name;                                              ///< Catalogue name.
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();  ///< Item frame in Base.
+  std::string container;
+
+  bool operator==(const ItemState& o) const {
+    return id == o.id && name == o.name && X_BaseItem.matrix() == o.X_BaseItem.matrix() &&
+           container == o.container;
+  }
+};
+
+enum class EventKind {
+  kAttached,  ///< The suction cup sealed on the item; it follows the tool.
+  kReleased,  ///< The item left the gripper and fell `drop_height_m` onto `container`.
+  kDropped,   ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
+  kFell,      ///< The item lost its support (e.g. the item below was picked) and settled.
+  kOutside,   ///< The item came to rest outside every bin, the tote, the table and gripper.
+};
+
+/// One entry of the event log.
+struct Event {
+  std::uint64_t sequence = 0;  ///< Increasing from 1.
+  EventKind kind = EventKind::kAttached;
+  int item_id = 0;
+  std::string item_name;
+  std::string container;       ///< Where the item is after the event.
+  double drop_height_m = 0.0;  ///< kReleased / kDropped / kFell: height of the fall.
+
+  bool operator==(const Event& o) const {
+    return sequence == o.sequence && kind == o.kind && item_id == o.item_id &&
+           item_name == o.item_name && container == o.container && drop_height_m == o.drop_height_m;
+  }
+};
+
+/// Everything that changes in the world, for snapshots and comparisons.
+struct SimState {
+  std::vector<ItemState> items;
+  Eigen::Isometry3d X_BaseTool = Eigen::Isometry3d::Identity();
+  std::optional<ur10::JointVector> q_rad;
+  bool vacuum_on = false;
+  int attached_item_id = 0;  ///< 0: none.
+  Eigen::Isometry3d X_ToolItem = Eigen::Isometry3d::Identity();
+  std::vector<Event> events;
+
+  bool operator==(const SimState& o) const {
+    return items == o.items && X_BaseTool.matrix() == o.X_BaseTool.matrix() && q_rad == o.q_rad &&
+           vacuum_on == o.vacuum_on && attached_item_id == o.attached_item_id &&
+           X_ToolItem.matrix() == o.X_ToolItem.matrix() && events == o.events;
+  }
+  bool operator!=(const SimState& o) const { return !(*this == o); }
+};
+
+/// Physical parameters of the simulated gripper and world.
+struct SimOptions {
+  /// Suction cup (the tool frame: origin at the cup's lip centre, +z out of the cup, the
+  /// approach direction) relative to the UR10 flange; used with SetJointPositions.
+  Eigen::Isometry3d X_FlangeTool = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.35));
+  double cup_radius_m = 0.015;                ///< Radius of the cup's lip.
+  int rim_samples = 16;                       ///< Points on the lip tested for contact and seal.
+  double contact_stiffness_n_per_m = 2000.0;  ///< Spring of the compliant cup (bellows).
+  double contact_force_threshold_n = 10.0;    ///< A guarded move stops at this force.
+  double seal_flatness_tolerance_m = 0.002;   ///< Max deviation of lip points from a plane.
+  double seal_angle_tolerance_rad = 0.35;     ///< Max angle between surface normal and -z_tool.
+  double seal_max_gap_m = 0.004;      ///< Lip points may be at most this far in front of the cup.
+  double seal_lookback_m = 0.02;      ///< Surfaces up to this far behind the lip (compressed cup).
+  double drop_event_height_m = 0.3;   ///< Falls above this are recorded as kDropped.
+  double settle_tolerance_m = 0.002;  ///< An item hanging higher than this above support falls.
+};
+
+/// Result of a guarded move along the tool's +z axis.
+struct GuardedMoveResult {
+  bool contact = false;        ///< The force threshold was reached.
+  double travelled_m = 0.0;    ///< Distance moved along +z_tool.
+  double force_n = 0.0;        ///< Spring force at the end (k * penetration).
+  int contact_item_id = 0;     ///< Item touched (0: none or a static object).
+  std::string contact_object;  ///< Item name, "shelf", "tote", "table", or empty.
+  Eigen::Vector3d p_BaseContact = Eigen::Vector3d::Zero();  ///< First contact point.
+};
+
+/// Result of switching the vacuum on.
+struct SuctionResult {
+  bool sealed = false;       ///< Every lip point met one flat surface facing the cup.
+  int attached_item_id = 0;  ///< The sealed item (0 when sealed on a static object).
+  double flatness_m = 0.0;   ///< Max deviation of the lip hits from their plane.
+  double angle_rad = 0.0;    ///< Angle between surface normal and -z_tool.
+  std::string reason;        ///< Why there is no seal, when sealed is false.
+};
+
+/// The simulated APC cell: static shelf / tote / table, the items with their poses and
+/// containers, the tool (suction cup) pose, contact, suction, falling and the event log.
+///
+/// Every request is validated before anything changes: on an exception the state is exactly
+/// as before. Not thread safe (one owner; the service adapter serialises requests).
+class SimWorld final {
+ public:
+  /// `models` must hold every item used later. `kinematics` (optional) enables
+  /// SetJointPositions. Throws std::invalid_argument for bad options.
+  SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModelLibrary> models,
+           SimOptions options = {},
+           std::shared_ptr<const ur10::Ur10Kinematics> kinematics = nullptr);
+  ~SimWorld();
+
+  /// Replaces every item by the layout of `task` (bins and tote) drawn with `seed`, clears
+  /// the event log, releases the gripper. Throws LayoutError (naming the bin) or
+  /// apc::UnknownItemError; then nothing changes.
+  void LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutOptions& layout = {});
+
+  /// Adds one item resting in `container` (a bin or "tote") beside what is there. Returns
+  /// its id. Throws apc::UnknownItemError, LayoutError (unknown container or no room).
+  int AddItem(const std::string& name, const std::string& container, std::uint32_t seed);
+
+  /// Moves the tool (the suction cup frame) to X_BaseTool; an attached item follows. No
+  /// collision checking (the planner's job). Throws std::invalid_argument for a non-finite
+  /// or non-rigid pose.
+  void SetToolPose(const Eigen::Isometry3d& X_BaseTool);
+
+  /// Sets the arm's joints: X_BaseTool = FK(q) * X_FlangeTool. Throws std::logic_error without
+  /// kinematics, std::invalid_argument for non-finite angles.
+  void SetJointPositions(const ur10::JointVector& q_rad);
+
+  /// Moves the tool along its +z axis by up to `max_distance_m` (> 0), stopping where the
+  /// cup (centre and lip points) pressed on the first surface reaches the force threshold.
+  /// Throws std::invalid_argument for a non-positive or non-finite distance.
+  GuardedMoveResult GuardedMove(double max_distance_m);
+
+  /// Vacuum on: seals if the lip meets one flat surface facing the cup; a sealed item is
+  /// attached (it follows the tool, X_ToolItem kept). Already attached: returns the seal.
+  SuctionResult SuctionOn();
+
+  /// Vacuum off: an attached item is released and falls onto the highest support under it
+  /// (turned onto its nearest face). Returns the released item's id (0: none).
+  int SuctionOff();
+
+  /// Teleports an item (tests, scripted scenarios); its container is re-derived from the
+  /// pose. Throws std::out_of_range for an unknown id, std::invalid_argument for a bad pose
+  /// or an item in the gripper.
+  void SetItemPose(int item_id, const Eigen::Isometry3d& X_BaseItem);
+
+  /// Ground truth.
+  const std::vector<ItemState>& items() const { return items_; }
+  /// Throws std::out_of_range naming the id.
+  const ItemState& item(int item_id) const;
+  /// Items currently in `container`; throws std::invalid_argument for an unknown container.
+  std::vector<ItemState> ItemsIn(const std::string& container) const;
+  const std::vector<Event>& events() const { return events_; }
+  const Eigen::Isometry3d& X_BaseTool() const { return X_BaseTool_; }
+  bool vacuum_on() const { return vacuum_on_; }
+  int attached_item_id() const { return attached_; }
+  SimState state() const;
+
+  /// Current meshes with their poses in Base: shelf, tote, table, then every item, for the
+  /// renderer. The pointers stay valid until the item set changes (LoadTask / AddItem).
+  std::vector<SceneObject> SceneMeshes() const;
+  /// Names parallel to SceneMeshes(): "shelf", "tote", "table", then item names.
+  std::vector<std::string> SceneNames() const;
+
+  const world::CellModel& cell() const { return cell_; }
+  const world::ItemModelLibrary& models() const { return *models_; }
+  const SimOptions& options() const { return options_; }
+  /// The model of an item instance.
+  const world::ItemModel& model(int item_id) const;
+
+  /// Container of an item at X_BaseItem from geometry alone (box centre inside a bin's free
+  /// box, the tote's box, or above the table top); "outside" otherwise.
+  std::string ClassifyContainer(const world::ItemModel& model,
+                                const Eigen::Isometry3d& X_BaseItem) const;
+
+ private:
+  enum : int { kShelfId = -2, kToteId = -3, kTableId = -4 };
+  void ValidatePose(const Eigen::Isometry3d& X, const std::string& what) const;
+  const RayScene& ItemScene() const;  // items + static, rebuilt when dirty
+  void MarkMoved() { item_scene_.reset(); }
+  // Highest support below the footprint of `model` at X_BaseItem (excluding `self_id`),
+  // searched from `from_z` down; returns its z (Base), at least the floor.
+  double SupportBelow(int self_id, const world::ItemModel& model,
+                      const Eigen::Isometry3d& X_BaseItem, double from_z) const;
+  // Turns the item onto its nearest face and lets it fall; logs events.
+  void Drop(ItemState& item, EventKind kind);
+  void SettleAll();
+  void Log(EventKind kind, const ItemState& item, double drop_height_m);
+  ItemState& Mutable(int item_id);
+
+  world::CellModel cell_;
+  std::shared_ptr<const world::ItemModelLibrary> models_;
+  SimOptions options_;
+  std::shared_ptr<const ur10::Ur10Kinematics> kinematics_;
+  std::unique_ptr<RayScene> static_scene_;
+  mutable std::unique_ptr<RayScene> item_scene_;
+  std::vector<ItemState> items_;
+  std::vector<std::shared_ptr<const world::ItemModel>> item_models_;  // parallel to items_
+  Eigen::Isometry3d X_BaseTool_ = Eigen::Isometry3d::Identity();
+  std::optional<ur10::JointVector> q_rad_;
+  bool vacuum_on_ = false;
+  int attached_ = 0;
+  Eigen::Isometry3d X_ToolItem_ = Eigen::Isometry3d::Identity();
+  // Where the attached item was when picked: once it has left that box, what rested on it
+  // falls.
+  std::optional<Eigen::AlignedBox3d> pending_settle_box_;
+  std::vector<Event> events_;
+  std::vector<LayoutRegion> regions_;
+};
+
+}  // namespace picking::simulator

@@ -1,0 +1,282 @@
+#include "services/simulator/core/sim_world.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+
+#include "libs/apc/bins.h"
+#include "libs/world/mesh_utils.h"
+
+namespace picking::simulator {
+namespace {
+
+// Tool frame with +z (the approach direction) along `approach_Base`.
+Eigen::Isometry3d ToolAt(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& approach_Base) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), approach_Base)
+                   .toRotationMatrix();
+  X.translation() = p_Base;
+  return X;
+}
+
+class SimWorldTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    models_ = std::make_shared<world::ItemModelLibrary>(
+        apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath()));
+    cell_ = new world::CellModel(
+        world::LoadCellModel(world::ReadCellConfig(world::DefaultCellConfigPath())));
+  }
+  static void TearDownTestSuite() {
+    delete cell_;
+    models_.reset();
+  }
+
+  void SetUp() override {
+    world_ = std::make_unique<SimWorld>(*cell_, models_);
+    apc::Task task;
+    for (int i = 0; i < apc::kNumBins; ++i) task.bin_contents[apc::BinName(i)] = {};
+    task.bin_contents["bin_E"] = {"kleenex_tissue_box"};
+    task.bin_contents["bin_K"] = {"rawlings_baseball"};
+    world_->LoadTask(task, 3);
+    box_id_ = world_->ItemsIn("bin_E").at(0).id;
+    ball_id_ = world_->ItemsIn("bin_K").at(0).id;
+  }
+
+  Eigen::AlignedBox3d BoxOf(int id) const {
+    return world::Bounds(world_->model(id).mesh, world_->item(id).X_BaseItem);
+  }
+
+  // Puts the cup 5 cm above the top centre of item `id`, pointing down.
+  void ToolAbove(int id, double height_m = 0.05) {
+    const auto box = BoxOf(id);
+    world_->SetToolPose(
+        ToolAt(Eigen::Vector3d(box.center().x(), box.center().y(), box.max().z() + height_m),
+               -Eigen::Vector3d::UnitZ()));
+  }
+
+  static std::shared_ptr<world::ItemModelLibrary> models_;
+  static world::CellModel* cell_;
+  std::unique_ptr<SimWorld> world_;
+  int box_id_ = 0, ball_id_ = 0;
+};
+
+std::shared_ptr<world::ItemModelLibrary> SimWorldTest::models_;
+world::CellModel* SimWorldTest::cell_ = nullptr;
+
+TEST_F(SimWorldTest, GuardedMoveStopsAtTheForceThreshold) {
+  ToolAbove(box_id_, 0.05);
+  const GuardedMoveResult r = world_->GuardedMove(0.2);
+  EXPECT_TRUE(r.contact);
+  EXPECT_EQ(r.contact_item_id, box_id_);
+  EXPECT_EQ(r.contact_object, "kleenex_tissue_box");
+  const double k = world_->options().contact_stiffness_n_per_m;
+  const double f = world_->options().contact_force_threshold_n;
+  EXPECT_NEAR(r.travelled_m, 0.05 + f / k, 1e-4);
+  EXPECT_NEAR(r.force_n, f, 0.2);
+  EXPECT_NEAR(r.p_BaseContact.z(), BoxOf(box_id_).max().z(), 1e-4);
+  EXPECT_NEAR(world_->X_BaseTool().translation().z(), BoxOf(box_id_).max().z() - f / k, 1e-4);
+
+  // Nothing within reach: full travel, no force.
+  world_->SetToolPose(ToolAt(Eigen::Vector3d(0.3, 0.0, 0.5), Eigen::Vector3d::UnitZ()));
+  const GuardedMoveResult up = world_->GuardedMove(0.1);
+  EXPECT_FALSE(up.contact);
+  EXPECT_DOUBLE_EQ(up.force_n, 0.0);
+  EXPECT_NEAR(world_->X_BaseTool().translation().z(), 0.6, 1e-12);
+
+  // Short of the surface: moves the whole distance with no contact.
+  ToolAbove(box_id_, 0.05);
+  const GuardedMoveResult short_move = world_->GuardedMove(0.03);
+  EXPECT_FALSE(short_move.contact);
+  EXPECT_NEAR(short_move.travelled_m, 0.03, 1e-12);
+}
+
+TEST_F(SimWorldTest, PickCarryAndDropIntoTheToteIsLogged) {
+  ToolAbove(box_id_);
+  world_->GuardedMove(0.2);
+  const SuctionResult seal = world_->SuctionOn();
+  ASSERT_TRUE(seal.sealed) << seal.reason;
+  EXPECT_EQ(seal.attached_item_id, box_id_);
+  EXPECT_LT(seal.flatness_m, 1e-4);
+  EXPECT_LT(seal.angle_rad, 1e-3);
+  EXPECT_EQ(world_->item(box_id_).container, kGripper);
+  const Eigen::Isometry3d X_ToolItem =
+      world_->X_BaseTool().inverse() * world_->item(box_id_).X_BaseItem;
+
+  // Carry it 0.5 m above the tote floor; it follows the tool.
+  const Eigen::Vector3d tote_centre = cell_->config.X_BaseTote.translation();
+  world_->SetToolPose(
+      ToolAt(tote_centre + Eigen::Vector3d(0.0, 0.0, 0.5), -Eigen::Vector3d::UnitZ()));
+  const Eigen::Isometry3d carried = world_->item(box_id_).X_BaseItem;
+  EXPECT_TRUE((world_->X_BaseTool() * X_ToolItem).isApprox(carried, 1e-12));
+  const double bottom = BoxOf(box_id_).min().z();
+
+  EXPECT_EQ(world_->SuctionOff(), box_id_);
+  EXPECT_EQ(world_->attached_item_id(), 0);
+  EXPECT_EQ(world_->item(box_id_).container, kTote);
+  const auto& events = world_->events();
+  ASSERT_GE(events.size(), 3u);
+  EXPECT_EQ(events[0].kind, EventKind::kAttached);
+  EXPECT_EQ(events[1].kind, EventKind::kReleased);
+  EXPECT_EQ(events[1].container, kTote);
+  // The tote floor is the highest support under the item.
+  const double rest = BoxOf(box_id_).min().z();
+  EXPECT_NEAR(events[1].drop_height_m, bottom - rest, 1e-3);
+  EXPECT_GT(events[1].drop_height_m, 0.3);
+  EXPECT_EQ(events[2].kind, EventKind::kDropped);
+  EXPECT_LT(rest - cell_->config.floor_z_m(), 0.03);
+  // It rests upright (largest face down).
+  EXPECT_NEAR(std::abs(world_->item(box_id_).X_BaseItem.linear()(2, 2)), 1.0, 1e-9);
+}
+
+TEST_F(SimWorldTest, LowPlacementIsNotADropAndOutsideIsRecorded) {
+  ToolAbove(box_id_);
+  world_->GuardedMove(0.2);
+  ASSERT_TRUE(world_->SuctionOn().sealed);
+  // Over the table, 5 cm above its top: a gentle placement.
+  const double h = BoxOf(box_id_).max().z() - world_->X_BaseTool().translation().z();
+  const double height = BoxOf(box_id_).sizes().z();
+  const Eigen::Vector3d table_top = cell_->config.X_BaseTable.translation();
+  world_->SetToolPose(
+      ToolAt(table_top + Eigen::Vector3d(0, 0, height + 0.05 - h), -Eigen::Vector3d::UnitZ()));
+  world_->SuctionOff();
+  EXPECT_EQ(world_->item(box_id_).container, kTable);
+  EXPECT_NEAR(world_->events().back().drop_height_m, 0.05, 2e-3);
+  for (const Event& e : world_->events()) EXPECT_NE(e.kind, EventKind::kDropped);
+
+  // Pick it again and let go between robot and shelf: it lands on the floor, outside.
+  ToolAbove(box_id_);
+  world_->GuardedMove(0.2);
+  ASSERT_TRUE(world_->SuctionOn().sealed);
+  world_->SetToolPose(ToolAt(Eigen::Vector3d(0.5, 0.0, 0.0), -Eigen::Vector3d::UnitZ()));
+  world_->SuctionOff();
+  EXPECT_EQ(world_->item(box_id_).container, kOutside);
+  EXPECT_EQ(world_->events().back().kind, EventKind::kOutside);
+  EXPECT_EQ(world_->ItemsIn(kOutside).size(), 1u);
+}
+
+TEST_F(SimWorldTest, NoSealOnARoundOrTiltedSurface) {
+  ToolAbove(ball_id_, 0.03);
+  world_->GuardedMove(0.1);
+  const SuctionResult ball = world_->SuctionOn();
+  EXPECT_FALSE(ball.sealed);
+  EXPECT_GT(ball.flatness_m, world_->options().seal_flatness_tolerance_m);
+  EXPECT_EQ(world_->attached_item_id(), 0);
+  EXPECT_EQ(world_->item(ball_id_).container, "bin_K");
+  world_->SuctionOff();
+
+  // Tilted by 40 degrees about the shelf-facing axis onto the flat box top.
+  const auto box = BoxOf(box_id_);
+  const Eigen::Vector3d approach =
+      Eigen::AngleAxisd(40.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()) * -Eigen::Vector3d::UnitZ();
+  world_->SetToolPose(ToolAt(
+      box.center() + Eigen::Vector3d(0, 0, 0.5 * box.sizes().z()) - 0.03 * approach, approach));
+  world_->GuardedMove(0.1);
+  const SuctionResult tilted = world_->SuctionOn();
+  EXPECT_FALSE(tilted.sealed);
+  EXPECT_LT(tilted.flatness_m, 1e-3);
+  EXPECT_NEAR(tilted.angle_rad, 40.0 * M_PI / 180.0, 0.02);
+  EXPECT_NE(tilted.reason.find("tilted"), std::string::npos) << tilted.reason;
+  EXPECT_EQ(world_->events().size(), 0u);
+
+  // Held 2 cm above the box top: the lip does not touch.
+  world_->SuctionOff();
+  ToolAbove(box_id_, 0.02);
+  const SuctionResult away = world_->SuctionOn();
+  EXPECT_FALSE(away.sealed);
+  EXPECT_NE(away.reason.find("touch"), std::string::npos) << away.reason;
+}
+
+TEST_F(SimWorldTest, ItemOnTopFallsWhenTheItemBelowIsPulledOut) {
+  // A book lying on the tissue box.
+  const int book = world_->AddItem("i_am_a_bunny_book", "bin_H", 1);
+  const auto box = BoxOf(box_id_);
+  Eigen::Isometry3d X_book = world_->item(book).X_BaseItem;
+  X_book.translation().x() += box.center().x() - BoxOf(book).center().x();
+  X_book.translation().y() += box.center().y() - BoxOf(book).center().y();
+  X_book.translation().z() += box.max().z() + 0.0005 - BoxOf(book).min().z();
+  world_->SetItemPose(book, X_book);
+  EXPECT_EQ(world_->item(book).container, "bin_E");
+
+  // Grip the box's front face (approach toward the shelf, -x of the base is out of the bin).
+  const Eigen::Vector3d front(box.min().x(), box.center().y(), box.min().z() + 0.03);
+  world_->SetToolPose(ToolAt(front - Eigen::Vector3d(0.05, 0, 0), Eigen::Vector3d::UnitX()));
+  const GuardedMoveResult touch = world_->GuardedMove(0.2);
+  ASSERT_TRUE(touch.contact);
+  EXPECT_EQ(touch.contact_item_id, box_id_);
+  ASSERT_TRUE(world_->SuctionOn().sealed);
+  EXPECT_EQ(world_->item(book).container, "bin_E");  // still resting on the box
+  // Pull the box out of the bin.
+  Eigen::Isometry3d X = world_->X_BaseTool();
+  X.translation().x() -= 0.4;
+  world_->SetToolPose(X);
+  const Event& fell = world_->events().back();
+  EXPECT_EQ(fell.kind, EventKind::kFell);
+  EXPECT_EQ(fell.item_id, book);
+  EXPECT_NEAR(fell.drop_height_m, box.sizes().z(), 3e-3);
+  EXPECT_EQ(world_->item(book).container, "bin_E");
+  EXPECT_NEAR(BoxOf(book).min().z(), box.min().z(), 0.02);  // back on the bin floor
+}
+
+TEST_F(SimWorldTest, BadRequestsThrowAndChangeNothing) {
+  ToolAbove(box_id_);
+  world_->GuardedMove(0.2);
+  world_->SuctionOn();
+  const SimState before = world_->state();
+  Eigen::Isometry3d nan = Eigen::Isometry3d::Identity();
+  nan.translation().x() = std::nan("");
+  Eigen::Isometry3d scaled = Eigen::Isometry3d::Identity();
+  scaled.linear() *= 2.0;
+  EXPECT_THROW(world_->SetToolPose(nan), std::invalid_argument);
+  EXPECT_THROW(world_->SetToolPose(scaled), std::invalid_argument);
+  EXPECT_THROW(world_->SetItemPose(999, Eigen::Isometry3d::Identity()), std::out_of_range);
+  EXPECT_THROW(world_->SetItemPose(ball_id_, nan), std::invalid_argument);
+  EXPECT_THROW(world_->SetItemPose(box_id_, Eigen::Isometry3d::Identity()), std::invalid_argument);
+  EXPECT_THROW(world_->ItemsIn("bin_Q"), std::invalid_argument);
+  EXPECT_THROW(world_->item(0), std::out_of_range);
+  EXPECT_THROW(world_->AddItem("golden_ball", "bin_A", 1), apc::UnknownItemError);
+  EXPECT_THROW(world_->AddItem("kleenex_tissue_box", "bin_Q", 1), LayoutError);
+  EXPECT_THROW(world_->GuardedMove(-0.1), std::invalid_argument);
+  EXPECT_THROW(world_->GuardedMove(std::nan("")), std::invalid_argument);
+  EXPECT_THROW(world_->SetJointPositions(ur10::JointVector::Zero()), std::logic_error);
+  apc::Task bad;
+  for (int i = 0; i < apc::kNumBins; ++i) bad.bin_contents[apc::BinName(i)] = {};
+  bad.bin_contents["bin_A"] = {"golden_ball"};
+  EXPECT_THROW(world_->LoadTask(bad, 1), apc::UnknownItemError);
+  bad.bin_contents["bin_A"] = std::vector<std::string>(10, "kleenex_paper_towels");
+  EXPECT_THROW(world_->LoadTask(bad, 1), LayoutError);
+  EXPECT_EQ(world_->state(), before);
+}
+
+TEST_F(SimWorldTest, SceneMeshesFollowTheItems) {
+  const auto objects = world_->SceneMeshes();
+  const auto names = world_->SceneNames();
+  ASSERT_EQ(objects.size(), 3u + world_->items().size());
+  ASSERT_EQ(names.size(), objects.size());
+  EXPECT_EQ(names[0], "shelf");
+  EXPECT_EQ(objects[0].mesh, &world_->cell().shelf);
+  EXPECT_TRUE(objects[0].X_BaseObject.isApprox(cell_->config.X_BaseShelf));
+  for (std::size_t i = 0; i < world_->items().size(); ++i) {
+    EXPECT_EQ(names[3 + i], world_->items()[i].name);
+    EXPECT_EQ(objects[3 + i].mesh, &world_->model(world_->items()[i].id).mesh);
+    EXPECT_TRUE(objects[3 + i].X_BaseObject.isApprox(world_->items()[i].X_BaseItem));
+  }
+}
+
+TEST_F(SimWorldTest, JointPositionsPlaceTheToolByForwardKinematics) {
+  auto kinematics = std::make_shared<ur10::Ur10Kinematics>(
+      ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10"));
+  SimWorld world(*cell_, models_, SimOptions{}, kinematics);
+  ur10::JointVector q;
+  q << 0.1, -1.2, 1.4, -0.2, 1.5707963, 0.3;
+  world.SetJointPositions(q);
+  const Eigen::Isometry3d expected =
+      kinematics->ForwardKinematics(q) * world.options().X_FlangeTool;
+  EXPECT_TRUE(world.X_BaseTool().isApprox(expected, 1e-12));
+  ASSERT_TRUE(world.state().q_rad.has_value());
+  EXPECT_EQ(*world.state().q_rad, q);
+}
+
+}  // namespace
+}  // namespace picking::simulator
