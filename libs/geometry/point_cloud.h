@@ -17,10 +17,10 @@ namespace picking::geometry {
 /// row-major; pixels without a measurement hold NaN coordinates. An unorganised cloud has
 /// `height == 1` and `width == points.size()`.
 struct PointCloud {
-  std::vector<Eigen::Vector3f> points;            ///< p_FramePoint, metres.
-  std::vector<Eigen::Vector3f> normals;           ///< Unit normals in `frame_id`, or empty.
+  std::vector<Eigen::Vector3f> points;              ///< p_FramePoint, metres.
+  std::vector<Eigen::Vector3f> normals;             ///< Unit normals in `frame_id`, or empty.
   std::vector<std::array<std::uint8_t, 3>> colors;  ///< RGB 0-255, or empty.
-  std::vector<float> intensities;                 ///< Camera intensity 0-1, or empty.
+  std::vector<float> intensities;                   ///< Camera intensity 0-1, or empty.
   std::uint32_t width = 0;
   std::uint32_t height = 1;
   std::string frame_id;
