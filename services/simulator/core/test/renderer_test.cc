@@ -346,6 +346,63 @@ TEST(StructuredLightRendererTest, StripePatternFollowsProjectorColumns) {
   }
 }
 
+TEST(StructuredLightRendererTest, GrayCodeSequenceDecodesToTheProjectorCoordinates) {
+  // Render a noisy Gray-code scan of a tilted plane, decode each pixel by comparing each
+  // pattern with its inverse, and compare with the ground-truth projector pixel.
+  const world::TriangleMesh plane = Square(5.0);
+  Eigen::Isometry3d X_BasePlane = Translation(0.0, 0.0, 0.7);
+  X_BasePlane.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY()).toRotationMatrix() *
+                         Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  StructuredLightRenderer renderer({{&plane, X_BasePlane}});
+  const ScanGeometry g = renderer.Prepare(TestPose());
+  const int column_bits = 7;  // 114 columns
+  const int row_bits = 8;     // 143 rows
+  std::vector<GrayImage> sequence;
+  for (int axis = 0; axis < 2; ++axis) {
+    for (int bit = (axis == 0 ? column_bits : row_bits) - 1; bit >= 0; --bit) {
+      GrayImage pattern(g.projector_width, g.projector_height);
+      GrayImage inverse(g.projector_width, g.projector_height);
+      for (int r = 0; r < pattern.height; ++r) {
+        for (int c = 0; c < pattern.width; ++c) {
+          const int index = axis == 0 ? c : r;
+          const bool on = ((index ^ (index >> 1)) >> bit) & 1;
+          pattern.at(c, r) = on ? 255 : 0;
+          inverse.at(c, r) = on ? 0 : 255;
+        }
+      }
+      sequence.push_back(pattern);
+      sequence.push_back(inverse);
+    }
+  }
+  RenderOptions options;
+  options.read_noise_dn = 2.0;
+  options.seed = 11;
+  const std::vector<GrayImage> images = RenderSequence(g, sequence, options);
+  auto decode = [&](std::size_t i, int first_image, int bits) {
+    int gray = 0;
+    for (int b = 0; b < bits; ++b) {
+      const int k = first_image + 2 * b;
+      gray = (gray << 1) | (images[k].pixels[i] > images[k + 1].pixels[i] ? 1 : 0);
+    }
+    int value = 0;
+    for (; gray != 0; gray >>= 1) value ^= gray;
+    return value;
+  };
+  int checked = 0;
+  for (std::size_t i = 0; i < g.size(); ++i) {
+    if (g.illumination[i] != Illumination::kLit) continue;
+    const float u = g.projector_uv[i].x();
+    const float v = g.projector_uv[i].y();
+    // Skip pixels within 0.1 projector pixel of a projector pixel border.
+    const auto near_border = [](float w) { return std::abs(w - std::floor(w) - 0.5f) < 0.1f; };
+    if (near_border(u) || near_border(v)) continue;
+    ++checked;
+    ASSERT_EQ(decode(i, 0, column_bits), static_cast<int>(std::lround(u))) << i;
+    ASSERT_EQ(decode(i, 2 * column_bits, row_bits), static_cast<int>(std::lround(v))) << i;
+  }
+  EXPECT_GT(checked, static_cast<int>(g.size() / 3));
+}
+
 TEST(StructuredLightRendererTest, IrradianceFollowsCosineAndInverseSquare) {
   const world::TriangleMesh plane = Square(5.0);
   Eigen::Isometry3d X_BasePlane = Translation(0.0, 0.0, 1.1);
