@@ -576,12 +576,55 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
         offsets.push_back(offset);
         offset += SizeOf(p.type);
       }
+      // Fast path for the usual layout in host byte order: float channels, uchar colours.
+      std::array<std::ptrdiff_t, 11> at;
+      at.fill(-1);
+      bool direct = !swap;
+      for (std::size_t q = 0; q < element.properties.size(); ++q) {
+        const Property& p = element.properties[q];
+        if (p.role == Role::kIgnore) continue;
+        at[static_cast<int>(p.role)] = static_cast<std::ptrdiff_t>(offsets[q]);
+        const bool is_color =
+            p.role == Role::kRed || p.role == Role::kGreen || p.role == Role::kBlue;
+        direct &= p.type == (is_color ? ScalarType::kUint8 : ScalarType::kFloat32);
+      }
+      const bool normals = at[static_cast<int>(Role::kNx)] >= 0;
+      const bool colors = at[static_cast<int>(Role::kRed)] >= 0;
+      const bool intensity = at[static_cast<int>(Role::kIntensity)] >= 0;
+      auto offset_of = [&](Role role) { return at[static_cast<int>(role)]; };
       constexpr std::uint64_t kBlock = 1 << 14;
       block.resize(kBlock * stride);
       for (std::uint64_t first = 0; first < element.count; first += kBlock) {
         const std::uint64_t n = std::min(kBlock, element.count - first);
         const std::size_t got = reader.Read(block.data(), n * stride);
         if (got != n * stride) truncated(first + got / stride);
+        if (direct) {
+          for (std::uint64_t k = 0; k < n; ++k) {
+            const char* record = block.data() + k * stride;
+            Eigen::Vector3f v;
+            std::memcpy(&v[0], record + offset_of(Role::kX), 4);
+            std::memcpy(&v[1], record + offset_of(Role::kY), 4);
+            std::memcpy(&v[2], record + offset_of(Role::kZ), 4);
+            cloud->points.push_back(v);
+            if (normals) {
+              std::memcpy(&v[0], record + offset_of(Role::kNx), 4);
+              std::memcpy(&v[1], record + offset_of(Role::kNy), 4);
+              std::memcpy(&v[2], record + offset_of(Role::kNz), 4);
+              cloud->normals.push_back(v);
+            }
+            if (colors) {
+              cloud->colors.push_back({static_cast<std::uint8_t>(record[offset_of(Role::kRed)]),
+                                       static_cast<std::uint8_t>(record[offset_of(Role::kGreen)]),
+                                       static_cast<std::uint8_t>(record[offset_of(Role::kBlue)])});
+            }
+            if (intensity) {
+              float value;
+              std::memcpy(&value, record + offset_of(Role::kIntensity), 4);
+              cloud->intensities.push_back(value);
+            }
+          }
+          continue;
+        }
         for (std::uint64_t k = 0; k < n; ++k) {
           const char* record = block.data() + k * stride;
           for (std::size_t q = 0; q < element.properties.size(); ++q) {
