@@ -1,6 +1,7 @@
 #include "libs/apc/scoring.h"
 
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <stdexcept>
 
@@ -40,8 +41,21 @@ Replay Run(const Task& initial, const std::vector<Event>& events) {
   }
   for (std::size_t i = 0; i < events.size(); ++i) {
     const Event& event = events[i];
-    if (event.kind != EventKind::kMove && event.kind != EventKind::kOutside) continue;
     const std::string label = "event " + std::to_string(i) + " (" + event.item + ")";
+    if (event.kind == EventKind::kDrop &&
+        !(event.height_m >= 0.0 && std::isfinite(event.height_m))) {
+      throw std::invalid_argument(label + ": drop height must be finite and >= 0");
+    }
+    if (event.kind == EventKind::kProtruding) {
+      if (!IsBinName(event.from)) {
+        throw std::invalid_argument(label + ": protrusion from \"" + event.from +
+                                    "\", which is not a bin");
+      }
+      if (!(event.protrusion_m >= 0.0 && std::isfinite(event.protrusion_m))) {
+        throw std::invalid_argument(label + ": protrusion must be finite and >= 0");
+      }
+    }
+    if (event.kind != EventKind::kMove && event.kind != EventKind::kOutside) continue;
     if (!IsLocation(event.from)) {
       throw std::invalid_argument(label + ": unknown location \"" + event.from + "\"");
     }
@@ -101,6 +115,30 @@ void CheckSame(const std::string& location, const std::map<std::string, int>& re
 }
 
 }  // namespace
+
+std::string_view ScoreRuleName(ScoreRule rule) {
+  switch (rule) {
+    case ScoreRule::kTargetItem:
+      return "target_item";
+    case ScoreRule::kStowedItem:
+      return "stowed_item";
+    case ScoreRule::kItemBonus:
+      return "item_bonus";
+    case ScoreRule::kOutside:
+      return "outside";
+    case ScoreRule::kMisreported:
+      return "misreported";
+    case ScoreRule::kDamageMinor:
+      return "damage_minor";
+    case ScoreRule::kDamageMajor:
+      return "damage_major";
+    case ScoreRule::kDrop:
+      return "drop";
+    case ScoreRule::kProtruding:
+      return "protruding";
+  }
+  return "unknown";
+}
 
 Event MoveEvent(std::string item, std::string from, std::string to) {
   Event e;

@@ -1,6 +1,7 @@
 #pragma once
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "libs/apc/catalogue.h"
@@ -47,7 +48,8 @@ struct WorldState {
 
 /// Applies the move and outside events in order to `initial`. Throws std::invalid_argument
 /// naming the event index when an event takes an item from a location that does not hold it,
-/// or names an unknown location.
+/// names an unknown location, or has a negative or non-finite drop height or protrusion (a
+/// protrusion must name a bin).
 WorldState ReplayEvents(const Task& initial, const std::vector<Event>& events);
 
 /// Point values of the rules; defaults are the APC 2016 rules (start-jsk/jsk_apc
@@ -87,6 +89,9 @@ enum class ScoreRule {
   kDrop,
   kProtruding,
 };
+
+/// Stable lower-case name of a rule for logs and reports, e.g. "target_item".
+std::string_view ScoreRuleName(ScoreRule rule);
 
 struct ScoreLine {
   ScoreRule rule;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 
 #include "libs/apc/bins.h"
 
@@ -256,6 +257,23 @@ TEST(ScoringTest, InconsistentEventsAreRejected) {
               std::string::npos)
         << e.what();
   }
+}
+
+TEST(ScoringTest, MalformedEventsAreRejected) {
+  EXPECT_THROW(ReplayEvents(SmallPick(), {DropEvent("dove_beauty_bar", -0.1)}),
+               std::invalid_argument);
+  EXPECT_THROW(ReplayEvents(SmallPick(), {DropEvent("dove_beauty_bar", NAN)}),
+               std::invalid_argument);
+  EXPECT_THROW(ReplayEvents(SmallPick(), {ProtrudingEvent("dove_beauty_bar", "tote", 0.01)}),
+               std::invalid_argument);
+  EXPECT_THROW(ReplayEvents(SmallPick(), {ProtrudingEvent("dove_beauty_bar", "bin_A", INFINITY)}),
+               std::invalid_argument);
+}
+
+TEST(ScoringTest, RuleNamesAreDistinct) {
+  EXPECT_EQ(ScoreRuleName(ScoreRule::kTargetItem), "target_item");
+  EXPECT_EQ(ScoreRuleName(ScoreRule::kMisreported), "misreported");
+  EXPECT_NE(ScoreRuleName(ScoreRule::kDamageMinor), ScoreRuleName(ScoreRule::kDamageMajor));
 }
 
 TEST(ScoringTest, OfficialPickSampleScoresByHand) {
