@@ -135,9 +135,11 @@ struct RenderOptions {
 /// concurrently with anything else on the same renderer.
 class StructuredLightRenderer final {
  public:
-  /// Builds the scene. Throws std::invalid_argument naming the object index and field if a
-  /// mesh is null, has a vertex index out of range, a non-finite vertex, a vertex_albedo of
-  /// the wrong size, or a pose that is not finite; std::runtime_error if Embree fails.
+  /// Builds the scene (the meshes are copied; X_BaseObject places each in the robot base
+  /// frame). Throws std::invalid_argument naming the object index and field if a mesh is
+  /// null, has a vertex index out of range, a non-finite vertex, an albedo outside [0, 1],
+  /// a vertex_albedo of the wrong size, or a pose that is not a finite rigid transform;
+  /// std::runtime_error if Embree fails.
   explicit StructuredLightRenderer(const std::vector<SceneObject>& objects);
   ~StructuredLightRenderer();
   StructuredLightRenderer(const StructuredLightRenderer&) = delete;
