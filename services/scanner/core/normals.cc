@@ -84,12 +84,16 @@ NormalResult EstimateNormals(geometry::PointCloud* cloud, const NormalOptions& o
                      max_jump, &dv)) {
           continue;
         }
-        Eigen::Vector3f n = du.cross(dv);
-        const float norm = n.norm();
-        if (!(norm > 0.0f)) continue;
-        n /= norm;
-        if (n.dot(p) > 0.0f) n = -n;
-        normal = n;
+        // Cross product written out: keeps it inlined whatever other libraries export.
+        const float nx = du.y() * dv.z() - du.z() * dv.y();
+        const float ny = du.z() * dv.x() - du.x() * dv.z();
+        const float nz = du.x() * dv.y() - du.y() * dv.x();
+        const float norm2 = nx * nx + ny * ny + nz * nz;
+        if (!(norm2 > 0.0f)) continue;
+        // Unit length, and towards the sensor at the origin (n . p < 0).
+        const float facing = nx * p.x() + ny * p.y() + nz * p.z();
+        const float scale = (facing > 0.0f ? -1.0f : 1.0f) / std::sqrt(norm2);
+        normal = Eigen::Vector3f(nx * scale, ny * scale, nz * scale);
         ++count;
       }
     }

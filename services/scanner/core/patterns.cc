@@ -102,15 +102,28 @@ bool PatternSequence::IsLit(int index, int column, int row) const {
 }
 
 std::vector<std::uint8_t> PatternSequence::Render(int index) const {
-  Describe(index);  // Validates the index.
-  std::vector<std::uint8_t> image(static_cast<std::size_t>(projector_width_) * projector_height_);
+  const PatternImage image = Describe(index);  // Validates the index.
+  std::vector<std::uint8_t> pixels(static_cast<std::size_t>(projector_width_) * projector_height_);
   for (int row = 0; row < projector_height_; ++row) {
     for (int column = 0; column < projector_width_; ++column) {
-      image[static_cast<std::size_t>(row) * projector_width_ + column] =
-          IsLit(index, column, row) ? 255 : 0;
+      bool lit = false;
+      switch (image.kind) {
+        case PatternImage::Kind::kWhite:
+          lit = true;
+          break;
+        case PatternImage::Kind::kBlack:
+          break;
+        case PatternImage::Kind::kColumnBit:
+          lit = ((GrayEncode(column) >> (column_bits_ - 1 - image.bit)) & 1u) != image.inverse;
+          break;
+        case PatternImage::Kind::kRowBit:
+          lit = ((GrayEncode(row) >> (row_bits_ - 1 - image.bit)) & 1u) != image.inverse;
+          break;
+      }
+      pixels[static_cast<std::size_t>(row) * projector_width_ + column] = lit ? 255 : 0;
     }
   }
-  return image;
+  return pixels;
 }
 
 }  // namespace picking::scanner

@@ -125,12 +125,14 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   const int num_bands = (camera_height_ + kRowsPerBand - 1) / kRowsPerBand;
   std::atomic<std::size_t> rejected_residual{0};
   std::atomic<std::size_t> rejected_depth{0};
+  std::atomic<std::size_t> num_points{0};
 
   pool_->Run(num_bands, [&](int band) {
     const int y0 = band * kRowsPerBand;
     const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
     std::size_t local_residual = 0;
     std::size_t local_depth = 0;
+    std::size_t local_points = 0;
     for (int y = y0; y < y1; ++y) {
       const std::size_t row_start = static_cast<std::size_t>(y) * camera_width_;
       if (intensity != nullptr) {
@@ -157,21 +159,27 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
         const float denominator = dd - de * de;
         const float t = (de * ew - dw) / denominator;
         const float s = (dd * ew - de * dw) / denominator;
-        const Eigen::Vector3f p(t * ray.x(), t * ray.y(), t);
-        const Eigen::Vector3f q = o + s * e.head<3>();
+        // Plain float arithmetic (no Eigen expression calls) keeps this loop inlined.
+        const float px = t * ray.x();
+        const float py = t * ray.y();
+        const float gx = px - (o.x() + s * e.x());
+        const float gy = py - (o.y() + s * e.y());
+        const float gz = t - (o.z() + s * e.z());
         if (!(denominator > 1e-9f * dd) || !(t >= min_depth && t <= max_depth) || !(s > 0)) {
           ++local_depth;
           point.setConstant(kNaN);
-        } else if ((p - q).squaredNorm() > residual_factor * s * s) {
+        } else if (gx * gx + gy * gy + gz * gz > residual_factor * s * s) {
           ++local_residual;
           point.setConstant(kNaN);
         } else {
-          point = p;
+          point = Eigen::Vector3f(px, py, t);
+          ++local_points;
         }
       }
     }
     rejected_residual.fetch_add(local_residual, std::memory_order_relaxed);
     rejected_depth.fetch_add(local_depth, std::memory_order_relaxed);
+    num_points.fetch_add(local_points, std::memory_order_relaxed);
   });
   result->num_rejected_residual = rejected_residual.load();
   result->num_rejected_depth = rejected_depth.load();
@@ -186,20 +194,36 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
     pool_->Run(num_bands, [&](int band) {
       const int y0 = band * kRowsPerBand;
       const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
+      const int w = camera_width_;
+      const Eigen::Vector3f* points = cloud.points.data();
       for (int y = y0; y < y1; ++y) {
-        for (int x = 0; x < camera_width_; ++x) {
-          const std::size_t i = static_cast<std::size_t>(y) * camera_width_ + x;
-          const float z = cloud.points[i].z();
+        const bool interior_row = y > 0 && y + 1 < camera_height_;
+        for (int x = 0; x < w; ++x) {
+          const std::size_t i = static_cast<std::size_t>(y) * w + x;
+          const float z = points[i].z();
           if (std::isnan(z)) continue;
           int neighbors = 0;
-          for (int dy = -1; dy <= 1; ++dy) {
-            const int yy = y + dy;
-            if (yy < 0 || yy >= camera_height_) continue;
-            for (int dx = -1; dx <= 1; ++dx) {
-              const int xx = x + dx;
-              if ((dx == 0 && dy == 0) || xx < 0 || xx >= camera_width_) continue;
-              const float zn = cloud.points[static_cast<std::size_t>(yy) * camera_width_ + xx].z();
-              neighbors += std::abs(zn - z) <= tolerance;  // False for NaN.
+          if (interior_row && x > 0 && x + 1 < w) {
+            // Comparisons with NaN are false, so missing neighbours do not count.
+            const Eigen::Vector3f* up = points + i - w;
+            const Eigen::Vector3f* down = points + i + w;
+            neighbors =
+                (std::abs(up[-1].z() - z) <= tolerance) + (std::abs(up[0].z() - z) <= tolerance) +
+                (std::abs(up[1].z() - z) <= tolerance) +
+                (std::abs(points[i - 1].z() - z) <= tolerance) +
+                (std::abs(points[i + 1].z() - z) <= tolerance) +
+                (std::abs(down[-1].z() - z) <= tolerance) +
+                (std::abs(down[0].z() - z) <= tolerance) + (std::abs(down[1].z() - z) <= tolerance);
+          } else {
+            for (int dy = -1; dy <= 1; ++dy) {
+              const int yy = y + dy;
+              if (yy < 0 || yy >= camera_height_) continue;
+              for (int dx = -1; dx <= 1; ++dx) {
+                const int xx = x + dx;
+                if ((dx == 0 && dy == 0) || xx < 0 || xx >= w) continue;
+                neighbors +=
+                    std::abs(points[static_cast<std::size_t>(yy) * w + xx].z() - z) <= tolerance;
+              }
             }
           }
           remove[i] = neighbors < min_neighbors;
@@ -215,9 +239,7 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
     }
     result->num_removed_isolated = removed;
   }
-  std::size_t count = 0;
-  for (const Eigen::Vector3f& p : cloud.points) count += !std::isnan(p.z());
-  result->num_points = count;
+  result->num_points = num_points.load() - result->num_removed_isolated;
 }
 
 }  // namespace picking::scanner
