@@ -63,9 +63,12 @@ struct TrajectoryProgress {
   RobotState state;
 };
 
-/// A guarded move along the tool z axis.
+/// A guarded move along a direction fixed in the tool centre point frame (by default the tool
+/// z axis, the suction cup's approach direction).
 struct GuardedMoveRequest {
-  /// Signed distance along the tool z axis (m, e.g. +0.15 to descend onto an object).
+  /// Unit direction of travel in the TCP frame at the start of the move.
+  Eigen::Vector3d direction_tcp = Eigen::Vector3d::UnitZ();
+  /// Signed distance along `direction_tcp` (m, e.g. +0.15 to descend onto an object).
   double max_distance_m = 0.1;
   double speed_m_s = 0.02;
   double acceleration_m_s2 = 0.5;
@@ -90,8 +93,9 @@ class RobotBackend {
   virtual MotionResult ExecuteTrajectory(
       const JointTrajectory& trajectory,
       const std::function<void(const TrajectoryProgress&)>& progress) = 0;
-  /// Moves along the tool z axis until the force threshold or the distance is reached
-  /// (kContact or kCompleted).
+  /// Moves the TCP along request.direction_tcp until the force threshold or the distance is
+  /// reached (kContact or kCompleted). The final state's wrench_base holds the measured
+  /// contact force.
   virtual MotionResult GuardedMove(const GuardedMoveRequest& request) = 0;
   /// Decelerates the current motion to rest; the blocked motion call returns kStopped.
   virtual void Stop() = 0;

@@ -383,6 +383,9 @@ MotionResult UrBackend::ExecuteTrajectory(
 
 MotionResult UrBackend::GuardedMove(const GuardedMoveRequest& request) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
+  if (!request.direction_tcp.allFinite() || std::abs(request.direction_tcp.norm() - 1.0) > 1e-3) {
+    return Reject("guarded move direction must be a finite unit vector");
+  }
   if (!std::isfinite(request.max_distance_m) || request.max_distance_m == 0.0 ||
       !std::isfinite(request.speed_m_s) || request.speed_m_s <= 0.0 ||
       !std::isfinite(request.acceleration_m_s2) || request.acceleration_m_s2 <= 0.0 ||
@@ -394,8 +397,8 @@ MotionResult UrBackend::GuardedMove(const GuardedMoveRequest& request) {
   MotionResult begin = BeginMotion();
   if (begin.outcome != MotionOutcome::kCompleted) return begin;
   const Eigen::Isometry3d X_BaseTcp = begin.final_state.X_BaseTool * checker_.X_ToolTcp();
-  const Eigen::Vector3d axis =
-      X_BaseTcp.linear().col(2) * (request.max_distance_m > 0.0 ? 1.0 : -1.0);
+  const Eigen::Vector3d axis = X_BaseTcp.linear() * request.direction_tcp.normalized() *
+                               (request.max_distance_m > 0.0 ? 1.0 : -1.0);
   const double distance = std::abs(request.max_distance_m);
   Eigen::Isometry3d X_goal = X_BaseTcp;
   X_goal.translation() += axis * distance;

@@ -1,0 +1,495 @@
+#include "services/robot/core/sim_backend.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "libs/errors/errors.h"
+
+namespace picking::robot {
+namespace {
+
+// Collisions this close before the probed contact point count as the expected touch.
+constexpr double kContactSlackM = 1e-3;
+
+void RequirePositive(double value, const char* field) {
+  if (!std::isfinite(value) || value <= 0.0) {
+    throw std::invalid_argument(std::string("SimBackendOptions: ") + field +
+                                " must be finite and > 0");
+  }
+}
+
+}  // namespace
+
+void SimBackendOptions::Validate() const {
+  RequirePositive(time_scale, "time_scale");
+  RequirePositive(command_rate_hz, "command_rate_hz");
+  RequirePositive(planning_rate_hz, "planning_rate_hz");
+  RequirePositive(stop_acceleration_rad_s2, "stop_acceleration_rad_s2");
+  if (!std::isfinite(start_tolerance_rad) || start_tolerance_rad < 0.0) {
+    throw std::invalid_argument("SimBackendOptions: start_tolerance_rad must be finite and >= 0");
+  }
+}
+
+void SampleTrajectory(const JointTrajectory& trajectory, double t_s, JointVector* q_rad,
+                      JointVector* qd_rad_s) {
+  const auto& p = trajectory.points;
+  if (p.size() == 1 || t_s <= p.front().time_s) {
+    *q_rad = p.front().q_rad;
+    qd_rad_s->setZero();
+    return;
+  }
+  if (t_s >= p.back().time_s) {
+    *q_rad = p.back().q_rad;
+    qd_rad_s->setZero();
+    return;
+  }
+  const auto next = std::upper_bound(
+      p.begin(), p.end(), t_s, [](double t, const TrajectoryPoint& pt) { return t < pt.time_s; });
+  const TrajectoryPoint& b = *next;
+  const TrajectoryPoint& a = *(next - 1);
+  const double h = b.time_s - a.time_s;
+  const double u = (t_s - a.time_s) / h;
+  *q_rad = (1.0 - u) * a.q_rad + u * b.q_rad;
+  *qd_rad_s = (b.q_rad - a.q_rad) / h;
+}
+
+SimBackend::SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
+                       const SimBackendOptions& options)
+    : arm_(std::move(arm)), checker_(checker), options_(options) {
+  if (!arm_) throw std::invalid_argument("SimBackend: the simulated arm is null");
+  options_.Validate();
+}
+
+RobotState SimBackend::StateLocked() const {
+  RobotState s;
+  s.q_rad = q_;
+  s.qd_rad_s = qd_;
+  s.X_BaseTool = checker_.kinematics().ForwardKinematics(q_);
+  s.wrench_base = wrench_;
+  s.status = status_;
+  s.timestamp_s = time_s_;
+  return s;
+}
+
+void SimBackend::SyncLocked() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (synced_) return;
+  }
+  JointVector q;
+  try {
+    q = arm_->ReadJoints();
+  } catch (const UnavailableError&) {
+    throw;
+  } catch (const std::exception& e) {
+    // Without the arm's joints the backend cannot serve anything.
+    throw UnavailableError(std::string("cannot read the simulated arm: ") + e.what());
+  }
+  if (!q.allFinite()) throw UnavailableError("simulator reported non-finite arm joints");
+  std::lock_guard<std::mutex> lock(mutex_);
+  q_ = q;
+  qd_.setZero();
+  wrench_.setZero();
+  synced_ = true;
+  if (status_ == RobotStatus::kUnknown) status_ = RobotStatus::kReady;
+}
+
+RobotState SimBackend::GetState() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (synced_) return StateLocked();
+  }
+  std::lock_guard<std::mutex> arm(arm_mutex_);
+  SyncLocked();
+  std::lock_guard<std::mutex> lock(mutex_);
+  return StateLocked();
+}
+
+MotionResult SimBackend::Reject(const std::string& why) {
+  MotionResult r;
+  r.outcome = MotionOutcome::kRejected;
+  r.message = why;
+  std::lock_guard<std::mutex> lock(mutex_);
+  r.final_state = StateLocked();
+  return r;
+}
+
+MotionResult SimBackend::BeginMotion() {
+  MotionResult r;
+  try {
+    std::lock_guard<std::mutex> arm(arm_mutex_);
+    SyncLocked();
+  } catch (const std::exception& e) {
+    r.outcome = MotionOutcome::kFailed;
+    r.message = std::string("simulator unreachable: ") + e.what();
+    return r;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  r.final_state = StateLocked();
+  if (status_ != RobotStatus::kReady) {
+    r.outcome = MotionOutcome::kRejected;
+    r.message = std::string("robot is not ready: ") + RobotStatusName(status_);
+    return r;
+  }
+  stop_requested_ = false;
+  r.outcome = MotionOutcome::kCompleted;
+  return r;
+}
+
+MotionResult SimBackend::Run(const JointTrajectory& trajectory,
+                             const std::function<void(const TrajectoryProgress&)>& progress,
+                             const ContactZone& zone) {
+  using Clock = std::chrono::steady_clock;
+  const auto& p = trajectory.points;
+  const double duration = trajectory.duration_s();
+  const double dt = 1.0 / options_.command_rate_hz;
+  const Clock::time_point wall_start = Clock::now();
+  auto wall_at = [&](double t_sim) {
+    return wall_start + std::chrono::duration_cast<Clock::duration>(
+                            std::chrono::duration<double>(t_sim / options_.time_scale));
+  };
+  const ur10::Ur10Kinematics& kinematics = checker_.kinematics();
+
+  JointVector last_free;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    last_free = q_;
+    status_ = RobotStatus::kMoving;
+    wrench_.setZero();
+  }
+  auto finish = [&](MotionOutcome outcome, const std::string& message, RobotStatus status) {
+    MotionResult r;
+    r.outcome = outcome;
+    r.message = message;
+    std::lock_guard<std::mutex> lock(mutex_);
+    qd_.setZero();
+    if (status_ != RobotStatus::kProtectiveStop) status_ = status;
+    r.final_state = StateLocked();
+    return r;
+  };
+
+  double t = 0.0;    // simulated time of the last sample sent
+  double tau = 0.0;  // trajectory time of the last sample sent
+  bool stopping = false;
+  double stop_t0 = 0.0, stop_tau0 = 0.0, stop_duration = 0.0;
+  std::size_t reached = 0;
+  bool reported = false;
+  while (true) {
+    const double t_next = t + dt;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      wake_.wait_until(lock, wall_at(t_next),
+                       [&] { return protective_requested_ || (stop_requested_ && !stopping); });
+      if (protective_requested_) {
+        lock.unlock();
+        return finish(MotionOutcome::kProtectiveStop, "protective stop", RobotStatus::kReady);
+      }
+      if (stop_requested_ && !stopping) {
+        // Decelerate along the path: the trajectory clock slows linearly to rest within the
+        // time the fastest joint needs at the stop deceleration.
+        stopping = true;
+        stop_t0 = t;
+        stop_tau0 = tau;
+        JointVector q, qd;
+        SampleTrajectory(trajectory, tau, &q, &qd);
+        stop_duration = qd.cwiseAbs().maxCoeff() / options_.stop_acceleration_rad_s2;
+        continue;
+      }
+    }
+    t = t_next;
+    bool finished = false;
+    double rate = 1.0;  // d(tau)/dt
+    if (stopping) {
+      const double s = std::min(t - stop_t0, stop_duration);
+      tau = stop_duration > 0.0 ? stop_tau0 + s - 0.5 * s * s / stop_duration : stop_tau0;
+      rate = stop_duration > 0.0 ? 1.0 - s / stop_duration : 0.0;
+      finished = s >= stop_duration;
+    } else {
+      tau = t;
+    }
+    if (tau >= duration) {
+      tau = duration;
+      finished = true;
+    }
+    JointVector q, qd;
+    SampleTrajectory(trajectory, tau, &q, &qd);
+    qd *= rate;
+    if (finished) qd.setZero();
+
+    // Contact model of guarded moves: travel past the first touch presses the spring.
+    Eigen::Matrix<double, 6, 1> wrench = Eigen::Matrix<double, 6, 1>::Zero();
+    double penetration_m = -std::numeric_limits<double>::infinity();
+    if (zone.enabled) {
+      const Eigen::Vector3d p_tcp =
+          (kinematics.ForwardKinematics(q) * checker_.X_ToolTcp()).translation();
+      penetration_m = (p_tcp - zone.p_start_base).dot(zone.axis_base) - zone.contact_distance_m;
+      if (penetration_m > 0.0)
+        wrench.head<3>() = -zone.axis_base * zone.stiffness_n_per_m * penetration_m;
+    }
+
+    ArmPlacement placement;
+    try {
+      std::lock_guard<std::mutex> arm(arm_mutex_);
+      placement = arm_->PlaceArm(q);
+    } catch (const UnavailableError& e) {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        synced_ = false;  // where the arm is must be read again
+      }
+      return finish(MotionOutcome::kFailed, std::string("simulator unreachable: ") + e.what(),
+                    RobotStatus::kUnknown);
+    } catch (const std::exception& e) {
+      return finish(MotionOutcome::kFailed,
+                    std::string("simulator refused the arm motion: ") + e.what(),
+                    RobotStatus::kReady);
+    }
+    if (placement.in_collision && !(zone.enabled && penetration_m > -kContactSlackM)) {
+      // The safety system stops the arm before the hit: back to the last free sample.
+      try {
+        std::lock_guard<std::mutex> arm(arm_mutex_);
+        arm_->PlaceArm(last_free);
+      } catch (const std::exception&) {
+        // Reported as the protective stop below; the next call reads the arm again.
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      q_ = last_free;
+      qd_.setZero();
+      wrench_.setZero();
+      status_ = RobotStatus::kProtectiveStop;
+      protective_requested_ = true;
+      MotionResult r;
+      r.outcome = MotionOutcome::kProtectiveStop;
+      r.message = "protective stop: collision: " + (placement.collision_detail.empty()
+                                                        ? std::string("unnamed contact")
+                                                        : placement.collision_detail);
+      r.final_state = StateLocked();
+      return r;
+    }
+    last_free = q;
+    RobotState state;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      q_ = q;
+      qd_ = qd;
+      wrench_ = wrench;
+      time_s_ += dt;
+      state = StateLocked();
+    }
+    if (progress && !p.empty()) {
+      const auto after =
+          std::upper_bound(p.begin(), p.end(), tau,
+                           [](double v, const TrajectoryPoint& pt) { return v < pt.time_s; });
+      const std::size_t index = static_cast<std::size_t>(after - p.begin()) - 1;
+      if (index > reached || !reported) {
+        reached = index;
+        reported = true;
+        TrajectoryProgress info;
+        info.waypoint_index = index;
+        info.time_s = p[index].time_s;
+        info.fraction = duration > 0.0 ? p[index].time_s / duration : 1.0;
+        info.state = state;
+        progress(info);
+      }
+    }
+    if (finished) {
+      if (stopping && tau < duration) {
+        return finish(MotionOutcome::kStopped, "stopped on request", RobotStatus::kReady);
+      }
+      return finish(MotionOutcome::kCompleted, "", RobotStatus::kReady);
+    }
+  }
+}
+
+MotionResult SimBackend::MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
+                                    double acceleration_rad_s2) {
+  std::lock_guard<std::mutex> motion(motion_mutex_);
+  const auto& limits = checker_.limits();
+  if (!std::isfinite(speed_rad_s) || speed_rad_s <= 0.0 ||
+      speed_rad_s > limits.max_velocity_rad_s.minCoeff()) {
+    return Reject("joint speed must be in (0, " +
+                  std::to_string(limits.max_velocity_rad_s.minCoeff()) + "] rad/s");
+  }
+  if (!std::isfinite(acceleration_rad_s2) || acceleration_rad_s2 <= 0.0 ||
+      acceleration_rad_s2 > limits.max_acceleration_rad_s2.minCoeff()) {
+    return Reject("joint acceleration must be in (0, " +
+                  std::to_string(limits.max_acceleration_rad_s2.minCoeff()) + "] rad/s^2");
+  }
+  if (const SafetyCheck check = checker_.CheckJointTarget(q_target_rad); !check) {
+    return Reject(check.reason);
+  }
+  MotionResult begin = BeginMotion();
+  if (begin.outcome != MotionOutcome::kCompleted) return begin;
+  TimeParametrizationOptions options;
+  options.max_velocity_rad_s = JointVector::Constant(speed_rad_s);
+  options.max_acceleration_rad_s2 = JointVector::Constant(acceleration_rad_s2);
+  options.sample_rate_hz = options_.planning_rate_hz;
+  const JointTrajectory trajectory =
+      TimeParametrizePath({begin.final_state.q_rad, q_target_rad}, options);
+  if (const SafetyCheck check = checker_.CheckTrajectory(trajectory, 1e-6); !check) {
+    return Reject("joint move: " + check.reason);
+  }
+  return Run(trajectory, {}, ContactZone());
+}
+
+MotionResult SimBackend::ExecuteTrajectory(
+    const JointTrajectory& trajectory,
+    const std::function<void(const TrajectoryProgress&)>& progress) {
+  std::lock_guard<std::mutex> motion(motion_mutex_);
+  if (const SafetyCheck check = checker_.CheckTrajectory(trajectory); !check) {
+    return Reject(check.reason);
+  }
+  MotionResult begin = BeginMotion();
+  if (begin.outcome != MotionOutcome::kCompleted) return begin;
+  const double start_error =
+      (trajectory.points.front().q_rad - begin.final_state.q_rad).cwiseAbs().maxCoeff();
+  if (start_error > options_.start_tolerance_rad) {
+    return Reject("trajectory starts " + std::to_string(start_error) +
+                  " rad away from the current joint positions");
+  }
+  return Run(trajectory, progress, ContactZone());
+}
+
+MotionResult SimBackend::GuardedMove(const GuardedMoveRequest& request) {
+  std::lock_guard<std::mutex> motion(motion_mutex_);
+  if (!request.direction_tcp.allFinite() || std::abs(request.direction_tcp.norm() - 1.0) > 1e-3) {
+    return Reject("guarded move direction must be a finite unit vector");
+  }
+  if (!std::isfinite(request.max_distance_m) || request.max_distance_m == 0.0 ||
+      !std::isfinite(request.speed_m_s) || request.speed_m_s <= 0.0 ||
+      !std::isfinite(request.acceleration_m_s2) || request.acceleration_m_s2 <= 0.0 ||
+      !std::isfinite(request.force_threshold_n) || request.force_threshold_n <= 0.0) {
+    return Reject(
+        "guarded move needs a finite non-zero distance and positive speed, "
+        "acceleration and force threshold");
+  }
+  MotionResult begin = BeginMotion();
+  if (begin.outcome != MotionOutcome::kCompleted) return begin;
+  const JointVector q0 = begin.final_state.q_rad;
+  const Eigen::Isometry3d X_BaseTool = begin.final_state.X_BaseTool;
+  const Eigen::Isometry3d X_BaseTcp = X_BaseTool * checker_.X_ToolTcp();
+  const Eigen::Vector3d direction_tcp =
+      request.direction_tcp.normalized() * (request.max_distance_m > 0.0 ? 1.0 : -1.0);
+  const Eigen::Vector3d axis = X_BaseTcp.linear() * direction_tcp;
+  const double distance = std::abs(request.max_distance_m);
+  Eigen::Isometry3d X_goal = X_BaseTcp;
+  X_goal.translation() += axis * distance;
+  if (const SafetyCheck check = checker_.CheckLinearMove(q0, X_goal, request.speed_m_s); !check) {
+    return Reject("guarded move: " + check.reason);
+  }
+
+  ContactProbe probe;
+  try {
+    std::lock_guard<std::mutex> arm(arm_mutex_);
+    probe = arm_->Probe(X_BaseTool, direction_tcp, distance);
+  } catch (const std::exception& e) {
+    MotionResult r = begin;
+    r.outcome = MotionOutcome::kFailed;
+    r.message = std::string("simulator unreachable: contact probe: ") + e.what();
+    return r;
+  }
+  ContactZone zone;
+  double travel = distance;
+  if (probe.contact && std::isfinite(probe.distance_m) && probe.distance_m < distance) {
+    const double contact_at = std::max(0.0, probe.distance_m);
+    // A rigid surface (no stiffness reported) meets any threshold at first touch.
+    const double press =
+        probe.stiffness_n_per_m > 0.0 ? request.force_threshold_n / probe.stiffness_n_per_m : 0.0;
+    travel = std::min(distance, contact_at + press);
+    zone.enabled = true;
+    zone.p_start_base = X_BaseTcp.translation();
+    zone.axis_base = axis;
+    zone.contact_distance_m = contact_at;
+    zone.stiffness_n_per_m = probe.stiffness_n_per_m;
+  }
+
+  MotionResult result;
+  if (travel > 1e-9) {
+    LinearMoveOptions options;
+    options.X_ToolTcp = checker_.X_ToolTcp();
+    options.max_tool_speed_m_s = request.speed_m_s;
+    options.max_tool_acceleration_m_s2 = request.acceleration_m_s2;
+    options.max_velocity_rad_s = checker_.limits().max_velocity_rad_s;
+    options.max_acceleration_rad_s2 = checker_.limits().max_acceleration_rad_s2;
+    options.sample_rate_hz = options_.planning_rate_hz;
+    Eigen::Isometry3d X_stop = X_BaseTcp;
+    X_stop.translation() += axis * travel;
+    const LinearMoveResult plan = PlanLinearMove(checker_.kinematics(), q0, X_stop, options);
+    if (!plan.ok) return Reject("guarded move: " + plan.reason);
+    result = Run(plan.trajectory, {}, zone);
+  } else {
+    result = begin;
+    result.outcome = MotionOutcome::kCompleted;
+  }
+  if (result.outcome != MotionOutcome::kCompleted) return result;
+
+  double force_n = 0.0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (zone.enabled && probe.stiffness_n_per_m <= 0.0 && travel >= zone.contact_distance_m) {
+      wrench_.head<3>() = -axis * request.force_threshold_n;
+    }
+    force_n = -wrench_.head<3>().dot(axis);
+    result.final_state = StateLocked();
+  }
+  const Eigen::Vector3d p_end =
+      (result.final_state.X_BaseTool * checker_.X_ToolTcp()).translation();
+  const double travelled = (p_end - X_BaseTcp.translation()).dot(axis);
+  const bool contact = force_n >= request.force_threshold_n * (1.0 - 1e-6);
+  std::ostringstream os;
+  os << (contact ? "contact with " + probe.what : std::string("no contact")) << " after "
+     << travelled << " m, force " << force_n << " N";
+  result.outcome = contact ? MotionOutcome::kContact : MotionOutcome::kCompleted;
+  result.message = os.str();
+  return result;
+}
+
+void SimBackend::Stop() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  stop_requested_ = true;
+  wake_.notify_all();
+}
+
+void SimBackend::ProtectiveStop() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  protective_requested_ = true;
+  status_ = RobotStatus::kProtectiveStop;
+  qd_.setZero();
+  wake_.notify_all();
+}
+
+bool SimBackend::ResetProtectiveStop(std::string* reason) {
+  std::lock_guard<std::mutex> arm(arm_mutex_);
+  SyncLocked();
+  JointVector q;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (status_ != RobotStatus::kProtectiveStop) {
+      if (reason) *reason = "the robot is not in a protective stop";
+      return false;
+    }
+    q = q_;
+  }
+  ArmPlacement placement;
+  try {
+    placement = arm_->PlaceArm(q);
+  } catch (const UnavailableError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw UnavailableError(std::string("cannot check the simulated arm for collisions: ") +
+                           e.what());
+  }
+  if (placement.in_collision) {
+    if (reason) *reason = "the arm is still in collision: " + placement.collision_detail;
+    return false;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  protective_requested_ = false;
+  status_ = RobotStatus::kReady;
+  return true;
+}
+
+}  // namespace picking::robot

@@ -1,0 +1,143 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "services/robot/core/robot_backend.h"
+#include "services/robot/core/safety.h"
+
+namespace picking::robot {
+
+/// Result of putting the simulated arm at joint positions.
+struct ArmPlacement {
+  /// True if the arm or gripper intersects the cell at these joints.
+  bool in_collision = false;
+  /// Which link hit what (empty without a collision).
+  std::string collision_detail;
+};
+
+/// Where the suction cup touches along a straight tool motion.
+struct ContactProbe {
+  bool contact = false;
+  /// Travel along the direction until first touch, m (valid with `contact`).
+  double distance_m = 0.0;
+  /// Spring constant of the touched surface, N/m (> 0 with `contact`).
+  double stiffness_n_per_m = 0.0;
+  /// What is touched, for messages (item name or surface).
+  std::string what;
+};
+
+/// The simulated world as the SimBackend sees it (the simulator service over gRPC in
+/// production, an in-process model in tests). Calls may block; they are made from one
+/// thread at a time.
+class SimulatedArm {
+ public:
+  virtual ~SimulatedArm() = default;
+  /// The arm's joint positions now. @throws UnavailableError if the world is unreachable,
+  /// std::runtime_error for other failures.
+  virtual JointVector ReadJoints() = 0;
+  /// Puts the arm at `q_rad`. @throws as ReadJoints.
+  virtual ArmPlacement PlaceArm(const JointVector& q_rad) = 0;
+  /// Probes a straight motion of the TCP from the flange pose `X_BaseTool` along
+  /// `direction_tcp` (unit, TCP frame) over at most `max_distance_m`. @throws as ReadJoints.
+  virtual ContactProbe Probe(const Eigen::Isometry3d& X_BaseTool,
+                             const Eigen::Vector3d& direction_tcp, double max_distance_m) = 0;
+};
+
+/// Options of SimBackend.
+struct SimBackendOptions {
+  /// Simulated seconds per wall-clock second (> 0): 10 runs motions ten times faster than
+  /// real time.
+  double time_scale = 1.0;
+  /// Joint positions sent to the simulated arm per simulated second (> 0).
+  double command_rate_hz = 50.0;
+  /// Sample rate of the trajectories planned for MoveJoints and GuardedMove, Hz (> 0).
+  double planning_rate_hz = 125.0;
+  /// Joint deceleration of Stop(), rad/s^2 (> 0).
+  double stop_acceleration_rad_s2 = 3.0;
+  /// Largest distance (rad, max over joints) between a trajectory's first point and the arm.
+  double start_tolerance_rad = 0.01;
+  /// @throws std::invalid_argument naming the bad field.
+  void Validate() const;
+};
+
+/// RobotBackend of a simulated arm. Motions are time-parametrised (TimeParametrizePath for
+/// joint moves, PlanLinearMove for guarded moves) and streamed to the SimulatedArm by
+/// sampling the trajectory at options.command_rate_hz of simulated time, paced in real time
+/// divided by options.time_scale. A collision reported by the arm is a protective stop: the
+/// arm goes back to the last collision-free sample, the status latches kProtectiveStop and
+/// the motion ends with kProtectiveStop naming what hit. A guarded move probes the contact
+/// along its direction first, then travels to the contact plus the press needed to reach the
+/// force threshold (force = stiffness * press, capped by the maximum distance); touching
+/// beyond the contact point is expected and not a collision. The state (joints, wrench,
+/// status) is the commanded one, read from the world once at first use and again after the
+/// world was unreachable.
+class SimBackend final : public RobotBackend {
+ public:
+  /// @throws std::invalid_argument for a null arm or bad options.
+  SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
+             const SimBackendOptions& options);
+
+  /// @throws UnavailableError if the world cannot be read (first use).
+  RobotState GetState() override;
+  MotionResult MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
+                          double acceleration_rad_s2) override;
+  MotionResult ExecuteTrajectory(
+      const JointTrajectory& trajectory,
+      const std::function<void(const TrajectoryProgress&)>& progress) override;
+  MotionResult GuardedMove(const GuardedMoveRequest& request) override;
+  void Stop() override;
+  void ProtectiveStop() override;
+  /// @throws UnavailableError if the world cannot be asked whether the arm is still in
+  /// collision.
+  bool ResetProtectiveStop(std::string* reason) override;
+
+ private:
+  // Reads the joints from the world if not done yet. Caller holds arm_mutex_.
+  void SyncLocked();
+  MotionResult Reject(const std::string& why);
+  // Synchronises, checks the arm is ready and marks it moving; kCompleted when it may move.
+  MotionResult BeginMotion();
+  // Streams `trajectory`; collisions closer than `contact_distance_m` along `axis_base`
+  // from `p_start_tcp` are protective stops, beyond it expected contact (guarded moves).
+  struct ContactZone {
+    bool enabled = false;
+    Eigen::Vector3d p_start_base = Eigen::Vector3d::Zero();
+    Eigen::Vector3d axis_base = Eigen::Vector3d::UnitZ();
+    double contact_distance_m = 0.0;
+    double stiffness_n_per_m = 0.0;
+  };
+  MotionResult Run(const JointTrajectory& trajectory,
+                   const std::function<void(const TrajectoryProgress&)>& progress,
+                   const ContactZone& zone);
+  RobotState StateLocked() const;
+
+  std::shared_ptr<SimulatedArm> arm_;
+  SafetyChecker checker_;
+  SimBackendOptions options_;
+
+  std::mutex motion_mutex_;  // one motion at a time
+  std::mutex arm_mutex_;     // one world call at a time
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  bool synced_ = false;
+  JointVector q_ = JointVector::Zero();
+  JointVector qd_ = JointVector::Zero();
+  Eigen::Matrix<double, 6, 1> wrench_ = Eigen::Matrix<double, 6, 1>::Zero();
+  RobotStatus status_ = RobotStatus::kUnknown;
+  bool stop_requested_ = false;
+  bool protective_requested_ = false;
+  double time_s_ = 0.0;  // simulated time of the commanded state
+};
+
+/// Joint positions and velocities of `trajectory` at time `t_s` (clamped into its range),
+/// linearly interpolated between waypoints. @pre the trajectory is not empty.
+void SampleTrajectory(const JointTrajectory& trajectory, double t_s, JointVector* q_rad,
+                      JointVector* qd_rad_s);
+
+}  // namespace picking::robot
