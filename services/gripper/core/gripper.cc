@@ -59,7 +59,7 @@ GripperState Gripper::State() {
   return StateLocked();
 }
 
-GripperState Gripper::SetVacuum(bool on, double wait_for_seal_s) {
+GripperState Gripper::SetVacuum(bool on, double wait_for_seal_s, const CancelFn& cancelled) {
   if (!std::isfinite(wait_for_seal_s) || wait_for_seal_s < 0.0 ||
       wait_for_seal_s > options_.max_wait_for_seal_s) {
     throw std::invalid_argument("wait_for_seal_s must be in [0, " +
@@ -71,11 +71,11 @@ GripperState Gripper::SetVacuum(bool on, double wait_for_seal_s) {
     backend_->SetVacuum(on);
     if (!on) seal_.Reset();
   }
-  if (on && wait_for_seal_s > 0.0) return WaitForSeal(wait_for_seal_s);
+  if (on && wait_for_seal_s > 0.0) return WaitForSeal(wait_for_seal_s, cancelled);
   return State();
 }
 
-GripperState Gripper::WaitForSeal(double timeout_s) {
+GripperState Gripper::WaitForSeal(double timeout_s, const CancelFn& cancelled) {
   if (!std::isfinite(timeout_s) || timeout_s < 0.0) {
     throw std::invalid_argument("seal timeout must be finite and >= 0 s");
   }
@@ -93,6 +93,10 @@ GripperState Gripper::WaitForSeal(double timeout_s) {
                          Format("%g", timeout_s) + " s (last reading " +
                          Format("%.1f", state.reading.vacuum_kpa) + " kPa, pump " +
                          (state.reading.vacuum_on ? "on" : "off") + ")");
+    }
+    if (cancelled && cancelled()) {
+      throw UnavailableError("the wait for a seal was cancelled (last reading " +
+                             Format("%.1f", state.reading.vacuum_kpa) + " kPa)");
     }
     clock_->SleepFor(std::min(poll, deadline - now));
   }

@@ -1,5 +1,6 @@
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <mutex>
 
@@ -30,17 +31,22 @@ class Gripper final {
   Gripper(std::unique_ptr<GripperBackend> backend, const GripperOptions& options,
           std::shared_ptr<Clock> clock = std::make_shared<SteadyClock>());
 
+  /// Asked between readings while waiting; true ends the wait (the caller went away or the
+  /// server is stopping).
+  using CancelFn = std::function<bool()>;
+
   /// Switches the vacuum. With `on` and `wait_for_seal_s` > 0, waits until the vacuum shows
   /// a seal. Throws std::invalid_argument for a wait that is NaN or outside
-  /// [0, max_wait_for_seal_s]; TimeoutError (the pump stays on) when no seal comes in time.
-  GripperState SetVacuum(bool on, double wait_for_seal_s = 0.0);
+  /// [0, max_wait_for_seal_s]; TimeoutError (the pump stays on) when no seal comes in time;
+  /// UnavailableError when `cancelled` ends the wait.
+  GripperState SetVacuum(bool on, double wait_for_seal_s = 0.0, const CancelFn& cancelled = {});
 
   /// Reads the backend and decides whether an item is attached.
   GripperState State();
 
   /// Polls State() until an item is attached or `timeout_s` passes (TimeoutError naming the
-  /// last vacuum level and the threshold).
-  GripperState WaitForSeal(double timeout_s);
+  /// last vacuum level and the threshold), or `cancelled` returns true (UnavailableError).
+  GripperState WaitForSeal(double timeout_s, const CancelFn& cancelled = {});
 
   /// Sets the servo joint mode. Throws PreconditionError on the shelf gripper (no joint),
   /// std::invalid_argument for a NaN angle or a fixed angle outside the servo range.

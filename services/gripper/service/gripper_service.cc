@@ -5,6 +5,7 @@
 #include <string>
 
 #include "libs/runtime/log.h"
+#include "libs/runtime/server.h"
 #include "libs/runtime/status.h"
 #include "services/gripper/core/serial_gripper.h"
 #include "services/gripper/service/sim_gripper.h"
@@ -45,10 +46,15 @@ class GripperServiceImpl final : public pb::GripperService::Service {
  public:
   explicit GripperServiceImpl(std::shared_ptr<Gripper> gripper) : gripper_(std::move(gripper)) {}
 
-  grpc::Status SetVacuum(grpc::ServerContext*, const pb::SetVacuumRequest* request,
+  grpc::Status SetVacuum(grpc::ServerContext* context, const pb::SetVacuumRequest* request,
                          pb::SetVacuumResponse* response) override {
     return runtime::Guard([&] {
-      const GripperState state = gripper_->SetVacuum(request->on(), request->wait_for_seal_s());
+      // A wait ends early when the caller gives up or the server is stopping.
+      const auto cancelled = [context] {
+        return context->IsCancelled() || runtime::ShuttingDown();
+      };
+      const GripperState state =
+          gripper_->SetVacuum(request->on(), request->wait_for_seal_s(), cancelled);
       *response->mutable_state() = StateToProto(state);
       return grpc::Status::OK;
     });

@@ -115,6 +115,15 @@ TEST_F(GripperTest, AGripperThatNeverReachesVacuumTimesOutWithThePumpStillOn) {
   EXPECT_FALSE(state.item_attached);
 }
 
+TEST_F(GripperTest, ACancelledWaitEndsBeforeItsTimeout) {
+  auto gripper = Make(GripperKind::kTote, /*item=*/false);
+  int asked = 0;
+  EXPECT_THROW(gripper->SetVacuum(true, 5.0, [&] { return ++asked == 3; }), UnavailableError);
+  EXPECT_EQ(asked, 3);
+  EXPECT_NEAR(clock_->elapsed_s(), 0.04, 1e-9);  // Two polls, then cancelled.
+  EXPECT_TRUE(gripper->State().reading.vacuum_on);
+}
+
 TEST_F(GripperTest, NoWaitReturnsAtOnceAndVacuumOffDetaches) {
   auto gripper = Make(GripperKind::kTote);
   GripperState state = gripper->SetVacuum(true);
