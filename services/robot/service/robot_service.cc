@@ -1,17 +1,838 @@
 #include "services/robot/service/robot_service.h"
 
+#include <grpcpp/server_context.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <limits>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "libs/apc/catalogue.h"
+#include "libs/errors/errors.h"
+#include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/status.h"
+#include "services/robot/core/sim_backend.h"
+#include "services/robot/core/ur_backend.h"
+#include "services/robot/service/sim_arm_client.h"
+
 namespace picking::robot {
 namespace {
 
-// The contract is published in full; RPCs whose implementation has not landed answer
-// UNIMPLEMENTED (the generated base class's behaviour), never a made-up result.
-class RobotServiceImpl final : public v1::RobotService::Service {};
+namespace pb = ::picking::robot::v1;
+namespace pc = ::picking::proto_convert;
+
+JointVector ToJointVector(const std::array<double, 6>& q) {
+  JointVector v;
+  for (int i = 0; i < 6; ++i) v[i] = q[i];
+  return v;
+}
+
+std::string Num(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+// A fraction of MotionOptions: 0 means the default, otherwise (0, 1].
+double Fraction(double value, double default_value, const char* field) {
+  if (value == 0.0) return default_value;
+  if (!std::isfinite(value) || value <= 0.0 || value > 1.0) {
+    throw std::invalid_argument(std::string("options.") + field + " must be in (0, 1] (or 0 for " +
+                                "the default), got " + Num(value));
+  }
+  return value;
+}
+
+// Joint positions of a repeated field: exactly 6 finite values.
+JointVector JointsOf(const google::protobuf::RepeatedField<double>& values,
+                     const std::string& field) {
+  if (values.size() != ur10::kNumJoints) {
+    throw std::invalid_argument(field + " needs 6 values, got " + std::to_string(values.size()));
+  }
+  JointVector q;
+  for (int i = 0; i < ur10::kNumJoints; ++i) {
+    if (!std::isfinite(values[i])) {
+      throw std::invalid_argument(field + "[" + std::to_string(i) + "] is not finite");
+    }
+    q[i] = values[i];
+  }
+  return q;
+}
+
+// Largest TCP speed between consecutive samples, m/s.
+double PeakToolSpeed(const JointTrajectory& trajectory, const SafetyChecker& checker) {
+  double peak = 0.0;
+  const auto& p = trajectory.points;
+  Eigen::Vector3d previous = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const Eigen::Vector3d tcp =
+        (checker.kinematics().ForwardKinematics(p[i].q_rad) * checker.X_ToolTcp()).translation();
+    if (i > 0) peak = std::max(peak, (tcp - previous).norm() / (p[i].time_s - p[i - 1].time_s));
+    previous = tcp;
+  }
+  return peak;
+}
+
+// Stops the arm when the call's deadline passes, the client cancels or the server shuts
+// down while a motion runs.
+class MotionWatch final {
+ public:
+  MotionWatch(grpc::ServerContext* context, RobotBackend* backend)
+      : context_(context), backend_(backend) {
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~MotionWatch() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    wake_.notify_all();
+    thread_.join();
+  }
+  MotionWatch(const MotionWatch&) = delete;
+  MotionWatch& operator=(const MotionWatch&) = delete;
+
+  bool deadline_passed() const { return deadline_passed_; }
+  bool cancelled() const { return cancelled_; }
+  bool shutting_down() const { return shutting_down_; }
+
+ private:
+  void Run() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    while (!done_) {
+      wake_.wait_for(lock, std::chrono::milliseconds(10));
+      if (done_) return;
+      if (std::chrono::system_clock::now() >= context_->deadline()) {
+        deadline_passed_ = true;
+      } else if (context_->IsCancelled()) {
+        cancelled_ = true;
+      } else if (runtime::ShuttingDown()) {
+        shutting_down_ = true;
+      } else {
+        continue;
+      }
+      lock.unlock();
+      backend_->Stop();
+      return;
+    }
+  }
+
+  grpc::ServerContext* context_;
+  RobotBackend* backend_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  bool done_ = false;
+  std::atomic<bool> deadline_passed_{false};
+  std::atomic<bool> cancelled_{false};
+  std::atomic<bool> shutting_down_{false};
+  std::thread thread_;
+};
+
+class RobotServiceImpl final : public pb::RobotService::Service {
+ public:
+  RobotServiceImpl(std::shared_ptr<RobotBackend> backend, const SafetyChecker& checker,
+                   const RobotServiceOptions& options)
+      : backend_(std::move(backend)), checker_(checker), options_(options) {
+    if (!backend_) throw std::invalid_argument("RobotService: null backend");
+    options_.Validate();
+  }
+
+  grpc::Status GetState(grpc::ServerContext*, const pb::GetStateRequest*,
+                        pb::GetStateResponse* response) override {
+    return runtime::Guard([&] {
+      *response = StateToProto(backend_->GetState());
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status StreamState(grpc::ServerContext* context, const pb::StreamStateRequest* request,
+                           grpc::ServerWriter<pb::GetStateResponse>* writer) override {
+    return runtime::Guard([&] {
+      double rate_hz = request->rate_hz();
+      if (rate_hz == 0.0) rate_hz = 10.0;
+      if (!std::isfinite(rate_hz) || rate_hz <= 0.0 || rate_hz > 500.0) {
+        return runtime::InvalidArgument("rate_hz must be in (0, 500] (or 0 for 10), got " +
+                                        Num(rate_hz));
+      }
+      const auto period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+          std::chrono::duration<double>(1.0 / rate_hz));
+      auto next = std::chrono::steady_clock::now();
+      while (true) {
+        if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+        if (!writer->Write(StateToProto(backend_->GetState()))) return grpc::Status::OK;
+        next += period;
+        // Wait in short slices so a cancel or a shutdown ends the stream promptly.
+        while (std::chrono::steady_clock::now() < next) {
+          const auto slice = std::min<std::chrono::steady_clock::duration>(
+              next - std::chrono::steady_clock::now(), std::chrono::milliseconds(50));
+          if (runtime::WaitForShutdown(
+                  std::chrono::duration_cast<std::chrono::milliseconds>(slice) +
+                  std::chrono::milliseconds(slice < std::chrono::milliseconds(1) ? 1 : 0))) {
+            return runtime::Unavailable("the robot server is shutting down");
+          }
+          if (context->IsCancelled()) {
+            return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+          }
+        }
+      }
+    });
+  }
+
+  grpc::Status GetLimits(grpc::ServerContext*, const pb::GetLimitsRequest*,
+                         pb::GetLimitsResponse* response) override {
+    const SafetyLimits& limits = checker_.limits();
+    for (int j = 0; j < ur10::kNumJoints; ++j) {
+      auto* joint = response->add_joints();
+      joint->set_name(ur10::kJointNames[j]);
+      joint->set_min_position_rad(limits.min_position_rad[j]);
+      joint->set_max_position_rad(limits.max_position_rad[j]);
+      joint->set_max_velocity_rad_s(limits.max_velocity_rad_s[j]);
+      joint->set_max_acceleration_rad_s2(limits.max_acceleration_rad_s2[j]);
+    }
+    response->set_max_tcp_speed_m_s(limits.max_tool_speed_m_s);
+    *response->mutable_workspace()->mutable_min() = pc::VectorToProto(limits.workspace.min_m);
+    *response->mutable_workspace()->mutable_max() = pc::VectorToProto(limits.workspace.max_m);
+    for (const Box& zone : limits.forbidden_zones) {
+      auto* box = response->add_forbidden_zones();
+      *box->mutable_min() = pc::VectorToProto(zone.min_m);
+      *box->mutable_max() = pc::VectorToProto(zone.max_m);
+    }
+    response->set_max_contact_force_n(options_.max_contact_force_n);
+    return grpc::Status::OK;
+  }
+
+  grpc::Status MoveJoints(grpc::ServerContext* context, const pb::MoveJointsRequest* request,
+                          pb::MoveJointsResponse* response) override {
+    return runtime::Guard([&] {
+      const JointVector target = ToJointVector(pc::JointsFromProto(request->target(), "target"));
+      const double speed_fraction = Fraction(request->options().speed_fraction(),
+                                             options_.default_speed_fraction, "speed_fraction");
+      const double acceleration_fraction =
+          Fraction(request->options().acceleration_fraction(),
+                   options_.default_acceleration_fraction, "acceleration_fraction");
+      if (const SafetyCheck check = checker_.CheckJointTarget(target); !check) {
+        return runtime::InvalidArgument("target: " + check.reason);
+      }
+      std::unique_lock<std::mutex> slot = MotionSlot();
+      const RobotState start = ReadyState();
+      const SafetyLimits& limits = checker_.limits();
+      double speed = speed_fraction * limits.max_velocity_rad_s.minCoeff();
+      const double acceleration = acceleration_fraction * limits.max_acceleration_rad_s2.minCoeff();
+      // The controller moves every joint synchronously on a trapezoid (UR movej); that path is
+      // checked sample by sample, slowed down where the TCP would exceed its speed limit.
+      JointTrajectory path;
+      for (int attempt = 0; attempt < 10; ++attempt) {
+        TimeParametrizationOptions profile;
+        profile.max_velocity_rad_s = JointVector::Constant(speed);
+        profile.max_acceleration_rad_s2 = JointVector::Constant(acceleration);
+        path = TimeParametrizePath({start.q_rad, target}, profile);
+        const double peak = PeakToolSpeed(path, checker_);
+        if (peak <= limits.max_tool_speed_m_s) break;
+        speed *= 0.95 * limits.max_tool_speed_m_s / peak;
+      }
+      if (const SafetyCheck check = checker_.CheckTrajectory(path, 1e-6); !check) {
+        return runtime::InvalidArgument("path to the target: " + check.reason);
+      }
+      MotionResult result;
+      grpc::Status status;
+      {
+        MotionWatch watch(context, backend_.get());
+        result = backend_->MoveJoints(target, speed, acceleration);
+        status = StatusOf(result, watch);
+      }
+      if (!status.ok()) return status;
+      *response->mutable_final_state() = StateToProto(result.final_state);
+      response->set_duration_s(std::max(0.0, result.final_state.timestamp_s - start.timestamp_s));
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status MoveLinear(grpc::ServerContext* context, const pb::MoveLinearRequest* request,
+                          pb::MoveLinearResponse* response) override {
+    return runtime::Guard([&] {
+      const Eigen::Isometry3d X_BaseTcp_goal =
+          pc::PoseFromProto(request->x_base_tcp_target(), "X_base_tcp_target");
+      const double speed_fraction = Fraction(request->options().speed_fraction(),
+                                             options_.default_speed_fraction, "speed_fraction");
+      const double acceleration_fraction =
+          Fraction(request->options().acceleration_fraction(),
+                   options_.default_acceleration_fraction, "acceleration_fraction");
+      std::unique_lock<std::mutex> slot = MotionSlot();
+      const RobotState start = ReadyState();
+      const SafetyLimits& limits = checker_.limits();
+      const double tool_speed = speed_fraction * limits.max_tool_speed_m_s;
+      if (const SafetyCheck check =
+              checker_.CheckLinearMove(start.q_rad, X_BaseTcp_goal, tool_speed);
+          !check) {
+        return runtime::InvalidArgument("X_base_tcp_target: " + check.reason);
+      }
+      LinearMoveOptions options;
+      options.X_ToolTcp = checker_.X_ToolTcp();
+      options.max_tool_speed_m_s = tool_speed;
+      options.max_tool_acceleration_m_s2 =
+          acceleration_fraction * options_.max_tcp_acceleration_m_s2;
+      options.max_velocity_rad_s = limits.max_velocity_rad_s;
+      options.max_acceleration_rad_s2 = limits.max_acceleration_rad_s2;
+      const LinearMoveResult plan =
+          PlanLinearMove(checker_.kinematics(), start.q_rad, X_BaseTcp_goal, options);
+      if (!plan.ok) return runtime::InvalidArgument("linear move: " + plan.reason);
+      if (const SafetyCheck check = checker_.CheckTrajectory(plan.trajectory, 1e-6); !check) {
+        return runtime::InvalidArgument("linear move: " + check.reason);
+      }
+      MotionResult result;
+      grpc::Status status;
+      {
+        MotionWatch watch(context, backend_.get());
+        result = backend_->ExecuteTrajectory(plan.trajectory, {});
+        status = StatusOf(result, watch);
+      }
+      if (!status.ok()) return status;
+      *response->mutable_final_state() = StateToProto(result.final_state);
+      response->set_duration_s(std::max(0.0, result.final_state.timestamp_s - start.timestamp_s));
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status ExecuteTrajectory(
+      grpc::ServerContext* context, const pb::ExecuteTrajectoryRequest* request,
+      grpc::ServerWriter<pb::ExecuteTrajectoryProgress>* writer) override {
+    return runtime::Guard([&] {
+      const JointTrajectory trajectory = TrajectoryFromProto(request->trajectory());
+      double tolerance = request->start_tolerance_rad();
+      if (tolerance == 0.0) tolerance = options_.max_start_tolerance_rad;
+      if (!std::isfinite(tolerance) || tolerance < 0.0 ||
+          tolerance > options_.max_start_tolerance_rad) {
+        return runtime::InvalidArgument("start_tolerance_rad must be in (0, " +
+                                        Num(options_.max_start_tolerance_rad) + "], got " +
+                                        Num(tolerance));
+      }
+      if (const SafetyCheck check = checker_.CheckTrajectory(trajectory, 1e-6); !check) {
+        return runtime::InvalidArgument("trajectory: " + check.reason);
+      }
+      std::unique_lock<std::mutex> slot = MotionSlot();
+      const RobotState start = ReadyState();
+      const double start_error =
+          (trajectory.points.front().q_rad - start.q_rad).cwiseAbs().maxCoeff();
+      if (start_error > tolerance) {
+        return runtime::InvalidArgument("trajectory: the first point is " + Num(start_error) +
+                                        " rad from the current joint positions (tolerance " +
+                                        Num(tolerance) + " rad)");
+      }
+      auto report = [&](const TrajectoryProgress& progress) {
+        pb::ExecuteTrajectoryProgress message;
+        message.set_time_from_start_s(progress.time_s);
+        message.set_fraction_done(std::clamp(progress.fraction, 0.0, 1.0));
+        *message.mutable_joints() = JointStateToProto(progress.state);
+        writer->Write(message);  // a client gone is noticed by the watch
+      };
+      MotionResult result;
+      grpc::Status status;
+      {
+        MotionWatch watch(context, backend_.get());
+        result = backend_->ExecuteTrajectory(trajectory, report);
+        status = StatusOf(result, watch);
+      }
+      if (!status.ok()) return status;
+      pb::ExecuteTrajectoryProgress last;
+      last.set_time_from_start_s(trajectory.duration_s());
+      last.set_fraction_done(1.0);
+      *last.mutable_joints() = JointStateToProto(result.final_state);
+      last.set_done(true);
+      writer->Write(last);
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status GuardedMove(grpc::ServerContext* context, const pb::GuardedMoveRequest* request,
+                           pb::GuardedMoveResponse* response) override {
+    return runtime::Guard([&] {
+      const Eigen::Vector3d direction = pc::VectorFromProto(request->direction(), "direction");
+      if (std::abs(direction.norm() - 1.0) > 1e-3) {
+        return runtime::InvalidArgument("direction must be a unit vector, its norm is " +
+                                        Num(direction.norm()));
+      }
+      const double distance = request->max_distance_m();
+      if (!std::isfinite(distance) || distance <= 0.0 || distance > 0.5) {
+        return runtime::InvalidArgument("max_distance_m must be in (0, 0.5], got " + Num(distance));
+      }
+      const double force = request->force_threshold_n();
+      if (!std::isfinite(force) || force <= 0.0 || force > options_.max_contact_force_n) {
+        return runtime::InvalidArgument("force_threshold_n must be in (0, " +
+                                        Num(options_.max_contact_force_n) + "], got " + Num(force));
+      }
+      double speed = request->speed_m_s();
+      if (speed == 0.0) speed = 0.05;
+      const double max_speed = std::min(0.25, checker_.limits().max_tool_speed_m_s);
+      if (!std::isfinite(speed) || speed <= 0.0 || speed > max_speed) {
+        return runtime::InvalidArgument("speed_m_s must be in (0, " + Num(max_speed) +
+                                        "] (or 0 for 0.05), got " + Num(speed));
+      }
+      std::unique_lock<std::mutex> slot = MotionSlot();
+      const RobotState start = ReadyState();
+      const Eigen::Isometry3d X_BaseTcp = start.X_BaseTool * checker_.X_ToolTcp();
+      const Eigen::Vector3d direction_tcp =
+          request->in_tool_frame()
+              ? direction.normalized()
+              : Eigen::Vector3d(X_BaseTcp.linear().transpose() * direction.normalized());
+      const Eigen::Vector3d axis_base = X_BaseTcp.linear() * direction_tcp;
+      Eigen::Isometry3d X_goal = X_BaseTcp;
+      X_goal.translation() += axis_base * distance;
+      if (const SafetyCheck check = checker_.CheckLinearMove(start.q_rad, X_goal, speed); !check) {
+        return runtime::InvalidArgument("guarded move over the full distance: " + check.reason);
+      }
+      GuardedMoveRequest move;
+      move.direction_tcp = direction_tcp;
+      move.max_distance_m = distance;
+      move.speed_m_s = speed;
+      move.acceleration_m_s2 = options_.guarded_acceleration_m_s2;
+      move.force_threshold_n = force;
+      MotionResult result;
+      grpc::Status status;
+      {
+        MotionWatch watch(context, backend_.get());
+        result = backend_->GuardedMove(move);
+        status = StatusOf(result, watch);
+      }
+      if (!status.ok()) return status;
+      const Eigen::Vector3d p_end =
+          (result.final_state.X_BaseTool * checker_.X_ToolTcp()).translation();
+      response->set_contact(result.outcome == MotionOutcome::kContact);
+      response->set_distance_travelled_m((p_end - X_BaseTcp.translation()).dot(axis_base));
+      response->set_contact_force_n(
+          std::max(0.0, -result.final_state.wrench_base.head<3>().dot(axis_base)));
+      *response->mutable_final_state() = StateToProto(result.final_state);
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status Stop(grpc::ServerContext*, const pb::StopRequest*, pb::StopResponse*) override {
+    return runtime::Guard([&] {
+      backend_->Stop();
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status ProtectiveStop(grpc::ServerContext*, const pb::ProtectiveStopRequest* request,
+                              pb::ProtectiveStopResponse*) override {
+    return runtime::Guard([&] {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        latched_ = true;
+        detail_ = request->reason().empty() ? "protective stop requested"
+                                            : "protective stop requested: " + request->reason();
+      }
+      backend_->ProtectiveStop();
+      // A controller applies the stop asynchronously: answer once it reports it.
+      WaitForStatus([](RobotStatus s) { return s == RobotStatus::kProtectiveStop; });
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status ResetProtectiveStop(grpc::ServerContext*, const pb::ResetProtectiveStopRequest*,
+                                   pb::ResetProtectiveStopResponse*) override {
+    return runtime::Guard([&] {
+      std::string reason;
+      if (!backend_->ResetProtectiveStop(&reason)) {
+        return runtime::FailedPrecondition("protective stop not cleared: " + reason);
+      }
+      WaitForStatus([](RobotStatus s) { return s != RobotStatus::kProtectiveStop; });
+      std::lock_guard<std::mutex> lock(mutex_);
+      latched_ = false;
+      detail_.clear();
+      return grpc::Status::OK;
+    });
+  }
+
+ private:
+  // Moves are exclusive: a second one is refused rather than queued.
+  std::unique_lock<std::mutex> MotionSlot() {
+    std::unique_lock<std::mutex> slot(motion_mutex_, std::try_to_lock);
+    if (!slot.owns_lock()) throw PreconditionError("another motion is running");
+    return slot;
+  }
+
+  // Polls the backend's state until `done` holds, at most kStatusWait.
+  void WaitForStatus(const std::function<bool(RobotStatus)>& done) {
+    constexpr auto kStatusWait = std::chrono::seconds(2);
+    const auto deadline = std::chrono::steady_clock::now() + kStatusWait;
+    while (!done(backend_->GetState().status) && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  }
+
+  // The current state if the arm may move now. @throws PreconditionError / UnavailableError.
+  RobotState ReadyState() {
+    const RobotState state = backend_->GetState();
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (latched_) {
+        throw PreconditionError("protective stop active (" + detail_ +
+                                "); call ResetProtectiveStop first");
+      }
+    }
+    switch (state.status) {
+      case RobotStatus::kReady:
+        return state;
+      case RobotStatus::kUnknown:
+        throw UnavailableError("no state received from the robot yet");
+      case RobotStatus::kProtectiveStop:
+        throw PreconditionError("protective stop active; call ResetProtectiveStop first");
+      default:
+        throw PreconditionError(std::string("the robot cannot move now: ") +
+                                RobotStatusName(state.status));
+    }
+  }
+
+  grpc::Status StatusOf(const MotionResult& result, const MotionWatch& watch) {
+    switch (result.outcome) {
+      case MotionOutcome::kCompleted:
+      case MotionOutcome::kContact:
+        return grpc::Status::OK;
+      case MotionOutcome::kRejected:
+        if (result.message.rfind("robot is not ready", 0) == 0) {
+          return runtime::FailedPrecondition(result.message);
+        }
+        if (result.message.rfind("no robot state", 0) == 0) {
+          return runtime::Unavailable(result.message);
+        }
+        return runtime::InvalidArgument(result.message);
+      case MotionOutcome::kStopped:
+        if (watch.deadline_passed()) {
+          return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                              "the motion did not finish within the call's deadline; the arm "
+                              "is stopped");
+        }
+        if (watch.cancelled()) {
+          return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled; the arm is stopped");
+        }
+        if (watch.shutting_down()) {
+          return runtime::Unavailable("the robot server is shutting down; the arm is stopped");
+        }
+        return grpc::Status(grpc::StatusCode::ABORTED, "motion stopped by Stop");
+      case MotionOutcome::kProtectiveStop: {
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (!latched_) detail_ = result.message;
+        latched_ = true;
+        return grpc::Status(grpc::StatusCode::ABORTED, "motion interrupted: " + detail_);
+      }
+      case MotionOutcome::kFailed:
+        if (result.message.find("timed out") != std::string::npos) {
+          return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, result.message);
+        }
+        return runtime::Unavailable(result.message);
+    }
+    return grpc::Status(grpc::StatusCode::INTERNAL, "unknown motion outcome");
+  }
+
+  pb::GetStateResponse StateToProto(const RobotState& state) {
+    pb::GetStateResponse out;
+    *out.mutable_joints() = JointStateToProto(state);
+    *out.mutable_x_base_tool() = pc::PoseToProto(state.X_BaseTool);
+    *out.mutable_x_base_tcp() = pc::PoseToProto(state.X_BaseTool * checker_.X_ToolTcp());
+    *out.mutable_tcp_wrench()->mutable_force_n() = pc::VectorToProto(state.wrench_base.head<3>());
+    *out.mutable_tcp_wrench()->mutable_torque_nm() = pc::VectorToProto(state.wrench_base.tail<3>());
+    out.set_backend(options_.backend_name);
+    out.set_stamp_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                              std::chrono::system_clock::now().time_since_epoch())
+                              .count());
+    bool latched = false;
+    std::string detail;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      latched = latched_;
+      detail = detail_;
+    }
+    switch (state.status) {
+      case RobotStatus::kReady:
+        out.set_status(pb::ROBOT_STATUS_IDLE);
+        break;
+      case RobotStatus::kMoving:
+        out.set_status(pb::ROBOT_STATUS_MOVING);
+        break;
+      case RobotStatus::kProtectiveStop:
+        out.set_status(pb::ROBOT_STATUS_PROTECTIVE_STOP);
+        if (detail.empty()) detail = "protective stop";
+        break;
+      case RobotStatus::kEmergencyStop:
+      case RobotStatus::kFault:
+        out.set_status(pb::ROBOT_STATUS_PROTECTIVE_STOP);
+        detail = RobotStatusName(state.status);
+        break;
+      case RobotStatus::kPoweredOff:
+        out.set_status(pb::ROBOT_STATUS_POWERED_OFF);
+        break;
+      case RobotStatus::kUnknown:
+        out.set_status(pb::ROBOT_STATUS_DISCONNECTED);
+        break;
+    }
+    // The service's latch wins over a controller state that has not caught up yet.
+    if (latched && state.status != RobotStatus::kEmergencyStop &&
+        state.status != RobotStatus::kFault) {
+      out.set_status(pb::ROBOT_STATUS_PROTECTIVE_STOP);
+    }
+    if (out.status() == pb::ROBOT_STATUS_PROTECTIVE_STOP) out.set_status_detail(detail);
+    return out;
+  }
+
+  static common::v1::JointState JointStateToProto(const RobotState& state) {
+    common::v1::JointState out;
+    for (int j = 0; j < ur10::kNumJoints; ++j) {
+      out.add_positions_rad(state.q_rad[j]);
+      out.add_velocities_rad_s(state.qd_rad_s[j]);
+    }
+    return out;
+  }
+
+  static JointTrajectory TrajectoryFromProto(const common::v1::JointTrajectory& in) {
+    constexpr int kMaxPoints = 1'000'000;
+    if (in.points_size() == 0) throw std::invalid_argument("trajectory has no points");
+    if (in.points_size() > kMaxPoints) {
+      throw std::invalid_argument("trajectory has more than " + std::to_string(kMaxPoints) +
+                                  " points");
+    }
+    JointTrajectory out;
+    out.points.reserve(in.points_size());
+    for (int i = 0; i < in.points_size(); ++i) {
+      const auto& p = in.points(i);
+      const std::string field = "trajectory.points[" + std::to_string(i) + "]";
+      TrajectoryPoint point;
+      point.time_s = p.time_from_start_s();
+      if (!std::isfinite(point.time_s)) {
+        throw std::invalid_argument(field + ".time_from_start_s is not finite");
+      }
+      point.q_rad = JointsOf(p.positions_rad(), field + ".positions_rad");
+      if (p.velocities_rad_s_size() > 0) {
+        point.qd_rad_s = JointsOf(p.velocities_rad_s(), field + ".velocities_rad_s");
+      }
+      if (p.accelerations_rad_s2_size() > 0) {
+        point.qdd_rad_s2 = JointsOf(p.accelerations_rad_s2(), field + ".accelerations_rad_s2");
+      }
+      out.points.push_back(point);
+    }
+    if (std::abs(out.points.front().time_s) > 1e-9) {
+      throw std::invalid_argument("trajectory.points[0].time_from_start_s must be 0, got " +
+                                  Num(out.points.front().time_s));
+    }
+    return out;
+  }
+
+  std::shared_ptr<RobotBackend> backend_;
+  SafetyChecker checker_;
+  RobotServiceOptions options_;
+  std::mutex motion_mutex_;
+  std::mutex mutex_;
+  bool latched_ = false;  // protective stop requested or seen, until reset
+  std::string detail_;
+};
+
+// "x, y, z" of a 3-vector setting.
+Eigen::Vector3d Vector3Setting(const runtime::Config& config, const std::string& key,
+                               const Eigen::Vector3d& default_value) {
+  const std::vector<double> v =
+      config.GetDoubles(key, {default_value.x(), default_value.y(), default_value.z()});
+  if (v.size() != 3) {
+    throw std::invalid_argument("setting '" + key + "' needs 3 values, got " +
+                                std::to_string(v.size()));
+  }
+  return Eigen::Vector3d(v[0], v[1], v[2]);
+}
+
+std::vector<std::string> SplitNames(const std::string& text) {
+  std::vector<std::string> names;
+  std::string current;
+  auto flush = [&] {
+    const auto b = current.find_first_not_of(" \t[]");
+    const auto e = current.find_last_not_of(" \t[]");
+    if (b != std::string::npos) names.push_back(current.substr(b, e - b + 1));
+    current.clear();
+  };
+  for (char c : text) {
+    if (c == ',') {
+      flush();
+    } else {
+      current += c;
+    }
+  }
+  flush();
+  return names;
+}
+
+// Default forbidden zones of the cell in data/cell/default_cell.yaml (base frame): the
+// pedestal under the robot and the shelf's solid base below the lowest bins.
+struct ZoneDefault {
+  const char* name;
+  Eigen::Vector3d min_m, max_m;
+};
+const std::vector<ZoneDefault>& DefaultZones() {
+  static const std::vector<ZoneDefault> kZones = {
+      {"pedestal", {-0.25, -0.25, -0.70}, {0.25, 0.25, -0.05}},
+      {"shelf_base", {0.80, -0.50, -0.70}, {1.70, 0.50, 0.07}},
+  };
+  return kZones;
+}
 
 }  // namespace
 
+void RobotServiceOptions::Validate() const {
+  auto positive = [](double v, const char* field) {
+    if (!std::isfinite(v) || v <= 0.0) {
+      throw std::invalid_argument(std::string(field) + " must be finite and > 0");
+    }
+  };
+  auto fraction = [](double v, const char* field) {
+    if (!std::isfinite(v) || v <= 0.0 || v > 1.0) {
+      throw std::invalid_argument(std::string(field) + " must be in (0, 1]");
+    }
+  };
+  fraction(default_speed_fraction, "motion.default_speed_fraction");
+  fraction(default_acceleration_fraction, "motion.default_acceleration_fraction");
+  positive(max_tcp_acceleration_m_s2, "safety.max_tcp_acceleration_m_s2");
+  positive(max_contact_force_n, "safety.max_contact_force_n");
+  positive(guarded_acceleration_m_s2, "guarded.acceleration_m_s2");
+  positive(max_start_tolerance_rad, "max_start_tolerance_rad");
+}
+
+std::shared_ptr<v1::RobotService::Service> MakeRobotService(std::shared_ptr<RobotBackend> backend,
+                                                            const SafetyChecker& checker,
+                                                            const RobotServiceOptions& options) {
+  return std::make_shared<RobotServiceImpl>(std::move(backend), checker, options);
+}
+
 runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
+  // The UR10 model and the tool.
+  const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
+  ur10::Ur10ModelOptions model_options;
+  model_options.max_acceleration_rad_s2 =
+      config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
+  const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
+  const Eigen::Vector3d tcp = Vector3Setting(config, "tcp_xyz_m", Eigen::Vector3d::Zero());
+  Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
+  X_ToolTcp.translation() = tcp;
+
+  // Safety limits: the model's joint limits, the workspace box and the forbidden zones.
+  Box workspace;
+  workspace.name = "workspace";
+  workspace.min_m =
+      Vector3Setting(config, "safety.workspace_min_m", Eigen::Vector3d(-1.2, -1.4, -0.68));
+  workspace.max_m =
+      Vector3Setting(config, "safety.workspace_max_m", Eigen::Vector3d(1.3, 1.4, 1.5));
+  SafetyLimits limits =
+      SafetyLimits::FromModel(model, workspace, config.GetDouble("safety.max_tcp_speed_m_s", 0.5));
+  std::string default_zone_names;
+  for (const ZoneDefault& zone : DefaultZones()) {
+    default_zone_names += (default_zone_names.empty() ? "" : ",") + std::string(zone.name);
+  }
+  for (const std::string& name :
+       SplitNames(config.GetString("safety.forbidden_zones", default_zone_names))) {
+    Eigen::Vector3d min_m = Eigen::Vector3d::Constant(std::nan(""));
+    Eigen::Vector3d max_m = min_m;
+    for (const ZoneDefault& zone : DefaultZones()) {
+      if (name == zone.name) min_m = zone.min_m, max_m = zone.max_m;
+    }
+    const std::string prefix = "safety.zone." + name;
+    if (!min_m.allFinite() && (!config.Has(prefix + ".min_m") || !config.Has(prefix + ".max_m"))) {
+      throw std::invalid_argument("forbidden zone '" + name + "' needs settings '" + prefix +
+                                  ".min_m' and '" + prefix + ".max_m'");
+    }
+    limits.forbidden_zones.push_back(
+        {name,
+         Vector3Setting(config, prefix + ".min_m",
+                        min_m.allFinite() ? min_m : Eigen::Vector3d::Zero()),
+         Vector3Setting(config, prefix + ".max_m",
+                        max_m.allFinite() ? max_m : Eigen::Vector3d::Zero())});
+  }
+  const double joint_speed_scale = config.GetDouble("safety.joint_speed_scale", 1.0);
+  if (!std::isfinite(joint_speed_scale) || joint_speed_scale <= 0.0 || joint_speed_scale > 1.0) {
+    throw std::invalid_argument("setting 'safety.joint_speed_scale' must be in (0, 1]");
+  }
+  limits.max_velocity_rad_s *= joint_speed_scale;
+  limits.Validate();
+  const ur10::Ur10Kinematics kinematics(model);
+  const SafetyChecker checker(kinematics, limits, X_ToolTcp);
+
+  RobotServiceOptions options;
+  options.default_speed_fraction =
+      config.GetDouble("motion.default_speed_fraction", options.default_speed_fraction);
+  options.default_acceleration_fraction = config.GetDouble("motion.default_acceleration_fraction",
+                                                           options.default_acceleration_fraction);
+  options.max_tcp_acceleration_m_s2 =
+      config.GetDouble("safety.max_tcp_acceleration_m_s2", options.max_tcp_acceleration_m_s2);
+  options.max_contact_force_n =
+      config.GetDouble("safety.max_contact_force_n", options.max_contact_force_n);
+  options.guarded_acceleration_m_s2 =
+      config.GetDouble("guarded.acceleration_m_s2", options.guarded_acceleration_m_s2);
+
+  // Both backends' settings are read whichever is chosen, so one file can hold both.
+  const std::string backend_name = config.GetString("backend", "sim");
+  const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+  SimBackendOptions sim_options;
+  sim_options.time_scale = config.GetDouble("sim.time_scale", sim_options.time_scale);
+  sim_options.command_rate_hz = config.GetDouble("sim.rate_hz", sim_options.command_rate_hz);
+  sim_options.stop_acceleration_rad_s2 =
+      config.GetDouble("sim.stop_acceleration_rad_s2", sim_options.stop_acceleration_rad_s2);
+  SimulatorArmClientOptions arm_options;
+  arm_options.timeout_s = config.GetDouble("sim.timeout_s", arm_options.timeout_s);
+  const std::vector<double> initial = config.GetDoubles(
+      "sim.initial_joints_rad",
+      std::vector<double>(arm_options.initial_joints_rad.data(),
+                          arm_options.initial_joints_rad.data() + ur10::kNumJoints));
+  if (initial.size() != ur10::kNumJoints) {
+    throw std::invalid_argument("setting 'sim.initial_joints_rad' needs 6 values");
+  }
+  for (int j = 0; j < ur10::kNumJoints; ++j) arm_options.initial_joints_rad[j] = initial[j];
+
+  UrBackendOptions ur_options;
+  ur_options.host = config.GetString("ur.host", ur_options.host);
+  auto port = [&](const std::string& key, std::uint16_t default_value) {
+    const long long value = config.GetInt(key, default_value);
+    if (value < 1 || value > 65535) {
+      throw std::invalid_argument("setting '" + key + "' must be a port in [1, 65535]");
+    }
+    return static_cast<std::uint16_t>(value);
+  };
+  ur_options.rtde_port = port("ur.rtde_port", ur_options.rtde_port);
+  ur_options.script_port = port("ur.script_port", ur_options.script_port);
+  ur_options.dashboard_port = port("ur.dashboard_port", ur_options.dashboard_port);
+  ur_options.rtde_frequency_hz =
+      config.GetDouble("ur.rtde_frequency_hz", ur_options.rtde_frequency_hz);
+  const double connect_timeout_s = config.GetDouble("ur.connect_timeout_s", 3.0);
+  if (!std::isfinite(connect_timeout_s) || connect_timeout_s <= 0.0) {
+    throw std::invalid_argument("setting 'ur.connect_timeout_s' must be > 0");
+  }
+  ur_options.connect_timeout =
+      std::chrono::milliseconds(static_cast<long long>(connect_timeout_s * 1000.0));
+  const bool ur_power_on = config.GetBool("ur.power_on", false);
+  if (!std::isfinite(ur_options.rtde_frequency_hz) || ur_options.rtde_frequency_hz <= 0.0 ||
+      ur_options.rtde_frequency_hz > 500.0) {
+    throw std::invalid_argument("setting 'ur.rtde_frequency_hz' must be in (0, 500]");
+  }
+
+  std::shared_ptr<RobotBackend> backend;
+  options.backend_name = backend_name;
+  if (backend_name == "sim") {
+    backend = std::make_shared<SimBackend>(SimulatorArmClient::Connect(sim_address, arm_options),
+                                           checker, sim_options);
+  } else if (backend_name == "ur") {
+    std::shared_ptr<UrBackend> ur;
+    try {
+      ur = UrBackend::Connect(ur_options, checker);
+    } catch (const std::exception& e) {
+      throw std::runtime_error("UR controller at " + ur_options.host + " unreachable: " + e.what());
+    }
+    if (ur_power_on) ur->PowerOnAndReleaseBrakes(std::chrono::seconds(30));
+    backend = ur;
+  } else {
+    throw std::invalid_argument("setting 'backend' must be 'sim' or 'ur', got '" + backend_name +
+                                "'");
+  }
+
   runtime::ServiceSet set;
-  set.Add(std::make_shared<RobotServiceImpl>(), v1::RobotService::service_full_name());
+  set.Add(MakeRobotService(backend, checker, options), v1::RobotService::service_full_name());
+  set.on_shutdown = [backend] { backend->Stop(); };
   return set;
 }
 

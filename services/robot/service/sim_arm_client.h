@@ -1,0 +1,44 @@
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "picking/simulator/v1/simulator.grpc.pb.h"
+#include "services/robot/core/sim_backend.h"
+
+namespace picking::robot {
+
+/// Options of SimulatorArmClient.
+struct SimulatorArmClientOptions {
+  /// Deadline of each simulator call, s (> 0).
+  double timeout_s = 2.0;
+  /// Where the arm is put when the simulator knows no arm joints yet (e.g. no layout
+  /// loaded), rad.
+  JointVector initial_joints_rad =
+      (JointVector() << 0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0).finished();
+};
+
+/// SimulatedArm served by picking-simulator (picking.simulator.v1): ReadJoints is
+/// GetGroundTruth's arm joints, PlaceArm is SetArmJoints, Probe is ProbeContact. An
+/// unreachable simulator or a call past its deadline throws UnavailableError naming the
+/// address; any other refusal throws std::runtime_error with the simulator's message.
+class SimulatorArmClient final : public SimulatedArm {
+ public:
+  /// @throws std::invalid_argument for an address that is not HOST:PORT or bad options.
+  static std::shared_ptr<SimulatorArmClient> Connect(const std::string& address,
+                                                     const SimulatorArmClientOptions& options);
+  SimulatorArmClient(std::unique_ptr<simulator::v1::SimulatorService::StubInterface> stub,
+                     std::string address, const SimulatorArmClientOptions& options);
+
+  JointVector ReadJoints() override;
+  ArmPlacement PlaceArm(const JointVector& q_rad) override;
+  ContactProbe Probe(const Eigen::Isometry3d& X_BaseTool, const Eigen::Vector3d& direction_tcp,
+                     double max_distance_m) override;
+
+ private:
+  std::unique_ptr<simulator::v1::SimulatorService::StubInterface> stub_;
+  std::string address_;
+  SimulatorArmClientOptions options_;
+};
+
+}  // namespace picking::robot
