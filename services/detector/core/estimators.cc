@@ -1,0 +1,346 @@
+#include "services/detector/core/estimators.h"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+#include "libs/errors/errors.h"
+
+namespace picking::detector {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+void CheckInput(const EstimatorInput& input, const SceneContext& context, const char* who) {
+  if (input.scene == nullptr) throw std::invalid_argument(std::string(who) + ": null scene");
+  if (input.scene != &context.scene()) {
+    throw std::invalid_argument(std::string(who) +
+                                ": the input scene is not the scene of the estimator's context");
+  }
+}
+
+void SortByScore(std::vector<Detection>* detections) {
+  std::stable_sort(detections->begin(), detections->end(),
+                   [](const Detection& a, const Detection& b) { return a.score > b.score; });
+}
+
+}  // namespace
+
+// --- SceneContext ---------------------------------------------------------------------------
+
+SceneContext::SceneContext(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
+                           std::optional<PinholeCamera> camera, SceneContextOptions options)
+    : scene_(&scene),
+      X_BaseSensor_(X_BaseSensor),
+      camera_(std::move(camera)),
+      options_(std::move(options)) {
+  if (camera_) camera_->Validate();
+  if (options_.max_clusters < 1) {
+    throw std::invalid_argument("SceneContext: max_clusters must be >= 1");
+  }
+  const bool any_finite = std::any_of(scene.points.begin(), scene.points.end(),
+                                      [](const Eigen::Vector3f& p) { return p.allFinite(); });
+  if (!any_finite) throw std::invalid_argument("SceneContext: the scene has no finite point");
+}
+
+SceneContext::~SceneContext() = default;
+
+void SceneContext::CheckDeadline() const {
+  if (Clock::now() > deadline_) {
+    throw TimeoutError("detection did not finish within the call's deadline");
+  }
+}
+
+const PpfScene& SceneContext::PpfSceneFor(const LoadedModel& model) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto& slot = ppf_scenes_[model.spec.item];
+  if (!slot) {
+    PpfSceneOptions options;
+    options.viewpoint = X_BaseSensor_.translation().cast<float>();
+    slot = std::make_unique<PpfScene>(PreparePpfScene(*scene_, *model.object, options));
+  }
+  return *slot;
+}
+
+const VerificationScene* SceneContext::Verification() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!verification_built_) {
+    if (camera_) {
+      verification_ = std::make_unique<VerificationScene>(*scene_, X_BaseSensor_, *camera_);
+    }
+    verification_built_ = true;
+  }
+  return verification_.get();
+}
+
+const SceneContext::Clusters& SceneContext::SceneClusters() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!clusters_) {
+    auto c = std::make_unique<Clusters>();
+    PlaneRemovalOptions plane = options_.plane;
+    plane.keep_organized = true;
+    c->cloud = RemoveDominantPlane(*scene_, plane).cloud;
+    c->clusters = EuclideanClusters(c->cloud, options_.clusters);
+    if (c->clusters.size() > static_cast<std::size_t>(options_.max_clusters)) {
+      c->clusters.resize(static_cast<std::size_t>(options_.max_clusters));
+    }
+    clusters_ = std::move(c);
+  }
+  return *clusters_;
+}
+
+// --- Refinement and verification ------------------------------------------------------------
+
+Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Method method,
+                          const Eigen::Isometry3d& X_BaseItem, bool refine,
+                          const RefineVerifyOptions& options) {
+  const ObjectModel& object = *model.object;
+  const PpfScene& scene = context.PpfSceneFor(model);
+  Detection d;
+  d.item = model.spec.item;
+  d.method = ToString(method);
+  d.X_BaseItem = X_BaseItem;
+
+  const auto refine_start = Clock::now();
+  IcpOptions icp = options.icp;
+  icp.max_correspondence_distance_m = options.icp_distance_rel * object.sampling_distance_m();
+  icp.loss_scale_m = std::max(1e-4f, 0.25f * object.sampling_distance_m());
+  if (refine && !scene.fine.empty()) {
+    const IcpResult r = RunIcp(object.icp_cloud(), scene.fine, scene.fine_tree, X_BaseItem, icp);
+    if (r.correspondences >= icp.min_correspondences) d.X_BaseItem = r.X_TargetSource;
+    d.fitness = r.fitness;
+    d.inlier_rmse_m = r.inlier_rmse_m;
+  } else if (!scene.fine.empty()) {
+    // Quality figures of the given pose without moving it: one ICP iteration's
+    // correspondences would move it, so count partners directly.
+    const float max_sq = icp.max_correspondence_distance_m * icp.max_correspondence_distance_m;
+    std::size_t partners = 0;
+    double sum_sq = 0.0;
+    const Eigen::Isometry3f X = X_BaseItem.cast<float>();
+    for (const auto& p : object.icp_cloud().points) {
+      float dist_sq = 0.0f;
+      if (scene.fine_tree.Nearest(X * p, &dist_sq, max_sq) != KdTree::kNone) {
+        ++partners;
+        sum_sq += dist_sq;
+      }
+    }
+    const std::size_t n = object.icp_cloud().size();
+    d.fitness = n == 0 ? 0.0 : static_cast<double>(partners) / static_cast<double>(n);
+    d.inlier_rmse_m = partners == 0 ? 0.0 : std::sqrt(sum_sq / static_cast<double>(partners));
+  }
+  d.timings.refine_s = SecondsSince(refine_start);
+
+  const auto verify_start = Clock::now();
+  if (const VerificationScene* verification = context.Verification()) {
+    d.score = Verify(*verification, object.icp_cloud(), d.X_BaseItem, options.verify).score;
+  } else {
+    d.score = d.fitness;
+  }
+  d.timings.verify_s = SecondsSince(verify_start);
+  return d;
+}
+
+// --- PPF ------------------------------------------------------------------------------------
+
+PpfEstimator::PpfEstimator(std::shared_ptr<const ModelLibrary> library,
+                           std::shared_ptr<SceneContext> context, PpfDetectorOptions ppf,
+                           RefineVerifyOptions refine)
+    : library_(std::move(library)),
+      context_(std::move(context)),
+      ppf_(std::move(ppf)),
+      refine_(std::move(refine)) {
+  if (!library_ || !context_) throw std::invalid_argument("PpfEstimator: null library or context");
+}
+
+std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
+  CheckInput(input, *context_, "PpfEstimator");
+  const auto start = Clock::now();
+  const auto model = library_->Get(input.item);
+  context_->CheckDeadline();
+  const auto preprocess_start = Clock::now();
+  const PpfScene& scene = context_->PpfSceneFor(*model);
+  const double preprocess_s = SecondsSince(preprocess_start);
+  context_->CheckDeadline();
+  const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf_);
+  std::vector<Detection> out;
+  for (const PpfDetection& hypothesis : result.detections) {
+    context_->CheckDeadline();
+    // DetectPpf has refined the pose with ICP already.
+    Detection d =
+        RefineAndVerify(*model, *context_, Method::kPpf, hypothesis.X_SceneModel, false, refine_);
+    d.fitness = hypothesis.icp.fitness;
+    d.inlier_rmse_m = hypothesis.icp.inlier_rmse_m;
+    d.timings.preprocess_s = preprocess_s;
+    d.timings.estimate_s = result.match_s;
+    d.timings.refine_s += result.refine_s;
+    out.push_back(std::move(d));
+  }
+  SortByScore(&out);
+  for (auto& d : out) d.timings.total_s = SecondsSince(start);
+  return out;
+}
+
+// --- SIFT -----------------------------------------------------------------------------------
+
+SiftPoseEstimator::SiftPoseEstimator(std::shared_ptr<const ModelLibrary> library,
+                                     std::shared_ptr<SceneContext> context, SiftPoseOptions sift,
+                                     RefineVerifyOptions refine)
+    : library_(std::move(library)),
+      context_(std::move(context)),
+      sift_(std::move(sift)),
+      refine_(std::move(refine)) {
+  if (!library_ || !context_) {
+    throw std::invalid_argument("SiftPoseEstimator: null library or context");
+  }
+}
+
+std::vector<Detection> SiftPoseEstimator::Estimate(const EstimatorInput& input) {
+  CheckInput(input, *context_, "SiftPoseEstimator");
+  const auto start = Clock::now();
+  const auto model = library_->Get(input.item);
+  if (!model->sift) return {};
+  const geometry::PointCloud& scene = context_->scene();
+  if (!scene.is_organized() || !scene.has_intensities()) {
+    throw std::invalid_argument(
+        "SIFT needs an organised scan with intensities (or colours); this one is " +
+        std::string(scene.is_organized() ? "organised without intensities" : "unorganised"));
+  }
+  context_->CheckDeadline();
+  const auto estimate_start = Clock::now();
+  const SiftPoseResult r =
+      EstimateSiftPose(*model->sift, scene, context_->X_BaseSensor(), context_->camera(), sift_);
+  const double estimate_s = SecondsSince(estimate_start);
+  if (!r.found) return {};
+  context_->CheckDeadline();
+  Detection d = RefineAndVerify(*model, *context_, Method::kSift, r.X_BaseItem, true, refine_);
+  d.timings.estimate_s = estimate_s;
+  d.timings.total_s = SecondsSince(start);
+  return {d};
+}
+
+// --- Range templates ------------------------------------------------------------------------
+
+RangeTemplateEstimator::RangeTemplateEstimator(std::shared_ptr<const ModelLibrary> library,
+                                               std::shared_ptr<SceneContext> context,
+                                               TemplateMatchOptions match,
+                                               RefineVerifyOptions refine)
+    : library_(std::move(library)),
+      context_(std::move(context)),
+      match_(std::move(match)),
+      refine_(std::move(refine)) {
+  if (!library_ || !context_) {
+    throw std::invalid_argument("RangeTemplateEstimator: null library or context");
+  }
+}
+
+std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& input) {
+  CheckInput(input, *context_, "RangeTemplateEstimator");
+  const auto start = Clock::now();
+  const auto model = library_->Get(input.item);
+  if (!model->templates) return {};
+  if (!context_->camera()) {
+    throw std::invalid_argument("range templates need the sensor's intrinsics");
+  }
+  context_->CheckDeadline();
+  const auto preprocess_start = Clock::now();
+  const SceneContext::Clusters& clusters = context_->SceneClusters();
+  const double preprocess_s = SecondsSince(preprocess_start);
+  if (clusters.clusters.empty()) return {};
+  context_->CheckDeadline();
+  const auto estimate_start = Clock::now();
+  const std::vector<TemplateMatch> matches =
+      MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
+                     *context_->camera(), match_);
+  const double estimate_s = SecondsSince(estimate_start);
+  std::vector<Detection> out;
+  for (const TemplateMatch& m : matches) {
+    context_->CheckDeadline();
+    Detection d =
+        RefineAndVerify(*model, *context_, Method::kRangeTemplates, m.X_BaseItem, true, refine_);
+    d.timings.preprocess_s = preprocess_s;
+    d.timings.estimate_s = estimate_s;
+    out.push_back(std::move(d));
+  }
+  SortByScore(&out);
+  for (auto& d : out) d.timings.total_s = SecondsSince(start);
+  return out;
+}
+
+std::vector<std::shared_ptr<Estimator>> MakeEstimators(
+    const std::shared_ptr<const ModelLibrary>& library,
+    const std::shared_ptr<SceneContext>& context) {
+  return {std::make_shared<PpfEstimator>(library, context),
+          std::make_shared<SiftPoseEstimator>(library, context),
+          std::make_shared<RangeTemplateEstimator>(library, context)};
+}
+
+// --- Scene helpers --------------------------------------------------------------------------
+
+std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
+                                                    const Eigen::Isometry3d& X_BaseSensor,
+                                                    double max_rms_px) {
+  if (!cloud.is_organized() ||
+      static_cast<std::size_t>(cloud.width) * cloud.height != cloud.points.size()) {
+    return std::nullopt;
+  }
+  const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
+  // Normal equations of [a 1] [f c]^T = pixel for each axis.
+  Eigen::Matrix2d Au = Eigen::Matrix2d::Zero(), Av = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d bu = Eigen::Vector2d::Zero(), bv = Eigen::Vector2d::Zero();
+  std::size_t n = 0;
+  std::vector<Eigen::Vector4d> samples;  // (x/z, y/z, u, v)
+  for (std::uint32_t v = 0; v < cloud.height; ++v) {
+    for (std::uint32_t u = 0; u < cloud.width; ++u) {
+      const Eigen::Vector3f& p = cloud.points[static_cast<std::size_t>(v) * cloud.width + u];
+      if (!p.allFinite()) continue;
+      const Eigen::Vector3d q = X_SensorBase * p.cast<double>();
+      if (!(q.z() > 1e-6)) continue;
+      const double a = q.x() / q.z();
+      const double b = q.y() / q.z();
+      Au += Eigen::Vector2d(a, 1.0) * Eigen::Vector2d(a, 1.0).transpose();
+      bu += Eigen::Vector2d(a, 1.0) * static_cast<double>(u);
+      Av += Eigen::Vector2d(b, 1.0) * Eigen::Vector2d(b, 1.0).transpose();
+      bv += Eigen::Vector2d(b, 1.0) * static_cast<double>(v);
+      samples.emplace_back(a, b, u, v);
+      ++n;
+    }
+  }
+  if (n < 100) return std::nullopt;
+  const Eigen::Vector2d fu = Au.ldlt().solve(bu);
+  const Eigen::Vector2d fv = Av.ldlt().solve(bv);
+  if (!fu.allFinite() || !fv.allFinite() || !(fu[0] > 0.0) || !(fv[0] > 0.0)) return std::nullopt;
+  double sum_sq = 0.0;
+  for (const auto& s : samples) {
+    const double du = fu[0] * s[0] + fu[1] - s[2];
+    const double dv = fv[0] * s[1] + fv[1] - s[3];
+    sum_sq += du * du + dv * dv;
+  }
+  if (std::sqrt(sum_sq / static_cast<double>(n)) > max_rms_px) return std::nullopt;
+  PinholeCamera camera;
+  camera.width = static_cast<int>(cloud.width);
+  camera.height = static_cast<int>(cloud.height);
+  camera.fx = fu[0];
+  camera.cx = fu[1];
+  camera.fy = fv[0];
+  camera.cy = fv[1];
+  return camera;
+}
+
+void IntensitiesFromColors(geometry::PointCloud* cloud) {
+  if (cloud->has_intensities() || !cloud->has_colors()) return;
+  cloud->intensities.resize(cloud->colors.size());
+  for (std::size_t i = 0; i < cloud->colors.size(); ++i) {
+    const auto& c = cloud->colors[i];
+    cloud->intensities[i] = (0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f;
+  }
+}
+
+}  // namespace picking::detector

@@ -1,0 +1,176 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+#include "services/detector/core/detection.h"
+#include "services/detector/core/icp.h"
+#include "services/detector/core/model_library.h"
+#include "services/detector/core/ppf_detector.h"
+#include "services/detector/core/preprocess.h"
+#include "services/detector/core/sift.h"
+#include "services/detector/core/templates.h"
+#include "services/detector/core/verify.h"
+
+namespace picking::detector {
+
+/// Options of SceneContext's shared pre-processing.
+struct SceneContextOptions {
+  /// Range templates: the dominant plane (table, bin floor) is removed before clustering.
+  PlaneRemovalOptions plane;
+  ClusterOptions clusters;
+  /// Range templates: at most this many clusters (the largest) are matched.
+  int max_clusters = 16;
+};
+
+/// One scene as every estimator of one request sees it (points in the base frame B), with
+/// the work shared between methods and items done once, on first use: per-model PPF scenes
+/// (fine cloud with normals and search trees, also the ICP target of every method), the
+/// verification scene and the euclidean clusters. Holds a pointer to `scene`, which must
+/// outlive it. Thread-safe.
+class SceneContext final {
+ public:
+  /// `camera`: the sensor's intrinsics; without them there is no visibility-based
+  /// verification (scores fall back to ICP fitness) and no range templates.
+  /// Throws std::invalid_argument when the scene has no finite point or the camera is
+  /// invalid.
+  SceneContext(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
+               std::optional<PinholeCamera> camera, SceneContextOptions options = {});
+  ~SceneContext();
+  SceneContext(const SceneContext&) = delete;
+  SceneContext& operator=(const SceneContext&) = delete;
+
+  const geometry::PointCloud& scene() const { return *scene_; }
+  const Eigen::Isometry3d& X_BaseSensor() const { return X_BaseSensor_; }
+  const std::optional<PinholeCamera>& camera() const { return camera_; }
+
+  /// Work after this time point throws TimeoutError (checked between stages).
+  void set_deadline(std::chrono::steady_clock::time_point deadline) { deadline_ = deadline; }
+  /// Throws TimeoutError (libs/errors) when the deadline has passed.
+  void CheckDeadline() const;
+
+  /// The scene prepared for `model` (sampled with its voxel sizes, normals toward the
+  /// sensor). Throws as PreparePpfScene.
+  const PpfScene& PpfSceneFor(const LoadedModel& model);
+  /// Null without camera.
+  const VerificationScene* Verification();
+  /// The scene without its dominant plane (organisation kept) and its clusters, largest
+  /// first, indexing that cloud.
+  struct Clusters {
+    geometry::PointCloud cloud;
+    std::vector<std::vector<int>> clusters;
+  };
+  const Clusters& SceneClusters();
+
+ private:
+  const geometry::PointCloud* scene_;
+  Eigen::Isometry3d X_BaseSensor_;
+  std::optional<PinholeCamera> camera_;
+  SceneContextOptions options_;
+  std::chrono::steady_clock::time_point deadline_ = std::chrono::steady_clock::time_point::max();
+  std::mutex mutex_;
+  std::map<std::string, std::unique_ptr<PpfScene>> ppf_scenes_;
+  std::unique_ptr<VerificationScene> verification_;
+  bool verification_built_ = false;
+  std::unique_ptr<Clusters> clusters_;
+};
+
+/// Refinement and scoring shared by all estimators.
+struct RefineVerifyOptions {
+  /// Final point-to-plane ICP of the model's ICP cloud onto the prepared scene; the
+  /// correspondence distance is icp_distance_rel times the model's sampling distance.
+  IcpOptions icp;
+  float icp_distance_rel = 1.0f;
+  /// Verification of the refined pose (verify.h); its score is Detection.score.
+  VerifyOptions verify;
+};
+
+/// Refines `X_BaseItem` with ICP (when `refine`) and scores it with Verify (or with the ICP
+/// fitness when the context has no camera). Fills every Detection field but the timings of
+/// the estimation stage. Throws as RunIcp / Verify.
+Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Method method,
+                          const Eigen::Isometry3d& X_BaseItem, bool refine,
+                          const RefineVerifyOptions& options = {});
+
+/// PPF voting, pose clustering and ICP (ppf_detector.h), then verification. Candidates are
+/// the hypotheses that pass DetectPpf's own support check, best score first.
+class PpfEstimator final : public Estimator {
+ public:
+  /// Throws std::invalid_argument on a null library or context.
+  PpfEstimator(std::shared_ptr<const ModelLibrary> library, std::shared_ptr<SceneContext> context,
+               PpfDetectorOptions ppf = {}, RefineVerifyOptions refine = {});
+  Method method() const override { return Method::kPpf; }
+  /// Throws NotFoundError for an unknown item, std::invalid_argument when input.scene is
+  /// not the context's scene.
+  std::vector<Detection> Estimate(const EstimatorInput& input) override;
+
+ private:
+  std::shared_ptr<const ModelLibrary> library_;
+  std::shared_ptr<SceneContext> context_;
+  PpfDetectorOptions ppf_;
+  RefineVerifyOptions refine_;
+};
+
+/// SIFT features of the scene's intensity image matched to the model's rendered views
+/// (sift.h), pose from the measured 3D points (or EPnP), then ICP and verification. Needs an
+/// organised scene with intensities; finds nothing for a model without SIFT views.
+class SiftPoseEstimator final : public Estimator {
+ public:
+  SiftPoseEstimator(std::shared_ptr<const ModelLibrary> library,
+                    std::shared_ptr<SceneContext> context, SiftPoseOptions sift = {},
+                    RefineVerifyOptions refine = {});
+  Method method() const override { return Method::kSift; }
+  /// Throws std::invalid_argument when the scene is not organised or has no intensities.
+  std::vector<Detection> Estimate(const EstimatorInput& input) override;
+
+ private:
+  std::shared_ptr<const ModelLibrary> library_;
+  std::shared_ptr<SceneContext> context_;
+  SiftPoseOptions sift_;
+  RefineVerifyOptions refine_;
+};
+
+/// Range-image templates aligned to the euclidean clusters of the scene without its
+/// dominant plane (templates.h), then ICP and verification.
+class RangeTemplateEstimator final : public Estimator {
+ public:
+  RangeTemplateEstimator(std::shared_ptr<const ModelLibrary> library,
+                         std::shared_ptr<SceneContext> context, TemplateMatchOptions match = {},
+                         RefineVerifyOptions refine = {});
+  Method method() const override { return Method::kRangeTemplates; }
+  /// Throws std::invalid_argument without camera intrinsics.
+  std::vector<Detection> Estimate(const EstimatorInput& input) override;
+
+ private:
+  std::shared_ptr<const ModelLibrary> library_;
+  std::shared_ptr<SceneContext> context_;
+  TemplateMatchOptions match_;
+  RefineVerifyOptions refine_;
+};
+
+/// The three estimators above for one scene.
+std::vector<std::shared_ptr<Estimator>> MakeEstimators(
+    const std::shared_ptr<const ModelLibrary>& library,
+    const std::shared_ptr<SceneContext>& context);
+
+/// Pinhole intrinsics of an organised cloud: least-squares fit of u = fx x/z + cx and
+/// v = fy y/z + cy over its finite pixels (points in the sensor frame S). nullopt when the
+/// cloud is not organised, has fewer than 100 finite points or the fit's RMS residual is
+/// above `max_rms_px`.
+std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
+                                                    const Eigen::Isometry3d& X_BaseSensor,
+                                                    double max_rms_px = 1.0);
+
+/// Fills `cloud.intensities` with the colour luma (0-1) when it has colours and no
+/// intensities.
+void IntensitiesFromColors(geometry::PointCloud* cloud);
+
+}  // namespace picking::detector

@@ -1,0 +1,203 @@
+#include "services/detector/core/estimators.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <random>
+
+#include "libs/errors/errors.h"
+#include "services/detector/core/test/ppf_test_util.h"
+
+namespace picking::detector {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+TEST(FitOrganizedIntrinsicsTest, RecoversThePinholeOfAnOrganisedCloud) {
+  PinholeCamera truth;
+  truth.width = 160;
+  truth.height = 120;
+  truth.fx = 210.0;
+  truth.fy = 205.0;
+  truth.cx = 81.0;
+  truth.cy = 58.5;
+  std::mt19937 rng(11);
+  const Eigen::Isometry3d X_BaseSensor = testing::RandomPose(&rng, 1.0);
+  std::uniform_real_distribution<double> depth(0.4, 1.5);
+  geometry::PointCloud cloud;
+  cloud.width = truth.width;
+  cloud.height = truth.height;
+  for (int v = 0; v < truth.height; ++v) {
+    for (int u = 0; u < truth.width; ++u) {
+      if ((u + v) % 7 == 0) {  // Missing measurements.
+        cloud.points.emplace_back(Eigen::Vector3f::Constant(NAN));
+        continue;
+      }
+      const double z = depth(rng);
+      const Eigen::Vector3d p_Sensor((u - truth.cx) / truth.fx * z, (v - truth.cy) / truth.fy * z,
+                                     z);
+      cloud.points.push_back((X_BaseSensor * p_Sensor).cast<float>());
+    }
+  }
+  const auto fitted = FitOrganizedIntrinsics(cloud, X_BaseSensor);
+  ASSERT_TRUE(fitted.has_value());
+  EXPECT_EQ(fitted->width, truth.width);
+  EXPECT_EQ(fitted->height, truth.height);
+  EXPECT_NEAR(fitted->fx, truth.fx, 0.05);
+  EXPECT_NEAR(fitted->fy, truth.fy, 0.05);
+  EXPECT_NEAR(fitted->cx, truth.cx, 0.05);
+  EXPECT_NEAR(fitted->cy, truth.cy, 0.05);
+  // The wrong sensor pose does not fit a pinhole.
+  EXPECT_FALSE(FitOrganizedIntrinsics(cloud, Eigen::Isometry3d::Identity()).has_value());
+  // Unorganised clouds have no pixel grid.
+  geometry::PointCloud flat = cloud;
+  flat.width = static_cast<std::uint32_t>(flat.points.size());
+  flat.height = 1;
+  EXPECT_FALSE(FitOrganizedIntrinsics(flat, X_BaseSensor).has_value());
+}
+
+TEST(IntensitiesFromColorsTest, UsesTheLuma) {
+  geometry::PointCloud cloud;
+  cloud.points.assign(2, Eigen::Vector3f::Zero());
+  cloud.colors = {{255, 255, 255}, {255, 0, 0}};
+  IntensitiesFromColors(&cloud);
+  ASSERT_EQ(cloud.intensities.size(), 2u);
+  EXPECT_NEAR(cloud.intensities[0], 1.0f, 1e-5f);
+  EXPECT_NEAR(cloud.intensities[1], 0.299f, 1e-5f);
+}
+
+// The PCL milk scene: the milk model's true pose in the scene is the identity; the sensor is
+// at the origin of the scene frame.
+class MilkEstimatorTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    scene_ = new geometry::PointCloud(
+        testing::LoadPcd(testing::PointCloudPath("milk_cartoon_all_small_clorox.pcd")));
+    cache_dir_ = new std::string(::testing::TempDir() + "/estimators_test_cache");
+    std::filesystem::remove_all(*cache_dir_);
+    ModelLibraryOptions options;
+    options.cache_dir = *cache_dir_;
+    library_ = new std::shared_ptr<const ModelLibrary>(std::make_shared<const ModelLibrary>(
+        ModelManifest::LoadFile(std::string(PICKING_TEST_DATA_DIR) + "/detector/models.json",
+                                PICKING_DATA_DIR),
+        options));
+  }
+  static void TearDownTestSuite() {
+    delete library_;
+    delete scene_;
+    std::filesystem::remove_all(*cache_dir_);
+    delete cache_dir_;
+  }
+
+  static std::shared_ptr<SceneContext> Context() {
+    return std::make_shared<SceneContext>(
+        *scene_, Eigen::Isometry3d::Identity(),
+        FitOrganizedIntrinsics(*scene_, Eigen::Isometry3d::Identity()));
+  }
+  static EstimatorInput Input(const std::string& item) {
+    EstimatorInput input;
+    input.item = item;
+    input.scene = scene_;
+    return input;
+  }
+
+  static geometry::PointCloud* scene_;
+  static std::string* cache_dir_;
+  static std::shared_ptr<const ModelLibrary>* library_;
+};
+geometry::PointCloud* MilkEstimatorTest::scene_ = nullptr;
+std::string* MilkEstimatorTest::cache_dir_ = nullptr;
+std::shared_ptr<const ModelLibrary>* MilkEstimatorTest::library_ = nullptr;
+
+TEST_F(MilkEstimatorTest, TheKinectSceneHasKinectIntrinsics) {
+  const auto camera = FitOrganizedIntrinsics(*scene_, Eigen::Isometry3d::Identity());
+  ASSERT_TRUE(camera.has_value());
+  EXPECT_EQ(camera->width, 640);
+  EXPECT_EQ(camera->height, 480);
+  EXPECT_GT(camera->fx, 450.0);
+  EXPECT_LT(camera->fx, 600.0);
+}
+
+TEST_F(MilkEstimatorTest, PpfFindsTheMilkAndVerifiesIt) {
+  auto context = Context();
+  PpfEstimator ppf(*library_, context);
+  const std::vector<Detection> found = ppf.Estimate(Input("milk"));
+  ASSERT_FALSE(found.empty());
+  const Detection& best = found.front();
+  EXPECT_EQ(best.item, "milk");
+  EXPECT_EQ(best.method, "ppf");
+  EXPECT_LT(testing::TranslationError(best.X_BaseItem, Eigen::Isometry3d::Identity()), 0.005);
+  EXPECT_LT(testing::RotationErrorRad(best.X_BaseItem, Eigen::Isometry3d::Identity()), 2 * kDeg);
+  EXPECT_GT(best.score, 0.7);
+  EXPECT_GT(best.fitness, 0.5);
+  EXPECT_LT(best.inlier_rmse_m, 0.005);
+  for (std::size_t i = 1; i < found.size(); ++i) EXPECT_LE(found[i].score, found[i - 1].score);
+}
+
+TEST_F(MilkEstimatorTest, AbsentObjectGetsNoAcceptableCandidate) {
+  auto context = Context();
+  PpfEstimator ppf(*library_, context);
+  const std::vector<Detection> found = ppf.Estimate(Input("bunny"));
+  const Thresholds thresholds = (*library_)->ConfigFor("bunny").thresholds;
+  for (const Detection& d : found) EXPECT_FALSE(thresholds.Accepts(d)) << "score " << d.score;
+}
+
+TEST_F(MilkEstimatorTest, RefinementPullsANearbyPoseInAndVerificationRejectsAShiftedOne) {
+  auto context = Context();
+  const auto milk = (*library_)->Get("milk");
+  const Detection truth =
+      RefineAndVerify(*milk, *context, Method::kPpf, Eigen::Isometry3d::Identity(), false);
+  EXPECT_GT(truth.score, 0.7);
+  EXPECT_GT(truth.fitness, 0.8);
+
+  Eigen::Isometry3d shifted = Eigen::Isometry3d::Identity();
+  shifted.translation() = Eigen::Vector3d(0.03, 0.0, 0.0);
+  const Detection wrong = RefineAndVerify(*milk, *context, Method::kPpf, shifted, false);
+  EXPECT_LT(wrong.score, 0.3);
+
+  std::mt19937 rng(5);
+  const Eigen::Isometry3d near = testing::Perturbation(&rng, 2 * kDeg, 0.003);
+  const Detection refined = RefineAndVerify(*milk, *context, Method::kSift, near, true);
+  EXPECT_EQ(refined.method, "sift");
+  EXPECT_LT(testing::TranslationError(refined.X_BaseItem, Eigen::Isometry3d::Identity()), 0.002);
+  EXPECT_LT(testing::RotationErrorRad(refined.X_BaseItem, Eigen::Isometry3d::Identity()), kDeg);
+  EXPECT_GT(refined.score, 0.7);
+}
+
+TEST_F(MilkEstimatorTest, ChainRunsThePreferredMethodAndAcceptsTheMilk) {
+  auto context = Context();
+  const DetectionChain chain((*library_)->manifest().config(), MakeEstimators(*library_, context));
+  const ChainResult result = chain.Run(Input("milk"));
+  ASSERT_TRUE(result.detection.has_value());
+  EXPECT_EQ(result.detection->method, "ppf");
+  ASSERT_EQ(result.attempts.size(), 1u);  // The test manifest has no fallbacks.
+  EXPECT_TRUE(result.attempts[0].accepted);
+}
+
+TEST_F(MilkEstimatorTest, DeadlineAndForeignScenesStopTheEstimators) {
+  auto context = Context();
+  context->set_deadline(std::chrono::steady_clock::now() - std::chrono::seconds(1));
+  PpfEstimator ppf(*library_, context);
+  EXPECT_THROW(ppf.Estimate(Input("milk")), TimeoutError);
+
+  auto fresh = Context();
+  PpfEstimator other(*library_, fresh);
+  geometry::PointCloud copy = *scene_;
+  EstimatorInput input = Input("milk");
+  input.scene = &copy;
+  EXPECT_THROW(other.Estimate(input), std::invalid_argument);
+  EXPECT_THROW(other.Estimate(Input("no_such_item")), NotFoundError);
+}
+
+TEST_F(MilkEstimatorTest, SiftNeedsAnOrganisedScanWithIntensities) {
+  // The milk model has no colours: no SIFT views, so nothing is found rather than an error.
+  auto context = Context();
+  SiftPoseEstimator sift(*library_, context);
+  EXPECT_TRUE(sift.Estimate(Input("milk")).empty());
+  RangeTemplateEstimator templates(*library_, context);
+  EXPECT_TRUE(templates.Estimate(Input("milk")).empty());  // No templates asked for.
+}
+
+}  // namespace
+}  // namespace picking::detector
