@@ -71,6 +71,9 @@ class FakeSimulator final : public sim::SimulatorService::Service {
   grpc::Status GetGroundTruth(grpc::ServerContext*, const sim::GetGroundTruthRequest*,
                               sim::GetGroundTruthResponse* response) override {
     std::lock_guard<std::mutex> lock(mutex_);
+    if (!layout_loaded_) {
+      return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no layout loaded yet");
+    }
     SetJoints(q_, response->mutable_arm_joints());
     return grpc::Status::OK;
   }
@@ -132,6 +135,10 @@ class FakeSimulator final : public sim::SimulatorService::Service {
     std::lock_guard<std::mutex> lock(mutex_);
     surface_z_ = z;
   }
+  void set_layout_loaded(bool loaded) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    layout_loaded_ = loaded;
+  }
   JointVector q() {
     std::lock_guard<std::mutex> lock(mutex_);
     return q_;
@@ -161,6 +168,7 @@ class FakeSimulator final : public sim::SimulatorService::Service {
   Eigen::Vector3d obstacle_min_ = Eigen::Vector3d::Zero();
   Eigen::Vector3d obstacle_max_ = Eigen::Vector3d::Zero();
   double surface_z_ = -10.0;
+  bool layout_loaded_ = true;
   int port_ = 0;
   std::unique_ptr<grpc::Server> server_;
 };
@@ -278,6 +286,39 @@ TEST(RobotServerTest, UnreachableSimulatorAnswersUnavailableButTheServerRuns) {
   grpc::ClientContext ctx;
   rb::GetLimitsResponse limits;
   EXPECT_TRUE(client.stub().GetLimits(&ctx, rb::GetLimitsRequest(), &limits).ok());
+  EXPECT_EQ(server.Stop(), 0);
+}
+
+TEST(RobotServerTest, StartsWithTheBundledSettingsFile) {
+  FakeSimulator sim;
+  ServerProcess server(ServerBinary(kBinary),
+                       {"--config=" + std::string(PICKING_DATA_DIR) + "/cell/robot_cell.yaml",
+                        "--sim.address=" + sim.address()});
+  RobotClient client(server.Channel());
+  grpc::ClientContext ctx;
+  rb::GetLimitsResponse limits;
+  ASSERT_TRUE(client.stub().GetLimits(&ctx, rb::GetLimitsRequest(), &limits).ok());
+  EXPECT_EQ(limits.workspace().max().z(), 1.5);
+  ASSERT_EQ(limits.forbidden_zones_size(), 2);
+  EXPECT_EQ(limits.forbidden_zones(1).max().z(), 0.07);
+  EXPECT_EQ(limits.max_contact_force_n(), 50.0);
+  EXPECT_EQ(client.State().status(), rb::ROBOT_STATUS_IDLE);
+  EXPECT_EQ(server.Stop(), 0);
+}
+
+TEST(RobotServerTest, AFreshSimulatorGetsTheInitialJoints) {
+  FakeSimulator sim;
+  sim.set_layout_loaded(false);
+  ServerProcess server(ServerBinary(kBinary),
+                       {"--sim.address=" + sim.address(),
+                        "--sim.initial_joints_rad=" + std::string("3.1,-2,2,-1.5,-1.5,0")});
+  RobotClient client(server.Channel());
+  const rb::GetStateResponse state = client.State();
+  JointVector expected;
+  expected << 3.1, -2, 2, -1.5, -1.5, 0;
+  EXPECT_TRUE(Joints(state.joints().positions_rad()).isApprox(expected));
+  EXPECT_EQ(sim.placements(), 1);
+  EXPECT_TRUE(sim.q().isApprox(expected));
   EXPECT_EQ(server.Stop(), 0);
 }
 

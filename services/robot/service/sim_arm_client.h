@@ -13,9 +13,11 @@ struct SimulatorArmClientOptions {
   /// Deadline of each simulator call, s (> 0).
   double timeout_s = 2.0;
   /// Where the arm is put when the simulator knows no arm joints yet (e.g. no layout
-  /// loaded), rad.
+  /// loaded), rad. Default: facing the shelf (+x), tool pointing down, flange about 0.43 m in
+  /// front of the base and 0.59 m above it.
   JointVector initial_joints_rad =
-      (JointVector() << 0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0).finished();
+      (JointVector() << 3.14159265358979, -2.0, 2.0, -1.5707963267949, -1.5707963267949, 0.0)
+          .finished();
 };
 
 /// SimulatedArm served by picking-simulator (picking.simulator.v1): ReadJoints is
