@@ -7,6 +7,16 @@ int main(int argc, char** argv) {
   spec.program = "picking-detector";
   spec.service = "detector";
   spec.description = "the detector service of the picking cell (gRPC: picking.detector.v1)";
+  spec.settings_help = {
+      "data_dir=DIR            bundled data (default: $PICKING_DATA_DIR or the source data/)",
+      "models=FILE             model manifest JSON (default <data_dir>/detector/models.json)",
+      "catalogue=FILE          APC item catalogue for shape models "
+      "(default <data_dir>/apc2016/items/item_data.csv)",
+      "cache_dir=DIR           built-model cache (default ~/.cache/picking/detector)",
+      "preload=BOOL            build every model before serving (default false: on first use)",
+      "max_points=N            largest cloud accepted, points (default 5000000)",
+      "camera.width|height|fx|fy|cx|cy=V  intrinsics for unorganised clouds "
+      "(default 640x480, 525, 525, 319.5, 239.5)"};
   spec.build = picking::detector::BuildDetectorServices;
   return picking::runtime::RunServerMain(argc, argv, spec);
 }

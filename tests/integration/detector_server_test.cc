@@ -1,6 +1,27 @@
 // Integration test of the picking-detector server binary through its generated client.
+//
+// The server runs with the test manifest tests/data/detector/models.json (the PCL milk carton,
+// a partial view of the Stanford bunny, one catalogue shape). The scene is the real Kinect
+// scene milk_cartoon_all_small_clorox.pcd, in which the milk model's true pose is the
+// identity; the test moves the whole scene by a seeded random transform and expects the
+// detector to find the milk at that transform.
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "picking/detector/v1/detector.grpc.pb.h"
 #include "tests/harness/server_process.h"
@@ -9,7 +30,235 @@
 namespace picking::testing {
 namespace {
 
+namespace pb = ::picking::detector::v1;
+namespace common = ::picking::common::v1;
+
 const char kBinary[] = "picking-detector";
+constexpr double kPi = 3.14159265358979323846;
+
+std::string TestData(const std::string& relative) {
+  return std::string(PICKING_TEST_DATA_DIR) + "/" + relative;
+}
+
+// --- A minimal reader of the PCL scene (PCD binary_compressed x y z rgba) ----------------------
+// The test links neither PCL nor the geometry library: it decodes the file itself.
+
+struct Scene {
+  std::uint32_t width = 0;
+  std::uint32_t height = 0;
+  std::vector<float> xyz;         // 3 per point, NaN for missing pixels.
+  std::vector<std::uint8_t> rgb;  // 3 per point.
+  std::size_t size() const { return xyz.size() / 3; }
+};
+
+// LZF decompression (the format PCL's binary_compressed uses).
+std::vector<std::uint8_t> LzfDecompress(const std::uint8_t* in, std::size_t in_size,
+                                        std::size_t out_size) {
+  std::vector<std::uint8_t> out(out_size);
+  std::size_t ip = 0;
+  std::size_t op = 0;
+  while (ip < in_size) {
+    unsigned ctrl = in[ip++];
+    if (ctrl < 32) {  // Literal run of ctrl + 1 bytes.
+      const std::size_t n = ctrl + 1;
+      if (ip + n > in_size || op + n > out_size) throw std::runtime_error("LZF: literal overrun");
+      std::memcpy(&out[op], &in[ip], n);
+      ip += n;
+      op += n;
+    } else {  // Back reference.
+      std::size_t len = ctrl >> 5;
+      if (len == 7) len += in[ip++];
+      len += 2;
+      const std::size_t back = ((ctrl & 0x1f) << 8) + in[ip++] + 1;
+      if (back > op || op + len > out_size) throw std::runtime_error("LZF: bad back reference");
+      for (std::size_t i = 0; i < len; ++i, ++op) out[op] = out[op - back];
+    }
+  }
+  if (op != out_size) throw std::runtime_error("LZF: short output");
+  return out;
+}
+
+Scene ReadMilkScene() {
+  const std::string path = TestData("pointclouds/milk_cartoon_all_small_clorox.pcd");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot open " + path);
+  Scene scene;
+  std::string line;
+  std::size_t points = 0;
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    std::string key;
+    fields >> key;
+    if (key == "FIELDS" && line != "FIELDS x y z rgba") throw std::runtime_error("fields: " + line);
+    if (key == "WIDTH") fields >> scene.width;
+    if (key == "HEIGHT") fields >> scene.height;
+    if (key == "POINTS") fields >> points;
+    if (key == "DATA") {
+      if (line != "DATA binary_compressed") throw std::runtime_error("data: " + line);
+      break;
+    }
+  }
+  std::uint32_t sizes[2];
+  in.read(reinterpret_cast<char*>(sizes), sizeof(sizes));
+  std::vector<std::uint8_t> compressed(sizes[0]);
+  in.read(reinterpret_cast<char*>(compressed.data()), sizes[0]);
+  if (!in || points != static_cast<std::size_t>(scene.width) * scene.height ||
+      sizes[1] != points * 16) {
+    throw std::runtime_error("unexpected layout of " + path);
+  }
+  const std::vector<std::uint8_t> raw = LzfDecompress(compressed.data(), sizes[0], sizes[1]);
+  // Field-major: all x, all y, all z, all rgba.
+  scene.xyz.resize(points * 3);
+  scene.rgb.resize(points * 3);
+  for (std::size_t i = 0; i < points; ++i) {
+    for (int axis = 0; axis < 3; ++axis) {
+      std::memcpy(&scene.xyz[3 * i + axis], &raw[(axis * points + i) * 4], 4);
+    }
+    std::uint32_t rgba;
+    std::memcpy(&rgba, &raw[(3 * points + i) * 4], 4);
+    scene.rgb[3 * i] = static_cast<std::uint8_t>((rgba >> 16) & 0xff);
+    scene.rgb[3 * i + 1] = static_cast<std::uint8_t>((rgba >> 8) & 0xff);
+    scene.rgb[3 * i + 2] = static_cast<std::uint8_t>(rgba & 0xff);
+  }
+  return scene;
+}
+
+// A rigid transform (the test links no linear algebra library): p -> R p + t.
+struct Transform {
+  std::array<std::array<double, 3>, 3> R{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+  std::array<double, 3> t{0, 0, 0};
+
+  std::array<double, 3> Apply(const std::array<double, 3>& p) const {
+    std::array<double, 3> q = t;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) q[r] += R[r][c] * p[c];
+    }
+    return q;
+  }
+  std::array<double, 3> Rotate(const std::array<double, 3>& v) const {
+    std::array<double, 3> q{0, 0, 0};
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) q[r] += R[r][c] * v[c];
+    }
+    return q;
+  }
+};
+
+// Rotation of the unit quaternion (w, x, y, z).
+std::array<std::array<double, 3>, 3> RotationOf(double w, double x, double y, double z) {
+  const double n = std::sqrt(w * w + x * x + y * y + z * z);
+  w /= n;
+  x /= n;
+  y /= n;
+  z /= n;
+  return {{{1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)},
+           {2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)},
+           {2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}}};
+}
+
+Scene Transformed(const Scene& scene, const Transform& X) {
+  Scene out = scene;
+  for (std::size_t i = 0; i < scene.size(); ++i) {
+    const std::array<double, 3> p = {scene.xyz[3 * i], scene.xyz[3 * i + 1], scene.xyz[3 * i + 2]};
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+    const std::array<double, 3> q = X.Apply(p);
+    for (int a = 0; a < 3; ++a) out.xyz[3 * i + a] = static_cast<float>(q[a]);
+  }
+  return out;
+}
+
+common::Pose ToPose(const Transform& X) {
+  common::Pose pose;
+  pose.mutable_position()->set_x(X.t[0]);
+  pose.mutable_position()->set_y(X.t[1]);
+  pose.mutable_position()->set_z(X.t[2]);
+  // Rotation matrix to quaternion (Shepperd's method).
+  const auto& R = X.R;
+  double w, x, y, z;
+  const double trace = R[0][0] + R[1][1] + R[2][2];
+  if (trace > 0) {
+    const double s = 2.0 * std::sqrt(1.0 + trace);
+    w = 0.25 * s;
+    x = (R[2][1] - R[1][2]) / s;
+    y = (R[0][2] - R[2][0]) / s;
+    z = (R[1][0] - R[0][1]) / s;
+  } else if (R[0][0] > R[1][1] && R[0][0] > R[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + R[0][0] - R[1][1] - R[2][2]);
+    w = (R[2][1] - R[1][2]) / s;
+    x = 0.25 * s;
+    y = (R[0][1] + R[1][0]) / s;
+    z = (R[0][2] + R[2][0]) / s;
+  } else if (R[1][1] > R[2][2]) {
+    const double s = 2.0 * std::sqrt(1.0 + R[1][1] - R[0][0] - R[2][2]);
+    w = (R[0][2] - R[2][0]) / s;
+    x = (R[0][1] + R[1][0]) / s;
+    y = 0.25 * s;
+    z = (R[1][2] + R[2][1]) / s;
+  } else {
+    const double s = 2.0 * std::sqrt(1.0 + R[2][2] - R[0][0] - R[1][1]);
+    w = (R[1][0] - R[0][1]) / s;
+    x = (R[0][2] + R[2][0]) / s;
+    y = (R[1][2] + R[2][1]) / s;
+    z = 0.25 * s;
+  }
+  pose.mutable_orientation()->set_w(w);
+  pose.mutable_orientation()->set_x(x);
+  pose.mutable_orientation()->set_y(y);
+  pose.mutable_orientation()->set_z(z);
+  return pose;
+}
+
+Transform FromPose(const common::Pose& pose) {
+  Transform X;
+  X.t = {pose.position().x(), pose.position().y(), pose.position().z()};
+  X.R = RotationOf(pose.orientation().w(), pose.orientation().x(), pose.orientation().y(),
+                   pose.orientation().z());
+  return X;
+}
+
+double TranslationError(const Transform& a, const Transform& b) {
+  double sum = 0.0;
+  for (int i = 0; i < 3; ++i) sum += (a.t[i] - b.t[i]) * (a.t[i] - b.t[i]);
+  return std::sqrt(sum);
+}
+
+// Angle of R_a^T R_b, radians.
+double RotationErrorRad(const Transform& a, const Transform& b) {
+  double trace = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    for (int k = 0; k < 3; ++k) trace += a.R[k][i] * b.R[k][i];
+  }
+  return std::acos(std::clamp(0.5 * (trace - 1.0), -1.0, 1.0));
+}
+
+// The scene as PointCloudChunks of at most 65,536 points, the sensor pose in the header.
+std::vector<common::PointCloudChunk> ToChunks(const Scene& scene, const Transform& X_BaseSensor) {
+  std::vector<common::PointCloudChunk> chunks;
+  const std::size_t n = scene.size();
+  constexpr std::size_t kPerChunk = 65536;
+  for (std::size_t offset = 0; offset < n; offset += kPerChunk) {
+    const std::size_t count = std::min(kPerChunk, n - offset);
+    common::PointCloudChunk chunk;
+    if (offset == 0) {
+      auto* h = chunk.mutable_header();
+      h->set_frame_id("base");
+      h->set_point_count(n);
+      h->set_width(scene.width);
+      h->set_height(scene.height);
+      h->set_has_colors(true);
+      *h->mutable_sensor_pose() = ToPose(X_BaseSensor);
+    }
+    chunk.set_point_offset(offset);
+    chunk.set_point_count(static_cast<std::uint32_t>(count));
+    chunk.set_positions(std::string(reinterpret_cast<const char*>(&scene.xyz[3 * offset]),
+                                    count * 3 * sizeof(float)));
+    chunk.set_colors(std::string(reinterpret_cast<const char*>(&scene.rgb[3 * offset]), count * 3));
+    chunks.push_back(std::move(chunk));
+  }
+  return chunks;
+}
+
+// --- Standard server checks -----------------------------------------------------------------
 
 TEST(DetectorServerTest, ServesHealthAndReflectionAndStopsCleanly) {
   ExpectStandardServerBehaviour(ServerBinary(kBinary), "picking.detector.v1.DetectorService",
@@ -18,15 +267,262 @@ TEST(DetectorServerTest, ServesHealthAndReflectionAndStopsCleanly) {
 
 TEST(DetectorServerTest, RejectsBadFlags) { ExpectRejectsBadFlags(ServerBinary(kBinary)); }
 
-TEST(DetectorServerTest, UnfinishedRpcAnswersUnimplemented) {
-  ServerProcess server(ServerBinary(kBinary));
-  auto stub = detector::v1::DetectorService::NewStub(server.Channel());
+TEST(DetectorServerTest, RejectsABrokenManifest) {
+  const std::string dir = ::testing::TempDir() + "/detector_bad_manifest";
+  std::filesystem::create_directories(dir);
+  const std::string manifest = dir + "/models.json";
+  std::ofstream(manifest) << R"({"models": {"milk": {"source": "scan:milk.pcd", "colour": 1}}})";
+  const ProgramResult r =
+      RunProgram(ServerBinary(kBinary), {"--listen=127.0.0.1:0", "--models=" + manifest});
+  EXPECT_EQ(r.exit_status, 2) << r.output;
+  EXPECT_NE(r.output.find("models.milk.colour"), std::string::npos) << r.output;
+}
+
+// --- Detection on the real scene ------------------------------------------------------------
+
+class DetectorSceneTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    cache_dir_ = new std::string(::testing::TempDir() + "/detector_server_test_cache");
+    std::filesystem::remove_all(*cache_dir_);
+    server_ = new ServerProcess(
+        ServerBinary(kBinary),
+        {"--models=" + TestData("detector/models.json"), "--cache_dir=" + *cache_dir_});
+    scene_ = new Scene(ReadMilkScene());
+    std::mt19937 rng(20160707);
+    std::normal_distribution<double> normal(0.0, 1.0);
+    std::uniform_real_distribution<double> uniform(-0.5, 0.5);
+    X_BaseScene_ = new Transform();
+    const double w = normal(rng), x = normal(rng), y = normal(rng), z = normal(rng);
+    X_BaseScene_->R = RotationOf(w, x, y, z);
+    X_BaseScene_->t = {uniform(rng), uniform(rng), uniform(rng)};
+    // The scene was captured by a sensor at the origin of its own frame.
+    chunks_ = new std::vector<common::PointCloudChunk>(
+        ToChunks(Transformed(*scene_, *X_BaseScene_), *X_BaseScene_));
+  }
+  static void TearDownTestSuite() {
+    EXPECT_EQ(server_->Stop(), 0);
+    delete server_;
+    delete scene_;
+    delete X_BaseScene_;
+    delete chunks_;
+    std::filesystem::remove_all(*cache_dir_);
+    delete cache_dir_;
+  }
+
+  static std::unique_ptr<pb::DetectorService::Stub> Stub() {
+    return pb::DetectorService::NewStub(server_->Channel());
+  }
+
+  static grpc::Status Detect(const pb::DetectParams& params,
+                             const std::vector<common::PointCloudChunk>& chunks,
+                             pb::DetectResponse* response, bool send_params = true) {
+    auto stub = Stub();
+    grpc::ClientContext ctx;
+    auto writer = stub->Detect(&ctx, response);
+    if (send_params) {
+      pb::DetectRequest request;
+      *request.mutable_params() = params;
+      writer->Write(request);
+    }
+    for (const auto& chunk : chunks) {
+      pb::DetectRequest request;
+      *request.mutable_cloud() = chunk;
+      if (!writer->Write(request)) break;
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  static grpc::Status Verify(const Transform& X_BaseItem, pb::VerifyResponse* response) {
+    auto stub = Stub();
+    grpc::ClientContext ctx;
+    auto writer = stub->Verify(&ctx, response);
+    pb::VerifyRequest request;
+    request.mutable_params()->set_item("milk");
+    *request.mutable_params()->mutable_x_frame_item() = ToPose(X_BaseItem);
+    writer->Write(request);
+    for (const auto& chunk : *chunks_) {
+      pb::VerifyRequest c;
+      *c.mutable_cloud() = chunk;
+      if (!writer->Write(c)) break;
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  static pb::DetectParams Query(std::initializer_list<std::string> items, pb::Method method) {
+    pb::DetectParams params;
+    for (const auto& item : items) {
+      auto* q = params.add_queries();
+      q->set_item(item);
+      q->set_method(method);
+    }
+    return params;
+  }
+
+  static std::string* cache_dir_;
+  static ServerProcess* server_;
+  static Scene* scene_;
+  static Transform* X_BaseScene_;
+  static std::vector<common::PointCloudChunk>* chunks_;
+};
+std::string* DetectorSceneTest::cache_dir_ = nullptr;
+ServerProcess* DetectorSceneTest::server_ = nullptr;
+Scene* DetectorSceneTest::scene_ = nullptr;
+Transform* DetectorSceneTest::X_BaseScene_ = nullptr;
+std::vector<common::PointCloudChunk>* DetectorSceneTest::chunks_ = nullptr;
+
+// One batch: the milk is found at the scene's transform, an unknown item gets NOT_FOUND
+// without hiding the others, and the bunny (not in the scene) gets no detection.
+TEST_F(DetectorSceneTest, DetectsMilkAndReportsEachItemSeparately) {
+  pb::DetectResponse response;
+  const grpc::Status status =
+      Detect(Query({"milk", "no_such_item", "bunny"}, pb::METHOD_PPF), *chunks_, &response);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  EXPECT_EQ(response.points_received(), scene_->size());
+  EXPECT_GT(response.points_after_preprocessing(), 100000u);
+  ASSERT_EQ(response.results_size(), 3);
+
+  const pb::ItemResult& milk = response.results(0);
+  EXPECT_EQ(milk.item(), "milk");
+  EXPECT_EQ(milk.status().code(), 0) << milk.status().message();
+  ASSERT_EQ(milk.detections_size(), 1);
+  ASSERT_EQ(milk.methods_tried_size(), 1);
+  EXPECT_EQ(milk.methods_tried(0), pb::METHOD_PPF);
+  const pb::Detection& d = milk.detections(0);
+  EXPECT_EQ(d.method(), pb::METHOD_PPF);
+  const Transform X_BaseMilk = FromPose(d.x_frame_item());
+  EXPECT_LT(TranslationError(X_BaseMilk, *X_BaseScene_), 0.005);
+  EXPECT_LT(RotationErrorRad(X_BaseMilk, *X_BaseScene_), 2.0 * kPi / 180.0);
+  EXPECT_GT(d.score(), 0.5);
+  EXPECT_GT(d.fitness(), 0.3);
+  EXPECT_LT(d.inlier_rmse_m(), 0.01);
+  EXPECT_GT(d.timings().total_s(), 0.0);
+
+  const pb::ItemResult& unknown = response.results(1);
+  EXPECT_EQ(unknown.item(), "no_such_item");
+  EXPECT_EQ(unknown.status().code(), static_cast<int>(grpc::StatusCode::NOT_FOUND));
+  EXPECT_NE(unknown.status().message().find("no_such_item"), std::string::npos);
+  EXPECT_EQ(unknown.detections_size(), 0);
+
+  const pb::ItemResult& bunny = response.results(2);
+  EXPECT_EQ(bunny.item(), "bunny");
+  EXPECT_EQ(bunny.status().code(), 0) << bunny.status().message();
+  EXPECT_EQ(bunny.detections_size(), 0)
+      << "made-up bunny pose, score " << bunny.detections(0).score();
+}
+
+TEST_F(DetectorSceneTest, VerifyScoresTheTruePoseHighAndAShiftedPoseLow) {
+  pb::VerifyResponse truth;
+  ASSERT_TRUE(Verify(*X_BaseScene_, &truth).ok());
+  EXPECT_GT(truth.score(), 0.7);
+  EXPECT_GT(truth.visible_model_points(), 100u);
+  EXPECT_GT(truth.supported_model_points(), truth.visible_model_points() / 2);
+
+  Transform shifted = *X_BaseScene_;
+  // 3 cm along the sensor's x axis (sideways as seen from the sensor).
+  const std::array<double, 3> step = X_BaseScene_->Rotate({0.03, 0.0, 0.0});
+  for (int i = 0; i < 3; ++i) shifted.t[i] += step[i];
+  pb::VerifyResponse wrong;
+  ASSERT_TRUE(Verify(shifted, &wrong).ok());
+  EXPECT_LT(wrong.score(), 0.3);
+  EXPECT_LT(wrong.score(), truth.score() - 0.4);
+}
+
+TEST_F(DetectorSceneTest, ListModelsListsTheManifest) {
+  pb::VerifyResponse verified;  // Verifying the milk builds its model.
+  ASSERT_TRUE(Verify(*X_BaseScene_, &verified).ok());
+  auto stub = Stub();
   grpc::ClientContext ctx;
-  detector::v1::ListModelsRequest request;
-  detector::v1::ListModelsResponse response;
-  const grpc::Status status = stub->ListModels(&ctx, request, &response);
-  EXPECT_EQ(status.error_code(), grpc::StatusCode::UNIMPLEMENTED) << status.error_message();
-  EXPECT_EQ(server.Stop(), 0);
+  pb::ListModelsResponse response;
+  ASSERT_TRUE(stub->ListModels(&ctx, pb::ListModelsRequest(), &response).ok());
+  ASSERT_EQ(response.models_size(), 3);
+  EXPECT_GE(response.cache_format_version(), 1u);
+  std::map<std::string, pb::ModelInfo> by_item;
+  for (const auto& m : response.models()) by_item[m.item()] = m;
+  ASSERT_EQ(by_item.count("milk"), 1u);
+  ASSERT_EQ(by_item.count("bunny"), 1u);
+  ASSERT_EQ(by_item.count("crayola_24_ct"), 1u);
+  const pb::ModelInfo& milk = by_item["milk"];
+  EXPECT_EQ(milk.source(), "scan");
+  EXPECT_EQ(milk.symmetry(), "none");
+  EXPECT_EQ(milk.preferred_method(), pb::METHOD_PPF);
+  EXPECT_EQ(milk.fallbacks_size(), 0);
+  // The milk carton is about 20 cm tall.
+  EXPECT_GT(milk.diameter_m(), 0.15);
+  EXPECT_LT(milk.diameter_m(), 0.4);
+  EXPECT_GT(milk.model_points(), 100u);
+  const pb::ModelInfo& crayola = by_item["crayola_24_ct"];
+  EXPECT_EQ(crayola.source(), "shape");
+  EXPECT_EQ(crayola.symmetry(), "box");
+  ASSERT_EQ(crayola.fallbacks_size(), 1);
+  EXPECT_EQ(crayola.fallbacks(0), pb::METHOD_RANGE_TEMPLATES);
+}
+
+// --- Bad requests ---------------------------------------------------------------------------
+
+TEST_F(DetectorSceneTest, StreamWithoutParamsIsInvalid) {
+  pb::DetectResponse response;
+  const grpc::Status s = Detect({}, *chunks_, &response, /*send_params=*/false);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("params"), std::string::npos) << s.error_message();
+}
+
+TEST_F(DetectorSceneTest, EmptyCloudIsInvalid) {
+  pb::DetectResponse response;
+  // No cloud at all.
+  grpc::Status s = Detect(Query({"milk"}, pb::METHOD_PPF), {}, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  // A header announcing zero points.
+  common::PointCloudChunk empty;
+  empty.mutable_header()->set_frame_id("base");
+  empty.mutable_header()->set_point_count(0);
+  empty.mutable_header()->set_width(0);
+  empty.mutable_header()->set_height(1);
+  s = Detect(Query({"milk"}, pb::METHOD_PPF), {empty}, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  // Only NaN points.
+  Scene nan;
+  nan.width = 1000;
+  nan.height = 1;
+  nan.xyz.assign(3000, std::numeric_limits<float>::quiet_NaN());
+  nan.rgb.assign(3000, 0);
+  s = Detect(Query({"milk"}, pb::METHOD_PPF), ToChunks(nan, Transform()), &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+}
+
+TEST_F(DetectorSceneTest, BrokenChunkStreamIsInvalid) {
+  pb::DetectResponse response;
+  // A chunk is missing: the runs do not tile the cloud.
+  std::vector<common::PointCloudChunk> gap = *chunks_;
+  gap.erase(gap.begin() + 1);
+  grpc::Status s = Detect(Query({"milk"}, pb::METHOD_PPF), gap, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  // The last chunk is cut short.
+  std::vector<common::PointCloudChunk> truncated = *chunks_;
+  truncated.pop_back();
+  s = Detect(Query({"milk"}, pb::METHOD_PPF), truncated, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  // Positions whose byte count does not match point_count.
+  std::vector<common::PointCloudChunk> short_bytes = {chunks_->front()};
+  short_bytes[0].mutable_positions()->resize(short_bytes[0].positions().size() - 4);
+  s = Detect(Query({"milk"}, pb::METHOD_PPF), short_bytes, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+}
+
+TEST_F(DetectorSceneTest, RegionOutsideTheCloudIsInvalid) {
+  pb::DetectParams params = Query({"milk"}, pb::METHOD_PPF);
+  auto* region = params.mutable_region();
+  Transform far;
+  far.t = {50.0, 50.0, 50.0};
+  *region->mutable_x_frame_region() = ToPose(far);
+  region->mutable_size_m()->set_x(0.3);
+  region->mutable_size_m()->set_y(0.3);
+  region->mutable_size_m()->set_z(0.3);
+  pb::DetectResponse response;
+  const grpc::Status s = Detect(params, *chunks_, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
 }
 
 }  // namespace

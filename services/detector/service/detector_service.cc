@@ -1,17 +1,427 @@
 #include "services/detector/service/detector_service.h"
 
+#include <grpcpp/server_context.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "google/rpc/status.pb.h"
+#include "libs/apc/catalogue.h"
+#include "libs/errors/errors.h"
+#include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/log.h"
+#include "libs/runtime/status.h"
+#include "services/detector/core/detection.h"
+#include "services/detector/core/estimators.h"
+#include "services/detector/core/model_library.h"
+#include "services/detector/core/preprocess.h"
+#include "services/detector/core/verify.h"
+
 namespace picking::detector {
 namespace {
 
-// The contract is published in full; RPCs whose implementation has not landed answer
-// UNIMPLEMENTED (the generated base class's behaviour), never a made-up result.
-class DetectorServiceImpl final : public v1::DetectorService::Service {};
+namespace pb = ::picking::detector::v1;
+namespace pc = ::picking::proto_convert;
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+pb::Method ToProto(Method method) {
+  switch (method) {
+    case Method::kPpf:
+      return pb::METHOD_PPF;
+    case Method::kSift:
+      return pb::METHOD_SIFT;
+    case Method::kRangeTemplates:
+      return pb::METHOD_RANGE_TEMPLATES;
+  }
+  throw std::logic_error("ToProto: invalid Method");
+}
+
+pb::Method ToProto(const std::string& method_name) {
+  return ToProto(MethodFromString(method_name));
+}
+
+// Settings of the service that are not the model library's.
+struct ServiceSettings {
+  std::uint64_t max_points = 5'000'000;
+  PinholeCamera default_camera;  // For unorganised clouds.
+};
+
+// The call deadline on the steady clock (max when the call has none).
+Clock::time_point SteadyDeadline(const grpc::ServerContext* ctx) {
+  const auto deadline = ctx->deadline();
+  if (deadline == std::chrono::system_clock::time_point::max()) return Clock::time_point::max();
+  const auto remaining = deadline - std::chrono::system_clock::now();
+  if (remaining > std::chrono::hours(24 * 365)) return Clock::time_point::max();
+  return Clock::now() + std::chrono::duration_cast<Clock::duration>(remaining);
+}
+
+// A cloud received from a client stream, ready for the estimators.
+struct ReceivedScene {
+  geometry::PointCloud cloud;
+  std::uint64_t points_received = 0;
+  bool has_sensor_pose = false;
+  Eigen::Isometry3d X_BaseSensor = Eigen::Isometry3d::Identity();
+};
+
+// Reads the cloud chunks that follow the params. `Request` is DetectRequest or VerifyRequest.
+template <class Request>
+ReceivedScene ReadCloud(grpc::ServerReader<Request>* reader, const ServiceSettings& settings) {
+  pc::CloudAssembler assembler(settings.max_points);
+  Request message;
+  std::size_t index = 1;
+  while (reader->Read(&message)) {
+    if (message.has_params()) {
+      throw std::invalid_argument("message " + std::to_string(index) +
+                                  ": params may only be sent once, as the first message");
+    }
+    if (!message.has_cloud()) {
+      throw std::invalid_argument("message " + std::to_string(index) + ": no payload");
+    }
+    assembler.Add(message.cloud());
+    ++index;
+  }
+  if (!assembler.started()) throw std::invalid_argument("no point cloud followed the params");
+  ReceivedScene scene;
+  scene.points_received = assembler.points_received();
+  scene.cloud = assembler.Finish();
+  scene.has_sensor_pose = assembler.has_sensor_pose();
+  if (scene.has_sensor_pose) scene.X_BaseSensor = assembler.sensor_pose();
+  CloudLimits limits;
+  limits.max_points = settings.max_points;
+  ValidateCloud(scene.cloud, limits);   // Empty, NaN-only or inconsistent clouds.
+  IntensitiesFromColors(&scene.cloud);  // SIFT works on intensities.
+  return scene;
+}
+
+std::size_t CountFinite(const geometry::PointCloud& cloud) {
+  return static_cast<std::size_t>(std::count_if(cloud.points.begin(), cloud.points.end(),
+                                                [](const auto& p) { return p.allFinite(); }));
+}
+
+// Wraps an estimator to keep its candidates (for max_results > 1) and to stop at the
+// deadline before starting.
+class RecordingEstimator final : public Estimator {
+ public:
+  RecordingEstimator(std::shared_ptr<Estimator> inner, std::shared_ptr<SceneContext> context)
+      : inner_(std::move(inner)), context_(std::move(context)) {}
+  Method method() const override { return inner_->method(); }
+  std::vector<Detection> Estimate(const EstimatorInput& input) override {
+    context_->CheckDeadline();
+    candidates_ = inner_->Estimate(input);
+    return candidates_;
+  }
+  const std::vector<Detection>& candidates() const { return candidates_; }
+
+ private:
+  std::shared_ptr<Estimator> inner_;
+  std::shared_ptr<SceneContext> context_;
+  std::vector<Detection> candidates_;
+};
+
+void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection* out) {
+  out->set_item(d.item);
+  *out->mutable_x_frame_item() = pc::PoseToProto(d.X_BaseItem);
+  out->set_score(d.score);
+  out->set_method(ToProto(d.method));
+  out->set_fitness(d.fitness);
+  out->set_inlier_rmse_m(d.inlier_rmse_m);
+  auto* t = out->mutable_timings();
+  t->set_preprocess_s(shared_preprocess_s + d.timings.preprocess_s);
+  t->set_match_s(d.timings.estimate_s);
+  t->set_refine_s(d.timings.refine_s);
+  t->set_verify_s(d.timings.verify_s);
+  t->set_total_s(shared_preprocess_s + d.timings.total_s);
+}
+
+// Poses closer than these are the same detection.
+bool SamePose(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, double diameter_m) {
+  const double dt = (a.translation() - b.translation()).norm();
+  const Eigen::AngleAxisd r(a.linear().transpose() * b.linear());
+  return dt < 0.1 * diameter_m && std::abs(r.angle()) < 0.3;
+}
+
+class DetectorServiceImpl final : public pb::DetectorService::Service {
+ public:
+  DetectorServiceImpl(std::shared_ptr<const ModelLibrary> library, ServiceSettings settings)
+      : library_(std::move(library)), settings_(settings) {}
+
+  grpc::Status Detect(grpc::ServerContext* ctx, grpc::ServerReader<pb::DetectRequest>* reader,
+                      pb::DetectResponse* response) override {
+    return runtime::Guard([&] {
+      const auto start = Clock::now();
+      pb::DetectRequest first;
+      if (!reader->Read(&first) || !first.has_params()) {
+        return runtime::InvalidArgument(
+            "the first message of a Detect stream must be `params` (then the cloud chunks)");
+      }
+      const pb::DetectParams params = first.params();
+      ValidateParams(params);
+      ReceivedScene received = ReadCloud(reader, settings_);
+      response->set_points_received(received.points_received);
+
+      geometry::PointCloud scene = std::move(received.cloud);
+      if (params.has_region()) scene = CropToRegion(scene, params.region());
+      response->set_points_after_preprocessing(CountFinite(scene));
+      const std::optional<PinholeCamera> camera = CameraFor(scene, received.X_BaseSensor);
+
+      auto context = std::make_shared<SceneContext>(scene, received.X_BaseSensor, camera);
+      context->set_deadline(SteadyDeadline(ctx));
+      const double shared_preprocess_s = SecondsSince(start);
+
+      for (const pb::ItemQuery& query : params.queries()) {
+        context->CheckDeadline();
+        pb::ItemResult* result = response->add_results();
+        result->set_item(query.item());
+        try {
+          DetectItem(query, scene, context, shared_preprocess_s, result);
+        } catch (const TimeoutError&) {
+          throw;
+        } catch (...) {
+          const grpc::Status status = runtime::StatusFromCurrentException();
+          result->mutable_status()->set_code(static_cast<int>(status.error_code()));
+          result->mutable_status()->set_message(status.error_message());
+        }
+        if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+      }
+      context->CheckDeadline();
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status Verify(grpc::ServerContext*, grpc::ServerReader<pb::VerifyRequest>* reader,
+                      pb::VerifyResponse* response) override {
+    return runtime::Guard([&] {
+      pb::VerifyRequest first;
+      if (!reader->Read(&first) || !first.has_params()) {
+        return runtime::InvalidArgument(
+            "the first message of a Verify stream must be `params` (then the cloud chunks)");
+      }
+      const pb::VerifyParams params = first.params();
+      if (params.item().empty()) throw std::invalid_argument("params.item is empty");
+      if (!params.has_x_frame_item()) throw std::invalid_argument("params.X_frame_item is unset");
+      const Eigen::Isometry3d X_BaseItem =
+          pc::PoseFromProto(params.x_frame_item(), "params.X_frame_item");
+      std::optional<Eigen::Isometry3d> X_BaseSensor;
+      if (params.has_x_frame_sensor()) {
+        X_BaseSensor = pc::PoseFromProto(params.x_frame_sensor(), "params.X_frame_sensor");
+      }
+      const auto model = library_->Get(params.item());  // NOT_FOUND for unknown items.
+      const ReceivedScene received = ReadCloud(reader, settings_);
+      if (!X_BaseSensor) X_BaseSensor = received.X_BaseSensor;
+      const PinholeCamera camera =
+          CameraFor(received.cloud, *X_BaseSensor).value_or(settings_.default_camera);
+      const VerificationScene scene(received.cloud, *X_BaseSensor, camera);
+      const VerifyResult r = detector::Verify(scene, model->object->icp_cloud(), X_BaseItem);
+      response->set_score(r.score);
+      response->set_visible_model_points(
+          static_cast<std::uint32_t>(r.num_visible - r.num_occluded));
+      response->set_supported_model_points(static_cast<std::uint32_t>(r.num_supported));
+      response->set_conflicting_model_points(static_cast<std::uint32_t>(r.num_conflicts));
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status ListModels(grpc::ServerContext*, const pb::ListModelsRequest*,
+                          pb::ListModelsResponse* response) override {
+    return runtime::Guard([&] {
+      // Models are built on first use: those not built yet report diameter_m and
+      // model_points 0.
+      for (const ModelSpec& spec : library_->manifest().models()) {
+        pb::ModelInfo* info = response->add_models();
+        info->set_item(spec.item);
+        info->set_source(spec.SourceKindName());
+        info->set_symmetry(spec.symmetry);
+        const ObjectConfig config = library_->ConfigFor(spec.item);
+        info->set_preferred_method(ToProto(config.preferred));
+        for (Method m : config.fallbacks) info->add_fallbacks(ToProto(m));
+        if (const auto model = library_->GetIfLoaded(spec.item)) {
+          info->set_diameter_m(model->object->diameter_m());
+          info->set_model_points(static_cast<std::uint32_t>(model->object->fine_cloud().size()));
+        }
+      }
+      response->set_cache_format_version(ObjectModel::kCacheVersion);
+      return grpc::Status::OK;
+    });
+  }
+
+ private:
+  static void ValidateParams(const pb::DetectParams& params) {
+    if (params.queries().empty()) throw std::invalid_argument("params.queries is empty");
+    for (int i = 0; i < params.queries_size(); ++i) {
+      const pb::ItemQuery& q = params.queries(i);
+      const std::string field = "params.queries[" + std::to_string(i) + "]";
+      if (q.item().empty()) throw std::invalid_argument(field + ".item is empty");
+      if (!pb::Method_IsValid(q.method())) {
+        throw std::invalid_argument(field + ".method: unknown value " + std::to_string(q.method()));
+      }
+      if (!(q.min_score() >= 0.0 && q.min_score() <= 1.0)) {
+        throw std::invalid_argument(field + ".min_score must be in [0, 1]");
+      }
+    }
+  }
+
+  static geometry::PointCloud CropToRegion(const geometry::PointCloud& scene,
+                                           const pb::Region& region) {
+    OrientedBox box;
+    box.X_BaseBox = pc::PoseFromProto(region.x_frame_region(), "params.region.X_frame_region");
+    box.size_m = pc::VectorFromProto(region.size_m(), "params.region.size_m");
+    try {
+      box.Validate();
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(std::string("params.region.size_m: ") + e.what());
+    }
+    if (!(region.wall_margin_m() >= 0.0) || 2.0 * region.wall_margin_m() >= box.size_m.minCoeff()) {
+      throw std::invalid_argument(
+          "params.region.wall_margin_m must be >= 0 and less than half the smallest box side");
+    }
+    geometry::PointCloud cropped = CropToBox(scene, box);
+    if (region.wall_margin_m() > 0.0) {
+      WallRemovalOptions walls;
+      walls.margin_m = region.wall_margin_m();
+      walls.faces = kAllFaces;
+      cropped = RemoveBoxWalls(cropped, box, walls);
+    }
+    if (CountFinite(cropped) == 0) {
+      throw std::invalid_argument("params.region: no point of the cloud lies inside the region");
+    }
+    return cropped;
+  }
+
+  std::optional<PinholeCamera> CameraFor(const geometry::PointCloud& scene,
+                                         const Eigen::Isometry3d& X_BaseSensor) const {
+    if (auto fitted = FitOrganizedIntrinsics(scene, X_BaseSensor)) return fitted;
+    return settings_.default_camera;
+  }
+
+  void DetectItem(const pb::ItemQuery& query, const geometry::PointCloud& scene,
+                  const std::shared_ptr<SceneContext>& context, double shared_preprocess_s,
+                  pb::ItemResult* result) const {
+    const auto model = library_->Get(query.item());  // NotFoundError: this item only.
+    ObjectConfig config = model->config;
+    config.item = query.item();
+    switch (query.method()) {
+      case pb::METHOD_PPF:
+        config.preferred = Method::kPpf;
+        config.fallbacks.clear();
+        break;
+      case pb::METHOD_SIFT:
+        config.preferred = Method::kSift;
+        config.fallbacks.clear();
+        break;
+      case pb::METHOD_RANGE_TEMPLATES:
+        config.preferred = Method::kRangeTemplates;
+        config.fallbacks.clear();
+        break;
+      default:
+        break;
+    }
+    if (query.min_score() > 0.0) {
+      config.thresholds.min_score = query.min_score();
+      for (auto& [method, thresholds] : config.method_thresholds) {
+        (void)method;
+        thresholds.min_score = query.min_score();
+      }
+    }
+    std::vector<std::shared_ptr<RecordingEstimator>> recorders;
+    std::vector<std::shared_ptr<Estimator>> estimators;
+    for (const auto& e : MakeEstimators(library_, context)) {
+      recorders.push_back(std::make_shared<RecordingEstimator>(e, context));
+      estimators.push_back(recorders.back());
+    }
+    const DetectionChain chain(DetectorConfig(config, {{config.item, config}}), estimators);
+    EstimatorInput input;
+    input.item = query.item();
+    input.scene = &scene;
+    input.X_BaseSensor = context->X_BaseSensor();
+    input.camera = context->camera();
+    const ChainResult chain_result = chain.Run(input);
+    context->CheckDeadline();  // An estimator stopped by the deadline is not "not found".
+
+    for (const ChainAttempt& attempt : chain_result.attempts) {
+      if (attempt.available) result->add_methods_tried(ToProto(attempt.method));
+      if (!attempt.error.empty()) {
+        runtime::LogWarning("detection method failed", {{"item", query.item()},
+                                                        {"method", ToString(attempt.method)},
+                                                        {"error", attempt.error}});
+      }
+    }
+    result->mutable_status()->set_code(0);
+    if (!chain_result.detection) return;
+    const Detection& best = *chain_result.detection;
+    const std::size_t max_results = query.max_results() == 0 ? 1 : query.max_results();
+    std::vector<Detection> accepted = {best};
+    const Thresholds& thresholds = config.ThresholdsFor(MethodFromString(best.method));
+    for (const auto& recorder : recorders) {
+      if (ToString(recorder->method()) != best.method) continue;
+      for (const Detection& d : recorder->candidates()) {
+        if (accepted.size() >= max_results) break;
+        if (!thresholds.Accepts(d)) continue;
+        const bool duplicate = std::any_of(accepted.begin(), accepted.end(), [&](const auto& a) {
+          return SamePose(a.X_BaseItem, d.X_BaseItem, model->object->diameter_m());
+        });
+        if (!duplicate) accepted.push_back(d);
+      }
+    }
+    for (const Detection& d : accepted) {
+      FillDetection(d, shared_preprocess_s, result->add_detections());
+    }
+  }
+
+  std::shared_ptr<const ModelLibrary> library_;
+  ServiceSettings settings_;
+};
 
 }  // namespace
 
 runtime::ServiceSet BuildDetectorServices(const runtime::Config& config) {
+  const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
+  const std::string manifest_path = config.GetString("models", data_dir + "/detector/models.json");
+  ModelLibraryOptions options;
+  options.cache_dir = config.GetString("cache_dir", DefaultDetectorCacheDir());
+  options.catalogue_path = config.GetString("catalogue", data_dir + "/apc2016/items/item_data.csv");
+  const bool preload = config.GetBool("preload", false);
+
+  ServiceSettings settings;
+  const long long max_points = config.GetInt("max_points", 5'000'000);
+  if (max_points < 1 || static_cast<std::uint64_t>(max_points) > pc::kMaxStreamPoints) {
+    throw std::invalid_argument("setting 'max_points' must be in [1, " +
+                                std::to_string(pc::kMaxStreamPoints) + "]");
+  }
+  settings.max_points = static_cast<std::uint64_t>(max_points);
+  PinholeCamera& camera = settings.default_camera;
+  camera.width = static_cast<int>(config.GetInt("camera.width", 640));
+  camera.height = static_cast<int>(config.GetInt("camera.height", 480));
+  camera.fx = config.GetDouble("camera.fx", 525.0);
+  camera.fy = config.GetDouble("camera.fy", 525.0);
+  camera.cx = config.GetDouble("camera.cx", 319.5);
+  camera.cy = config.GetDouble("camera.cy", 239.5);
+  try {
+    camera.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("settings 'camera.*': ") + e.what());
+  }
+
+  auto library = std::make_shared<const ModelLibrary>(
+      ModelManifest::LoadFile(manifest_path, data_dir), std::move(options));
+  if (preload) {
+    const auto start = Clock::now();
+    library->LoadAll();
+    runtime::LogInfo("models loaded",
+                     {{"count", std::to_string(library->manifest().models().size())},
+                      {"seconds", std::to_string(SecondsSince(start))}});
+  }
   runtime::ServiceSet set;
-  set.Add(std::make_shared<DetectorServiceImpl>(), v1::DetectorService::service_full_name());
+  set.Add(std::make_shared<DetectorServiceImpl>(std::move(library), settings),
+          pb::DetectorService::service_full_name());
   return set;
 }
 
