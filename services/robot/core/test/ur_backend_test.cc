@@ -143,6 +143,26 @@ TEST_F(UrBackendTest, GuardedMoveWithoutContactCompletes) {
   EXPECT_EQ(r.outcome, MotionOutcome::kCompleted) << r.message;
   request.force_threshold_n = -1.0;
   EXPECT_EQ(backend_->GuardedMove(request).outcome, MotionOutcome::kRejected);
+  request.force_threshold_n = 10.0;
+  request.direction_tcp = Eigen::Vector3d(0.0, 0.0, 2.0);  // not a unit vector
+  const MotionResult bad = backend_->GuardedMove(request);
+  EXPECT_EQ(bad.outcome, MotionOutcome::kRejected);
+  EXPECT_NE(bad.message.find("unit vector"), std::string::npos) << bad.message;
+}
+
+TEST_F(UrBackendTest, GuardedMoveFollowsTheRequestedToolDirection) {
+  PowerOn();
+  const Eigen::Isometry3d X = kin_.ForwardKinematics(fake_.q());
+  GuardedMoveRequest request;
+  request.direction_tcp = Eigen::Vector3d::UnitX();
+  request.max_distance_m = 0.03;
+  request.speed_m_s = 0.05;
+  const MotionResult r = backend_->GuardedMove(request);
+  ASSERT_EQ(r.outcome, MotionOutcome::kCompleted) << r.message;
+  const Eigen::Vector3d moved = r.final_state.X_BaseTool.translation() - X.translation();
+  // Along the tool's x axis, not its z axis.
+  EXPECT_GT(moved.dot(X.linear().col(0)), 0.02);
+  EXPECT_LT(std::abs(moved.dot(X.linear().col(2))), 0.005);
 }
 
 TEST_F(UrBackendTest, ProtectiveStopInterruptsAndResets) {
