@@ -212,6 +212,26 @@ TEST_F(ModelLibraryTest, ShapeModelHasTheCatalogueBoxAndRangeTemplates) {
   EXPECT_FALSE(model->templates->templates().empty());
 }
 
+TEST_F(ModelLibraryTest, ScannedApcModelIsInTheItemFrameWithSiftViewsAndTemplates) {
+  const ModelLibrary library(ModelManifest::LoadFile(kDataDir + "/detector/models.json", kDataDir),
+                             Options());
+  const auto eraser = library.Get("expo_dry_erase_board_eraser");
+  // Item frame of libs/world: centred on the bounding box, long side along x, short along z.
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(1e9f), hi = -lo;
+  for (const auto& p : eraser->object->fine_cloud().points) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const Eigen::Vector3f size = hi - lo;
+  EXPECT_LT(((hi + lo) / 2).norm(), 0.01);
+  EXPECT_GT(size.x(), size.y());
+  EXPECT_GT(size.y(), size.z());
+  // The scan is coloured and its chain has SIFT and range templates as fallbacks.
+  ASSERT_NE(eraser->sift, nullptr);
+  EXPECT_GT(eraser->sift->num_features(), 50u);
+  ASSERT_NE(eraser->templates, nullptr);
+}
+
 TEST(RenderSiftViewsTest, PixelsShowTheModelPointsTheyStore) {
   // A textured square 10 cm wide in the z = 0 plane with random grey blocks.
   geometry::PointCloud model;
