@@ -7,6 +7,7 @@ int main(int argc, char** argv) {
   spec.program = "picking-scanner";
   spec.service = "scanner";
   spec.description = "the scanner service of the picking cell (gRPC: picking.scanner.v1)";
+  spec.settings_help = picking::scanner::ScannerSettingsHelp();
   spec.build = picking::scanner::BuildScannerServices;
   return picking::runtime::RunServerMain(argc, argv, spec);
 }

@@ -1,17 +1,907 @@
 #include "services/scanner/service/scanner_service.h"
 
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <mutex>
+#include <optional>
+#include <regex>
+#include <sstream>
+#include <stdexcept>
+
+#include "libs/apc/catalogue.h"
+#include "libs/errors/errors.h"
+#include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/log.h"
+#include "libs/runtime/status.h"
+#include "services/scanner/core/aravis_camera.h"
+#include "services/scanner/core/calibration.h"
+#include "services/scanner/core/calibration_io.h"
+#include "services/scanner/core/calibration_shelf.h"
+#include "services/scanner/core/dlpc350.h"
+#include "services/scanner/core/merge.h"
+#include "services/scanner/core/replay_camera.h"
+#include "services/scanner/core/scan_pipeline.h"
+#include "services/scanner/core/sim_backends.h"
+#include "services/scanner/service/calibration_store.h"
+#include "services/scanner/service/sim_clients.h"
+
 namespace picking::scanner {
 namespace {
 
-// The contract is published in full; RPCs whose implementation has not landed answer
-// UNIMPLEMENTED (the generated base class's behaviour), never a made-up result.
-class ScannerServiceImpl final : public v1::ScannerService::Service {};
+namespace fs = std::filesystem;
+namespace pb = ::picking::scanner::v1;
+namespace pc = ::picking::proto_convert;
+
+constexpr int kMinCalibrationViews = 3;
+
+// Server-wide defaults of a scan, from the settings.
+struct ScanDefaults {
+  int min_contrast = 20;
+  int min_bit_contrast = 5;
+  double max_residual_m = 0.001;
+  double reference_distance_m = 1.0;  // Where max_residual_m is converted to projector px.
+  double min_depth_m = 0.1;
+  double max_depth_m = 3.0;
+  int normals_step = 2;
+  double exposure_us = 8000.0;
+  double frame_timeout_s = 2.0;
+};
+
+struct ServiceOptions {
+  ScanDefaults scan;
+  ChessboardSpec board;
+  ShelfTopModel shelf_top;
+  std::string sessions_dir;
+};
+
+camera::PinholeCamera ToPinhole(const CameraIntrinsics& c) {
+  camera::Distortion d;
+  d.k1 = c.distortion[0];
+  d.k2 = c.distortion[1];
+  d.p1 = c.distortion[2];
+  d.p2 = c.distortion[3];
+  d.k3 = c.distortion[4];
+  return camera::PinholeCamera(static_cast<int>(c.width), static_cast<int>(c.height), c.fx, c.fy,
+                               c.cx, c.cy, d);
+}
+
+pb::CameraIntrinsics IntrinsicsToProto(const CameraIntrinsics& c) {
+  pb::CameraIntrinsics out;
+  out.set_width(c.width);
+  out.set_height(c.height);
+  out.set_fx(c.fx);
+  out.set_fy(c.fy);
+  out.set_cx(c.cx);
+  out.set_cy(c.cy);
+  for (double k : c.distortion) out.add_distortion(k);
+  return out;
+}
+
+pb::CalibrationSet StateToProto(const CalibrationState& s) {
+  pb::CalibrationSet out;
+  if (s.camera) *out.mutable_camera() = IntrinsicsToProto(*s.camera);
+  if (s.projector) *out.mutable_projector() = IntrinsicsToProto(*s.projector);
+  if (s.X_CameraProjector)
+    *out.mutable_x_camera_projector() = pc::PoseToProto(*s.X_CameraProjector);
+  if (s.X_ToolCamera) *out.mutable_x_tool_camera() = pc::PoseToProto(*s.X_ToolCamera);
+  if (s.X_BaseShelf) *out.mutable_x_base_shelf() = pc::PoseToProto(*s.X_BaseShelf);
+  if (s.camera_calibrated) out.add_calibrated(pb::CALIBRATION_KIND_CAMERA);
+  if (s.projector_calibrated) out.add_calibrated(pb::CALIBRATION_KIND_PROJECTOR);
+  if (s.hand_eye_calibrated) out.add_calibrated(pb::CALIBRATION_KIND_HAND_EYE);
+  if (s.shelf_calibrated) out.add_calibrated(pb::CALIBRATION_KIND_SHELF_POSE);
+  return out;
+}
+
+// The scan pipeline of a calibration state, or null when camera, projector or their pose
+// are missing.
+std::shared_ptr<ScanPipeline> MakePipeline(const CalibrationState& s) {
+  if (!s.camera || !s.projector || !s.X_CameraProjector) return nullptr;
+  const camera::PinholeCamera projector = ToPinhole(*s.projector);
+  return std::make_shared<ScanPipeline>(
+      ScanCalibration{ToPinhole(*s.camera), projector, *s.X_CameraProjector, s.X_ToolCamera},
+      PatternSequence(projector.width(), projector.height()));
+}
+
+std::string PatternName(const PatternImage& p) {
+  switch (p.kind) {
+    case PatternImage::Kind::kWhite:
+      return "white";
+    case PatternImage::Kind::kBlack:
+      return "black";
+    case PatternImage::Kind::kColumnBit:
+    case PatternImage::Kind::kRowBit:
+      return std::string("pattern/") + (p.kind == PatternImage::Kind::kRowBit ? "row/" : "col/") +
+             std::to_string(p.bit) + (p.inverse ? "/inverse" : "");
+  }
+  return "unknown";
+}
+
+void CheckSessionName(const std::string& name) {
+  static const std::regex kPattern("[A-Za-z0-9_-]{1,64}");
+  if (!std::regex_match(name, kPattern)) {
+    throw std::invalid_argument("session '" + name + "' must match [A-Za-z0-9_-]{1,64}");
+  }
+}
+
+std::string ViewDirName(int index) {
+  std::ostringstream s;
+  s << "view_" << std::setw(3) << std::setfill('0') << index;
+  return s.str();
+}
+
+std::string ImageFileName(int index) {
+  std::ostringstream s;
+  s << "img_" << std::setw(2) << std::setfill('0') << index << ".png";
+  return s.str();
+}
+
+// A pose as one line "x y z qx qy qz qw" (metres, unit quaternion).
+void WritePoseFile(const std::string& path, const Eigen::Isometry3d& X) {
+  const Eigen::Quaterniond q(X.linear());
+  std::ofstream out(path);
+  out << std::setprecision(17) << X.translation().x() << ' ' << X.translation().y() << ' '
+      << X.translation().z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w()
+      << '\n';
+  if (!out) throw std::runtime_error("cannot write " + path);
+}
+
+std::optional<Eigen::Isometry3d> ReadPoseFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return std::nullopt;
+  double v[7];
+  for (double& x : v) {
+    if (!(in >> x) || !std::isfinite(x)) throw std::runtime_error(path + ": malformed pose");
+  }
+  const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  if (std::abs(q.norm() - 1.0) > 1e-3) throw std::runtime_error(path + ": quaternion not unit");
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = q.normalized().toRotationMatrix();
+  X.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+  return X;
+}
+
+bool IsImageFile(const fs::path& p) {
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
+  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" || ext == ".pgm";
+}
+
+std::vector<fs::path> SortedEntries(const fs::path& dir, bool directories) {
+  std::vector<fs::path> out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (directories ? e.is_directory() : (e.is_regular_file() && IsImageFile(e.path()))) {
+      out.push_back(e.path());
+    }
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// One stored calibration view: its folder, robot pose if known.
+struct StoredView {
+  std::string name;
+  fs::path dir;
+  std::optional<Eigen::Isometry3d> X_BaseTool;
+};
+
+class ScannerServiceImpl final : public pb::ScannerService::Service {
+ public:
+  ScannerServiceImpl(ServiceOptions options, CalibrationStore store,
+                     std::unique_ptr<CameraBackend> camera,
+                     std::unique_ptr<ProjectorBackend> projector,
+                     std::shared_ptr<SimSensorLink> sim_link,
+                     std::shared_ptr<SimulatorClient> simulator,
+                     std::shared_ptr<RobotPoseClient> robot)
+      : options_(std::move(options)),
+        store_(std::move(store)),
+        camera_(std::move(camera)),
+        projector_(std::move(projector)),
+        sim_link_(std::move(sim_link)),
+        simulator_(std::move(simulator)),
+        robot_(std::move(robot)) {
+    state_ = store_.Load();
+    pipeline_ = MakePipeline(state_);
+    devices_.camera = camera_.get();
+    devices_.projector = projector_.get();
+    auto* replay = dynamic_cast<ReplayCamera*>(camera_.get());
+    devices_.before_capture = [this, replay](const std::optional<Eigen::Isometry3d>& X_BaseTool) {
+      if (sim_link_) sim_link_->SetToolPose(X_BaseTool);
+      // A recording plays in a loop: start again when it cannot give a whole sequence.
+      if (replay && pipeline_ &&
+          replay->next_index() + pipeline_->patterns().num_images() > replay->image_count()) {
+        replay->Rewind();
+      }
+    };
+  }
+
+  grpc::Status Scan(grpc::ServerContext*, const pb::ScanRequest* request,
+                    grpc::ServerWriter<pb::ScanResponse>* writer) override {
+    return runtime::Guard([&] {
+      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
+      const ScanOptions options = ScanOptionsFrom(*request, *pipeline);
+      std::vector<ScanViewSpec> views;
+      for (int i = 0; i < request->views_size(); ++i) {
+        const auto& v = request->views(i);
+        ScanViewSpec spec;
+        if (v.has_x_base_tool()) {
+          spec.X_BaseTool =
+              pc::PoseFromProto(v.x_base_tool(), "views[" + std::to_string(i) + "].X_base_tool");
+        }
+        if (v.has_joints()) {
+          pc::JointsFromProto(v.joints(), "views[" + std::to_string(i) + "].joints");
+        }
+        views.push_back(spec);
+      }
+      if (views.empty()) views.emplace_back();
+      for (auto& v : views) {
+        if (!v.X_BaseTool) v.X_BaseTool = CurrentToolPose(options.frame == ScanFrame::kBase);
+      }
+      ConfigureCamera(0.0);
+      const ScanResult result =
+          pipeline->Run(devices_, views, options, [&](int view, int count, ScanStage stage) {
+            pb::ScanResponse progress;
+            progress.mutable_progress()->set_view_index(static_cast<std::uint32_t>(view));
+            progress.mutable_progress()->set_view_count(static_cast<std::uint32_t>(count));
+            progress.mutable_progress()->set_stage(ScanStageName(stage));
+            writer->Write(progress);
+          });
+      for (auto& chunk : pc::CloudToChunks(result.cloud)) {
+        pb::ScanResponse out;
+        *out.mutable_cloud() = std::move(chunk);
+        if (!writer->Write(out)) return grpc::Status(grpc::StatusCode::CANCELLED, "client gone");
+      }
+      pb::ScanResponse out;
+      auto* summary = out.mutable_summary();
+      summary->set_point_count(result.num_points);
+      for (const auto& v : result.views) {
+        summary->add_valid_fraction(v.valid_fraction);
+        *summary->add_x_frame_camera() = pc::PoseToProto(v.X_FrameCamera);
+      }
+      summary->set_capture_time_s(result.capture_time_s);
+      summary->set_processing_time_s(result.processing_time_s);
+      writer->Write(out);
+      runtime::LogInfo("scan", {{"views", std::to_string(result.views.size())},
+                                {"points", std::to_string(result.num_points)},
+                                {"capture_s", std::to_string(result.capture_time_s)},
+                                {"processing_s", std::to_string(result.processing_time_s)}});
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status CaptureImages(grpc::ServerContext*, const pb::CaptureImagesRequest* request,
+                             grpc::ServerWriter<common::v1::ImageChunk>* writer) override {
+    return runtime::Guard([&] {
+      if (!std::isfinite(request->exposure_s()) || request->exposure_s() < 0 ||
+          request->exposure_s() > 10.0) {
+        throw std::invalid_argument("exposure_s must be in [0, 10] seconds");
+      }
+      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
+      ConfigureCamera(request->exposure_s());
+      const std::vector<GrayImage> images =
+          pipeline->Capture(devices_, CurrentToolPose(/*required=*/false));
+      for (std::size_t i = 0; i < images.size(); ++i) {
+        pc::Image image;
+        image.width = images[i].width;
+        image.height = images[i].height;
+        image.name = PatternName(pipeline->patterns().Describe(static_cast<int>(i)));
+        image.index = static_cast<std::uint32_t>(i);
+        image.data = images[i].pixels;
+        for (const auto& chunk : pc::ImageToChunks(image)) {
+          if (!writer->Write(chunk))
+            return grpc::Status(grpc::StatusCode::CANCELLED, "client gone");
+        }
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status CaptureCalibrationView(grpc::ServerContext*,
+                                      const pb::CaptureCalibrationViewRequest* request,
+                                      pb::CaptureCalibrationViewResponse* response) override {
+    return runtime::Guard([&] {
+      CheckSessionName(request->session());
+      std::optional<Eigen::Isometry3d> X_BaseTool;
+      if (request->has_x_base_tool()) {
+        X_BaseTool = pc::PoseFromProto(request->x_base_tool(), "X_base_tool");
+      }
+      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
+      if (!X_BaseTool) X_BaseTool = CurrentToolPose(/*required=*/false);
+      ConfigureCamera(0.0);
+      const std::vector<GrayImage> images = pipeline->Capture(devices_, X_BaseTool);
+      const fs::path session = fs::path(options_.sessions_dir) / request->session();
+      fs::create_directories(session);
+      const int index = static_cast<int>(SortedEntries(session, true).size());
+      const fs::path tmp = session / (".tmp_" + ViewDirName(index));
+      fs::remove_all(tmp);
+      fs::create_directories(tmp);
+      for (std::size_t i = 0; i < images.size(); ++i) {
+        WriteGrayImage((tmp / ImageFileName(static_cast<int>(i))).string(), images[i]);
+      }
+      if (X_BaseTool) WritePoseFile((tmp / "X_base_tool.txt").string(), *X_BaseTool);
+      fs::rename(tmp, session / ViewDirName(index));
+      std::vector<Eigen::Vector2d> corners;
+      response->set_view_index(static_cast<std::uint32_t>(index));
+      response->set_chessboard_found(DetectChessboard(images[0], options_.board, &corners));
+      response->set_views_in_session(static_cast<std::uint32_t>(index + 1));
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status Calibrate(grpc::ServerContext*, const pb::CalibrateRequest* request,
+                         pb::CalibrateResponse* response) override {
+    return runtime::Guard([&] {
+      const ChessboardSpec board = BoardFrom(*request);
+      std::lock_guard<std::mutex> lock(calibration_mutex_);
+      switch (request->kind()) {
+        case pb::CALIBRATION_KIND_CAMERA:
+          CalibrateCameraKind(*request, board, response);
+          break;
+        case pb::CALIBRATION_KIND_PROJECTOR:
+          CalibrateProjectorKind(*request, board, response);
+          break;
+        case pb::CALIBRATION_KIND_HAND_EYE:
+          CalibrateHandEyeKind(*request, board, response);
+          break;
+        case pb::CALIBRATION_KIND_SHELF_POSE:
+          CalibrateShelfKind(*request, response);
+          break;
+        default:
+          throw std::invalid_argument("kind: unknown or unspecified calibration kind " +
+                                      std::to_string(request->kind()));
+      }
+      response->set_file_format_version(kCalibrationFormatVersion);
+      *response->mutable_calibration() = StateToProto(State());
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status GetCalibration(grpc::ServerContext*, const pb::GetCalibrationRequest*,
+                              pb::GetCalibrationResponse* response) override {
+    return runtime::Guard([&] {
+      *response->mutable_calibration() = StateToProto(State());
+      return grpc::Status::OK;
+    });
+  }
+
+ private:
+  CalibrationState State() {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    return state_;
+  }
+
+  std::shared_ptr<ScanPipeline> Pipeline() {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (!pipeline_) {
+      throw PreconditionError(
+          "no camera, projector or camera-projector calibration: nothing to scan with (see "
+          "calibration.dir " +
+          store_.dir() + ")");
+    }
+    return pipeline_;
+  }
+
+  // Makes `next` current: builds its pipeline first, so a state that cannot scan is refused
+  // before anything changes.
+  void MakeCurrent(const CalibrationState& next) {
+    std::shared_ptr<ScanPipeline> pipeline = MakePipeline(next);
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    state_ = next;
+    pipeline_ = std::move(pipeline);
+  }
+
+  // The flange pose now: robot service, else the simulated arm. nullopt if neither is
+  // configured and `required` is false.
+  std::optional<Eigen::Isometry3d> CurrentToolPose(bool required) {
+    if (robot_) return robot_->ToolPose();
+    if (simulator_) {
+      if (!required) return std::nullopt;  // The simulated camera asks the simulator itself.
+      return simulator_->ToolPose();
+    }
+    if (required) {
+      throw PreconditionError(
+          "a view has no X_base_tool and no robot service is configured (robot.address)");
+    }
+    return std::nullopt;
+  }
+
+  void ConfigureCamera(double exposure_s) {
+    CameraSettings settings;
+    settings.exposure_us = exposure_s > 0 ? exposure_s * 1e6 : options_.scan.exposure_us;
+    settings.frame_timeout_s = options_.scan.frame_timeout_s;
+    settings.trigger_mode = projector_ ? TriggerMode::kHardware : TriggerMode::kFreeRun;
+    try {
+      camera_->Configure(settings);
+    } catch (const CameraError& e) {
+      throw UnavailableError(std::string("camera: ") + e.what());
+    }
+  }
+
+  ScanOptions ScanOptionsFrom(const pb::ScanRequest& request, const ScanPipeline& pipeline) const {
+    const ScanDefaults& d = options_.scan;
+    const auto& dec = request.decode();
+    ScanOptions o;
+    if (dec.min_white_black_contrast() > 255) {
+      throw std::invalid_argument("decode.min_white_black_contrast must be <= 255");
+    }
+    if (dec.min_bit_contrast() > 255) {
+      throw std::invalid_argument("decode.min_bit_contrast must be <= 255");
+    }
+    if (!std::isfinite(dec.max_triangulation_residual_m()) ||
+        dec.max_triangulation_residual_m() < 0 || dec.max_triangulation_residual_m() > 1.0) {
+      throw std::invalid_argument("decode.max_triangulation_residual_m must be in [0, 1] m");
+    }
+    if (dec.min_neighbours() > 8) throw std::invalid_argument("decode.min_neighbours must be <= 8");
+    o.decode.min_contrast = dec.min_white_black_contrast()
+                                ? static_cast<int>(dec.min_white_black_contrast())
+                                : d.min_contrast;
+    o.decode.min_bit_contrast =
+        dec.min_bit_contrast() ? static_cast<int>(dec.min_bit_contrast()) : d.min_bit_contrast;
+    const double residual_m = dec.max_triangulation_residual_m() > 0
+                                  ? dec.max_triangulation_residual_m()
+                                  : d.max_residual_m;
+    o.triangulation.max_residual_projector_px =
+        residual_m * pipeline.calibration().projector.fx() / d.reference_distance_m;
+    o.triangulation.min_depth_m = d.min_depth_m;
+    o.triangulation.max_depth_m = d.max_depth_m;
+    o.triangulation.remove_isolated = dec.min_neighbours() > 0;
+    o.triangulation.min_neighbors = static_cast<int>(dec.min_neighbours());
+    o.normals.step = d.normals_step;
+    o.with_normals = request.with_normals();
+    o.with_intensities = request.with_intensities();
+    if (request.frame_id().empty() || request.frame_id() == "base") {
+      o.frame = ScanFrame::kBase;
+    } else if (request.frame_id() == "camera") {
+      o.frame = ScanFrame::kCamera;
+    } else {
+      throw std::invalid_argument("frame_id must be \"base\" or \"camera\", got \"" +
+                                  request.frame_id() + "\"");
+    }
+    if (!std::isfinite(request.merge_voxel_m()) || request.merge_voxel_m() < 0) {
+      throw std::invalid_argument("merge_voxel_m must be a finite number >= 0");
+    }
+    o.merge.voxel_m = request.merge_voxel_m();
+    if (request.has_crop()) {
+      const Eigen::Vector3d lo = pc::VectorFromProto(request.crop().min(), "crop.min");
+      const Eigen::Vector3d hi = pc::VectorFromProto(request.crop().max(), "crop.max");
+      o.crop = std::make_pair(lo, hi);
+    }
+    return o;
+  }
+
+  ChessboardSpec BoardFrom(const pb::CalibrateRequest& request) const {
+    ChessboardSpec board = options_.board;
+    if (request.has_board()) {
+      const auto& b = request.board();
+      if (b.inner_corners_cols() > 100 || b.inner_corners_rows() > 100) {
+        throw std::invalid_argument("board: at most 100 inner corners per side");
+      }
+      if (b.inner_corners_cols()) board.inner_corners_x = static_cast<int>(b.inner_corners_cols());
+      if (b.inner_corners_rows()) board.inner_corners_y = static_cast<int>(b.inner_corners_rows());
+      if (b.square_size_m() != 0.0) {
+        if (!(b.square_size_m() > 0 && b.square_size_m() <= 1.0)) {
+          throw std::invalid_argument("board.square_size_m must be in (0, 1]");
+        }
+        board.square_size_m = b.square_size_m();
+      }
+    }
+    board.Validate();
+    return board;
+  }
+
+  // The views of the request's source: a session's views, or one view per image / per
+  // subfolder of an image directory.
+  std::vector<StoredView> ViewsOf(const pb::CalibrateRequest& request, bool sequences) const {
+    std::vector<StoredView> views;
+    if (request.source_case() == pb::CalibrateRequest::kSession) {
+      CheckSessionName(request.session());
+      const fs::path dir = fs::path(options_.sessions_dir) / request.session();
+      if (!fs::is_directory(dir)) {
+        throw NotFoundError("calibration session '" + request.session() + "' does not exist");
+      }
+      for (const auto& v : SortedEntries(dir, true)) {
+        if (v.filename().string().rfind("view_", 0) != 0) continue;
+        views.push_back({v.filename().string(), v, ReadPoseFile((v / "X_base_tool.txt").string())});
+      }
+    } else if (request.source_case() == pb::CalibrateRequest::kImageDirectory) {
+      const fs::path dir = request.image_directory();
+      if (dir.empty() || !fs::is_directory(dir)) {
+        throw NotFoundError("image_directory '" + request.image_directory() +
+                            "' does not exist on the scanner host");
+      }
+      if (sequences) {
+        for (const auto& v : SortedEntries(dir, true)) {
+          views.push_back(
+              {v.filename().string(), v, ReadPoseFile((v / "X_base_tool.txt").string())});
+        }
+      } else {
+        for (const auto& f : SortedEntries(dir, false))
+          views.push_back({f.filename().string(), f, {}});
+      }
+    } else {
+      throw std::invalid_argument("source: give a session or an image_directory");
+    }
+    return views;
+  }
+
+  // The white image of a view (a single image file, or img_00 of a sequence folder).
+  static GrayImage WhiteImage(const StoredView& v) {
+    if (fs::is_directory(v.dir)) return ReadGrayImage((v.dir / ImageFileName(0)).string());
+    return ReadGrayImage(v.dir.string());
+  }
+
+  static std::vector<GrayImage> SequenceImages(const StoredView& v, int count) {
+    const std::vector<fs::path> files = SortedEntries(v.dir, false);
+    if (static_cast<int>(files.size()) != count) {
+      throw std::invalid_argument("view " + v.name + " holds " + std::to_string(files.size()) +
+                                  " images, the sequence has " + std::to_string(count));
+    }
+    std::vector<GrayImage> images;
+    for (const auto& f : files) images.push_back(ReadGrayImage(f.string()));
+    return images;
+  }
+
+  // Chessboard views with a detectable board; FAILED_PRECONDITION for fewer than 3.
+  std::vector<ChessboardView> BoardViews(const std::vector<StoredView>& views,
+                                         const ChessboardSpec& board,
+                                         std::vector<const StoredView*>* used) const {
+    std::vector<ChessboardView> out;
+    for (const auto& v : views) {
+      GrayImage image = WhiteImage(v);
+      std::vector<Eigen::Vector2d> corners;
+      if (!DetectChessboard(image, board, &corners)) continue;
+      out.push_back({v.name, std::move(image)});
+      if (used) used->push_back(&v);
+    }
+    if (static_cast<int>(out.size()) < kMinCalibrationViews) {
+      throw PreconditionError("calibration needs at least " + std::to_string(kMinCalibrationViews) +
+                              " views with the " + std::to_string(board.inner_corners_x) + " x " +
+                              std::to_string(board.inner_corners_y) + " chessboard in sight, got " +
+                              std::to_string(out.size()) + " of " + std::to_string(views.size()));
+    }
+    return out;
+  }
+
+  void CalibrateCameraKind(const pb::CalibrateRequest& request, const ChessboardSpec& board,
+                           pb::CalibrateResponse* response) {
+    const std::vector<StoredView> views = ViewsOf(request, /*sequences=*/false);
+    const std::vector<ChessboardView> board_views = BoardViews(views, board, nullptr);
+    CameraCalibrationOptions options;
+    options.board = board;
+    options.skip_views_without_board = true;
+    const CameraCalibrationResult result = CalibrateCamera(board_views, options);
+    CalibrationState next = State();
+    next.camera = result.intrinsics;
+    next.camera_calibrated = true;
+    MakePipeline(next);  // Throws (nothing saved) if the result cannot be used.
+    IntrinsicsFile file{result.intrinsics, {"", result.rms_px, "px"}};
+    response->set_calibration_file(store_.SaveIntrinsics(CalibrationKind::kCameraIntrinsics, file));
+    MakeCurrent(next);
+    response->set_rms_reprojection_error_px(result.rms_px);
+    for (double e : result.per_view_rms_px) response->add_per_view_error_px(e);
+    response->set_views_used(static_cast<std::uint32_t>(result.used_views.size()));
+  }
+
+  void CalibrateProjectorKind(const pb::CalibrateRequest& request, const ChessboardSpec& board,
+                              pb::CalibrateResponse* response) {
+    const CalibrationState current = State();
+    ProjectorCalibrationOptions options;
+    options.board = board;
+    if (current.projector) {
+      options.projector.width = current.projector->width;
+      options.projector.height = current.projector->height;
+    }
+    options.decode.min_contrast = options_.scan.min_contrast;
+    options.decode.min_bit_difference = options_.scan.min_bit_contrast;
+    ProjectorCalibrator calibrator(options);
+    const std::vector<StoredView> views = ViewsOf(request, /*sequences=*/true);
+    std::vector<std::string> skipped;
+    for (const auto& v : views) {
+      try {
+        calibrator.AddView(v.name, SequenceImages(v, options.projector.image_count()));
+      } catch (const std::invalid_argument& e) {
+        skipped.push_back(v.name);
+        runtime::LogWarning("projector calibration: view skipped",
+                            {{"view", v.name}, {"reason", e.what()}});
+      }
+    }
+    if (calibrator.view_count() < kMinCalibrationViews) {
+      throw PreconditionError("projector calibration needs at least " +
+                              std::to_string(kMinCalibrationViews) + " usable views, got " +
+                              std::to_string(calibrator.view_count()) + " of " +
+                              std::to_string(views.size()));
+    }
+    const ProjectorCalibrationResult result = calibrator.Calibrate();
+    CalibrationState next = current;
+    next.camera = result.camera;
+    next.projector = result.projector;
+    next.X_CameraProjector = result.X_CameraProjector;
+    next.camera_calibrated = true;
+    next.projector_calibrated = true;
+    MakePipeline(next);
+    store_.SaveIntrinsics(CalibrationKind::kCameraIntrinsics,
+                          {result.camera, {"", result.camera_rms_px, "px"}});
+    store_.SaveIntrinsics(CalibrationKind::kProjectorIntrinsics,
+                          {result.projector, {"", result.projector_rms_px, "px"}});
+    response->set_calibration_file(
+        store_.SavePose(CalibrationKind::kCameraProjectorExtrinsics,
+                        {result.X_CameraProjector, {"", result.stereo_rms_px, "px"}}));
+    MakeCurrent(next);
+    response->set_rms_reprojection_error_px(result.stereo_rms_px);
+    response->set_views_used(static_cast<std::uint32_t>(calibrator.view_count()));
+  }
+
+  void CalibrateHandEyeKind(const pb::CalibrateRequest& request, const ChessboardSpec& board,
+                            pb::CalibrateResponse* response) {
+    std::vector<StoredView> views;
+    for (auto& v : ViewsOf(request, /*sequences=*/true)) {
+      if (v.X_BaseTool) views.push_back(std::move(v));
+    }
+    std::vector<const StoredView*> used;
+    const std::vector<ChessboardView> board_views = BoardViews(views, board, &used);
+    CameraCalibrationOptions options;
+    options.board = board;
+    const CameraCalibrationResult camera = CalibrateCamera(board_views, options);
+    std::vector<Eigen::Isometry3d> X_BaseTool;
+    for (const StoredView* v : used) X_BaseTool.push_back(*v->X_BaseTool);
+    HandEyeResult result;
+    try {
+      result = CalibrateHandEye(X_BaseTool, camera.X_CameraBoard);
+    } catch (const std::invalid_argument& e) {
+      throw PreconditionError(std::string("hand-eye calibration: ") + e.what());
+    }
+    CalibrationState next = State();
+    next.X_ToolCamera = result.X_ToolCamera;
+    next.hand_eye_calibrated = true;
+    MakePipeline(next);
+    response->set_calibration_file(store_.SavePose(
+        CalibrationKind::kHandEye, {result.X_ToolCamera, {"", result.translation_rms_m, "m"}}));
+    MakeCurrent(next);
+    response->set_rms_reprojection_error_px(camera.rms_px);
+    for (double e : camera.per_view_rms_px) response->add_per_view_error_px(e);
+    response->set_views_used(static_cast<std::uint32_t>(used.size()));
+    response->set_residual_translation_m(result.translation_rms_m);
+    response->set_residual_rotation_rad(result.rotation_rms_rad);
+  }
+
+  void CalibrateShelfKind(const pb::CalibrateRequest& request, pb::CalibrateResponse* response) {
+    const CalibrationState current = State();
+    if (!current.X_ToolCamera) {
+      throw PreconditionError("shelf pose calibration needs the hand-eye calibration");
+    }
+    const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
+    ScanOptions options;
+    options.with_normals = false;
+    options.with_intensities = false;
+    options.decode.min_contrast = options_.scan.min_contrast;
+    options.decode.min_bit_contrast = options_.scan.min_bit_contrast;
+    options.triangulation.min_depth_m = options_.scan.min_depth_m;
+    options.triangulation.max_depth_m = options_.scan.max_depth_m;
+    std::vector<geometry::PointCloud> clouds;
+    for (const auto& v : ViewsOf(request, /*sequences=*/true)) {
+      if (!v.X_BaseTool) continue;
+      geometry::PointCloud cloud =
+          pipeline->ProcessView(SequenceImages(v, pipeline->patterns().num_images()), options);
+      TransformCloud(*v.X_BaseTool * *current.X_ToolCamera, "base", &cloud);
+      clouds.push_back(std::move(cloud));
+    }
+    if (clouds.empty()) {
+      throw PreconditionError("shelf pose calibration needs at least one view with its robot pose");
+    }
+    const geometry::PointCloud merged = MergeClouds(clouds).cloud;
+    ShelfPoseResult result;
+    try {
+      result = EstimateShelfPose(merged, options_.shelf_top);
+    } catch (const std::invalid_argument& e) {
+      throw PreconditionError(std::string("shelf pose: ") + e.what());
+    }
+    CalibrationState next = current;
+    next.X_BaseShelf = result.X_BaseShelf;
+    next.shelf_calibrated = true;
+    response->set_calibration_file(store_.SavePose(
+        CalibrationKind::kShelfPose, {result.X_BaseShelf, {"", result.fit_rms_m, "m"}}));
+    MakeCurrent(next);
+    response->set_views_used(static_cast<std::uint32_t>(clouds.size()));
+    response->set_residual_translation_m(result.fit_rms_m);
+    response->set_residual_rotation_rad(std::acos(
+        std::clamp(result.top_normal_Base.dot(result.X_BaseShelf.linear().col(2)), -1.0, 1.0)));
+  }
+
+  const ServiceOptions options_;
+  const CalibrationStore store_;
+  std::unique_ptr<CameraBackend> camera_;
+  std::unique_ptr<ProjectorBackend> projector_;
+  std::shared_ptr<SimSensorLink> sim_link_;
+  std::shared_ptr<SimulatorClient> simulator_;
+  std::shared_ptr<RobotPoseClient> robot_;
+  ScanDevices devices_;
+
+  std::mutex device_mutex_;       // One capture at a time.
+  std::mutex calibration_mutex_;  // One calibration at a time.
+  std::mutex state_mutex_;        // Guards state_ and pipeline_.
+  CalibrationState state_;
+  std::shared_ptr<ScanPipeline> pipeline_;
+};
+
+// The simulated sensor's true geometry: the nominal files.
+SimSensorModel LoadSimModel(const std::string& dir) {
+  const std::string base = dir + "/";
+  try {
+    SimSensorModel model{ToPinhole(LoadIntrinsics(base + "camera_intrinsics.json",
+                                                  CalibrationKind::kCameraIntrinsics)
+                                       .intrinsics),
+                         ToPinhole(LoadIntrinsics(base + "projector_intrinsics.json",
+                                                  CalibrationKind::kProjectorIntrinsics)
+                                       .intrinsics)};
+    model.X_CameraProjector =
+        LoadPose(base + "camera_projector.json", CalibrationKind::kCameraProjectorExtrinsics).pose;
+    model.X_ToolCamera = LoadPose(base + "hand_eye.json", CalibrationKind::kHandEye).pose;
+    return model;
+  } catch (const std::runtime_error& e) {
+    throw std::invalid_argument(std::string("setting 'sensor.nominal_dir': ") + e.what());
+  }
+}
+
+ShelfTopModel ShelfTopFrom(const std::vector<double>& v) {
+  if (v.size() != 12) {
+    throw std::invalid_argument("setting 'shelf.top_corners_m' needs 12 numbers (4 corners)");
+  }
+  ShelfTopModel m{Eigen::Vector3d(v[0], v[1], v[2]), Eigen::Vector3d(v[3], v[4], v[5]),
+                  Eigen::Vector3d(v[6], v[7], v[8]), Eigen::Vector3d(v[9], v[10], v[11])};
+  m.Validate();
+  return m;
+}
 
 }  // namespace
 
+std::vector<std::string> ScannerSettingsHelp() {
+  return {
+      "camera=sim|aravis|replay (default sim)",
+      "projector=sim|dlpc350|none (default: sim with camera=sim, none with replay, dlpc350 "
+      "with aravis)",
+      "sim.address=HOST:PORT of picking-simulator (default 127.0.0.1:50051)",
+      "sim.timeout_s, sim.ambient, sim.noise_sigma, sim.gamma, sim.seed: simulated rendering",
+      "robot.address=HOST:PORT of picking-robot for poses of views without one (default none)",
+      "robot.timeout_s=2",
+      "aravis.device=ID (default: first camera)",
+      "replay.dir=FOLDER of PNG frames (camera=replay)",
+      "dlpc350.device=/dev/hidrawN (projector=dlpc350)",
+      "calibration.dir=FOLDER of the current calibration files (default <data>/scanner)",
+      "sensor.nominal_dir=FOLDER of the nominal (simulated) sensor (default "
+      "<data>/scanner/sim_sensor)",
+      "decode.min_contrast=20, decode.min_bit_contrast=5, decode.max_residual_m=0.001, "
+      "decode.reference_distance_m=1",
+      "scan.min_depth_m=0.1, scan.max_depth_m=3, scan.normals_step=2",
+      "camera.exposure_us=8000, camera.frame_timeout_s=2",
+      "board.inner_corners_cols=9, board.inner_corners_rows=6, board.square_size_m=0.025",
+      "shelf.top_corners_m=12 numbers (shelf frame top corners)",
+  };
+}
+
 runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
+  const std::string data_dir = apc::DefaultDataDir();
+  const std::string camera_kind = config.GetString("camera", "sim");
+  const std::string default_projector = camera_kind == "sim"      ? "sim"
+                                        : camera_kind == "aravis" ? "dlpc350"
+                                                                  : "none";
+  const std::string projector_kind = config.GetString("projector", default_projector);
+  const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+  SimRenderSettings render;
+  render.timeout_s = config.GetDouble("sim.timeout_s", render.timeout_s);
+  render.ambient = config.GetDouble("sim.ambient", render.ambient);
+  render.noise_sigma = config.GetDouble("sim.noise_sigma", render.noise_sigma);
+  render.gamma = config.GetDouble("sim.gamma", render.gamma);
+  const long long sim_seed = config.GetInt("sim.seed", 1);
+  const std::string robot_address = config.GetString("robot.address", "");
+  const double robot_timeout_s = config.GetDouble("robot.timeout_s", 2.0);
+  const std::string aravis_device = config.GetString("aravis.device", "");
+  const std::string replay_dir = config.GetString("replay.dir", "");
+  const std::string dlpc350_device = config.GetString("dlpc350.device", "/dev/hidraw0");
+  const std::string calibration_dir =
+      config.GetString("calibration.dir", (fs::path(data_dir) / "scanner").string());
+  const std::string nominal_dir = config.GetString(
+      "sensor.nominal_dir", (fs::path(data_dir) / "scanner" / "sim_sensor").string());
+
+  ServiceOptions options;
+  ScanDefaults& d = options.scan;
+  d.min_contrast = static_cast<int>(config.GetInt("decode.min_contrast", d.min_contrast));
+  d.min_bit_contrast =
+      static_cast<int>(config.GetInt("decode.min_bit_contrast", d.min_bit_contrast));
+  d.max_residual_m = config.GetDouble("decode.max_residual_m", d.max_residual_m);
+  d.reference_distance_m = config.GetDouble("decode.reference_distance_m", d.reference_distance_m);
+  d.min_depth_m = config.GetDouble("scan.min_depth_m", d.min_depth_m);
+  d.max_depth_m = config.GetDouble("scan.max_depth_m", d.max_depth_m);
+  d.normals_step = static_cast<int>(config.GetInt("scan.normals_step", d.normals_step));
+  d.exposure_us = config.GetDouble("camera.exposure_us", d.exposure_us);
+  d.frame_timeout_s = config.GetDouble("camera.frame_timeout_s", d.frame_timeout_s);
+  options.board.inner_corners_x = static_cast<int>(config.GetInt("board.inner_corners_cols", 9));
+  options.board.inner_corners_y = static_cast<int>(config.GetInt("board.inner_corners_rows", 6));
+  options.board.square_size_m = config.GetDouble("board.square_size_m", 0.025);
+  // Kiva pod top face in the shelf frame (x to the shelf's right, y toward its back, z up).
+  options.shelf_top = ShelfTopFrom(config.GetDoubles(
+      "shelf.top_corners_m", {0.0, 0.0, 1.9, 0.87, 0.0, 1.9, 0.87, 0.87, 1.9, 0.0, 0.87, 1.9}));
+  options.sessions_dir = (fs::path(calibration_dir) / "sessions").string();
+
+  if (d.min_contrast < 0 || d.min_contrast > 255) {
+    throw std::invalid_argument("setting 'decode.min_contrast' must be in [0, 255]");
+  }
+  if (d.min_bit_contrast < 0 || d.min_bit_contrast > 255) {
+    throw std::invalid_argument("setting 'decode.min_bit_contrast' must be in [0, 255]");
+  }
+  if (!(d.max_residual_m > 0))
+    throw std::invalid_argument("setting 'decode.max_residual_m' must be > 0");
+  if (!(d.reference_distance_m > 0)) {
+    throw std::invalid_argument("setting 'decode.reference_distance_m' must be > 0");
+  }
+  if (!(d.min_depth_m > 0 && d.max_depth_m > d.min_depth_m)) {
+    throw std::invalid_argument(
+        "settings 'scan.min_depth_m' / 'scan.max_depth_m': need 0 < min < max");
+  }
+  if (d.normals_step < 1) throw std::invalid_argument("setting 'scan.normals_step' must be >= 1");
+  options.board.Validate();
+
+  std::shared_ptr<SimulatorClient> simulator;
+  std::shared_ptr<SimSensorLink> link;
+  std::unique_ptr<CameraBackend> camera;
+  std::unique_ptr<ProjectorBackend> projector;
+  if (camera_kind == "sim") {
+    if (projector_kind != "sim") {
+      throw std::invalid_argument("setting 'projector': camera=sim needs projector=sim");
+    }
+    simulator = std::make_shared<SimulatorClient>(sim_address, render);
+    link = std::make_shared<SimSensorLink>([simulator] { return simulator->ToolPose(); });
+    SimSensorModel model = LoadSimModel(nominal_dir);
+    const auto pw = static_cast<std::uint32_t>(model.projector.width());
+    const auto ph = static_cast<std::uint32_t>(model.projector.height());
+    camera = std::make_unique<SimCamera>(link, simulator, std::move(model),
+                                         static_cast<std::uint64_t>(sim_seed));
+    projector = std::make_unique<SimProjector>(link, pw, ph);
+  } else {
+    if (projector_kind == "sim") {
+      throw std::invalid_argument("setting 'projector': projector=sim needs camera=sim");
+    }
+    try {
+      if (camera_kind == "replay") {
+        if (replay_dir.empty())
+          throw std::invalid_argument("setting 'replay.dir' is required with camera=replay");
+        camera = std::make_unique<ReplayCamera>(replay_dir);
+      } else if (camera_kind == "aravis") {
+        camera = std::make_unique<AravisCamera>(aravis_device);
+      } else {
+        throw std::invalid_argument("setting 'camera' must be sim, aravis or replay, got '" +
+                                    camera_kind + "'");
+      }
+      if (projector_kind == "dlpc350") {
+        projector = std::make_unique<Dlpc350Projector>(
+            std::make_unique<dlpc350::HidrawTransport>(dlpc350_device));
+      } else if (projector_kind != "none") {
+        throw std::invalid_argument("setting 'projector' must be sim, dlpc350 or none, got '" +
+                                    projector_kind + "'");
+      }
+    } catch (const CameraError& e) {
+      throw std::runtime_error(std::string("camera: ") + e.what());
+    } catch (const ProjectorError& e) {
+      throw std::runtime_error(std::string("projector: ") + e.what());
+    }
+  }
+  std::shared_ptr<RobotPoseClient> robot;
+  if (!robot_address.empty())
+    robot = std::make_shared<RobotPoseClient>(robot_address, robot_timeout_s);
+
+  CalibrationStore store(calibration_dir, nominal_dir);
+  auto service = std::make_shared<ScannerServiceImpl>(
+      std::move(options), std::move(store), std::move(camera), std::move(projector),
+      std::move(link), std::move(simulator), std::move(robot));
+  runtime::LogInfo("scanner configured", {{"camera", camera_kind},
+                                          {"projector", projector_kind},
+                                          {"calibration.dir", calibration_dir}});
   runtime::ServiceSet set;
-  set.Add(std::make_shared<ScannerServiceImpl>(), v1::ScannerService::service_full_name());
+  set.Add(service, pb::ScannerService::service_full_name());
   return set;
 }
 

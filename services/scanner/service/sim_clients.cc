@@ -1,0 +1,169 @@
+#include "services/scanner/service/sim_clients.h"
+
+#include <grpcpp/client_context.h>
+#include <grpcpp/create_channel.h>
+#include <grpcpp/security/credentials.h>
+
+#include <chrono>
+#include <stdexcept>
+
+#include "libs/errors/errors.h"
+#include "libs/proto_convert/proto_convert.h"
+
+namespace picking::scanner {
+namespace {
+
+namespace pc = ::picking::proto_convert;
+namespace simpb = ::picking::simulator::v1;
+
+std::shared_ptr<grpc::Channel> MakeChannel(const std::string& address) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  args.SetMaxSendMessageSize(64 << 20);
+  return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+}
+
+void SetDeadline(grpc::ClientContext* ctx, double timeout_s) {
+  ctx->set_deadline(std::chrono::system_clock::now() +
+                    std::chrono::microseconds(static_cast<long long>(timeout_s * 1e6)));
+}
+
+[[noreturn]] void ThrowStatus(const grpc::Status& status, const std::string& what,
+                              const std::string& address) {
+  const std::string message = what + " at " + address + ": " + status.error_message();
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE ||
+      status.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED) {
+    throw UnavailableError(message);
+  }
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) {
+    throw PreconditionError(message);
+  }
+  throw std::runtime_error(message);
+}
+
+simpb::PinholeModel ToModel(const camera::PinholeCamera& c) {
+  simpb::PinholeModel m;
+  m.set_width(c.width());
+  m.set_height(c.height());
+  m.set_fx(c.fx());
+  m.set_fy(c.fy());
+  m.set_cx(c.cx());
+  m.set_cy(c.cy());
+  const auto& d = c.distortion();
+  if (!d.is_zero()) {
+    for (double k : {d.k1, d.k2, d.p1, d.p2, d.k3}) m.add_distortion(k);
+  }
+  return m;
+}
+
+}  // namespace
+
+SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSettings& settings)
+    : address_(address), settings_(settings) {
+  if (address_.empty()) throw std::invalid_argument("setting 'sim.address' is empty");
+  if (!(settings_.timeout_s > 0))
+    throw std::invalid_argument("setting 'sim.timeout_s' must be > 0");
+  stub_ = simpb::SimulatorService::NewStub(MakeChannel(address_));
+}
+
+std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& request) {
+  simpb::RenderPatternsRequest req;
+  *req.mutable_camera() = ToModel(request.camera);
+  *req.mutable_x_base_camera() = pc::PoseToProto(request.X_BaseCamera);
+  *req.mutable_projector() = ToModel(request.projector);
+  *req.mutable_x_base_projector() = pc::PoseToProto(request.X_BaseProjector);
+  for (const PatternImage& p : request.patterns) {
+    auto* pattern = req.add_patterns();
+    switch (p.kind) {
+      case PatternImage::Kind::kWhite:
+        pattern->set_solid_level(1.0);
+        break;
+      case PatternImage::Kind::kBlack:
+        pattern->set_solid_level(0.0);
+        break;
+      case PatternImage::Kind::kColumnBit:
+      case PatternImage::Kind::kRowBit: {
+        const bool rows = p.kind == PatternImage::Kind::kRowBit;
+        auto* stripe = pattern->mutable_gray_code();
+        stripe->set_rows(rows);
+        stripe->set_bit(static_cast<std::uint32_t>(p.bit));
+        stripe->set_bit_count(
+            static_cast<std::uint32_t>(rows ? request.row_bits : request.column_bits));
+        stripe->set_inverted(p.inverse);
+        break;
+      }
+    }
+  }
+  auto* options = req.mutable_options();
+  options->set_ambient(settings_.ambient);
+  options->set_noise_sigma(settings_.noise_sigma);
+  options->set_gamma(settings_.gamma);
+  options->set_exposure(request.exposure);
+  options->set_seed(request.seed);
+
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, settings_.timeout_s);
+  auto reader = stub_->RenderPatterns(&ctx, req);
+  pc::ImageAssembler assembler;
+  std::vector<GrayImage> images;
+  common::v1::ImageChunk chunk;
+  std::string stream_error;
+  while (reader->Read(&chunk)) {
+    if (!stream_error.empty()) continue;
+    try {
+      if (!assembler.Add(chunk)) continue;
+    } catch (const std::invalid_argument& e) {
+      stream_error = e.what();
+      ctx.TryCancel();
+      continue;
+    }
+    pc::Image image = assembler.TakeCompleted();
+    if (image.format != common::v1::PIXEL_FORMAT_MONO8) {
+      stream_error = "image '" + image.name + "' is not MONO8";
+      ctx.TryCancel();
+      continue;
+    }
+    GrayImage gray;
+    gray.width = image.width;
+    gray.height = image.height;
+    gray.pixels = std::move(image.data);
+    images.push_back(std::move(gray));
+  }
+  const grpc::Status status = reader->Finish();
+  if (!stream_error.empty()) {
+    throw std::runtime_error("RenderPatterns at " + address_ + ": " + stream_error);
+  }
+  if (!status.ok()) ThrowStatus(status, "RenderPatterns", address_);
+  return images;
+}
+
+Eigen::Isometry3d SimulatorClient::ToolPose() {
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, std::min(settings_.timeout_s, 5.0));
+  simpb::GetGroundTruthResponse response;
+  const grpc::Status status =
+      stub_->GetGroundTruth(&ctx, simpb::GetGroundTruthRequest(), &response);
+  if (!status.ok()) ThrowStatus(status, "GetGroundTruth", address_);
+  if (!response.has_x_base_tool()) {
+    throw PreconditionError("the simulator at " + address_ + " reports no arm pose yet");
+  }
+  return pc::PoseFromProto(response.x_base_tool(), "GetGroundTruth.X_base_tool");
+}
+
+RobotPoseClient::RobotPoseClient(const std::string& address, double timeout_s)
+    : address_(address), timeout_s_(timeout_s) {
+  if (address_.empty()) throw std::invalid_argument("setting 'robot.address' is empty");
+  if (!(timeout_s_ > 0)) throw std::invalid_argument("setting 'robot.timeout_s' must be > 0");
+  stub_ = robot::v1::RobotService::NewStub(MakeChannel(address_));
+}
+
+Eigen::Isometry3d RobotPoseClient::ToolPose() {
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, timeout_s_);
+  robot::v1::GetStateResponse response;
+  const grpc::Status status = stub_->GetState(&ctx, robot::v1::GetStateRequest(), &response);
+  if (!status.ok()) ThrowStatus(status, "robot GetState", address_);
+  return pc::PoseFromProto(response.x_base_tool(), "robot GetState.X_base_tool");
+}
+
+}  // namespace picking::scanner

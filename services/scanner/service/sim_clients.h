@@ -1,0 +1,55 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <memory>
+#include <string>
+
+#include "picking/robot/v1/robot.grpc.pb.h"
+#include "picking/simulator/v1/simulator.grpc.pb.h"
+#include "services/scanner/core/sim_backends.h"
+
+namespace picking::scanner {
+
+/// How the simulator renders the scanner's images (picking.simulator.v1.RenderOptions).
+struct SimRenderSettings {
+  double ambient = 0.03;     ///< Ambient light relative to the projector's white.
+  double noise_sigma = 1.0;  ///< Camera noise, grey levels.
+  double gamma = 1.0;        ///< Camera response gamma.
+  double timeout_s = 30.0;   ///< Deadline of one RenderPatterns call, seconds.
+};
+
+/// PatternRenderer served by picking-simulator's RenderPatterns, plus the simulated arm's
+/// pose from GetGroundTruth. An unreachable simulator or a call past its deadline throws
+/// picking::UnavailableError naming the address; other refusals std::runtime_error with the
+/// simulator's message.
+class SimulatorClient final : public PatternRenderer {
+ public:
+  /// @throws std::invalid_argument for an empty address or a non-positive timeout.
+  SimulatorClient(const std::string& address, const SimRenderSettings& settings);
+
+  std::vector<GrayImage> Render(const PatternRenderRequest& request) override;
+  /// X_BaseTool of the simulated arm now.
+  Eigen::Isometry3d ToolPose();
+
+ private:
+  std::string address_;
+  SimRenderSettings settings_;
+  std::unique_ptr<simulator::v1::SimulatorService::Stub> stub_;
+};
+
+/// The robot service's current flange pose (picking.robot.v1 GetState).
+class RobotPoseClient final {
+ public:
+  /// @throws std::invalid_argument for an empty address or a non-positive timeout.
+  RobotPoseClient(const std::string& address, double timeout_s);
+  /// Throws picking::UnavailableError when the robot service cannot be reached.
+  Eigen::Isometry3d ToolPose();
+
+ private:
+  std::string address_;
+  double timeout_s_;
+  std::unique_ptr<robot::v1::RobotService::Stub> stub_;
+};
+
+}  // namespace picking::scanner
