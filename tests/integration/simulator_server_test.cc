@@ -2,6 +2,15 @@
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "tests/harness/server_process.h"
 #include "tests/harness/service_checks.h"
@@ -9,7 +18,29 @@
 namespace picking::testing {
 namespace {
 
+namespace sim = ::picking::simulator::v1;
+namespace common = ::picking::common::v1;
+
 const char kBinary[] = "picking-simulator";
+const std::vector<double> kHome = {0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0};
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string TaskJson(const std::string& name) {
+  return ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/" + name + ".json");
+}
+
+// A task JSON with `bin_a` (a JSON array text) in bin_A and every other bin empty.
+std::string TaskWithBinA(const std::string& bin_a) {
+  std::string json = "{\"bin_contents\": {\"bin_A\": " + bin_a;
+  for (char b = 'B'; b <= 'L'; ++b) json += std::string(", \"bin_") + b + "\": []";
+  return json + "}, \"tote_contents\": []}";
+}
 
 TEST(SimulatorServerTest, ServesHealthAndReflectionAndStopsCleanly) {
   ExpectStandardServerBehaviour(ServerBinary(kBinary), "picking.simulator.v1.SimulatorService",
@@ -18,15 +49,400 @@ TEST(SimulatorServerTest, ServesHealthAndReflectionAndStopsCleanly) {
 
 TEST(SimulatorServerTest, RejectsBadFlags) { ExpectRejectsBadFlags(ServerBinary(kBinary)); }
 
-TEST(SimulatorServerTest, UnfinishedRpcAnswersUnimplemented) {
-  ServerProcess server(ServerBinary(kBinary));
-  auto stub = simulator::v1::SimulatorService::NewStub(server.Channel());
+TEST(SimulatorServerTest, RefusesAnUnreadableLayoutSetting) {
+  const ProgramResult r =
+      RunProgram(ServerBinary(kBinary), {"--listen=127.0.0.1:0", "--layout=/nonexistent.json"});
+  EXPECT_EQ(r.exit_status, 2) << r.output;
+  EXPECT_NE(r.output.find("layout"), std::string::npos) << r.output;
+}
+
+TEST(SimulatorServerTest, LoadsTheLayoutSettingAtStart) {
+  ServerProcess server(ServerBinary(kBinary), {"--layout=" + std::string(PICKING_DATA_DIR) +
+                                                   "/apc2016/tasks/pick_layout_2.json",
+                                               "--seed=5"});
+  auto stub = sim::SimulatorService::NewStub(server.Channel());
   grpc::ClientContext ctx;
-  simulator::v1::GetCellRequest request;
-  simulator::v1::GetCellResponse response;
-  const grpc::Status status = stub->GetCell(&ctx, request, &response);
-  EXPECT_EQ(status.error_code(), grpc::StatusCode::UNIMPLEMENTED) << status.error_message();
+  sim::GetGroundTruthResponse truth;
+  ASSERT_TRUE(stub->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth).ok());
+  EXPECT_GT(truth.items_size(), 20);
   EXPECT_EQ(server.Stop(), 0);
+}
+
+// One server for the RPC tests; each test loads the layout it needs.
+class SimulatorRpcTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { server_ = new ServerProcess(ServerBinary(kBinary)); }
+  static void TearDownTestSuite() {
+    EXPECT_EQ(server_->Stop(), 0);
+    delete server_;
+  }
+  SimulatorRpcTest() : stub_(sim::SimulatorService::NewStub(server_->Channel())) {}
+
+  grpc::Status Load(const std::string& json, std::uint64_t seed,
+                    sim::LoadLayoutResponse* out = nullptr) {
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest req;
+    req.set_task_json(json);
+    req.set_seed(seed);
+    sim::LoadLayoutResponse response;
+    return stub_->LoadLayout(&ctx, req, out ? out : &response);
+  }
+  sim::GetGroundTruthResponse Truth() {
+    grpc::ClientContext ctx;
+    sim::GetGroundTruthResponse truth;
+    EXPECT_TRUE(stub_->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth).ok());
+    return truth;
+  }
+  grpc::Status SetJoints(const std::vector<double>& q, sim::SetArmJointsResponse* out) {
+    grpc::ClientContext ctx;
+    sim::SetArmJointsRequest req;
+    for (double v : q) req.mutable_joints()->add_positions_rad(v);
+    return stub_->SetArmJoints(&ctx, req, out);
+  }
+  sim::GetCellResponse Cell() {
+    grpc::ClientContext ctx;
+    sim::GetCellResponse cell;
+    EXPECT_TRUE(stub_->GetCell(&ctx, sim::GetCellRequest(), &cell).ok());
+    return cell;
+  }
+
+  static ServerProcess* server_;
+  std::unique_ptr<sim::SimulatorService::Stub> stub_;
+};
+ServerProcess* SimulatorRpcTest::server_ = nullptr;
+
+TEST_F(SimulatorRpcTest, LoadLayoutPlacesEveryItemOfTheTaskReproducibly) {
+  sim::LoadLayoutResponse a, b, c;
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 11, &a).ok());
+  // pick_layout_1 holds 46 items in the bins and none in the tote.
+  ASSERT_EQ(a.items_size(), 46);
+  std::multiset<std::string> names;
+  for (const auto& s : a.items()) {
+    EXPECT_GE(s.container(), common::CONTAINER_BIN_A);
+    EXPECT_LE(s.container(), common::CONTAINER_BIN_L);
+    names.insert(s.item().name());
+  }
+  EXPECT_EQ(names.count("staples_index_cards"), 2u);
+  EXPECT_EQ(names.count("kleenex_tissue_box"), 1u);
+  // Instances number the copies of one item 0, 1, ...
+  std::set<std::uint32_t> instances;
+  for (const auto& s : a.items()) {
+    if (s.item().name() == "staples_index_cards") instances.insert(s.item().instance());
+  }
+  EXPECT_EQ(instances, (std::set<std::uint32_t>{0, 1}));
+
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 11, &b).ok());
+  EXPECT_EQ(a.SerializeAsString(), b.SerializeAsString()) << "same seed, same layout";
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 12, &c).ok());
+  EXPECT_NE(a.SerializeAsString(), c.SerializeAsString()) << "another seed, another layout";
+  // Ground truth agrees with the answer and has no events after a fresh load.
+  const auto truth = Truth();
+  ASSERT_EQ(truth.items_size(), c.items_size());
+  EXPECT_EQ(truth.events_size(), 0);
+}
+
+TEST_F(SimulatorRpcTest, CellHasTwelveBinsOpeningTowardTheRobot) {
+  const auto cell = Cell();
+  ASSERT_EQ(cell.bins_size(), 12);
+  for (int i = 0; i < 12; ++i) {
+    const auto& bin = cell.bins(i);
+    EXPECT_EQ(bin.bin(), common::CONTAINER_BIN_A + i);
+    // The APC 2016 pod: bins 0.25-0.30 m wide, 0.22-0.27 m tall, about 0.43 m deep.
+    EXPECT_GT(bin.size_m().x(), 0.35);
+    EXPECT_LT(bin.size_m().x(), 0.5);
+    EXPECT_GT(bin.size_m().y(), 0.2);
+    EXPECT_LT(bin.size_m().y(), 0.33);
+    EXPECT_GT(bin.size_m().z(), 0.18);
+    EXPECT_LT(bin.size_m().z(), 0.3);
+    // In front of the robot: the opening at about 0.81 m, centres between it and the pod's back.
+    EXPECT_GT(bin.x_base_bin().position().x(), 0.85);
+    EXPECT_LT(bin.x_base_bin().position().x(), 1.25);
+  }
+  // bin_A is the top left seen from the robot (+y), bin_L the bottom right.
+  EXPECT_GT(cell.bins(0).x_base_bin().position().y(), 0.2);
+  EXPECT_LT(cell.bins(11).x_base_bin().position().y(), -0.2);
+  EXPECT_GT(cell.bins(0).x_base_bin().position().z(), cell.bins(11).x_base_bin().position().z());
+  EXPECT_GT(cell.tote_inner_size_m().x(), 0.3);
+  EXPECT_GT(cell.tote_inner_size_m().z(), 0.1);
+  EXPECT_LT(cell.x_base_tote().position().y(), 0.0);  // to the robot's right
+  EXPECT_GT(cell.x_base_table().position().y(), 0.0);
+}
+
+TEST_F(SimulatorRpcTest, ArmPlacementReportsCollisionsWithTheShelfOnce) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  sim::SetArmJointsResponse placed;
+  ASSERT_TRUE(SetJoints(kHome, &placed).ok());
+  EXPECT_FALSE(placed.in_collision()) << placed.collision_detail();
+  auto truth = Truth();
+  ASSERT_EQ(truth.arm_joints().positions_rad_size(), 6);
+  for (int i = 0; i < 6; ++i) EXPECT_DOUBLE_EQ(truth.arm_joints().positions_rad(i), kHome[i]);
+  EXPECT_EQ(truth.x_base_tool().SerializeAsString(), placed.x_base_tool().SerializeAsString());
+
+  // Turned toward the shelf and stretched out low: the arm is in the pod's solid base.
+  const std::vector<double> into_shelf = {M_PI, 0.0, 0.0, 0.0, 0.0, 0.0};
+  ASSERT_TRUE(SetJoints(into_shelf, &placed).ok());
+  EXPECT_TRUE(placed.in_collision());
+  EXPECT_NE(placed.collision_detail().find("shelf"), std::string::npos)
+      << placed.collision_detail();
+  // The cup 0.35 m from the flange, which is at (1.1843, 0.2561, 0.0116) (the DH chain at
+  // zero turned by pi about z).
+  const auto& cup = placed.x_base_tool().position();
+  EXPECT_NEAR(std::hypot(cup.x() - 1.1843, cup.y() - 0.2561, cup.z() - 0.0116), 0.35, 1e-3);
+  ASSERT_TRUE(SetJoints(into_shelf, &placed).ok());  // still in collision: no new event
+  ASSERT_TRUE(SetJoints(kHome, &placed).ok());
+  EXPECT_FALSE(placed.in_collision());
+  truth = Truth();
+  int collisions = 0;
+  for (const auto& e : truth.events()) {
+    if (e.kind() == sim::EVENT_KIND_COLLISION) {
+      ++collisions;
+      EXPECT_NE(e.detail().find("shelf"), std::string::npos);
+    }
+  }
+  EXPECT_EQ(collisions, 1);
+}
+
+TEST_F(SimulatorRpcTest, ProbeFindsTheShelfAndItemsAlongTheToolAxis) {
+  ASSERT_TRUE(Load(TaskWithBinA("[\"kleenex_tissue_box\"]"), 2).ok());
+  const auto cell = Cell();
+  const auto truth = Truth();
+  ASSERT_EQ(truth.items_size(), 1);
+  const auto& box = truth.items(0).x_base_item().position();
+  // Flange 0.5 m in front of the box centre, its z axis (the cup's) along +x of base:
+  // a rotation of +90 deg about y.
+  sim::ProbeContactRequest req;
+  auto* pose = req.mutable_x_base_tool();
+  pose->mutable_position()->set_x(box.x() - 0.35 - 0.5);
+  pose->mutable_position()->set_y(box.y());
+  pose->mutable_position()->set_z(box.z());
+  pose->mutable_orientation()->set_w(std::sqrt(0.5));
+  pose->mutable_orientation()->set_y(std::sqrt(0.5));
+  req.mutable_direction_tcp()->set_z(1.0);
+  req.set_max_distance_m(1.0);
+  sim::ProbeContactResponse probe;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
+  }
+  EXPECT_TRUE(probe.contact());
+  EXPECT_EQ(probe.item().name(), "kleenex_tissue_box");
+  EXPECT_GT(probe.distance_m(), 0.3);  // the box's front face, less than its half length away
+  EXPECT_LT(probe.distance_m(), 0.5);
+  EXPECT_GT(probe.stiffness_n_per_m(), 0.0);
+
+  // Straight down into the empty bin_B: its floor.
+  const auto& bin = cell.bins(1);
+  pose->mutable_position()->set_x(bin.x_base_bin().position().x());
+  pose->mutable_position()->set_y(bin.x_base_bin().position().y());
+  pose->mutable_position()->set_z(bin.x_base_bin().position().z() + 0.45);
+  pose->mutable_orientation()->set_w(0.0);
+  pose->mutable_orientation()->set_y(0.0);
+  pose->mutable_orientation()->set_x(1.0);  // z of the tool points down
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
+  }
+  EXPECT_TRUE(probe.contact());
+  EXPECT_EQ(probe.surface(), "shelf");
+  EXPECT_TRUE(probe.item().name().empty());
+  // From the cup 0.1 m above the bin centre to the floor half a bin height below.
+  EXPECT_NEAR(probe.distance_m(), 0.1 + 0.5 * bin.size_m().z(), 0.02);
+
+  // Short of everything: no contact.
+  req.set_max_distance_m(0.05);
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
+  }
+  EXPECT_FALSE(probe.contact());
+}
+
+TEST_F(SimulatorRpcTest, SuctionInFreeAirDoesNotSeal) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  sim::SetArmJointsResponse placed;
+  ASSERT_TRUE(SetJoints(kHome, &placed).ok());
+  sim::SetSuctionRequest on;
+  on.set_on(true);
+  sim::SetSuctionResponse r;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub_->SetSuction(&ctx, on, &r).ok());
+  }
+  EXPECT_FALSE(r.sealed());
+  EXPECT_TRUE(r.attached_item().name().empty());
+  EXPECT_GT(r.vacuum_kpa(), 0.0);
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub_->SetSuction(&ctx, sim::SetSuctionRequest(), &r).ok());  // off
+  }
+  EXPECT_FALSE(r.has_released());
+  EXPECT_EQ(r.vacuum_kpa(), 0.0);
+  EXPECT_TRUE(Truth().attached_item().name().empty());
+}
+
+// A camera and a projector 0.6 m above the base, 0.6 m in front of the bins, looking along +x.
+sim::RenderPatternsRequest ShelfView() {
+  sim::RenderPatternsRequest req;
+  auto model = [](sim::PinholeModel* m, int w, int h, double f) {
+    m->set_width(w);
+    m->set_height(h);
+    m->set_fx(f);
+    m->set_fy(f);
+    m->set_cx(0.5 * (w - 1));
+    m->set_cy(0.5 * (h - 1));
+  };
+  model(req.mutable_camera(), 160, 120, 150.0);
+  model(req.mutable_projector(), 128, 96, 110.0);
+  // Camera axes in base: x = -y_base, y = -z_base, z = +x_base: quaternion (0.5, -0.5, 0.5, -0.5).
+  auto pose = [](common::Pose* p, double y) {
+    p->mutable_position()->set_x(0.2);
+    p->mutable_position()->set_y(y);
+    p->mutable_position()->set_z(0.6);
+    p->mutable_orientation()->set_w(0.5);
+    p->mutable_orientation()->set_x(-0.5);
+    p->mutable_orientation()->set_y(0.5);
+    p->mutable_orientation()->set_z(-0.5);
+  };
+  pose(req.mutable_x_base_camera(), 0.0);
+  pose(req.mutable_x_base_projector(), 0.1);
+  req.mutable_options()->set_ambient(0.05);
+  return req;
+}
+
+struct Rendered {
+  grpc::Status status;
+  std::vector<common::ImageHeader> headers;
+  std::vector<std::string> pixels;
+};
+
+Rendered Render(sim::SimulatorService::Stub* stub, const sim::RenderPatternsRequest& req) {
+  Rendered out;
+  grpc::ClientContext ctx;
+  auto reader = stub->RenderPatterns(&ctx, req);
+  common::ImageChunk chunk;
+  while (reader->Read(&chunk)) {
+    if (chunk.has_header()) {
+      out.headers.push_back(chunk.header());
+      out.pixels.emplace_back();
+    }
+    if (out.pixels.empty()) continue;
+    EXPECT_EQ(chunk.row_offset() * out.headers.back().width(), out.pixels.back().size());
+    out.pixels.back() += chunk.data();
+  }
+  out.status = reader->Finish();
+  return out;
+}
+
+double Mean(const std::string& pixels) {
+  double sum = 0.0;
+  for (unsigned char c : pixels) sum += c;
+  return pixels.empty() ? 0.0 : sum / pixels.size();
+}
+
+TEST_F(SimulatorRpcTest, RenderPatternsShowsWhereTheProjectorLightsTheScene) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  auto req = ShelfView();
+  req.add_patterns()->set_solid_level(1.0);
+  req.add_patterns()->set_solid_level(0.0);
+  auto* stripes = req.add_patterns()->mutable_gray_code();
+  stripes->set_bit(0);
+  req.add_patterns()->set_mono8(std::string(128 * 96, '\xff'));
+  const Rendered r = Render(stub_.get(), req);
+  ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+  ASSERT_EQ(r.headers.size(), 4u);
+  for (std::size_t i = 0; i < r.headers.size(); ++i) {
+    EXPECT_EQ(r.headers[i].width(), 160u);
+    EXPECT_EQ(r.headers[i].height(), 120u);
+    EXPECT_EQ(r.headers[i].index(), i);
+    EXPECT_EQ(r.headers[i].format(), common::PIXEL_FORMAT_MONO8);
+    ASSERT_EQ(r.pixels[i].size(), 160u * 120u);
+  }
+  EXPECT_EQ(r.headers[2].name(), "pattern/col/0");
+  const double white = Mean(r.pixels[0]), black = Mean(r.pixels[1]), half = Mean(r.pixels[2]);
+  EXPECT_GT(white, black + 30.0) << "white " << white << " black " << black;
+  // The most significant column bit lights about half of the projector.
+  EXPECT_GT(half, black + 0.2 * (white - black));
+  EXPECT_LT(half, white - 0.2 * (white - black));
+  EXPECT_EQ(r.pixels[3], r.pixels[0]) << "mono8 white equals the solid white frame";
+}
+
+TEST_F(SimulatorRpcTest, RefusedRequestsNameTheProblemAndChangeNothing) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  sim::SetArmJointsResponse placed;
+  ASSERT_TRUE(SetJoints(kHome, &placed).ok());
+  const std::string before = Truth().SerializeAsString();
+
+  grpc::Status s = Load(TaskWithBinA("[\"no_such_item\"]"), 1);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_NE(s.error_message().find("no_such_item"), std::string::npos) << s.error_message();
+
+  s = Load("{\"bin_contents\": {\"bin_A\": [}", 1);  // malformed JSON
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("line"), std::string::npos) << s.error_message();
+
+  s = Load("{\"bin_contents\": {\"bin_A\": []}, \"tote_contents\": []}", 1);  // bins missing
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("bin_contents"), std::string::npos) << s.error_message();
+
+  std::string many = "[";
+  for (int i = 0; i < 12; ++i) many += std::string(i ? ", " : "") + "\"kleenex_paper_towels\"";
+  s = Load(TaskWithBinA(many + "]"), 1);  // twelve paper towel rolls in one bin
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(s.error_message().find("bin_A"), std::string::npos) << s.error_message();
+
+  s = Load(TaskJson("pick_layout_1"), std::uint64_t(1) << 40);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("seed"), std::string::npos) << s.error_message();
+
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  s = SetJoints({0, nan, 0, 0, 0, 0}, &placed);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = SetJoints({0, 0, 0, 0, 0}, &placed);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = SetJoints({0, -1.5, 4.0, 0, 0, 0}, &placed);  // elbow beyond +-pi
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("elbow"), std::string::npos) << s.error_message();
+
+  sim::ProbeContactRequest probe;
+  probe.mutable_direction_tcp()->set_z(2.0);  // not a unit vector
+  probe.set_max_distance_m(0.1);
+  sim::ProbeContactResponse contact;
+  {
+    grpc::ClientContext ctx;
+    s = stub_->ProbeContact(&ctx, probe, &contact);
+  }
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("direction_tcp"), std::string::npos);
+  probe.mutable_direction_tcp()->set_z(1.0);
+  probe.set_max_distance_m(-1.0);
+  {
+    grpc::ClientContext ctx;
+    s = stub_->ProbeContact(&ctx, probe, &contact);
+  }
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  auto render = ShelfView();
+  render.add_patterns()->set_mono8("too short");
+  Rendered r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(r.status.error_message().find("patterns[0].mono8"), std::string::npos);
+  EXPECT_TRUE(r.headers.empty());
+  render = ShelfView();
+  render.mutable_camera()->set_width(0);
+  render.add_patterns()->set_solid_level(1.0);
+  r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(r.status.error_message().find("camera"), std::string::npos);
+  render = ShelfView();
+  render.add_patterns()->set_solid_level(1.5);
+  r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  render = ShelfView();
+  render.add_patterns()->mutable_gray_code()->set_bit(12);  // 128 columns need 7 bits
+  r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  EXPECT_EQ(Truth().SerializeAsString(), before) << "a refused request changed the world";
 }
 
 }  // namespace

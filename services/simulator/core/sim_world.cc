@@ -147,6 +147,11 @@ void SimWorld::SetJointPositions(const ur10::JointVector& q_rad) {
   q_rad_ = q_rad;
 }
 
+const ur10::Ur10Kinematics& SimWorld::kinematics() const {
+  if (!kinematics_) throw std::logic_error("SimWorld: no UR10 kinematics");
+  return *kinematics_;
+}
+
 const RayScene& SimWorld::ItemScene() const {
   if (!item_scene_) {
     auto scene = std::make_unique<RayScene>();
@@ -201,6 +206,50 @@ GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
   X.translation() += travel * z;
   SetToolPose(X);
   return result;
+}
+
+ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTool,
+                            const Eigen::Vector3d& direction_Base, double max_distance_m) const {
+  ValidatePose(X_BaseTool, "Probe");
+  if (!direction_Base.allFinite() || direction_Base.norm() < 1e-9) {
+    throw std::invalid_argument("Probe: direction must be finite and non-zero");
+  }
+  if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
+    throw std::invalid_argument("Probe: max_distance_m must be positive and finite");
+  }
+  const RayScene& scene = ItemScene();
+  const Eigen::Vector3d d = direction_Base.normalized();
+  const Eigen::Vector3d x = X_BaseTool.linear().col(0), y = X_BaseTool.linear().col(1);
+  std::optional<RayHit> first;
+  for (int k = -1; k < options_.rim_samples; ++k) {
+    Eigen::Vector3d p = X_BaseTool.translation();
+    if (k >= 0) {
+      const double a = 2 * M_PI * k / options_.rim_samples;
+      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
+    }
+    const auto hit = scene.Cast(p, d, max_distance_m, attached_ == 0 ? -1 : attached_);
+    if (hit && (!first || hit->distance_m < first->distance_m)) first = hit;
+  }
+  ProbeResult result;
+  if (!first) return result;
+  result.contact = true;
+  result.distance_m = first->distance_m;
+  result.item_id = first->object_id > 0 ? first->object_id : 0;
+  result.object = first->object_id > 0           ? item(first->object_id).name
+                  : first->object_id == kShelfId ? "shelf"
+                  : first->object_id == kToteId  ? "tote"
+                                                 : "table";
+  result.p_BaseContact = first->p_BaseHit;
+  result.n_Base = first->n_Base;
+  return result;
+}
+
+void SimWorld::LogCollision(const std::string& detail) {
+  Event e;
+  e.sequence = events_.size() + 1;
+  e.kind = EventKind::kCollision;
+  e.detail = detail;
+  events_.push_back(e);
 }
 
 SuctionResult SimWorld::SuctionOn() {

@@ -39,11 +39,12 @@ struct ItemState {
 };
 
 enum class EventKind {
-  kAttached,  ///< The suction cup sealed on the item; it follows the tool.
-  kReleased,  ///< The item left the gripper and fell `drop_height_m` onto `container`.
-  kDropped,   ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
-  kFell,      ///< The item lost its support (e.g. the item below was picked) and settled.
-  kOutside,   ///< The item came to rest outside every bin, the tote, the table and gripper.
+  kAttached,   ///< The suction cup sealed on the item; it follows the tool.
+  kReleased,   ///< The item left the gripper and fell `drop_height_m` onto `container`.
+  kDropped,    ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
+  kFell,       ///< The item lost its support (e.g. the item below was picked) and settled.
+  kOutside,    ///< The item came to rest outside every bin, the tote, the table and gripper.
+  kCollision,  ///< The arm, tool or carried item hit the cell (see Event::detail).
 };
 
 /// One entry of the event log.
@@ -54,10 +55,12 @@ struct Event {
   std::string item_name;
   std::string container;       ///< Where the item is after the event.
   double drop_height_m = 0.0;  ///< kReleased / kDropped / kFell: height of the fall.
+  std::string detail;          ///< kCollision: what hit what.
 
   bool operator==(const Event& o) const {
     return sequence == o.sequence && kind == o.kind && item_id == o.item_id &&
-           item_name == o.item_name && container == o.container && drop_height_m == o.drop_height_m;
+           item_name == o.item_name && container == o.container &&
+           drop_height_m == o.drop_height_m && detail == o.detail;
   }
 };
 
@@ -106,6 +109,16 @@ struct GuardedMoveResult {
   Eigen::Vector3d p_BaseContact = Eigen::Vector3d::Zero();  ///< First contact point.
 };
 
+/// Where the cup first touches along a straight motion (SimWorld::Probe).
+struct ProbeResult {
+  bool contact = false;     ///< A surface lies within the probed distance.
+  double distance_m = 0.0;  ///< Travel until the first lip or centre point touches.
+  int item_id = 0;          ///< Item touched (0: none or a static object).
+  std::string object;       ///< Item name, "shelf", "tote", "table", or empty.
+  Eigen::Vector3d p_BaseContact = Eigen::Vector3d::Zero();  ///< First contact point.
+  Eigen::Vector3d n_Base = Eigen::Vector3d::Zero();         ///< Surface normal there.
+};
+
 /// Result of switching the vacuum on.
 struct SuctionResult {
   bool sealed = false;       ///< Every lip point met one flat surface facing the cup.
@@ -152,6 +165,16 @@ class SimWorld final {
   /// Throws std::invalid_argument for a non-positive or non-finite distance.
   GuardedMoveResult GuardedMove(double max_distance_m);
 
+  /// Where the cup (centre and lip points) at X_BaseTool first touches a surface when moved
+  /// along the unit `direction_Base` by up to `max_distance_m` (> 0); the attached item is
+  /// ignored. Changes nothing. Throws std::invalid_argument for a bad pose, a non-finite or
+  /// zero direction or a non-positive distance.
+  ProbeResult Probe(const Eigen::Isometry3d& X_BaseTool, const Eigen::Vector3d& direction_Base,
+                    double max_distance_m) const;
+
+  /// Appends a kCollision event with `detail` (the arm is checked by ArmCollisionChecker).
+  void LogCollision(const std::string& detail);
+
   /// Vacuum on: seals if the lip meets one flat surface facing the cup; a sealed item is
   /// attached (it follows the tool, X_ToolItem kept). Already attached: returns the seal.
   SuctionResult SuctionOn();
@@ -186,6 +209,9 @@ class SimWorld final {
   const world::CellModel& cell() const { return cell_; }
   const world::ItemModelLibrary& models() const { return *models_; }
   const SimOptions& options() const { return options_; }
+  bool has_kinematics() const { return kinematics_ != nullptr; }
+  /// The UR10 kinematics given at construction; throws std::logic_error without.
+  const ur10::Ur10Kinematics& kinematics() const;
   /// The model of an item instance.
   const world::ItemModel& model(int item_id) const;
 

@@ -1,17 +1,637 @@
 #include "services/simulator/service/simulator_service.h"
 
+#include <grpcpp/server_context.h>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdint>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "libs/apc/catalogue.h"
+#include "libs/apc/task.h"
+#include "libs/camera/pinhole_camera.h"
+#include "libs/errors/errors.h"
+#include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/status.h"
+#include "libs/ur10/ur10_model.h"
+#include "libs/world/mesh_utils.h"
+
 namespace picking::simulator {
 namespace {
 
-// The contract is published in full; RPCs whose implementation has not landed answer
-// UNIMPLEMENTED (the generated base class's behaviour), never a made-up result.
-class SimulatorServiceImpl final : public v1::SimulatorService::Service {};
+namespace pb = ::picking::simulator::v1;
+namespace common = ::picking::common::v1;
+namespace pc = ::picking::proto_convert;
+
+constexpr std::uint32_t kMaxImageSide = 16384;
+constexpr std::uint32_t kMaxGrayBits = 16;
+
+std::string Num(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+// Names a catalogue item that the task JSON mentions but the catalogue does not know, with
+// its field; empty if there is none (or the JSON is not even well-formed).
+std::string FindUnknownItem(const std::string& json_text, const apc::Catalogue& catalogue) {
+  const nlohmann::json doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
+  if (!doc.is_object()) return {};
+  auto check = [&](const nlohmann::json& list, const std::string& field) -> std::string {
+    if (!list.is_array()) return {};
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      if (list[i].is_string() && !catalogue.contains(list[i].get<std::string>())) {
+        return field + "[" + std::to_string(i) + "]: unknown item \"" + list[i].get<std::string>() +
+               "\"";
+      }
+    }
+    return {};
+  };
+  if (auto it = doc.find("bin_contents"); it != doc.end() && it->is_object()) {
+    for (auto bin = it->begin(); bin != it->end(); ++bin) {
+      if (std::string m = check(bin.value(), "bin_contents." + bin.key()); !m.empty()) return m;
+    }
+  }
+  if (auto it = doc.find("tote_contents"); it != doc.end()) {
+    if (std::string m = check(*it, "tote_contents"); !m.empty()) return m;
+  }
+  if (auto it = doc.find("work_order"); it != doc.end() && it->is_array()) {
+    for (std::size_t i = 0; i < it->size(); ++i) {
+      const auto& entry = (*it)[i];
+      if (entry.is_object() && entry.contains("item") && entry["item"].is_string() &&
+          !catalogue.contains(entry["item"].get<std::string>())) {
+        return "work_order[" + std::to_string(i) + "].item: unknown item \"" +
+               entry["item"].get<std::string>() + "\"";
+      }
+    }
+  }
+  return {};
+}
+
+// Parses task JSON: NotFoundError for an unknown item, std::invalid_argument (naming the
+// field, or the line and column) for anything else wrong.
+apc::Task ParseTaskJson(const std::string& json_text, const apc::Catalogue& catalogue,
+                        const std::string& source) {
+  try {
+    return apc::ParseTask(json_text, catalogue, source);
+  } catch (const apc::TaskFileError& e) {
+    const std::string unknown = FindUnknownItem(json_text, catalogue);
+    if (!unknown.empty()) throw NotFoundError(source + ": " + unknown);
+    throw std::invalid_argument(e.what());
+  }
+}
+
+// Loads `task` into the world: ResourceExhaustedError naming the bin when items do not fit,
+// NotFoundError for an item without a model.
+void LoadTaskInto(SimWorld& world, const apc::Task& task, std::uint64_t seed) {
+  if (seed > std::numeric_limits<std::uint32_t>::max()) {
+    throw std::invalid_argument("seed must be below 2^32, got " + std::to_string(seed));
+  }
+  try {
+    world.LoadTask(task, static_cast<std::uint32_t>(seed));
+  } catch (const LayoutError& e) {
+    throw ResourceExhaustedError(e.what());
+  } catch (const apc::UnknownItemError& e) {
+    throw NotFoundError(e.what());
+  }
+}
+
+std::array<double, 6> ToArray(const ur10::JointVector& q) {
+  std::array<double, 6> a{};
+  for (int i = 0; i < 6; ++i) a[i] = q[i];
+  return a;
+}
+
+// 0-based instance of each item among the items of the same name, in id order.
+std::map<int, std::uint32_t> Instances(const std::vector<ItemState>& items) {
+  std::map<int, const ItemState*> by_id;
+  for (const ItemState& s : items) by_id[s.id] = &s;
+  std::map<std::string, std::uint32_t> count;
+  std::map<int, std::uint32_t> out;
+  for (const auto& [id, s] : by_id) out[id] = count[s->name]++;
+  return out;
+}
+
+common::ItemRef ItemRefOf(const std::string& name, std::uint32_t instance) {
+  common::ItemRef ref;
+  ref.set_name(name);
+  ref.set_instance(instance);
+  return ref;
+}
+
+pb::ItemState ItemStateToProto(const ItemState& s, std::uint32_t instance) {
+  pb::ItemState out;
+  *out.mutable_item() = ItemRefOf(s.name, instance);
+  *out.mutable_x_base_item() = pc::PoseToProto(s.X_BaseItem);
+  out.set_container(pc::ContainerFromName(s.container));
+  return out;
+}
+
+pb::EventKind EventKindToProto(EventKind kind) {
+  switch (kind) {
+    case EventKind::kAttached:
+      return pb::EVENT_KIND_ATTACHED;
+    case EventKind::kReleased:
+      return pb::EVENT_KIND_RELEASED;
+    case EventKind::kDropped:
+      return pb::EVENT_KIND_DROPPED_HIGH;
+    case EventKind::kFell:
+      return pb::EVENT_KIND_FELL;
+    case EventKind::kOutside:
+      return pb::EVENT_KIND_OUTSIDE;
+    case EventKind::kCollision:
+      return pb::EVENT_KIND_COLLISION;
+  }
+  throw std::logic_error("unhandled simulator event kind");
+}
+
+camera::PinholeCamera PinholeFromProto(const pb::PinholeModel& m, const std::string& field) {
+  if (m.width() == 0 || m.height() == 0 || m.width() > kMaxImageSide ||
+      m.height() > kMaxImageSide) {
+    throw std::invalid_argument(field + ": width and height must be in [1, " +
+                                std::to_string(kMaxImageSide) + "], got " +
+                                std::to_string(m.width()) + " x " + std::to_string(m.height()));
+  }
+  if (m.distortion_size() > 5) {
+    throw std::invalid_argument(field + ".distortion: at most 5 coefficients (k1, k2, p1, p2, k3)");
+  }
+  camera::Distortion d;
+  const double k[5] = {m.distortion_size() > 0 ? m.distortion(0) : 0.0,
+                       m.distortion_size() > 1 ? m.distortion(1) : 0.0,
+                       m.distortion_size() > 2 ? m.distortion(2) : 0.0,
+                       m.distortion_size() > 3 ? m.distortion(3) : 0.0,
+                       m.distortion_size() > 4 ? m.distortion(4) : 0.0};
+  d.k1 = k[0];
+  d.k2 = k[1];
+  d.p1 = k[2];
+  d.p2 = k[3];
+  d.k3 = k[4];
+  try {
+    return camera::PinholeCamera(static_cast<int>(m.width()), static_cast<int>(m.height()), m.fx(),
+                                 m.fy(), m.cx(), m.cy(), d);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(field + ": " + e.what());
+  }
+}
+
+// Gray-code image as the scanner projects it (services/scanner/core/patterns.h): projector
+// column c is lit iff bit (bit_count - 1 - bit) of GrayEncode(c) is 1; rows likewise.
+GrayImage GrayCodeImage(const pb::GrayCodeStripe& g, int width, int height,
+                        const std::string& field) {
+  const int count = g.rows() ? height : width;
+  std::uint32_t bits = g.bit_count();
+  if (bits == 0) {
+    while ((1u << bits) < static_cast<std::uint32_t>(count)) ++bits;
+  }
+  if (bits > kMaxGrayBits || (1u << bits) < static_cast<std::uint32_t>(count)) {
+    throw std::invalid_argument(field + ".bit_count: " + std::to_string(g.bit_count()) +
+                                " bits cannot number " + std::to_string(count) +
+                                (g.rows() ? " rows" : " columns"));
+  }
+  if (g.bit() >= bits) {
+    throw std::invalid_argument(field + ".bit: " + std::to_string(g.bit()) + " is not below " +
+                                std::to_string(bits));
+  }
+  const std::uint32_t shift = bits - 1 - g.bit();
+  std::vector<std::uint8_t> line(static_cast<std::size_t>(count));
+  for (int c = 0; c < count; ++c) {
+    const std::uint32_t gray = static_cast<std::uint32_t>(c) ^ (static_cast<std::uint32_t>(c) >> 1);
+    const bool lit = ((gray >> shift) & 1u) != g.inverted();
+    line[c] = lit ? 255 : 0;
+  }
+  GrayImage image(width, height);
+  for (int v = 0; v < height; ++v) {
+    for (int u = 0; u < width; ++u) image.at(u, v) = g.rows() ? line[v] : line[u];
+  }
+  return image;
+}
+
+struct PatternImage {
+  GrayImage image;
+  std::string name;
+};
+
+PatternImage PatternFromProto(const pb::ProjectorPattern& p, int width, int height,
+                              const std::string& field) {
+  switch (p.kind_case()) {
+    case pb::ProjectorPattern::kSolidLevel: {
+      const double level = p.solid_level();
+      if (!std::isfinite(level) || level < 0.0 || level > 1.0) {
+        throw std::invalid_argument(field + ".solid_level must be in [0, 1], got " + Num(level));
+      }
+      return {GrayImage(width, height, static_cast<std::uint8_t>(std::lround(255.0 * level))),
+              "solid/" + Num(level)};
+    }
+    case pb::ProjectorPattern::kGrayCode: {
+      const auto& g = p.gray_code();
+      return {GrayCodeImage(g, width, height, field + ".gray_code"),
+              std::string("pattern/") + (g.rows() ? "row/" : "col/") + std::to_string(g.bit()) +
+                  (g.inverted() ? "/inverse" : "")};
+    }
+    case pb::ProjectorPattern::kMono8: {
+      const std::string& bytes = p.mono8();
+      if (bytes.size() != static_cast<std::size_t>(width) * height) {
+        throw std::invalid_argument(field + ".mono8 has " + std::to_string(bytes.size()) +
+                                    " bytes, the projector needs " + std::to_string(width) + " x " +
+                                    std::to_string(height));
+      }
+      GrayImage image(width, height);
+      std::copy(bytes.begin(), bytes.end(), image.pixels.begin());
+      return {std::move(image), "mono8"};
+    }
+    case pb::ProjectorPattern::KIND_NOT_SET:
+      break;
+  }
+  throw std::invalid_argument(field + ": no pattern set (solid_level, gray_code or mono8)");
+}
+
+RenderOptions RenderOptionsFromProto(const pb::RenderOptions& o) {
+  auto check = [](double v, const char* field, bool allow_zero) {
+    if (!std::isfinite(v) || v < 0.0 || (!allow_zero && v == 0.0)) {
+      throw std::invalid_argument(std::string("options.") + field +
+                                  " must be finite and >= 0, got " + Num(v));
+    }
+  };
+  check(o.ambient(), "ambient", true);
+  check(o.noise_sigma(), "noise_sigma", true);
+  check(o.gamma(), "gamma", true);
+  check(o.exposure(), "exposure", true);
+  RenderOptions r;
+  r.ambient = o.ambient();
+  r.read_noise_dn = o.noise_sigma();
+  r.electrons_per_dn = 0.0;  // The contract's noise is one Gaussian sigma in grey levels.
+  r.camera_gamma = o.gamma() == 0.0 ? 1.0 : o.gamma();
+  r.exposure = o.exposure() == 0.0 ? 1.0 : o.exposure();
+  r.seed = o.seed();
+  r.Validate();
+  return r;
+}
+
+class SimulatorServiceImpl final : public pb::SimulatorService::Service {
+ public:
+  SimulatorServiceImpl(std::unique_ptr<SimWorld> world,
+                       std::unique_ptr<ArmCollisionChecker> collisions,
+                       const SimulatorServiceOptions& options)
+      : world_(std::move(world)), collisions_(std::move(collisions)), options_(options) {
+    if (!world_) throw std::invalid_argument("SimulatorService: null world");
+    if (!collisions_) throw std::invalid_argument("SimulatorService: null collision checker");
+    options_.Validate();
+  }
+
+  grpc::Status LoadLayout(grpc::ServerContext*, const pb::LoadLayoutRequest* request,
+                          pb::LoadLayoutResponse* response) override {
+    return runtime::Guard([&] {
+      const apc::Task task =
+          ParseTaskJson(request->task_json(), world_->models().catalogue(), "task_json");
+      std::lock_guard<std::mutex> lock(mutex_);
+      LoadTaskInto(*world_, task, request->seed());
+      in_collision_ = false;
+      const auto instances = Instances(world_->items());
+      for (const ItemState& s : world_->items()) {
+        *response->add_items() = ItemStateToProto(s, instances.at(s.id));
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status GetGroundTruth(grpc::ServerContext*, const pb::GetGroundTruthRequest*,
+                              pb::GetGroundTruthResponse* response) override {
+    return runtime::Guard([&] {
+      std::lock_guard<std::mutex> lock(mutex_);
+      const auto instances = Instances(world_->items());
+      for (const ItemState& s : world_->items()) {
+        *response->add_items() = ItemStateToProto(s, instances.at(s.id));
+      }
+      for (const Event& e : world_->events()) {
+        auto* out = response->add_events();
+        out->set_kind(EventKindToProto(e.kind));
+        out->set_sequence(e.sequence);
+        out->set_drop_height_m(e.drop_height_m);
+        if (e.item_id != 0) {
+          const auto it = instances.find(e.item_id);
+          *out->mutable_item() = ItemRefOf(e.item_name, it == instances.end() ? 0 : it->second);
+        }
+        out->set_detail(e.kind == EventKind::kCollision ? e.detail
+                        : e.container.empty()           ? std::string()
+                                                        : "now in " + e.container);
+      }
+      const SimState state = world_->state();
+      if (state.q_rad) *response->mutable_arm_joints() = pc::JointsToProto(ToArray(*state.q_rad));
+      *response->mutable_x_base_tool() = pc::PoseToProto(state.X_BaseTool);
+      if (state.attached_item_id != 0) {
+        *response->mutable_attached_item() = ItemRefOf(world_->item(state.attached_item_id).name,
+                                                       instances.at(state.attached_item_id));
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status GetCell(grpc::ServerContext*, const pb::GetCellRequest*,
+                       pb::GetCellResponse* response) override {
+    return runtime::Guard([&] {
+      std::lock_guard<std::mutex> lock(mutex_);
+      const world::CellModel& cell = world_->cell();
+      const Eigen::Isometry3d& X_BaseShelf = cell.config.X_BaseShelf;
+      *response->mutable_x_base_shelf() = pc::PoseToProto(X_BaseShelf);
+      for (const world::BinGeometry& bin : cell.bins) {
+        auto* out = response->add_bins();
+        out->set_bin(pc::ContainerFromName(bin.name));
+        *out->mutable_x_base_bin() =
+            pc::PoseToProto(X_BaseShelf * Eigen::Translation3d(bin.inner_S.center()));
+        *out->mutable_size_m() = pc::VectorToProto(bin.inner_S.sizes());
+      }
+      // The tote's inner box: its mesh bounds less the wall (as the layout uses it).
+      const Eigen::AlignedBox3d tote = world::Bounds(cell.tote);
+      constexpr double kToteWallM = 0.015;
+      const Eigen::AlignedBox3d inner(tote.min() + Eigen::Vector3d(kToteWallM, kToteWallM, 0.0),
+                                      tote.max() - Eigen::Vector3d(kToteWallM, kToteWallM, 0.0));
+      *response->mutable_x_base_tote() =
+          pc::PoseToProto(cell.config.X_BaseTote * Eigen::Translation3d(inner.center()));
+      *response->mutable_tote_inner_size_m() = pc::VectorToProto(inner.sizes());
+      *response->mutable_x_base_table() = pc::PoseToProto(cell.config.X_BaseTable);
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status SetArmJoints(grpc::ServerContext*, const pb::SetArmJointsRequest* request,
+                            pb::SetArmJointsResponse* response) override {
+    return runtime::Guard([&] {
+      const std::array<double, 6> a = pc::JointsFromProto(request->joints(), "joints");
+      ur10::JointVector q;
+      for (int i = 0; i < 6; ++i) q[i] = a[i];
+      const ur10::Ur10Model& model = collisions_kinematics().model();
+      for (int i = 0; i < ur10::kNumJoints; ++i) {
+        const auto& limit = model.limits()[i];
+        if (q[i] < limit.min_position_rad || q[i] > limit.max_position_rad) {
+          throw std::invalid_argument("joints[" + std::to_string(i) + "] (" + ur10::kJointNames[i] +
+                                      ") = " + Num(q[i]) + " rad is outside [" +
+                                      Num(limit.min_position_rad) + ", " +
+                                      Num(limit.max_position_rad) + "]");
+        }
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      const Eigen::Isometry3d X_BaseTool =
+          collisions_kinematics().ForwardKinematics(q) * world_->options().X_FlangeTool;
+      const SimState state = world_->state();
+      ArmCollision collision;
+      if (state.attached_item_id != 0) {
+        CarriedItem carried;
+        carried.id = state.attached_item_id;
+        carried.name = world_->item(carried.id).name;
+        carried.mesh = &world_->model(carried.id).mesh;
+        carried.X_BaseItem = X_BaseTool * state.X_ToolItem;
+        collision = collisions_->Check(q, &carried);
+      } else {
+        collision = collisions_->Check(q);
+      }
+      world_->SetJointPositions(q);
+      // One event per contact episode, not per streamed sample.
+      if (collision.in_collision && !in_collision_) world_->LogCollision(collision.detail);
+      in_collision_ = collision.in_collision;
+      response->set_in_collision(collision.in_collision);
+      response->set_collision_detail(collision.detail);
+      *response->mutable_x_base_tool() = pc::PoseToProto(world_->X_BaseTool());
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status ProbeContact(grpc::ServerContext*, const pb::ProbeContactRequest* request,
+                            pb::ProbeContactResponse* response) override {
+    return runtime::Guard([&] {
+      const Eigen::Vector3d direction_tcp =
+          pc::VectorFromProto(request->direction_tcp(), "direction_tcp");
+      if (std::abs(direction_tcp.norm() - 1.0) > 1e-3) {
+        throw std::invalid_argument("direction_tcp must be a unit vector, its norm is " +
+                                    Num(direction_tcp.norm()));
+      }
+      const double max_distance_m = request->max_distance_m();
+      if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0 || max_distance_m > 10.0) {
+        throw std::invalid_argument("max_distance_m must be in (0, 10], got " +
+                                    Num(max_distance_m));
+      }
+      std::optional<Eigen::Isometry3d> X_BaseFlange;
+      if (request->has_x_base_tool()) {
+        X_BaseFlange = pc::PoseFromProto(request->x_base_tool(), "X_base_tool");
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!X_BaseFlange) {
+        const SimState state = world_->state();
+        if (!state.q_rad) {
+          throw PreconditionError(
+              "X_base_tool is unset and the arm has not been placed yet (SetArmJoints)");
+        }
+        X_BaseFlange = collisions_kinematics().ForwardKinematics(*state.q_rad);
+      }
+      const Eigen::Isometry3d X_BaseCup = *X_BaseFlange * world_->options().X_FlangeTool;
+      const ProbeResult probe =
+          world_->Probe(X_BaseCup, X_BaseCup.linear() * direction_tcp, max_distance_m);
+      response->set_contact(probe.contact);
+      if (probe.contact) {
+        response->set_distance_m(probe.distance_m);
+        response->set_stiffness_n_per_m(world_->options().contact_stiffness_n_per_m);
+        if (probe.item_id != 0) {
+          const auto instances = Instances(world_->items());
+          *response->mutable_item() = ItemRefOf(probe.object, instances.at(probe.item_id));
+        } else {
+          response->set_surface(probe.object);
+        }
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status SetSuction(grpc::ServerContext*, const pb::SetSuctionRequest* request,
+                          pb::SetSuctionResponse* response) override {
+    return runtime::Guard([&] {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (request->on()) {
+        const SuctionResult seal = world_->SuctionOn();
+        response->set_sealed(seal.sealed);
+        response->set_vacuum_kpa(seal.sealed ? options_.sealed_kpa : options_.open_kpa);
+        if (seal.attached_item_id != 0) {
+          const auto instances = Instances(world_->items());
+          *response->mutable_attached_item() = ItemRefOf(world_->item(seal.attached_item_id).name,
+                                                         instances.at(seal.attached_item_id));
+        }
+        return grpc::Status::OK;
+      }
+      const std::size_t events_before = world_->events().size();
+      const int released = world_->SuctionOff();
+      response->set_vacuum_kpa(0.0);
+      if (released != 0) {
+        const auto instances = Instances(world_->items());
+        *response->mutable_released() =
+            ItemStateToProto(world_->item(released), instances.at(released));
+        for (std::size_t i = events_before; i < world_->events().size(); ++i) {
+          const Event& e = world_->events()[i];
+          if (e.kind == EventKind::kReleased && e.item_id == released) {
+            response->set_drop_height_m(e.drop_height_m);
+          }
+        }
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status RenderPatterns(grpc::ServerContext* context,
+                              const pb::RenderPatternsRequest* request,
+                              grpc::ServerWriter<common::ImageChunk>* writer) override {
+    return runtime::Guard([&] {
+      // Everything is validated before any image is sent.
+      const camera::PinholeCamera camera_model = PinholeFromProto(request->camera(), "camera");
+      const camera::PinholeCamera projector_model =
+          PinholeFromProto(request->projector(), "projector");
+      const Eigen::Isometry3d X_BaseCamera =
+          pc::PoseFromProto(request->x_base_camera(), "X_base_camera");
+      const Eigen::Isometry3d X_BaseProjector =
+          pc::PoseFromProto(request->x_base_projector(), "X_base_projector");
+      if (request->patterns_size() == 0) {
+        throw std::invalid_argument("patterns: at least one pattern is needed");
+      }
+      if (request->patterns_size() > options_.max_patterns) {
+        throw std::invalid_argument("patterns: at most " + std::to_string(options_.max_patterns) +
+                                    " per call, got " + std::to_string(request->patterns_size()));
+      }
+      const RenderOptions render_options = RenderOptionsFromProto(request->options());
+      std::vector<PatternImage> patterns;
+      for (int i = 0; i < request->patterns_size(); ++i) {
+        patterns.push_back(PatternFromProto(request->patterns(i), projector_model.width(),
+                                            projector_model.height(),
+                                            "patterns[" + std::to_string(i) + "]"));
+      }
+      // The renderer copies the meshes, so the world is only held while it is built.
+      std::unique_ptr<StructuredLightRenderer> renderer;
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        renderer = std::make_unique<StructuredLightRenderer>(world_->SceneMeshes());
+      }
+      const ScanPose pose{camera_model, X_BaseCamera, projector_model, X_BaseProjector};
+      const ScanGeometry geometry = renderer->Prepare(pose);
+      for (std::size_t i = 0; i < patterns.size(); ++i) {
+        if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+        const GrayImage image = RenderImage(geometry, patterns[i].image, render_options, i);
+        pc::Image out;
+        out.width = static_cast<std::uint32_t>(image.width);
+        out.height = static_cast<std::uint32_t>(image.height);
+        out.format = common::PIXEL_FORMAT_MONO8;
+        out.name = patterns[i].name;
+        out.index = static_cast<std::uint32_t>(i);
+        out.data = image.pixels;
+        for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
+          if (!writer->Write(chunk)) {
+            return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
+          }
+        }
+      }
+      return grpc::Status::OK;
+    });
+  }
+
+ private:
+  const ur10::Ur10Kinematics& collisions_kinematics() const { return world_->kinematics(); }
+
+  std::mutex mutex_;
+  std::unique_ptr<SimWorld> world_;
+  std::unique_ptr<ArmCollisionChecker> collisions_;
+  SimulatorServiceOptions options_;
+  bool in_collision_ = false;  // the last SetArmJoints was in collision
+};
+
+Eigen::Vector3d Vector3Setting(const runtime::Config& config, const std::string& key,
+                               const Eigen::Vector3d& default_value) {
+  const std::vector<double> v =
+      config.GetDoubles(key, {default_value.x(), default_value.y(), default_value.z()});
+  if (v.size() != 3) {
+    throw std::invalid_argument("setting '" + key + "' needs 3 values, got " +
+                                std::to_string(v.size()));
+  }
+  return Eigen::Vector3d(v[0], v[1], v[2]);
+}
+
+double PositiveSetting(const runtime::Config& config, const std::string& key, double fallback) {
+  const double v = config.GetDouble(key, fallback);
+  if (!(v > 0.0)) throw std::invalid_argument("setting '" + key + "' must be > 0");
+  return v;
+}
 
 }  // namespace
 
+void SimulatorServiceOptions::Validate() const {
+  if (!std::isfinite(sealed_kpa) || !std::isfinite(open_kpa) || !(open_kpa >= 0.0) ||
+      !(open_kpa < sealed_kpa)) {
+    throw std::invalid_argument("suction.open_kpa and suction.sealed_kpa: need 0 <= open < sealed");
+  }
+  if (max_patterns <= 0) throw std::invalid_argument("max_patterns must be > 0");
+}
+
+std::shared_ptr<v1::SimulatorService::Service> MakeSimulatorService(
+    std::unique_ptr<SimWorld> world, std::unique_ptr<ArmCollisionChecker> collisions,
+    const SimulatorServiceOptions& options) {
+  if (world && !world->has_kinematics()) {
+    throw std::invalid_argument("SimulatorService: the world needs UR10 kinematics");
+  }
+  return std::make_shared<SimulatorServiceImpl>(std::move(world), std::move(collisions), options);
+}
+
 runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config) {
+  const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
+  const std::string cell_path = config.GetString("cell", data_dir + "/cell/default_cell.yaml");
+  const std::string layout_path = config.GetString("layout", "");
+  const long long seed = config.GetInt("seed", 1);
+  if (seed < 0 || seed > static_cast<long long>(std::numeric_limits<std::uint32_t>::max())) {
+    throw std::invalid_argument("setting 'seed' must be in [0, 2^32)");
+  }
+  SimOptions sim_options;
+  sim_options.X_FlangeTool = Eigen::Isometry3d::Identity();
+  sim_options.X_FlangeTool.translation() =
+      Vector3Setting(config, "tcp_xyz_m", Eigen::Vector3d(0.0, 0.0, 0.35));
+  if (!sim_options.X_FlangeTool.translation().allFinite()) {
+    throw std::invalid_argument("setting 'tcp_xyz_m' must be finite");
+  }
+  sim_options.cup_radius_m = PositiveSetting(config, "tool.cup_radius_m", sim_options.cup_radius_m);
+  sim_options.contact_stiffness_n_per_m =
+      PositiveSetting(config, "contact.stiffness_n_per_m", sim_options.contact_stiffness_n_per_m);
+  ToolGeometry tool;
+  tool.X_FlangeTool = sim_options.X_FlangeTool;
+  tool.radius_m = PositiveSetting(config, "tool.radius_m", tool.radius_m);
+  SimulatorServiceOptions options;
+  options.sealed_kpa = config.GetDouble("suction.sealed_kpa", options.sealed_kpa);
+  options.open_kpa = config.GetDouble("suction.open_kpa", options.open_kpa);
+  options.Validate();
+
+  world::CellModel cell;
+  try {
+    cell = world::LoadCellModel(world::ReadCellConfig(cell_path));
+  } catch (const world::CellConfigError& e) {
+    throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
+  }
+  auto models = std::make_shared<world::ItemModelLibrary>(
+      apc::Catalogue::FromCsvFile(data_dir + "/apc2016/items/item_data.csv"));
+  auto kinematics =
+      std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(data_dir + "/ur10"));
+  auto collisions = std::make_unique<ArmCollisionChecker>(cell, *kinematics, tool);
+  auto world = std::make_unique<SimWorld>(std::move(cell), models, sim_options, kinematics);
+  if (!layout_path.empty()) {
+    std::ifstream in(layout_path);
+    if (!in) throw std::invalid_argument("setting 'layout': cannot read '" + layout_path + "'");
+    std::stringstream text;
+    text << in.rdbuf();
+    try {
+      LoadTaskInto(*world, ParseTaskJson(text.str(), models->catalogue(), layout_path),
+                   static_cast<std::uint64_t>(seed));
+    } catch (const std::exception& e) {
+      throw std::invalid_argument(std::string("setting 'layout': ") + e.what());
+    }
+  }
   runtime::ServiceSet set;
-  set.Add(std::make_shared<SimulatorServiceImpl>(), v1::SimulatorService::service_full_name());
+  set.Add(MakeSimulatorService(std::move(world), std::move(collisions), options),
+          v1::SimulatorService::service_full_name());
   return set;
 }
 

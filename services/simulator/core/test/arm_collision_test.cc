@@ -1,0 +1,107 @@
+#include "services/simulator/core/arm_collision.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <memory>
+
+#include "libs/world/mesh_utils.h"
+
+namespace picking::simulator {
+namespace {
+
+class ArmCollisionTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    cell_ = new world::CellModel(
+        world::LoadCellModel(world::ReadCellConfig(world::DefaultCellConfigPath())));
+    kinematics_ =
+        new ur10::Ur10Kinematics(ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10"));
+    checker_ = new ArmCollisionChecker(*cell_, *kinematics_, ToolGeometry{});
+  }
+  static void TearDownTestSuite() {
+    delete checker_;
+    delete kinematics_;
+    delete cell_;
+  }
+  static world::CellModel* cell_;
+  static ur10::Ur10Kinematics* kinematics_;
+  static ArmCollisionChecker* checker_;
+};
+world::CellModel* ArmCollisionTest::cell_ = nullptr;
+ur10::Ur10Kinematics* ArmCollisionTest::kinematics_ = nullptr;
+ArmCollisionChecker* ArmCollisionTest::checker_ = nullptr;
+
+const ur10::JointVector kHome =
+    (ur10::JointVector() << 0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0).finished();
+
+TEST_F(ArmCollisionTest, HomePoseIsFree) {
+  const ArmCollision c = checker_->Check(kHome);
+  EXPECT_FALSE(c.in_collision) << c.detail;
+  EXPECT_TRUE(c.detail.empty());
+}
+
+TEST_F(ArmCollisionTest, ArmStretchedIntoThePodsBaseHitsTheShelf) {
+  // Turned toward the shelf and stretched out at the height of the base: the flange is at
+  // x = 1.18 m, z = 0.01 m, inside the pod's solid base below the lowest bins.
+  const ur10::JointVector q = (ur10::JointVector() << M_PI, 0, 0, 0, 0, 0).finished();
+  const ArmCollision c = checker_->Check(q);
+  EXPECT_TRUE(c.in_collision);
+  EXPECT_NE(c.detail.find("hits shelf"), std::string::npos) << c.detail;
+}
+
+TEST_F(ArmCollisionTest, ToolReachingIntoABinIsFreeUntilItMeetsTheBackWall) {
+  // Cup axis along +x of base, through the middle of bin_E's opening.
+  const world::BinGeometry& bin = cell_->bin("bin_E");
+  const Eigen::Vector3d c_Base = cell_->config.X_BaseShelf * bin.inner_S.center();
+  const Eigen::Vector3d opening_Base =
+      cell_->config.X_BaseShelf *
+      Eigen::Vector3d(bin.opening_x_m, bin.inner_S.center().y(), bin.inner_S.center().z());
+  Eigen::Isometry3d X_BaseCup = Eigen::Isometry3d::Identity();
+  X_BaseCup.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const ToolGeometry tool;
+  auto check_at = [&](double x) {
+    X_BaseCup.translation() = Eigen::Vector3d(x, c_Base.y(), c_Base.z());
+    const Eigen::Isometry3d X_BaseFlange = X_BaseCup * tool.X_FlangeTool.inverse();
+    const auto q = kinematics_->NearestSolution(X_BaseFlange, kHome);
+    EXPECT_TRUE(q.has_value());
+    return q ? checker_->Check(q->q_rad) : ArmCollision{};
+  };
+  const double back_x = 2.0 * c_Base.x() - opening_Base.x();
+  EXPECT_FALSE(check_at(opening_Base.x() + 0.1).in_collision);
+  const ArmCollision deep = check_at(back_x + 0.05);  // the cup through the back wall
+  EXPECT_TRUE(deep.in_collision);
+  EXPECT_NE(deep.detail.find("shelf"), std::string::npos) << deep.detail;
+}
+
+TEST_F(ArmCollisionTest, CarriedItemIsChecked) {
+  const world::TriangleMesh box = world::MakeBox(Eigen::Vector3d(0.1, 0.1, 0.1));
+  CarriedItem item;
+  item.id = 7;
+  item.name = "test_box";
+  item.mesh = &box;
+  // Resting in the tote's floor plane: it intersects the tote's bottom.
+  item.X_BaseItem = cell_->config.X_BaseTote;
+  ArmCollision c = checker_->Check(kHome, &item);
+  EXPECT_TRUE(c.in_collision);
+  EXPECT_EQ(c.detail, "carried item test_box hits tote");
+  // In free air above the robot.
+  item.X_BaseItem = Eigen::Translation3d(0.0, 0.0, 2.0) * Eigen::Isometry3d::Identity();
+  c = checker_->Check(kHome, &item);
+  EXPECT_FALSE(c.in_collision) << c.detail;
+}
+
+TEST_F(ArmCollisionTest, BadInputThrows) {
+  ur10::JointVector q = kHome;
+  q[3] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(checker_->Check(q), std::invalid_argument);
+  CarriedItem empty;
+  EXPECT_THROW(checker_->Check(kHome, &empty), std::invalid_argument);
+  ToolGeometry bad;
+  bad.radius_m = 0.0;
+  EXPECT_THROW(ArmCollisionChecker(*cell_, *kinematics_, bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::simulator
