@@ -5,8 +5,11 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace picking::scanner {
 namespace {
@@ -123,8 +126,43 @@ PICKING_DECODER_CLONES std::size_t DecodeSpan(
   return count;
 }
 
-void Require(bool ok, const std::string& what) {
-  if (!ok) throw std::invalid_argument("GrayCodeDecoder: " + what);
+void Require(bool ok, const std::string& what, const char* who = "GrayCodeDecoder") {
+  if (!ok) throw std::invalid_argument(std::string(who) + ": " + what);
+}
+
+// Checks that `images` is a capture of `patterns` (count, data, sizes, strides) and returns
+// whether every image is contiguous (stride == width).
+bool CheckCapture(const PatternSequence& patterns, const std::vector<ImageView>& images,
+                  const char* who) {
+  const int num_images = patterns.num_images();
+  Require(static_cast<int>(images.size()) == num_images,
+          "expected " + std::to_string(num_images) + " images (white, black, " +
+              std::to_string(patterns.column_bits()) + " column and " +
+              std::to_string(patterns.row_bits()) + " row bit pairs), got " +
+              std::to_string(images.size()),
+          who);
+  const int width = images[0].width;
+  const int height = images[0].height;
+  bool contiguous = true;
+  for (int i = 0; i < num_images; ++i) {
+    const ImageView& image = images[i];
+    const std::string name = "image " + std::to_string(i);
+    Require(image.data != nullptr, name + " has no data", who);
+    Require(
+        image.width > 0 && image.height > 0,
+        name + " has size " + std::to_string(image.width) + " x " + std::to_string(image.height),
+        who);
+    Require(image.width == width && image.height == height,
+            name + " is " + std::to_string(image.width) + " x " + std::to_string(image.height) +
+                " but image 0 is " + std::to_string(width) + " x " + std::to_string(height),
+            who);
+    Require(image.stride_bytes >= image.width,
+            name + " has stride " + std::to_string(image.stride_bytes) + " below its width " +
+                std::to_string(image.width),
+            who);
+    contiguous = contiguous && image.stride_bytes == image.width;
+  }
+  return contiguous;
 }
 
 }  // namespace
@@ -152,28 +190,9 @@ CorrespondenceMap GrayCodeDecoder::Decode(const std::vector<ImageView>& images) 
 void GrayCodeDecoder::Decode(const std::vector<ImageView>& images, CorrespondenceMap* map) const {
   Require(map != nullptr, "output map is null");
   const int num_images = patterns_.num_images();
-  Require(static_cast<int>(images.size()) == num_images,
-          "expected " + std::to_string(num_images) + " images (white, black, " +
-              std::to_string(patterns_.column_bits()) + " column and " +
-              std::to_string(patterns_.row_bits()) + " row bit pairs), got " +
-              std::to_string(images.size()));
+  const bool contiguous = CheckCapture(patterns_, images, "GrayCodeDecoder");
   const int width = images[0].width;
   const int height = images[0].height;
-  bool contiguous = true;
-  for (int i = 0; i < num_images; ++i) {
-    const ImageView& image = images[i];
-    const std::string name = "image " + std::to_string(i);
-    Require(image.data != nullptr, name + " has no data");
-    Require(image.width > 0 && image.height > 0, name + " has size " + std::to_string(image.width) +
-                                                     " x " + std::to_string(image.height));
-    Require(image.width == width && image.height == height,
-            name + " is " + std::to_string(image.width) + " x " + std::to_string(image.height) +
-                " but image 0 is " + std::to_string(width) + " x " + std::to_string(height));
-    Require(image.stride_bytes >= image.width,
-            name + " has stride " + std::to_string(image.stride_bytes) + " below its width " +
-                std::to_string(image.width));
-    contiguous = contiguous && image.stride_bytes == image.width;
-  }
 
   const std::size_t num_pixels = static_cast<std::size_t>(width) * height;
   map->width = width;
@@ -181,6 +200,8 @@ void GrayCodeDecoder::Decode(const std::vector<ImageView>& images, Correspondenc
   map->column.resize(num_pixels);
   map->row.resize(num_pixels);
   map->valid.resize(num_pixels);
+  map->column_subpixel.clear();
+  map->row_subpixel.clear();
 
   const int rows_per_band = std::max(1, kPixelsPerBand / width);
   const int num_bands = (height + rows_per_band - 1) / rows_per_band;
@@ -212,6 +233,392 @@ void GrayCodeDecoder::Decode(const std::vector<ImageView>& images, Correspondenc
     num_valid.fetch_add(count, std::memory_order_relaxed);
   });
   map->num_valid = num_valid.load();
+}
+
+namespace {
+
+constexpr int kRefineRowsPerBand = 16;
+constexpr int kRefineColumnsPerStrip = 32;
+
+// Where a line of pixels (a camera row or column) changes: after pixel `boundary` either
+// the code steps by one (a knot: projector coordinate `value` = c + 0.5 is seen at sub-pixel
+// position `t` along the line, and the next valid pixel is `next`, past a short gap of
+// invalid pixels if there is one) or the line breaks (a long stretch of invalid pixels
+// begins or ends, or the code jumps by more than one).
+struct LineEvent {
+  int boundary;
+  int next;
+  bool knot;
+  float t;
+  float value;
+};
+
+inline int LowestSetBit(unsigned value) {
+#if defined(__GNUC__)
+  return __builtin_ctz(value);
+#else
+  int bit = 0;
+  while (!(value & 1u)) {
+    value >>= 1;
+    ++bit;
+  }
+  return bit;
+#endif
+}
+
+// Refines one line of n pixels; pixel i's code, valid flag and output are at element i *
+// step. diff(i, bit) is pattern - inverse at pixel i for Gray-code bit `bit` of the value
+// (0 = least significant). Up to max_gap invalid pixels between two valid ones are bridged
+// (pixels straddling a stripe edge often fail the decoder's bit-contrast test). Writes the
+// continuous coordinate of every valid pixel that can be refined and NaN elsewhere; returns
+// the number of knots.
+template <typename Diff>
+std::size_t RefineLine(int n, const std::uint16_t* code, const std::uint8_t* valid,
+                       std::ptrdiff_t step, int max_gap, const Diff& diff, float* out,
+                       std::vector<LineEvent>* events) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  events->clear();
+  std::size_t num_knots = 0;
+  const auto push_break = [&](int boundary) {
+    events->push_back({boundary, boundary + 1, false, 0.0f, 0.0f});
+  };
+  for (int i = 0; i + 1 < n; ++i) {
+    const std::uint8_t va = valid[i * step];
+    const std::uint8_t vb = valid[(i + 1) * step];
+    if ((va | vb) == 0) continue;
+    if (!va) {  // The end of a stretch of invalid pixels that was not bridged.
+      push_break(i);
+      continue;
+    }
+    // The next valid pixel, if it is within max_gap invalid pixels.
+    int k = i + 1;
+    if (!vb) {
+      while (k < n && k - i - 1 <= max_gap && !valid[k * step]) ++k;
+      if (k >= n || k - i - 1 > max_gap) {
+        push_break(i);
+        continue;
+      }
+    }
+    const int ca = code[i * step];
+    const int cb = code[k * step];
+    if (ca == cb) {
+      i = k - 1;  // The run goes on (over the gap, if any).
+      continue;
+    }
+    if (ca - cb != 1 && cb - ca != 1) {
+      push_break(i);
+      continue;
+    }
+    // c and c + 1 differ in exactly one Gray-code bit: the lowest set bit of c + 1. Its
+    // (pattern - inverse) changes sign between pixels i and k; the edge is where it crosses
+    // zero (the middle of the first and last crossing if noise makes several in a gap).
+    const int bit = LowestSetBit(static_cast<unsigned>(ca > cb ? ca : cb));
+    float first = -1.0f;
+    float last = -1.0f;
+    int d0 = diff(i, bit);
+    for (int m = i; m < k; ++m) {
+      const int d1 = diff(m + 1, bit);
+      if ((d0 > 0) != (d1 > 0)) {
+        const float denominator = static_cast<float>(d0 - d1);
+        const float fraction = denominator != 0.0f ? static_cast<float>(d0) / denominator : 0.5f;
+        const float t = static_cast<float>(m) + std::min(1.0f, std::max(0.0f, fraction));
+        if (first < 0.0f) first = t;
+        last = t;
+      }
+      d0 = d1;
+    }
+    // Without a sign change (captures other than the decoded ones) the gap's middle.
+    const float t = first < 0.0f ? 0.5f * static_cast<float>(i + k) : 0.5f * (first + last);
+    events->push_back({i, k, true, t, 0.5f * static_cast<float>(ca + cb)});
+    ++num_knots;
+    i = k - 1;
+  }
+  push_break(n - 1);
+
+  // Runs between consecutive events: pixels (previous.boundary, event.boundary]; a run is
+  // valid if its first valid pixel (previous.next) is, and may contain bridged gaps.
+  const LineEvent* e = events->data();
+  const int m = static_cast<int>(events->size());
+  for (int j = 0; j < m; ++j) {
+    const int first = j == 0 ? 0 : e[j - 1].boundary + 1;
+    const int first_valid = j == 0 ? 0 : e[j - 1].next;
+    const int last = e[j].boundary;
+    if (first_valid > last || !valid[first_valid * step]) {
+      for (int i = first; i <= last; ++i) out[i * step] = kNaN;
+      continue;
+    }
+    const float c = code[first_valid * step];
+    const bool left = j > 0 && e[j - 1].knot;
+    const bool right = e[j].knot;
+    // Value v0 at position t0 and slope per pixel, from two knots.
+    float t0 = 0.0f;
+    float v0 = 0.0f;
+    float slope = 0.0f;
+    const auto from_knots = [&](const LineEvent& a, const LineEvent& b, const LineEvent& anchor) {
+      const float dt = b.t - a.t;
+      if (!(dt > 1e-3f) || a.value == b.value) return false;
+      slope = (b.value - a.value) / dt;
+      t0 = anchor.t;
+      v0 = anchor.value;
+      return true;
+    };
+    bool ok = false;
+    if (left && right) {
+      ok = from_knots(e[j - 1], e[j], e[j - 1]);
+    } else if (left && j >= 2 && e[j - 2].knot) {
+      // Extrapolate past the last knot with the neighbouring run's slope; moving into the
+      // run must move towards its code.
+      ok = from_knots(e[j - 2], e[j - 1], e[j - 1]) && (slope > 0.0f) == (c > v0);
+    } else if (right && j + 1 < m && e[j + 1].knot) {
+      // Likewise before the first knot, moving backwards.
+      ok = from_knots(e[j], e[j + 1], e[j]) && (slope < 0.0f) == (c > v0);
+    }
+    if (!ok) {
+      for (int i = first; i <= last; ++i) out[i * step] = kNaN;
+      continue;
+    }
+    const float low = c - 0.5f;
+    const float high = c + 0.5f;
+    for (int i = first; i <= last; ++i) {
+      const float v = v0 + slope * (static_cast<float>(i) - t0);
+      out[i * step] = !valid[i * step] ? kNaN : (v < low ? low : (v > high ? high : v));
+    }
+  }
+  return num_knots;
+}
+
+// The coordinate of a valid pixel that its line could not refine, from the refined pixels up
+// to two pixels away across the line (value[-d * step], value[d * step]; `before` and
+// `after` pixels exist on each side) whose codes differ from its own by at most one:
+// interpolated between the nearest on each side, or the nearest on one side. NaN if there
+// are none or the result is inconsistent with the pixel's code.
+inline float FillAcross(const float* value, const std::uint16_t* code, std::ptrdiff_t step,
+                        int before, int after) {
+  const int c = *code;
+  float v_before = 0.0f;
+  float v_after = 0.0f;
+  int d_before = 0;
+  int d_after = 0;
+  for (int d = 1; d <= std::min(2, before) && d_before == 0; ++d) {
+    const float v = value[-d * step];
+    if (!std::isnan(v) && std::abs(code[-d * step] - c) <= 1) {
+      v_before = v;
+      d_before = d;
+    }
+  }
+  for (int d = 1; d <= std::min(2, after) && d_after == 0; ++d) {
+    const float v = value[d * step];
+    if (!std::isnan(v) && std::abs(code[d * step] - c) <= 1) {
+      v_after = v;
+      d_after = d;
+    }
+  }
+  float v;
+  if (d_before > 0 && d_after > 0) {
+    v = (v_before * d_after + v_after * d_before) / static_cast<float>(d_before + d_after);
+  } else if (d_before > 0) {
+    v = v_before;
+  } else if (d_after > 0) {
+    v = v_after;
+  } else {
+    return std::numeric_limits<float>::quiet_NaN();
+  }
+  const float cf = static_cast<float>(c);
+  if (!(std::abs(v - cf) <= 0.75f)) return std::numeric_limits<float>::quiet_NaN();
+  return std::min(cf + 0.5f, std::max(cf - 0.5f, v));
+}
+
+}  // namespace
+
+SubpixelRefiner::SubpixelRefiner(const PatternSequence& patterns, const RefinementOptions& options)
+    : patterns_(patterns), options_(options) {
+  Require(options.num_threads >= 0,
+          "options.num_threads must not be negative, got " + std::to_string(options.num_threads),
+          "SubpixelRefiner");
+  Require(options.max_gap_px >= 0 && options.max_gap_px <= 16,
+          "options.max_gap_px must be in [0, 16], got " + std::to_string(options.max_gap_px),
+          "SubpixelRefiner");
+  pool_ = std::make_unique<BandPool>(options.num_threads);
+}
+
+SubpixelRefiner::~SubpixelRefiner() = default;
+
+RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
+                                         CorrespondenceMap* map) const {
+  const char* const kWho = "SubpixelRefiner";
+  Require(map != nullptr, "map is null", kWho);
+  CheckCapture(patterns_, images, kWho);
+  const int width = images[0].width;
+  const int height = images[0].height;
+  Require(map->width == width && map->height == height,
+          "map is " + std::to_string(map->width) + " x " + std::to_string(map->height) +
+              " but the images are " + std::to_string(width) + " x " + std::to_string(height),
+          kWho);
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  Require(map->column.size() == n && map->row.size() == n && map->valid.size() == n,
+          "map buffers are not width * height = " + std::to_string(n) + " long", kWho);
+  const int projector_width = patterns_.projector_width();
+  const int projector_height = patterns_.projector_height();
+  {
+    const std::uint16_t* column = map->column.data();
+    const std::uint16_t* row = map->row.data();
+    const std::uint8_t* valid = map->valid.data();
+    int outside = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      outside |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+    }
+    if (outside) {
+      for (std::size_t i = 0; i < n; ++i) {
+        Require(!valid[i] || (column[i] < projector_width && row[i] < projector_height),
+                "valid pixel " + std::to_string(i) + " has correspondence (" +
+                    std::to_string(column[i]) + ", " + std::to_string(row[i]) + ") outside the " +
+                    std::to_string(projector_width) + " x " + std::to_string(projector_height) +
+                    " projector",
+                kWho);
+      }
+    }
+  }
+
+  map->column_subpixel.resize(n);
+  map->row_subpixel.resize(n);
+  // Pattern and inverse image of each bit, indexed by the bit's place in the value (0 = LSB).
+  std::array<const ImageView*, PatternSequence::kMaxBits> column_pattern{};
+  std::array<const ImageView*, PatternSequence::kMaxBits> column_inverse{};
+  std::array<const ImageView*, PatternSequence::kMaxBits> row_pattern{};
+  std::array<const ImageView*, PatternSequence::kMaxBits> row_inverse{};
+  const int column_bits = patterns_.column_bits();
+  const int row_bits = patterns_.row_bits();
+  for (int b = 0; b < column_bits; ++b) {
+    column_pattern[column_bits - 1 - b] = &images[patterns_.ColumnImageIndex(b, false)];
+    column_inverse[column_bits - 1 - b] = &images[patterns_.ColumnImageIndex(b, true)];
+  }
+  for (int b = 0; b < row_bits; ++b) {
+    row_pattern[row_bits - 1 - b] = &images[patterns_.RowImageIndex(b, false)];
+    row_inverse[row_bits - 1 - b] = &images[patterns_.RowImageIndex(b, true)];
+  }
+
+  const int max_gap = options_.max_gap_px;
+  std::atomic<std::size_t> column_knots{0};
+  std::atomic<std::size_t> row_knots{0};
+  // Columns along camera rows.
+  const int num_bands = (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
+  pool_->Run(num_bands, [&](int band) {
+    std::vector<LineEvent> events;
+    events.reserve(static_cast<std::size_t>(width) + 1);
+    std::size_t knots = 0;
+    const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
+    for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
+      const std::size_t offset = static_cast<std::size_t>(y) * width;
+      const auto diff = [&](int x, int bit) {
+        return static_cast<int>(column_pattern[bit]->row(y)[x]) -
+               static_cast<int>(column_inverse[bit]->row(y)[x]);
+      };
+      knots += RefineLine(width, map->column.data() + offset, map->valid.data() + offset, 1,
+                          max_gap, diff, map->column_subpixel.data() + offset, &events);
+    }
+    column_knots.fetch_add(knots, std::memory_order_relaxed);
+  });
+  // Rows along camera columns, in strips of neighbouring columns that share cache lines.
+  const int num_strips = (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip;
+  std::atomic<std::size_t> num_filled{0};
+  pool_->Run(num_strips, [&](int strip) {
+    std::vector<LineEvent> events;
+    events.reserve(static_cast<std::size_t>(height) + 1);
+    std::vector<std::pair<std::size_t, float>> fills;
+    fills.reserve(static_cast<std::size_t>(height));
+    std::size_t knots = 0;
+    std::size_t filled = 0;
+    const int x1 = std::min(width, (strip + 1) * kRefineColumnsPerStrip);
+    for (int x = strip * kRefineColumnsPerStrip; x < x1; ++x) {
+      const auto diff = [&](int y, int bit) {
+        return static_cast<int>(row_pattern[bit]->row(y)[x]) -
+               static_cast<int>(row_inverse[bit]->row(y)[x]);
+      };
+      knots += RefineLine(height, map->row.data() + x, map->valid.data() + x, width, max_gap, diff,
+                          map->row_subpixel.data() + x, &events);
+      // Columns that the camera row could not refine, from the pixels above and below (all
+      // decided before any is written, so that fills do not feed each other).
+      fills.clear();
+      for (int y = 0; y < height; ++y) {
+        const std::size_t i = static_cast<std::size_t>(y) * width + x;
+        if (!map->valid[i] || !std::isnan(map->column_subpixel[i])) continue;
+        const float v = FillAcross(map->column_subpixel.data() + i, map->column.data() + i, width,
+                                   y, height - 1 - y);
+        if (!std::isnan(v)) fills.emplace_back(i, v);
+      }
+      for (const auto& [i, v] : fills) map->column_subpixel[i] = v;
+      filled += fills.size();
+    }
+    row_knots.fetch_add(knots, std::memory_order_relaxed);
+    num_filled.fetch_add(filled, std::memory_order_relaxed);
+  });
+
+  // Pixels with a coordinate that could not be refined.
+  std::atomic<std::size_t> refined{0};
+  std::atomic<std::size_t> unrefined{0};
+  const bool reject = options_.reject_unrefined;
+  pool_->Run(num_bands, [&](int band) {
+    const float kNaN = std::numeric_limits<float>::quiet_NaN();
+    std::size_t local_refined = 0;
+    std::size_t local_unrefined = 0;
+    const std::size_t i0 = static_cast<std::size_t>(band) * kRefineRowsPerBand * width;
+    const std::size_t i1 =
+        static_cast<std::size_t>(std::min(height, (band + 1) * kRefineRowsPerBand)) * width;
+    std::uint8_t* valid = map->valid.data();
+    float* column_subpixel = map->column_subpixel.data();
+    float* row_subpixel = map->row_subpixel.data();
+    // Rows that the camera column could not refine, from the pixels left and right.
+    std::vector<std::pair<std::size_t, float>> fills;
+    fills.reserve(static_cast<std::size_t>(width));
+    std::size_t filled = 0;
+    for (std::size_t row_start = i0; row_start < i1; row_start += width) {
+      fills.clear();
+      for (int x = 0; x < width; ++x) {
+        const std::size_t i = row_start + x;
+        if (!valid[i] || !std::isnan(row_subpixel[i])) continue;
+        const float v = FillAcross(row_subpixel + i, map->row.data() + i, 1, x, width - 1 - x);
+        if (!std::isnan(v)) fills.emplace_back(i, v);
+      }
+      for (const auto& [i, v] : fills) row_subpixel[i] = v;
+      filled += fills.size();
+    }
+    num_filled.fetch_add(filled, std::memory_order_relaxed);
+    for (std::size_t i = i0; i < i1; ++i) {
+      if (!valid[i]) continue;
+      const bool column_ok = !std::isnan(column_subpixel[i]);
+      const bool row_ok = !std::isnan(row_subpixel[i]);
+      if (column_ok && row_ok) {
+        ++local_refined;
+        continue;
+      }
+      ++local_unrefined;
+      if (reject) {
+        valid[i] = 0;
+        map->column[i] = 0;
+        map->row[i] = 0;
+        column_subpixel[i] = kNaN;
+        row_subpixel[i] = kNaN;
+      } else {
+        if (!column_ok) column_subpixel[i] = map->column[i];
+        if (!row_ok) row_subpixel[i] = map->row[i];
+      }
+    }
+    refined.fetch_add(local_refined, std::memory_order_relaxed);
+    unrefined.fetch_add(local_unrefined, std::memory_order_relaxed);
+  });
+
+  RefinementResult result;
+  result.num_refined = refined.load();
+  result.num_column_transitions = column_knots.load();
+  result.num_row_transitions = row_knots.load();
+  result.num_filled_across = num_filled.load();
+  if (reject) {
+    result.num_rejected = unrefined.load();
+    map->num_valid = result.num_refined;
+  } else {
+    result.num_kept_integer = unrefined.load();
+  }
+  return result;
 }
 
 }  // namespace picking::scanner

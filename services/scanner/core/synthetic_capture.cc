@@ -9,6 +9,7 @@
 #include <limits>
 #include <random>
 #include <stdexcept>
+#include <string>
 
 namespace picking::scanner {
 namespace {
@@ -48,6 +49,25 @@ double Intersect(const SyntheticScene& scene, const Eigen::Vector3d& origin,
   }
   return best;
 }
+
+// One camera ray traced into the scene.
+struct RayHit {
+  bool hit = false;  // Meets a surface.
+  bool lit = false;  // ... that the projector lights.
+  double depth_m = 0;
+  double albedo = 0;
+  double cosine = 0;  // Between the surface normal and the direction to the projector.
+  Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // Projector pixel coordinates.
+  int column = -1;                               // Nearest mirror.
+  int row = -1;
+};
+
+// Light of one projector mirror reaching one camera pixel when the mirror is on.
+struct LitSample {
+  std::int32_t column;
+  std::int32_t row;
+  float radiance;
+};
 
 }  // namespace
 
@@ -95,78 +115,162 @@ SyntheticCapture RenderSyntheticCapture(const ScannerRig& rig, const PatternSequ
   if (!(options.gamma > 0.0)) {
     throw std::invalid_argument("RenderSyntheticCapture: options.gamma must be > 0");
   }
+  if (options.samples_per_axis < 1 || options.samples_per_axis > 16) {
+    throw std::invalid_argument(
+        "RenderSyntheticCapture: options.samples_per_axis must be in [1, 16], got " +
+        std::to_string(options.samples_per_axis));
+  }
   const camera::PinholeCamera& cam = rig.camera;
   const int width = cam.width();
   const int height = cam.height();
   const std::size_t n = static_cast<std::size_t>(width) * height;
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
   SyntheticCapture capture;
   capture.width = width;
   capture.height = height;
   capture.column.assign(n, -1);
   capture.row.assign(n, -1);
-  capture.depth_m.assign(n, std::numeric_limits<float>::quiet_NaN());
-  // Per pixel: ambient radiance and the projector's contribution when lit.
+  capture.column_exact.assign(n, kNaN);
+  capture.row_exact.assign(n, kNaN);
+  capture.depth_m.assign(n, kNaN);
+  // Per pixel: ambient radiance, and the projector mirrors lighting it with the radiance each
+  // contributes when on (one entry per distinct mirror, kept per camera row).
   std::vector<float> ambient(n, 0.0f);
-  std::vector<float> lit(n, 0.0f);
+  std::vector<std::vector<LitSample>> row_samples(height);
+  std::vector<std::vector<std::uint32_t>> row_starts(height);
   const Eigen::Isometry3d X_ProjectorCamera = rig.X_CameraProjector.inverse();
   const Eigen::Vector3d p_CameraProjector = rig.X_CameraProjector.translation();
   const camera::RayTable rays = cam.ComputeRayTable();
+  const int samples = options.samples_per_axis;
+  const double sample_weight = 1.0 / (samples * samples);
+
+  // Traces the camera ray (x, y, 1).
+  const auto trace = [&](const Eigen::Vector2d& xy) {
+    RayHit hit;
+    const Eigen::Vector3d ray = Eigen::Vector3d(xy.x(), xy.y(), 1.0).normalized();
+    Eigen::Vector3d normal;
+    const double t = Intersect(scene, Eigen::Vector3d::Zero(), ray, 1e-6, &normal, &hit.albedo);
+    if (t == kNoHit) return hit;
+    hit.hit = true;
+    const Eigen::Vector3d p = t * ray;
+    hit.depth_m = p.z();
+    const Eigen::Vector3d to_projector = p_CameraProjector - p;
+    const double distance = to_projector.norm();
+    const double cosine = normal.dot(to_projector) / distance;
+    if (cosine <= 0) return hit;
+    const double blocker =
+        Intersect(scene, p_CameraProjector, -to_projector / distance, 1e-6, nullptr, nullptr);
+    if (blocker < distance - 1e-7) return hit;  // In shadow.
+    const auto uv = rig.projector.Project(X_ProjectorCamera * p);
+    if (!uv || !rig.projector.Contains(*uv)) return hit;
+    hit.lit = true;
+    hit.uv = *uv;
+    hit.column =
+        std::min(rig.projector.width() - 1, std::max(0, static_cast<int>(std::lround(uv->x()))));
+    hit.row =
+        std::min(rig.projector.height() - 1, std::max(0, static_cast<int>(std::lround(uv->y()))));
+    hit.cosine = cosine;
+    return hit;
+  };
+  // Undistorted normalised coordinates of a point inside the image, interpolated bilinearly
+  // between the ray table's pixel centres (extrapolated half a pixel at the border).
+  const auto normalized = [&](double u, double v) -> Eigen::Vector2d {
+    if (width < 2 || height < 2) return cam.PixelToNormalized(Eigen::Vector2d(u, v));
+    const int u0 = std::min(width - 2, std::max(0, static_cast<int>(std::floor(u))));
+    const int v0 = std::min(height - 2, std::max(0, static_cast<int>(std::floor(v))));
+    const double a = u - u0;
+    const double b = v - v0;
+    const std::size_t i = static_cast<std::size_t>(v0) * width + u0;
+    const Eigen::Vector2d top =
+        (1 - a) * rays.xy[i].cast<double>() + a * rays.xy[i + 1].cast<double>();
+    const Eigen::Vector2d bottom =
+        (1 - a) * rays.xy[i + width].cast<double>() + a * rays.xy[i + width + 1].cast<double>();
+    return (1 - b) * top + b * bottom;
+  };
+
   BandPool pool;
   pool.Run(height, [&](int v) {
+    std::vector<LitSample>& out = row_samples[v];
+    std::vector<std::uint32_t>& starts = row_starts[v];
+    starts.assign(width + 1, 0);
     for (int u = 0; u < width; ++u) {
       const std::size_t i = static_cast<std::size_t>(v) * width + u;
-      const Eigen::Vector3d ray = Eigen::Vector3d(rays.xy[i].x(), rays.xy[i].y(), 1.0).normalized();
-      Eigen::Vector3d normal;
-      double albedo = 0;
-      const double t = Intersect(scene, Eigen::Vector3d::Zero(), ray, 1e-6, &normal, &albedo);
-      if (t == kNoHit) continue;
-      const Eigen::Vector3d p = t * ray;
-      capture.depth_m[i] = static_cast<float>(p.z());
-      ambient[i] = static_cast<float>(albedo * options.ambient_level);
-      const Eigen::Vector3d to_projector = p_CameraProjector - p;
-      const double distance = to_projector.norm();
-      const double cosine = normal.dot(to_projector) / distance;
-      if (cosine <= 0) continue;
-      const double blocker =
-          Intersect(scene, p_CameraProjector, -to_projector / distance, 1e-6, nullptr, nullptr);
-      if (blocker < distance - 1e-7) continue;  // In shadow.
-      const auto uv = rig.projector.Project(X_ProjectorCamera * p);
-      if (!uv || !rig.projector.Contains(*uv)) continue;
-      capture.column[i] =
-          std::min(rig.projector.width() - 1, std::max(0, static_cast<int>(std::lround(uv->x()))));
-      capture.row[i] =
-          std::min(rig.projector.height() - 1, std::max(0, static_cast<int>(std::lround(uv->y()))));
-      lit[i] = static_cast<float>(albedo * cosine * options.projector_level);
+      starts[u] = static_cast<std::uint32_t>(out.size());
+      const RayHit centre = trace(rays.xy[i].cast<double>());
+      if (centre.hit) capture.depth_m[i] = static_cast<float>(centre.depth_m);
+      if (centre.lit) {
+        capture.column[i] = centre.column;
+        capture.row[i] = centre.row;
+        capture.column_exact[i] = static_cast<float>(centre.uv.x());
+        capture.row_exact[i] = static_cast<float>(centre.uv.y());
+      }
+      if (samples == 1) {
+        if (centre.hit) ambient[i] = static_cast<float>(centre.albedo * options.ambient_level);
+        if (centre.lit) {
+          out.push_back(
+              {centre.column, centre.row,
+               static_cast<float>(centre.albedo * centre.cosine * options.projector_level)});
+        }
+        continue;
+      }
+      double ambient_sum = 0;
+      for (int sy = 0; sy < samples; ++sy) {
+        for (int sx = 0; sx < samples; ++sx) {
+          const double du = (sx + 0.5) / samples - 0.5;
+          const double dv = (sy + 0.5) / samples - 0.5;
+          const RayHit hit = trace(normalized(u + du, v + dv));
+          if (!hit.hit) continue;
+          ambient_sum += hit.albedo * options.ambient_level * sample_weight;
+          if (!hit.lit) continue;
+          const float radiance =
+              static_cast<float>(hit.albedo * hit.cosine * options.projector_level * sample_weight);
+          bool merged = false;
+          for (std::size_t k = starts[u]; k < out.size() && !merged; ++k) {
+            if (out[k].column == hit.column && out[k].row == hit.row) {
+              out[k].radiance += radiance;
+              merged = true;
+            }
+          }
+          if (!merged) out.push_back({hit.column, hit.row, radiance});
+        }
+      }
+      ambient[i] = static_cast<float>(ambient_sum);
     }
+    starts[width] = static_cast<std::uint32_t>(out.size());
   });
 
   const int num_images = patterns.num_images();
   capture.images.assign(num_images, std::vector<std::uint8_t>(n));
   pool.Run(num_images, [&](int k) {
     const PatternImage description = patterns.Describe(k);
-    cv::Mat radiance(height, width, CV_32F);
-    for (std::size_t i = 0; i < n; ++i) {
-      bool on = false;
-      if (capture.column[i] >= 0) {
-        switch (description.kind) {
-          case PatternImage::Kind::kWhite:
-            on = true;
-            break;
-          case PatternImage::Kind::kBlack:
-            on = false;
-            break;
-          case PatternImage::Kind::kColumnBit:
-            on =
-                ((GrayEncode(capture.column[i]) >> (patterns.column_bits() - 1 - description.bit)) &
-                 1u) != description.inverse;
-            break;
-          case PatternImage::Kind::kRowBit:
-            on = ((GrayEncode(capture.row[i]) >> (patterns.row_bits() - 1 - description.bit)) &
-                  1u) != description.inverse;
-            break;
-        }
+    const auto is_on = [&](const LitSample& sample) {
+      switch (description.kind) {
+        case PatternImage::Kind::kWhite:
+          return true;
+        case PatternImage::Kind::kBlack:
+          return false;
+        case PatternImage::Kind::kColumnBit:
+          return ((GrayEncode(sample.column) >> (patterns.column_bits() - 1 - description.bit)) &
+                  1u) != static_cast<std::uint32_t>(description.inverse);
+        case PatternImage::Kind::kRowBit:
+          return ((GrayEncode(sample.row) >> (patterns.row_bits() - 1 - description.bit)) & 1u) !=
+                 static_cast<std::uint32_t>(description.inverse);
       }
-      radiance.at<float>(static_cast<int>(i)) = ambient[i] + (on ? lit[i] : 0.0f);
+      return false;
+    };
+    cv::Mat radiance(height, width, CV_32F);
+    for (int v = 0; v < height; ++v) {
+      const std::vector<LitSample>& samples_v = row_samples[v];
+      const std::vector<std::uint32_t>& starts = row_starts[v];
+      float* dst = radiance.ptr<float>(v);
+      const float* ambient_v = ambient.data() + static_cast<std::size_t>(v) * width;
+      for (int u = 0; u < width; ++u) {
+        float lit = 0.0f;
+        for (std::uint32_t s = starts[u]; s < starts[u + 1]; ++s) {
+          if (is_on(samples_v[s])) lit += samples_v[s].radiance;
+        }
+        dst[u] = ambient_v[u] + lit;
+      }
     }
     if (options.blur_sigma_px > 0) {
       cv::GaussianBlur(radiance, radiance, cv::Size(0, 0), options.blur_sigma_px);

@@ -47,6 +47,10 @@ struct SyntheticCaptureOptions {
   double noise_sigma = 0.0;        ///< Gaussian sensor noise, grey levels (0 = none).
   double gamma = 1.0;              ///< Response: out = 255 * (in / 255)^gamma.
   std::uint32_t seed = 1;          ///< Seed of the noise generator.
+  /// Area sampling: each pixel integrates a regular grid of n x n rays over its square (the
+  /// way a sensor pixel integrates light), so that a pixel straddling a projector stripe edge
+  /// gets a mixed grey level. 1 samples the pixel centre only; in [1, 16].
+  int samples_per_axis = 1;
 };
 
 /// Rendered captures with the ground truth they were rendered from.
@@ -58,6 +62,10 @@ struct SyntheticCapture {
   /// none does (no surface, outside the projector, facing away or in shadow).
   std::vector<std::int32_t> column;
   std::vector<std::int32_t> row;
+  /// Continuous projector coordinates (column = u, row = v, pixel centres at integers) of the
+  /// surface point at each camera pixel centre; NaN where `column` is -1.
+  std::vector<float> column_exact;
+  std::vector<float> row_exact;
   /// Depth z (metres, camera frame) of the surface each pixel sees, NaN where none.
   std::vector<float> depth_m;
 
@@ -65,9 +73,12 @@ struct SyntheticCapture {
 };
 
 /// Renders the pattern sequence as the rig's camera sees it on `scene` by ray casting each
-/// camera pixel centre, with shadows cast from the projector, Lambertian shading, ambient
-/// light, then blur, gamma and noise. Deterministic for a given seed.
-/// @throws std::invalid_argument for a negative blur or noise, or a gamma <= 0.
+/// camera pixel centre (or samples_per_axis^2 points spread over each pixel), with shadows
+/// cast from the projector, Lambertian shading, ambient light, then blur, gamma and noise.
+/// Each ray is lit by the projector mirror nearest to where it meets the projector image.
+/// Deterministic for a given seed.
+/// @throws std::invalid_argument for a negative blur or noise, a gamma <= 0, or
+///   samples_per_axis outside [1, 16].
 SyntheticCapture RenderSyntheticCapture(const ScannerRig& rig, const PatternSequence& patterns,
                                         const SyntheticScene& scene,
                                         const SyntheticCaptureOptions& options);

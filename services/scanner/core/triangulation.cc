@@ -8,6 +8,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 namespace picking::scanner {
 namespace {
@@ -100,6 +101,27 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
                          std::to_string(projector_height_) + " projector");
     }
   }
+  const bool subpixel = map.has_subpixel();
+  if (subpixel) {
+    Require(map.column_subpixel.size() == n && map.row_subpixel.size() == n,
+            "sub-pixel correspondence maps are not width * height long");
+    // The projector image spans [-0.5, size - 0.5]; NaN fails the test too.
+    const float max_u = static_cast<float>(projector_width_) - 0.5f;
+    const float max_v = static_cast<float>(projector_height_) - 0.5f;
+    const float* u = map.column_subpixel.data();
+    const float* v = map.row_subpixel.data();
+    int outside = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      outside |= map.valid[i] & !(u[i] >= -0.5f && u[i] <= max_u && v[i] >= -0.5f && v[i] <= max_v);
+    }
+    for (std::size_t i = 0; outside && i < n; ++i) {
+      Require(!map.valid[i] || (u[i] >= -0.5f && u[i] <= max_u && v[i] >= -0.5f && v[i] <= max_v),
+              "sub-pixel correspondence (" + std::to_string(u[i]) + ", " + std::to_string(v[i]) +
+                  ") at pixel " + std::to_string(i) + " lies outside the " +
+                  std::to_string(projector_width_) + " x " + std::to_string(projector_height_) +
+                  " projector");
+    }
+  }
 
   geometry::PointCloud& cloud = result->cloud;
   cloud.width = static_cast<std::uint32_t>(camera_width_);
@@ -127,7 +149,27 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   std::atomic<std::size_t> rejected_depth{0};
   std::atomic<std::size_t> num_points{0};
 
-  pool_->Run(num_bands, [&](int band) {
+  // The projector ray of a sub-pixel correspondence, interpolated bilinearly between the rays
+  // of the four nearest mirror centres (the ray table is smooth; its curvature over one
+  // mirror is far below the noise).
+  const int last_column = std::max(0, projector_width_ - 2);
+  const int last_row = std::max(0, projector_height_ - 2);
+  const std::ptrdiff_t down = projector_height_ > 1 ? projector_width_ : 0;
+  const std::ptrdiff_t right = projector_width_ > 1 ? 1 : 0;
+  const auto interpolated_ray = [&](float u, float v) -> Eigen::Vector4f {
+    const int u0 = std::min(last_column, std::max(0, static_cast<int>(std::floor(u))));
+    const int v0 = std::min(last_row, std::max(0, static_cast<int>(std::floor(v))));
+    const float a = u - static_cast<float>(u0);
+    const float b = v - static_cast<float>(v0);
+    const Eigen::Vector4f* e00 =
+        projector_rays_.data() + static_cast<std::size_t>(v0) * projector_width_ + u0;
+    const Eigen::Vector4f top = e00[0] + a * (e00[right] - e00[0]);
+    const Eigen::Vector4f bottom = e00[down] + a * (e00[down + right] - e00[down]);
+    return top + b * (bottom - top);
+  };
+
+  const auto run_band = [&](auto subpixel_tag, int band) {
+    constexpr bool kSubpixel = decltype(subpixel_tag)::value;
     const int y0 = band * kRowsPerBand;
     const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
     std::size_t local_residual = 0;
@@ -149,9 +191,13 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
         }
         // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
         const Eigen::Vector2f& ray = rays_[i];
-        const Eigen::Vector4f& e =
-            projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
-                            map.column[i]];
+        Eigen::Vector4f e;
+        if constexpr (kSubpixel) {
+          e = interpolated_ray(map.column_subpixel[i], map.row_subpixel[i]);
+        } else {
+          e = projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
+                              map.column[i]];
+        }
         const float dd = ray.x() * ray.x() + ray.y() * ray.y() + 1.0f;
         const float de = ray.x() * e.x() + ray.y() * e.y() + e.z();
         const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
@@ -180,7 +226,12 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
     rejected_residual.fetch_add(local_residual, std::memory_order_relaxed);
     rejected_depth.fetch_add(local_depth, std::memory_order_relaxed);
     num_points.fetch_add(local_points, std::memory_order_relaxed);
-  });
+  };
+  if (subpixel) {
+    pool_->Run(num_bands, [&](int band) { run_band(std::true_type{}, band); });
+  } else {
+    pool_->Run(num_bands, [&](int band) { run_band(std::false_type{}, band); });
+  }
   result->num_rejected_residual = rejected_residual.load();
   result->num_rejected_depth = rejected_depth.load();
   result->num_removed_isolated = 0;

@@ -76,10 +76,14 @@ class Triangulator final {
   const TriangulationOptions& options() const { return options_; }
 
   /// Triangulates `map`. `intensity` (optional) supplies the intensities, usually the
-  /// all-white capture.
+  /// all-white capture. If the map carries sub-pixel coordinates (map.has_subpixel(), see
+  /// SubpixelRefiner) they are used: the projector ray of a non-integer projector pixel is
+  /// interpolated bilinearly between the precomputed rays of the four nearest mirrors;
+  /// otherwise the integer column and row are used.
   /// @throws std::invalid_argument if the map's size differs from the camera's or its
-  ///   buffers are not width * height long, a valid correspondence lies outside the
-  ///   projector, or the intensity image's size differs.
+  ///   buffers (including present sub-pixel maps) are not width * height long, a valid
+  ///   correspondence (integer or sub-pixel) lies outside the projector, or the intensity
+  ///   image's size differs.
   TriangulationResult Run(const CorrespondenceMap& map, const ImageView* intensity = nullptr) const;
 
   /// As above, reusing the buffers of `result`.
