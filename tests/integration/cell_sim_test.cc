@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -36,7 +37,7 @@ const char kTcp[] = "--tcp_xyz_m=0,0,0.35";
 constexpr std::uint64_t kSeed = 7;
 constexpr double kForceThresholdN = 10.0;
 constexpr double kLiftM = 0.01;
-constexpr double kRetractM = 0.2;
+constexpr double kRetractM = 0.1;
 
 Eigen::Isometry3d FromProto(const common::Pose& p) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
@@ -251,11 +252,33 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
         top.distance_m() < kLiftM + 0.01) {
       continue;
     }
+    // The arm's configuration: the IK branch farthest from singularities along the whole
+    // approach line, from kRetractM in front of the opening to 1 cm beyond the face.
     Eigen::Isometry3d X_before = t.X_BaseCupStart;
     X_before.translation().x() -= kRetractM;
-    const auto ik = kinematics_.NearestSolution(X_before * X_CupFlange(), q_start);
-    if (!ik) continue;
-    t.q_before = ik->q_rad;
+    const double depth_m = kRetractM + hit.distance_m() + 0.01;
+    double best_measure = 0.0;
+    for (int branch = 0; branch < 8; ++branch) {
+      double measure = std::numeric_limits<double>::infinity();
+      std::optional<ur10::JointVector> q_first;
+      for (int k = 0; k <= 20 && measure > 0.0; ++k) {
+        Eigen::Isometry3d X = X_before;
+        X.translation().x() += depth_m * k / 20.0;
+        bool found = false;
+        for (const auto& solution : kinematics_.Solve(X * X_CupFlange()).solutions) {
+          if (solution.branch.id() != branch) continue;
+          found = true;
+          measure = std::min(measure, kinematics_.SingularityMeasure(solution.q_rad));
+          if (k == 0) q_first = solution.q_rad;
+        }
+        if (!found) measure = 0.0;
+      }
+      if (q_first && measure > best_measure) {
+        best_measure = measure;
+        t.q_before = *q_first;
+      }
+    }
+    if (best_measure < 0.05) continue;
     t.face_distance_m = hit.distance_m();
     candidates.push_back(t);
   }
@@ -263,6 +286,8 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
   std::sort(candidates.begin(), candidates.end(),
             [](const Target& a, const Target& b) { return a.face_distance_m < b.face_distance_m; });
   const Target& target = candidates.front();
+  RecordProperty("target",
+                 target.item.item().name() + " #" + std::to_string(target.item.item().instance()));
   SCOPED_TRACE("target " + target.item.item().name() + " #" +
                std::to_string(target.item.item().instance()) + " in container " +
                std::to_string(target.item.container()));
