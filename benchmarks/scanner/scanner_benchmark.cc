@@ -1,10 +1,16 @@
 // Decoding speed and quality of the scanner's Gray-code decoder against OpenCV's
 // cv::structured_light::GrayCodePattern on the same synthetic 1280 x 1024 captures of a
 // tilted plane and a sphere (rendered once, seeded, with blur, noise, gamma and ambient
-// light), and the decode + triangulate + normals pipeline of one view.
+// light), and the decode + triangulate + normals pipeline of one view; then the optional
+// sub-pixel refinement stage, sub-pixel triangulation and the decode + refine + triangulate
+// + normals pipeline on area-sampled captures of the same scene (each camera pixel
+// integrates 4 x 4 rays, so pixels straddling a stripe edge are mixed as in a real camera).
 //
 // Counters: decoded = decoded fraction of all camera pixels; precision = fraction of the
 // decoded pixels whose column and row equal the ground truth; precision_pm1 = within +-1.
+// Refinement: coverage = fraction of all camera pixels with a point (or a refined
+// correspondence); col_err_px / row_err_px = median |sub-pixel - true projector coordinate|;
+// depth_err_mm = median |z - true z| of the points.
 
 #include "services/scanner/core/decoder.h"
 #include "services/scanner/core/normals.h"
@@ -18,15 +24,42 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/structured_light.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <iostream>
 #include <stdexcept>
+#include <vector>
 
 namespace picking::scanner {
 namespace {
 
 constexpr int kMinContrast = 16;
 constexpr int kMinBitContrast = 5;  // OpenCV's default white threshold.
+
+SyntheticScene BenchmarkScene() {
+  SyntheticScene scene;
+  SyntheticPlane plane;
+  plane.normal = Eigen::Vector3d(0.25, -0.1, 1.0).normalized();
+  plane.offset_m = plane.normal.dot(Eigen::Vector3d(0, 0, 1.0));
+  scene.planes.push_back(plane);
+  SyntheticSphere sphere;
+  sphere.center_m = Eigen::Vector3d(-0.03, 0.02, 0.85);
+  sphere.radius_m = 0.09;
+  scene.spheres.push_back(sphere);
+  return scene;
+}
+
+SyntheticCaptureOptions BenchmarkCaptureOptions(int samples_per_axis) {
+  SyntheticCaptureOptions options;
+  options.blur_sigma_px = 0.6;
+  options.noise_sigma = 2.0;
+  options.gamma = 1.3;
+  options.ambient_level = 25.0;
+  options.seed = 42;
+  options.samples_per_axis = samples_per_axis;
+  return options;
+}
 
 struct Fixture {
   ScannerRig rig = MakeExampleRig(1280, 1024);
@@ -40,22 +73,7 @@ struct Fixture {
   cv::Mat black;
 
   Fixture() {
-    SyntheticScene scene;
-    SyntheticPlane plane;
-    plane.normal = Eigen::Vector3d(0.25, -0.1, 1.0).normalized();
-    plane.offset_m = plane.normal.dot(Eigen::Vector3d(0, 0, 1.0));
-    scene.planes.push_back(plane);
-    SyntheticSphere sphere;
-    sphere.center_m = Eigen::Vector3d(-0.03, 0.02, 0.85);
-    sphere.radius_m = 0.09;
-    scene.spheres.push_back(sphere);
-    SyntheticCaptureOptions options;
-    options.blur_sigma_px = 0.6;
-    options.noise_sigma = 2.0;
-    options.gamma = 1.3;
-    options.ambient_level = 25.0;
-    options.seed = 42;
-    capture = RenderSyntheticCapture(rig, patterns, scene, options);
+    capture = RenderSyntheticCapture(rig, patterns, BenchmarkScene(), BenchmarkCaptureOptions(1));
     views = capture.views();
 
     cv::structured_light::GrayCodePattern::Params params;
@@ -241,6 +259,135 @@ void BM_DecodeTriangulateNormals(benchmark::State& state) {
   state.counters["normals"] = static_cast<double>(normals.num_normals);
 }
 BENCHMARK(BM_DecodeTriangulateNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The same scene rendered with area sampling, for the refinement benchmarks.
+struct AreaSampledFixture {
+  ScannerRig rig = MakeExampleRig(1280, 1024);
+  PatternSequence patterns;
+  SyntheticCapture capture;
+  std::vector<ImageView> views;
+  CorrespondenceMap decoded;
+
+  AreaSampledFixture() {
+    capture = RenderSyntheticCapture(rig, patterns, BenchmarkScene(), BenchmarkCaptureOptions(4));
+    views = capture.views();
+    decoded =
+        GrayCodeDecoder(patterns, DecoderOptions{kMinContrast, kMinBitContrast, 0}).Decode(views);
+  }
+};
+
+AreaSampledFixture& GetAreaSampledFixture() {
+  static AreaSampledFixture* fixture = new AreaSampledFixture();
+  return *fixture;
+}
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return std::nan("");
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  return values[values.size() / 2];
+}
+
+void ReportRefinement(benchmark::State& state, const CorrespondenceMap& map) {
+  const AreaSampledFixture& f = GetAreaSampledFixture();
+  std::vector<double> column_errors;
+  std::vector<double> row_errors;
+  for (std::size_t i = 0; i < map.valid.size(); ++i) {
+    if (!map.valid[i] || std::isnan(f.capture.column_exact[i])) continue;
+    column_errors.push_back(std::abs(map.column_subpixel[i] - f.capture.column_exact[i]));
+    row_errors.push_back(std::abs(map.row_subpixel[i] - f.capture.row_exact[i]));
+  }
+  state.counters["coverage"] = map.decoded_fraction();
+  state.counters["col_err_px"] = Median(column_errors);
+  state.counters["row_err_px"] = Median(row_errors);
+}
+
+void ReportPoints(benchmark::State& state, const TriangulationResult& result) {
+  const AreaSampledFixture& f = GetAreaSampledFixture();
+  std::vector<double> errors;
+  for (std::size_t i = 0; i < result.cloud.points.size(); ++i) {
+    const float z = result.cloud.points[i].z();
+    if (!std::isnan(z) && !std::isnan(f.capture.depth_m[i])) {
+      errors.push_back(std::abs(z - f.capture.depth_m[i]));
+    }
+  }
+  state.counters["points"] = static_cast<double>(result.num_points);
+  state.counters["coverage"] =
+      static_cast<double>(result.num_points) / static_cast<double>(result.cloud.points.size());
+  state.counters["depth_err_mm"] = Median(errors) * 1e3;
+}
+
+// The refinement stage alone: from the decoded map (copied in, as Decode would have
+// written it) to the sub-pixel maps.
+void BM_Refine(benchmark::State& state) {
+  AreaSampledFixture& f = GetAreaSampledFixture();
+  RefinementOptions options;
+  options.num_threads = static_cast<int>(state.range(0));
+  const SubpixelRefiner refiner(f.patterns, options);
+  CorrespondenceMap map = f.decoded;
+  RefinementResult result;
+  for (auto _ : state) {
+    state.PauseTiming();
+    map.valid = f.decoded.valid;  // Refine may have invalidated pixels.
+    map.column = f.decoded.column;
+    map.row = f.decoded.row;
+    map.num_valid = f.decoded.num_valid;
+    state.ResumeTiming();
+    result = refiner.Refine(f.views, &map);
+    benchmark::DoNotOptimize(result.num_refined);
+  }
+  ReportRefinement(state, map);
+  state.counters["rejected"] = static_cast<double>(result.num_rejected);
+}
+BENCHMARK(BM_Refine)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Integer decode on the area-sampled captures, for comparison with the refined runs.
+void BM_TriangulateInteger_AreaSampled(benchmark::State& state) {
+  AreaSampledFixture& f = GetAreaSampledFixture();
+  const Triangulator triangulator(f.rig.camera, f.rig.projector, f.rig.X_CameraProjector);
+  TriangulationResult result;
+  for (auto _ : state) {
+    triangulator.Run(f.decoded, &f.views[PatternSequence::kWhiteIndex], &result);
+    benchmark::DoNotOptimize(result.num_points);
+  }
+  ReportPoints(state, result);
+}
+BENCHMARK(BM_TriangulateInteger_AreaSampled)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_TriangulateSubpixel(benchmark::State& state) {
+  AreaSampledFixture& f = GetAreaSampledFixture();
+  CorrespondenceMap map = f.decoded;
+  SubpixelRefiner(f.patterns).Refine(f.views, &map);
+  const Triangulator triangulator(f.rig.camera, f.rig.projector, f.rig.X_CameraProjector);
+  TriangulationResult result;
+  for (auto _ : state) {
+    triangulator.Run(map, &f.views[PatternSequence::kWhiteIndex], &result);
+    benchmark::DoNotOptimize(result.num_points);
+  }
+  ReportPoints(state, result);
+}
+BENCHMARK(BM_TriangulateSubpixel)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// One view end to end with refinement: 44 captures in, organised cloud with intensities and
+// normals from sub-pixel correspondences out.
+void BM_DecodeRefineTriangulateNormals(benchmark::State& state) {
+  AreaSampledFixture& f = GetAreaSampledFixture();
+  const GrayCodeDecoder decoder(f.patterns, DecoderOptions{kMinContrast, kMinBitContrast, 0});
+  const SubpixelRefiner refiner(f.patterns);
+  const Triangulator triangulator(f.rig.camera, f.rig.projector, f.rig.X_CameraProjector);
+  CorrespondenceMap map;
+  TriangulationResult result;
+  NormalResult normals;
+  for (auto _ : state) {
+    decoder.Decode(f.views, &map);
+    refiner.Refine(f.views, &map);
+    triangulator.Run(map, &f.views[PatternSequence::kWhiteIndex], &result);
+    normals = EstimateNormals(&result.cloud);
+    benchmark::DoNotOptimize(normals.num_normals);
+  }
+  ReportPoints(state, result);
+  state.counters["normals"] = static_cast<double>(normals.num_normals);
+}
+BENCHMARK(BM_DecodeRefineTriangulateNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace picking::scanner

@@ -267,20 +267,20 @@ inline int LowestSetBit(unsigned value) {
 }
 
 // Refines one line of n pixels; pixel i's code, valid flag and output are at element i *
-// step. diff(i, bit) is pattern - inverse at pixel i for Gray-code bit `bit` of the value
-// (0 = least significant). Up to max_gap invalid pixels between two valid ones are bridged
-// (pixels straddling a stripe edge often fail the decoder's bit-contrast test). Writes the
-// continuous coordinate of every valid pixel that can be refined and NaN elsewhere; returns
-// the number of knots.
+// step; `events` has room for n. diff(i, bit) is pattern - inverse at pixel i for Gray-code bit
+// `bit` of the value (0 = least significant). Up to max_gap invalid pixels between two valid ones
+// are bridged (pixels straddling a stripe edge often fail the decoder's bit-contrast test). Writes
+// the continuous coordinate of every valid pixel that can be refined and NaN elsewhere; returns the
+// number of knots.
 template <typename Diff>
 std::size_t RefineLine(int n, const std::uint16_t* code, const std::uint8_t* valid,
                        std::ptrdiff_t step, int max_gap, const Diff& diff, float* out,
-                       std::vector<LineEvent>* events) {
+                       LineEvent* events) {
   const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  events->clear();
+  int m = 0;  // Events so far; there are at most n.
   std::size_t num_knots = 0;
   const auto push_break = [&](int boundary) {
-    events->push_back({boundary, boundary + 1, false, 0.0f, 0.0f});
+    events[m++] = LineEvent{boundary, boundary + 1, false, 0.0f, 0.0f};
   };
   for (int i = 0; i + 1 < n; ++i) {
     const std::uint8_t va = valid[i * step];
@@ -329,7 +329,7 @@ std::size_t RefineLine(int n, const std::uint16_t* code, const std::uint8_t* val
     }
     // Without a sign change (captures other than the decoded ones) the gap's middle.
     const float t = first < 0.0f ? 0.5f * static_cast<float>(i + k) : 0.5f * (first + last);
-    events->push_back({i, k, true, t, 0.5f * static_cast<float>(ca + cb)});
+    events[m++] = LineEvent{i, k, true, t, 0.5f * static_cast<float>(ca + cb)};
     ++num_knots;
     i = k - 1;
   }
@@ -337,8 +337,7 @@ std::size_t RefineLine(int n, const std::uint16_t* code, const std::uint8_t* val
 
   // Runs between consecutive events: pixels (previous.boundary, event.boundary]; a run is
   // valid if its first valid pixel (previous.next) is, and may contain bridged gaps.
-  const LineEvent* e = events->data();
-  const int m = static_cast<int>(events->size());
+  const LineEvent* e = events;
   for (int j = 0; j < m; ++j) {
     const int first = j == 0 ? 0 : e[j - 1].boundary + 1;
     const int first_valid = j == 0 ? 0 : e[j - 1].next;
@@ -503,8 +502,7 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   // Columns along camera rows.
   const int num_bands = (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
   pool_->Run(num_bands, [&](int band) {
-    std::vector<LineEvent> events;
-    events.reserve(static_cast<std::size_t>(width) + 1);
+    std::vector<LineEvent> events(static_cast<std::size_t>(width));
     std::size_t knots = 0;
     const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
     for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
@@ -514,46 +512,67 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
                static_cast<int>(column_inverse[bit]->row(y)[x]);
       };
       knots += RefineLine(width, map->column.data() + offset, map->valid.data() + offset, 1,
-                          max_gap, diff, map->column_subpixel.data() + offset, &events);
+                          max_gap, diff, map->column_subpixel.data() + offset, events.data());
     }
     column_knots.fetch_add(knots, std::memory_order_relaxed);
   });
-  // Rows along camera columns, in strips of neighbouring columns that share cache lines.
+  // Rows along camera columns, in strips of neighbouring columns copied into contiguous
+  // (transposed) lines and back.
   const int num_strips = (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip;
-  std::atomic<std::size_t> num_filled{0};
   pool_->Run(num_strips, [&](int strip) {
-    std::vector<LineEvent> events;
-    events.reserve(static_cast<std::size_t>(height) + 1);
-    std::vector<std::pair<std::size_t, float>> fills;
-    fills.reserve(static_cast<std::size_t>(height));
+    constexpr int kStrip = kRefineColumnsPerStrip;
+    const std::size_t h = static_cast<std::size_t>(height);
+    std::vector<LineEvent> events(h);
+    std::vector<std::uint16_t> codes(kStrip * h);
+    std::vector<std::uint8_t> valids(kStrip * h);
+    std::vector<float> values(kStrip * h);
     std::size_t knots = 0;
-    std::size_t filled = 0;
-    const int x1 = std::min(width, (strip + 1) * kRefineColumnsPerStrip);
-    for (int x = strip * kRefineColumnsPerStrip; x < x1; ++x) {
+    const int x0 = strip * kStrip;
+    const int x1 = std::min(width, x0 + kStrip);
+    for (int y = 0; y < height; ++y) {
+      const std::size_t offset = static_cast<std::size_t>(y) * width;
+      for (int x = x0; x < x1; ++x) {
+        codes[(x - x0) * h + y] = map->row[offset + x];
+        valids[(x - x0) * h + y] = map->valid[offset + x];
+      }
+    }
+    for (int x = x0; x < x1; ++x) {
       const auto diff = [&](int y, int bit) {
         return static_cast<int>(row_pattern[bit]->row(y)[x]) -
                static_cast<int>(row_inverse[bit]->row(y)[x]);
       };
-      knots += RefineLine(height, map->row.data() + x, map->valid.data() + x, width, max_gap, diff,
-                          map->row_subpixel.data() + x, &events);
-      // Columns that the camera row could not refine, from the pixels above and below (all
-      // decided before any is written, so that fills do not feed each other).
-      fills.clear();
-      for (int y = 0; y < height; ++y) {
-        const std::size_t i = static_cast<std::size_t>(y) * width + x;
+      const std::size_t line = (x - x0) * h;
+      knots += RefineLine(height, codes.data() + line, valids.data() + line, 1, max_gap, diff,
+                          values.data() + line, events.data());
+    }
+    for (int y = 0; y < height; ++y) {
+      float* out = map->row_subpixel.data() + static_cast<std::size_t>(y) * width;
+      for (int x = x0; x < x1; ++x) out[x] = values[(x - x0) * h + y];
+    }
+    row_knots.fetch_add(knots, std::memory_order_relaxed);
+  });
+
+  // Columns that a camera row could not refine, from the pixels above and below; all are
+  // decided before any is written, so that fills do not feed each other.
+  std::vector<std::vector<std::pair<std::size_t, float>>> column_fills(num_bands);
+  pool_->Run(num_bands, [&](int band) {
+    std::vector<std::pair<std::size_t, float>>& fills = column_fills[band];
+    const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
+    for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
+      const std::size_t offset = static_cast<std::size_t>(y) * width;
+      for (int x = 0; x < width; ++x) {
+        const std::size_t i = offset + x;
         if (!map->valid[i] || !std::isnan(map->column_subpixel[i])) continue;
         const float v = FillAcross(map->column_subpixel.data() + i, map->column.data() + i, width,
                                    y, height - 1 - y);
         if (!std::isnan(v)) fills.emplace_back(i, v);
       }
-      for (const auto& [i, v] : fills) map->column_subpixel[i] = v;
-      filled += fills.size();
     }
-    row_knots.fetch_add(knots, std::memory_order_relaxed);
-    num_filled.fetch_add(filled, std::memory_order_relaxed);
   });
 
-  // Pixels with a coordinate that could not be refined.
+  // Rows that a camera column could not refine, from the pixels left and right, then the
+  // pixels with a coordinate that could not be refined.
+  std::atomic<std::size_t> num_filled{0};
   std::atomic<std::size_t> refined{0};
   std::atomic<std::size_t> unrefined{0};
   const bool reject = options_.reject_unrefined;
@@ -567,10 +586,10 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
     std::uint8_t* valid = map->valid.data();
     float* column_subpixel = map->column_subpixel.data();
     float* row_subpixel = map->row_subpixel.data();
-    // Rows that the camera column could not refine, from the pixels left and right.
+    for (const auto& [i, v] : column_fills[band]) column_subpixel[i] = v;
+    std::size_t filled = column_fills[band].size();
     std::vector<std::pair<std::size_t, float>> fills;
     fills.reserve(static_cast<std::size_t>(width));
-    std::size_t filled = 0;
     for (std::size_t row_start = i0; row_start < i1; row_start += width) {
       fills.clear();
       for (int x = 0; x < width; ++x) {

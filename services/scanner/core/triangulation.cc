@@ -157,8 +157,9 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   const std::ptrdiff_t down = projector_height_ > 1 ? projector_width_ : 0;
   const std::ptrdiff_t right = projector_width_ > 1 ? 1 : 0;
   const auto interpolated_ray = [&](float u, float v) -> Eigen::Vector4f {
-    const int u0 = std::min(last_column, std::max(0, static_cast<int>(std::floor(u))));
-    const int v0 = std::min(last_row, std::max(0, static_cast<int>(std::floor(v))));
+    // Truncation: u in (-0.5, 0) gives u0 = 0 and a < 0, a short extrapolation.
+    const int u0 = std::min(last_column, std::max(0, static_cast<int>(u)));
+    const int v0 = std::min(last_row, std::max(0, static_cast<int>(v)));
     const float a = u - static_cast<float>(u0);
     const float b = v - static_cast<float>(v0);
     const Eigen::Vector4f* e00 =
