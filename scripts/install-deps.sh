@@ -20,7 +20,7 @@ packages=(
   # the peers the benchmarks compare against read their sample data from here
   opencv-doc
   # the Python client example and its test (Debian's python3, not a PATH-first build)
-  python3 python3-grpcio python3-grpc-tools
+  python3 python3-grpcio python3-grpc-tools python3-pkg-resources
   # style check
   clang-format
 )
