@@ -358,9 +358,11 @@ TEST_F(ScannerReplayTest, ScanOfAPlaneStreamsACloudOnThePlane) {
   RecordProperty("median_plane_error_mm", std::to_string(median_mm));
   EXPECT_GT(summary.valid_fraction(0), 0.8);
   EXPECT_GT(coverage, 0.75);
-  // Integer projector columns: one column step moves a point about z^2 / (b f_p) = 6 mm in
-  // depth here, i.e. up to +-3 mm; the median lies near a quarter step.
-  EXPECT_LT(median_mm, 2.0);
+  // One projector column step moves a point about z^2 / (b f_p) = 6 mm in depth here; with
+  // integer columns the median error lies near a quarter step (1.5 mm). The scan refines
+  // correspondences to sub-pixel stripe edges; these replayed images are hard-edged (no
+  // area sampling), so an edge is only located to between two camera pixels.
+  EXPECT_LT(median_mm, 0.8);
   // Normals face the camera. They are rough: neighbouring pixels see the same projector
   // column, so depth steps by up to a column between them.
   EXPECT_GT(normal_dot / normal_count, 0.5);

@@ -25,6 +25,11 @@ bool SameTriangulation(const TriangulationOptions& a, const TriangulationOptions
          a.num_threads == b.num_threads;
 }
 
+bool SameRefinement(const RefinementOptions& a, const RefinementOptions& b) {
+  return a.reject_unrefined == b.reject_unrefined && a.max_gap_px == b.max_gap_px &&
+         a.num_threads == b.num_threads;
+}
+
 bool SameDecoder(const DecoderOptions& a, const DecoderOptions& b) {
   return a.min_contrast == b.min_contrast && a.min_bit_contrast == b.min_bit_contrast &&
          a.num_threads == b.num_threads;
@@ -64,6 +69,7 @@ const char* ScanStageName(ScanStage stage) {
 
 struct ScanPipeline::Cache {
   std::unique_ptr<GrayCodeDecoder> decoder;
+  std::unique_ptr<SubpixelRefiner> refiner;
   std::unique_ptr<Triangulator> triangulator;
 };
 
@@ -162,7 +168,13 @@ geometry::PointCloud ScanPipeline::ProcessViewLocked(const std::vector<GrayImage
     cache_->triangulator = std::make_unique<Triangulator>(
         calibration_.camera, calibration_.projector, calibration_.X_CameraProjector, triangulation);
   }
-  const CorrespondenceMap map = cache_->decoder->Decode(views);
+  CorrespondenceMap map = cache_->decoder->Decode(views);
+  if (options.subpixel) {
+    if (!cache_->refiner || !SameRefinement(cache_->refiner->options(), options.refinement)) {
+      cache_->refiner = std::make_unique<SubpixelRefiner>(patterns_, options.refinement);
+    }
+    cache_->refiner->Refine(views, &map);
+  }
   if (valid_fraction) *valid_fraction = map.decoded_fraction();
   const ImageView& white = views[PatternSequence::kWhiteIndex];
   TriangulationResult result =

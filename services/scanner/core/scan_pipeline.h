@@ -46,6 +46,18 @@ struct ScanViewSpec {
 /// Options of ScanPipeline::Run. Defaults are the service's.
 struct ScanOptions {
   DecoderOptions decode;
+  /// Refine the integer correspondences to sub-pixel projector coordinates before
+  /// triangulating (SubpixelRefiner): the depth error drops from the projector column step
+  /// (~1.5 mm at 1 m) to a fraction of a millimetre, for ~25 ms more per view.
+  bool subpixel = true;
+  /// Pixels the refiner cannot refine (a camera coarser than the projector sees codes jump
+  /// by more than one column between neighbours) keep their integer correspondence rather
+  /// than being dropped, so refinement never costs coverage.
+  RefinementOptions refinement = [] {
+    RefinementOptions r;
+    r.reject_unrefined = false;
+    return r;
+  }();
   TriangulationOptions triangulation;  ///< frame_id is set by the pipeline.
   NormalOptions normals;
   bool with_normals = true;
