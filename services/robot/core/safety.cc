@@ -93,6 +93,21 @@ SafetyCheck SafetyChecker::CheckTcp(const Eigen::Vector3d& p_BaseTcp,
   return SafetyCheck::Ok();
 }
 
+SafetyCheck SafetyChecker::CheckJointMove(const JointVector& q_target_rad, double speed_rad_s,
+                                          double acceleration_rad_s2) const {
+  const double max_speed = limits_.max_velocity_rad_s.minCoeff();
+  if (!std::isfinite(speed_rad_s) || speed_rad_s <= 0.0 || speed_rad_s > max_speed) {
+    return SafetyCheck::Fail("joint speed must be in (0, " + std::to_string(max_speed) + "] rad/s");
+  }
+  const double max_acceleration = limits_.max_acceleration_rad_s2.minCoeff();
+  if (!std::isfinite(acceleration_rad_s2) || acceleration_rad_s2 <= 0.0 ||
+      acceleration_rad_s2 > max_acceleration) {
+    return SafetyCheck::Fail("joint acceleration must be in (0, " +
+                             std::to_string(max_acceleration) + "] rad/s^2");
+  }
+  return CheckJointTarget(q_target_rad);
+}
+
 SafetyCheck SafetyChecker::CheckJointTarget(const JointVector& q_rad) const {
   for (int j = 0; j < ur10::kNumJoints; ++j) {
     std::ostringstream os;

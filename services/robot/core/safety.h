@@ -67,6 +67,11 @@ class SafetyChecker final {
   /// Joint positions within limits, TCP inside the workspace and outside every forbidden zone.
   SafetyCheck CheckJointTarget(const JointVector& q_rad) const;
 
+  /// A joint move (UR movej): speed in (0, slowest joint's limit] rad/s, acceleration in
+  /// (0, smallest joint limit] rad/s^2, and the target as CheckJointTarget.
+  SafetyCheck CheckJointMove(const JointVector& q_target_rad, double speed_rad_s,
+                             double acceleration_rad_s2) const;
+
   /// A straight TCP line from FK(q_start) to X_BaseTcp_goal: every intermediate pose (sampled
   /// every `step_m` / 0.02 rad) reachable on the start's IK branch without a joint jump, and
   /// every sampled TCP position inside the workspace and outside the forbidden zones; the

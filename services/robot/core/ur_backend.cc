@@ -279,18 +279,9 @@ MotionResult UrBackend::Wait(const std::function<bool(const RobotState&)>& done,
 MotionResult UrBackend::MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
                                    double acceleration_rad_s2) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
-  const auto& limits = checker_.limits();
-  if (!std::isfinite(speed_rad_s) || speed_rad_s <= 0.0 ||
-      speed_rad_s > limits.max_velocity_rad_s.minCoeff()) {
-    return Reject("joint speed must be in (0, " +
-                  std::to_string(limits.max_velocity_rad_s.minCoeff()) + "] rad/s");
-  }
-  if (!std::isfinite(acceleration_rad_s2) || acceleration_rad_s2 <= 0.0 ||
-      acceleration_rad_s2 > limits.max_acceleration_rad_s2.minCoeff()) {
-    return Reject("joint acceleration must be in (0, " +
-                  std::to_string(limits.max_acceleration_rad_s2.minCoeff()) + "] rad/s^2");
-  }
-  if (const SafetyCheck check = checker_.CheckJointTarget(q_target_rad); !check) {
+  if (const SafetyCheck check =
+          checker_.CheckJointMove(q_target_rad, speed_rad_s, acceleration_rad_s2);
+      !check) {
     return Reject(check.reason);
   }
   MotionResult begin = BeginMotion();
