@@ -166,18 +166,6 @@ std::optional<Eigen::Isometry3d> ReadPoseFile(const std::string& path) {
   return X;
 }
 
-// DetectChessboard behind OpenCV's quick board test (the test of CALIB_CB_FAST_CHECK):
-// without it an image with no board in sight takes minutes.
-bool FindBoard(const GrayImage& image, const ChessboardSpec& board,
-               std::vector<Eigen::Vector2d>* corners) {
-  const cv::Mat mat(static_cast<int>(image.height), static_cast<int>(image.width), CV_8UC1,
-                    const_cast<std::uint8_t*>(image.pixels.data()));
-  if (!cv::checkChessboard(mat, cv::Size(board.inner_corners_x, board.inner_corners_y))) {
-    return false;
-  }
-  return DetectChessboard(image, board, corners);
-}
-
 bool IsImageFile(const fs::path& p) {
   std::string ext = p.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
@@ -342,7 +330,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
       fs::rename(tmp, session / ViewDirName(index));
       std::vector<Eigen::Vector2d> corners;
       response->set_view_index(static_cast<std::uint32_t>(index));
-      response->set_chessboard_found(FindBoard(images[0], options_.board, &corners));
+      response->set_chessboard_found(DetectChessboard(images[0], options_.board, &corners));
       response->set_views_in_session(static_cast<std::uint32_t>(index + 1));
       return grpc::Status::OK;
     });
@@ -569,7 +557,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     for (const auto& v : views) {
       GrayImage image = WhiteImage(v);
       std::vector<Eigen::Vector2d> corners;
-      if (!FindBoard(image, board, &corners)) continue;
+      if (!DetectChessboard(image, board, &corners)) continue;
       out.push_back({v.name, std::move(image)});
       if (used) used->push_back(&v);
     }
