@@ -11,8 +11,6 @@
 #include <sstream>
 #include <stdexcept>
 
-#include <opencv2/calib3d.hpp>
-#include <opencv2/core.hpp>
 
 #include "libs/apc/catalogue.h"
 #include "libs/errors/errors.h"
