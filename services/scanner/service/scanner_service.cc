@@ -11,7 +11,6 @@
 #include <sstream>
 #include <stdexcept>
 
-
 #include "libs/apc/catalogue.h"
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
