@@ -108,6 +108,21 @@ SafetyCheck SafetyChecker::CheckJointMove(const JointVector& q_target_rad, doubl
   return CheckJointTarget(q_target_rad);
 }
 
+SafetyCheck SafetyChecker::CheckGuardedMove(const GuardedMoveRequest& request) const {
+  if (!request.direction_tcp.allFinite() || std::abs(request.direction_tcp.norm() - 1.0) > 1e-3) {
+    return SafetyCheck::Fail("guarded move direction must be a finite unit vector");
+  }
+  if (!std::isfinite(request.max_distance_m) || request.max_distance_m == 0.0 ||
+      !std::isfinite(request.speed_m_s) || request.speed_m_s <= 0.0 ||
+      !std::isfinite(request.acceleration_m_s2) || request.acceleration_m_s2 <= 0.0 ||
+      !std::isfinite(request.force_threshold_n) || request.force_threshold_n <= 0.0) {
+    return SafetyCheck::Fail(
+        "guarded move needs a finite non-zero distance and positive speed, "
+        "acceleration and force threshold");
+  }
+  return SafetyCheck::Ok();
+}
+
 SafetyCheck SafetyChecker::CheckJointTarget(const JointVector& q_rad) const {
   for (int j = 0; j < ur10::kNumJoints; ++j) {
     std::ostringstream os;

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "libs/ur10/kinematics.h"
+#include "services/robot/core/robot_backend.h"
 #include "services/robot/core/trajectory.h"
 
 namespace picking::robot {
@@ -71,6 +72,10 @@ class SafetyChecker final {
   /// (0, smallest joint limit] rad/s^2, and the target as CheckJointTarget.
   SafetyCheck CheckJointMove(const JointVector& q_target_rad, double speed_rad_s,
                              double acceleration_rad_s2) const;
+
+  /// A guarded move's parameters: a finite unit direction, a finite non-zero distance and
+  /// positive speed, acceleration and force threshold.
+  SafetyCheck CheckGuardedMove(const GuardedMoveRequest& request) const;
 
   /// A straight TCP line from FK(q_start) to X_BaseTcp_goal: every intermediate pose (sampled
   /// every `step_m` / 0.02 rad) reachable on the start's IK branch without a joint jump, and

@@ -374,16 +374,8 @@ MotionResult UrBackend::ExecuteTrajectory(
 
 MotionResult UrBackend::GuardedMove(const GuardedMoveRequest& request) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
-  if (!request.direction_tcp.allFinite() || std::abs(request.direction_tcp.norm() - 1.0) > 1e-3) {
-    return Reject("guarded move direction must be a finite unit vector");
-  }
-  if (!std::isfinite(request.max_distance_m) || request.max_distance_m == 0.0 ||
-      !std::isfinite(request.speed_m_s) || request.speed_m_s <= 0.0 ||
-      !std::isfinite(request.acceleration_m_s2) || request.acceleration_m_s2 <= 0.0 ||
-      !std::isfinite(request.force_threshold_n) || request.force_threshold_n <= 0.0) {
-    return Reject(
-        "guarded move needs a finite non-zero distance and positive speed, "
-        "acceleration and force threshold");
+  if (const SafetyCheck check = checker_.CheckGuardedMove(request); !check) {
+    return Reject(check.reason);
   }
   MotionResult begin = BeginMotion();
   if (begin.outcome != MotionOutcome::kCompleted) return begin;
