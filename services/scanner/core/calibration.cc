@@ -236,6 +236,86 @@ CameraCalibrationResult CalibrateCamera(const std::vector<ChessboardView>& views
   return result;
 }
 
+namespace {
+
+// Mean grey level in a disc of `radius_px` around `p` (pixels outside the image ignored);
+// -1 when the disc lies outside the image.
+double MeanLevel(const GrayImage& image, const cv::Point2f& p, double radius_px) {
+  const int r = std::max(1, static_cast<int>(radius_px));
+  const int x0 = static_cast<int>(std::lround(p.x)), y0 = static_cast<int>(std::lround(p.y));
+  double sum = 0.0;
+  int count = 0;
+  for (int y = y0 - r; y <= y0 + r; ++y) {
+    for (int x = x0 - r; x <= x0 + r; ++x) {
+      if (x < 0 || y < 0 || x >= static_cast<int>(image.width) ||
+          y >= static_cast<int>(image.height) ||
+          (x - x0) * (x - x0) + (y - y0) * (y - y0) > r * r) {
+        continue;
+      }
+      sum += image.at(static_cast<std::uint32_t>(x), static_cast<std::uint32_t>(y));
+      ++count;
+    }
+  }
+  return count > 0 ? sum / count : -1.0;
+}
+
+}  // namespace
+
+bool EstimateBoardPose(const GrayImage& image, const ChessboardSpec& board,
+                       const CameraIntrinsics& intrinsics, BoardPose* pose) {
+  CheckImage(image, "EstimateBoardPose");
+  intrinsics.Validate();
+  if (image.width != intrinsics.width || image.height != intrinsics.height) {
+    throw std::invalid_argument(
+        "EstimateBoardPose: the image is " + std::to_string(image.width) + " x " +
+        std::to_string(image.height) + " but the camera intrinsics are for " +
+        std::to_string(intrinsics.width) + " x " + std::to_string(intrinsics.height));
+  }
+  std::vector<Eigen::Vector2d> corners;
+  if (!DetectChessboard(image, board, &corners)) return false;
+  const std::vector<cv::Point3f> object = BoardObjectPoints(board);
+  const cv::Mat K(CameraMatrix(intrinsics));
+  const cv::Mat d = DistortionVector(intrinsics);
+  const auto solve = [&](const std::vector<Eigen::Vector2d>& c, cv::Mat* rvec, cv::Mat* tvec) {
+    const std::vector<cv::Point2f> points = ToCv(c);
+    if (!cv::solvePnP(object, points, K, d, *rvec, *tvec, false, cv::SOLVEPNP_ITERATIVE)) {
+      return false;
+    }
+    return true;
+  };
+  cv::Mat rvec, tvec;
+  if (!solve(corners, &rvec, &tvec)) return false;
+  if ((board.inner_corners_x + board.inner_corners_y) % 2 == 1) {
+    // The squares diagonally outside the first and the last corner differ in colour.
+    const double s = board.square_size_m;
+    const std::vector<cv::Point3f> probes{
+        cv::Point3f(static_cast<float>(-0.5 * s), static_cast<float>(-0.5 * s), 0.0f),
+        cv::Point3f(static_cast<float>((board.inner_corners_x - 0.5) * s),
+                    static_cast<float>((board.inner_corners_y - 0.5) * s), 0.0f)};
+    std::vector<cv::Point2f> probes_px;
+    cv::projectPoints(probes, rvec, tvec, K, d, probes_px);
+    const double square_px = (corners[1] - corners[0]).norm();
+    const double first = MeanLevel(image, probes_px[0], 0.25 * square_px);
+    const double last = MeanLevel(image, probes_px[1], 0.25 * square_px);
+    if (first >= 0.0 && last >= 0.0 && first > last) {
+      std::reverse(corners.begin(), corners.end());
+      if (!solve(corners, &rvec, &tvec)) return false;
+    }
+  }
+  std::vector<cv::Point2f> reprojected;
+  cv::projectPoints(object, rvec, tvec, K, d, reprojected);
+  double sum_sq = 0.0;
+  for (std::size_t i = 0; i < corners.size(); ++i) {
+    const double dx = reprojected[i].x - corners[i].x();
+    const double dy = reprojected[i].y - corners[i].y();
+    sum_sq += dx * dx + dy * dy;
+  }
+  pose->X_CameraBoard = ToIsometry(rvec, tvec);
+  pose->rms_px = std::sqrt(sum_sq / static_cast<double>(corners.size()));
+  pose->corners_px = std::move(corners);
+  return true;
+}
+
 void ProjectorSpec::Validate() const {
   if (width == 0 || height == 0) throw std::invalid_argument("ProjectorSpec size must be > 0");
   if (column_bits < 1 || column_bits > 16 || (1u << column_bits) < width) {

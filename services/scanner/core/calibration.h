@@ -45,6 +45,23 @@ struct ChessboardSpec {
 bool DetectChessboard(const GrayImage& image, const ChessboardSpec& board,
                       std::vector<Eigen::Vector2d>* corners_px);
 
+/// The pose of a chessboard seen by a calibrated camera.
+struct BoardPose {
+  /// Pose of the board frame (ChessboardSpec) in the camera frame, metres.
+  Eigen::Isometry3d X_CameraBoard = Eigen::Isometry3d::Identity();
+  double rms_px = 0.0;                      ///< Reprojection RMS of the corners, pixels.
+  std::vector<Eigen::Vector2d> corners_px;  ///< Detected corners in board order.
+};
+
+/// Finds `board` in `image` and its pose relative to a camera with `intrinsics`
+/// (cv::solvePnP on the detected corners). A board whose inner corner counts have an odd
+/// sum (e.g. 9 x 6) looks different when turned by half a turn; its frame is chosen so that the
+/// square diagonally outside the first corner is the dark one, the same on every view (what
+/// hand-eye calibration needs). Returns false when the board is not found.
+/// @throws std::invalid_argument when the image size differs from the intrinsics' size.
+bool EstimateBoardPose(const GrayImage& image, const ChessboardSpec& board,
+                       const CameraIntrinsics& intrinsics, BoardPose* pose);
+
 /// One chessboard image for camera calibration; `name` appears in error messages.
 struct ChessboardView {
   std::string name;

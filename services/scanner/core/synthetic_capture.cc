@@ -47,6 +47,66 @@ double Intersect(const SyntheticScene& scene, const Eigen::Vector3d& origin,
       if (albedo) *albedo = sphere.albedo;
     }
   }
+  for (const SyntheticChessboard& board : scene.boards) {
+    // In the board frame the board is the plane z = 0.
+    const Eigen::Isometry3d X_BoardCamera = board.X_CameraBoard.inverse();
+    const Eigen::Vector3d o = X_BoardCamera * origin;
+    const Eigen::Vector3d d = X_BoardCamera.linear() * direction;
+    if (std::abs(d.z()) < 1e-12) continue;
+    const double t = -o.z() / d.z();
+    if (!(t > t_min && t < best)) continue;
+    const Eigen::Vector3d p = o + t * d;
+    const double s = board.square_size_m;
+    const double bx = p.x() / s, by = p.y() / s;
+    const double m = board.margin_m / s;
+    if (bx < -1.0 - m || by < -1.0 - m || bx > board.inner_corners_x + m ||
+        by > board.inner_corners_y + m) {
+      continue;
+    }
+    best = t;
+    const Eigen::Vector3d n_Camera = board.X_CameraBoard.linear().col(2);
+    if (normal) *normal = n_Camera.dot(direction) < 0 ? n_Camera : Eigen::Vector3d(-n_Camera);
+    if (albedo) {
+      *albedo = board.light_albedo;
+      if (bx >= -1.0 && by >= -1.0 && bx <= board.inner_corners_x && by <= board.inner_corners_y) {
+        const long ix = static_cast<long>(std::floor(bx)), iy = static_cast<long>(std::floor(by));
+        if ((ix + iy) % 2 == 0) *albedo = board.dark_albedo;
+      }
+    }
+  }
+  for (const SyntheticBox& box : scene.boxes) {
+    // Slab test in the box frame.
+    const Eigen::Isometry3d X_BoxCamera = box.X_CameraBox.inverse();
+    const Eigen::Vector3d o = X_BoxCamera * origin;
+    const Eigen::Vector3d d = X_BoxCamera.linear() * direction;
+    double t_near = -kNoHit, t_far = kNoHit;
+    int near_axis = -1, far_axis = -1;
+    bool miss = false;
+    for (int a = 0; a < 3 && !miss; ++a) {
+      const double h = box.half_size_m[a];
+      if (std::abs(d[a]) < 1e-15) {
+        if (o[a] < -h || o[a] > h) miss = true;
+        continue;
+      }
+      double t0 = (-h - o[a]) / d[a], t1 = (h - o[a]) / d[a];
+      if (t0 > t1) std::swap(t0, t1);
+      if (t0 > t_near) t_near = t0, near_axis = a;
+      if (t1 < t_far) t_far = t1, far_axis = a;
+      if (t_near > t_far) miss = true;
+    }
+    if (miss) continue;
+    double t = t_near;
+    int axis = near_axis;
+    if (!(t > t_min)) t = t_far, axis = far_axis;  // Starting inside the box.
+    if (!(t > t_min && t < best) || axis < 0) continue;
+    best = t;
+    if (normal) {
+      Eigen::Vector3d n_Box = Eigen::Vector3d::Zero();
+      n_Box[axis] = d[axis] < 0 ? 1.0 : -1.0;
+      *normal = box.X_CameraBox.linear() * n_Box;
+    }
+    if (albedo) *albedo = box.albedo;
+  }
   return best;
 }
 
@@ -119,6 +179,19 @@ SyntheticCapture RenderSyntheticCapture(const ScannerRig& rig, const PatternSequ
     throw std::invalid_argument(
         "RenderSyntheticCapture: options.samples_per_axis must be in [1, 16], got " +
         std::to_string(options.samples_per_axis));
+  }
+  for (const SyntheticBox& box : scene.boxes) {
+    if (!(box.half_size_m.minCoeff() > 0.0)) {
+      throw std::invalid_argument("RenderSyntheticCapture: a box's half_size_m must be > 0");
+    }
+  }
+  for (const SyntheticChessboard& board : scene.boards) {
+    if (board.inner_corners_x < 2 || board.inner_corners_y < 2 || !(board.square_size_m > 0.0) ||
+        !(board.margin_m >= 0.0)) {
+      throw std::invalid_argument(
+          "RenderSyntheticCapture: a chessboard needs >= 2 x 2 inner corners, square_size_m > 0 "
+          "and margin_m >= 0");
+    }
   }
   const camera::PinholeCamera& cam = rig.camera;
   const int width = cam.width();

@@ -34,9 +34,30 @@ struct SyntheticSphere {
   double radius_m = 0.1;
   double albedo = 0.6;
 };
+/// A printed chessboard: a flat rectangle in the plane z = 0 of its board frame (the frame of
+/// ChessboardSpec: origin at the first inner corner, x along a row of inner corners, y along a
+/// column). The (inner_corners_x + 1) x (inner_corners_y + 1) squares are surrounded by a
+/// light margin; the square diagonally outside the first inner corner is dark.
+struct SyntheticChessboard {
+  Eigen::Isometry3d X_CameraBoard = Eigen::Isometry3d::Identity();  ///< Board pose, metres.
+  int inner_corners_x = 9;
+  int inner_corners_y = 6;
+  double square_size_m = 0.03;
+  double margin_m = 0.03;  ///< Light border around the squares, metres.
+  double dark_albedo = 0.2;
+  double light_albedo = 0.9;
+};
+/// A box (e.g. a shelf), in its own frame spanning [-half_size, +half_size] on each axis.
+struct SyntheticBox {
+  Eigen::Isometry3d X_CameraBox = Eigen::Isometry3d::Identity();  ///< Pose of the box centre.
+  Eigen::Vector3d half_size_m = Eigen::Vector3d::Constant(0.1);   ///< Half edge lengths, > 0.
+  double albedo = 0.7;
+};
 struct SyntheticScene {
   std::vector<SyntheticPlane> planes;
   std::vector<SyntheticSphere> spheres;
+  std::vector<SyntheticChessboard> boards;
+  std::vector<SyntheticBox> boxes;
 };
 
 /// Image formation of the synthetic capture, in 8-bit grey levels.
