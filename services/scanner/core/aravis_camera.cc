@@ -28,11 +28,23 @@ struct AravisCamera::Impl {
   bool configured = false;
 
   ~Impl() {
+    if (camera != nullptr) Disarm();
     if (stream != nullptr) g_object_unref(stream);
     if (camera != nullptr) g_object_unref(camera);
   }
 
+  int armed_count = 0;  // Frames the running acquisition was started for; 0 = stopped.
+
   std::string Name() const { return "camera '" + device_id + "'"; }
+
+  // Stops a running acquisition (errors ignored: the camera may be gone).
+  void Disarm() {
+    if (armed_count == 0) return;
+    armed_count = 0;
+    GError* error = nullptr;
+    arv_camera_stop_acquisition(camera, &error);
+    g_clear_error(&error);
+  }
 
   void CreateStream() {
     if (stream != nullptr) {
@@ -84,6 +96,7 @@ const std::string& AravisCamera::device_id() const { return impl_->device_id; }
 
 void AravisCamera::Configure(const CameraSettings& settings) {
   ValidateCameraSettings(settings);
+  impl_->Disarm();
   GError* error = nullptr;
   ArvCamera* camera = impl_->camera;
   arv_camera_set_exposure_time(camera, settings.exposure_us, &error);
@@ -108,26 +121,40 @@ void AravisCamera::Configure(const CameraSettings& settings) {
   impl_->configured = true;
 }
 
+void AravisCamera::Arm(int count) {
+  if (count <= 0) {
+    throw std::invalid_argument("AravisCamera::Arm: count must be > 0, got " +
+                                std::to_string(count));
+  }
+  if (!impl_->configured) throw CameraError(impl_->Name() + ": Arm before Configure");
+  impl_->Disarm();
+  // Frames left over from an earlier capture are stale: give their buffers back.
+  while (ArvBuffer* stale = arv_stream_try_pop_buffer(impl_->stream))
+    arv_stream_push_buffer(impl_->stream, stale);
+  GError* error = nullptr;
+  arv_camera_start_acquisition(impl_->camera, &error);
+  Check(error, impl_->Name() + ": cannot start the acquisition");
+  impl_->armed_count = count;
+}
+
 std::vector<Frame> AravisCamera::Capture(int count) {
   if (count <= 0) {
     throw std::invalid_argument("AravisCamera::Capture: count must be > 0, got " +
                                 std::to_string(count));
   }
   if (!impl_->configured) throw CameraError(impl_->Name() + ": Capture before Configure");
+  if (impl_->armed_count != count) Arm(count);
   ArvCamera* camera = impl_->camera;
   ArvStream* stream = impl_->stream;
-  // Frames left over from an earlier capture are stale: give their buffers back.
-  while (ArvBuffer* stale = arv_stream_try_pop_buffer(stream))
-    arv_stream_push_buffer(stream, stale);
-
   GError* error = nullptr;
-  arv_camera_start_acquisition(camera, &error);
-  Check(error, impl_->Name() + ": cannot start the acquisition");
   std::vector<Frame> frames;
   frames.reserve(static_cast<std::size_t>(count));
-  const auto timeout_us = static_cast<guint64>(impl_->settings.frame_timeout_s * 1e6);
+  // A frame takes its exposure plus the readout; the timeout bounds the readout and transfer.
+  const double wait_s = impl_->settings.frame_timeout_s + impl_->settings.exposure_us * 1e-6;
+  const auto timeout_us = static_cast<guint64>(wait_s * 1e6);
   std::string failure;
   bool timed_out = false;
+  bool incomplete = false;
   for (int i = 0; i < count && failure.empty(); ++i) {
     if (impl_->settings.trigger_mode == TriggerMode::kSoftware) {
       arv_camera_software_trigger(camera, &error);
@@ -141,11 +168,21 @@ std::vector<Frame> AravisCamera::Capture(int count) {
     if (buffer == nullptr) {
       timed_out = true;
       failure = impl_->Name() + ": frame " + std::to_string(i) + " of " + std::to_string(count) +
-                " did not arrive within " + std::to_string(impl_->settings.frame_timeout_s) + " s";
+                " did not arrive within " + std::to_string(wait_s) + " s" +
+                (impl_->settings.trigger_mode == TriggerMode::kHardware
+                     ? " (hardware trigger on '" + impl_->settings.hardware_trigger_line +
+                           "': is the projector's trigger output connected and running?)"
+                     : "");
       break;
     }
     const ArvBufferStatus status = arv_buffer_get_status(buffer);
-    if (status != ARV_BUFFER_STATUS_SUCCESS) {
+    if (status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT ||
+        status == ARV_BUFFER_STATUS_ABORTED) {
+      incomplete = true;
+      failure = impl_->Name() + ": dropped frame: frame " + std::to_string(i) + " of " +
+                std::to_string(count) + " arrived incomplete (buffer status " +
+                std::to_string(static_cast<int>(status)) + ")";
+    } else if (status != ARV_BUFFER_STATUS_SUCCESS) {
       failure = impl_->Name() + ": frame " + std::to_string(i) + " has buffer status " +
                 std::to_string(static_cast<int>(status));
     } else {
@@ -167,9 +204,9 @@ std::vector<Frame> AravisCamera::Capture(int count) {
     }
     arv_stream_push_buffer(stream, buffer);
   }
-  arv_camera_stop_acquisition(camera, &error);
-  g_clear_error(&error);
+  impl_->Disarm();
   if (timed_out) throw CameraTimeoutError(failure);
+  if (incomplete) throw DroppedFrameError(failure);
   if (!failure.empty()) throw CameraError(failure);
   CheckConsecutiveFrameIds(frames);
   return frames;

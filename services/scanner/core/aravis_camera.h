@@ -24,8 +24,14 @@ class AravisCamera final : public CameraBackend {
   /// Sets exposure time and trigger mode (kFreeRun: TriggerMode Off; kSoftware: trigger
   /// source "Software"; kHardware: the settings' hardware line).
   void Configure(const CameraSettings& settings) override;
-  /// Starts the acquisition, takes `count` frames (sending a software trigger before each in
-  /// kSoftware mode), and stops it again.
+  /// Starts the acquisition (stale frames are discarded first); with kHardware the camera
+  /// then waits for the trigger line. Throws CameraError when Configure was not called or
+  /// the camera refuses to start.
+  void Arm(int count) override;
+  /// Arms unless armed for `count` frames, takes `count` frames (sending a software trigger
+  /// before each in kSoftware mode; each waits up to frame_timeout_s plus the exposure), and
+  /// stops the acquisition again, also after a failure. An incomplete frame (missing packets)
+  /// is a DroppedFrameError.
   std::vector<Frame> Capture(int count) override;
   std::uint32_t width() const override;
   std::uint32_t height() const override;

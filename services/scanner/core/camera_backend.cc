@@ -19,10 +19,18 @@ void ValidateCameraSettings(const CameraSettings& settings) {
   }
 }
 
+void CameraBackend::Arm(int count) {
+  if (count <= 0) {
+    throw std::invalid_argument("CameraBackend::Arm: count must be > 0, got " +
+                                std::to_string(count));
+  }
+}
+
 void CheckConsecutiveFrameIds(const std::vector<Frame>& frames) {
   for (std::size_t i = 1; i < frames.size(); ++i) {
     const std::uint64_t expected = frames[i - 1].frame_id + 1;
-    if (frames[i].frame_id != expected) {
+    const bool wrapped16 = frames[i - 1].frame_id == 0xFFFF && frames[i].frame_id == 1;
+    if (frames[i].frame_id != expected && !wrapped16) {
       std::ostringstream message;
       message << "dropped frame: frame " << i << " of the capture has id " << frames[i].frame_id
               << ", expected " << expected << " (previous id " << frames[i - 1].frame_id << ")";

@@ -77,9 +77,19 @@ class CameraBackend {
   /// timeout, CameraError when the device refuses a setting.
   virtual void Configure(const CameraSettings& settings) = 0;
 
+  /// Arms the camera for the next `count` > 0 frames: when Arm returns, the camera waits
+  /// for its trigger (the projector's trigger output with TriggerMode::kHardware), so a
+  /// projector started afterwards loses no frame. The next Capture(count) collects the armed
+  /// frames; Capture without Arm arms by itself. Arming again re-arms. Cameras whose frames
+  /// cannot be missed (a replayed recording, a rendered camera) need not do anything, which
+  /// is the default. Throws std::invalid_argument for count <= 0, CameraError when the
+  /// device refuses to start.
+  virtual void Arm(int count);
+
   /// Captures `count` > 0 consecutive frames as 8-bit images. Throws CameraTimeoutError
   /// when a frame does not arrive in time, DroppedFrameError when frame ids are not
-  /// consecutive, CameraError for any other device or stream failure.
+  /// consecutive or a frame arrived incomplete, CameraError for any other device or stream
+  /// failure. After a failure the camera is disarmed and can capture again.
   virtual std::vector<Frame> Capture(int count) = 0;
 
   /// Image size in pixels of the frames `Capture` returns.
@@ -91,7 +101,8 @@ class CameraBackend {
 void ValidateCameraSettings(const CameraSettings& settings);
 
 /// Throws DroppedFrameError naming the first gap when the frame ids of `frames` are not
-/// consecutive (each id is the previous one plus 1).
+/// consecutive (each id is the previous one plus 1). A 16-bit counter that wraps from 65535
+/// to 1 (GigE Vision 1.x block ids, which skip 0) counts as consecutive.
 void CheckConsecutiveFrameIds(const std::vector<Frame>& frames);
 
 }  // namespace picking::scanner

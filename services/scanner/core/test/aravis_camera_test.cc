@@ -87,5 +87,35 @@ TEST_F(AravisCameraTest, ErrorsAreClear) {
   EXPECT_THROW(camera.Capture(0), std::invalid_argument);
 }
 
+// Hardware trigger: the camera is armed before the trigger source starts. The in-process fake
+// camera stands in for the projector's trigger output with pulses of its own (25 Hz).
+TEST_F(AravisCameraTest, ArmedHardwareTriggeredCaptureThenSoftwareTrigger) {
+  AravisCamera camera(fake_id_, 8);
+  CameraSettings settings;
+  settings.trigger_mode = TriggerMode::kHardware;
+  settings.hardware_trigger_line = "Line0";
+  settings.exposure_us = 1000.0;
+  settings.frame_timeout_s = 5.0;
+  camera.Configure(settings);
+  camera.Arm(3);
+  std::vector<Frame> frames = camera.Capture(3);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_NO_THROW(CheckConsecutiveFrameIds(frames));
+  settings.trigger_mode = TriggerMode::kSoftware;
+  camera.Configure(settings);
+  camera.Arm(3);
+  frames = camera.Capture(3);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_NO_THROW(CheckConsecutiveFrameIds(frames));
+  // Capture without Arm arms by itself; Arm checks its count.
+  EXPECT_EQ(camera.Capture(2).size(), 2u);
+  EXPECT_THROW(camera.Arm(0), std::invalid_argument);
+}
+
+TEST_F(AravisCameraTest, ArmNeedsConfigure) {
+  AravisCamera camera(fake_id_, 4);
+  EXPECT_THROW(camera.Arm(2), CameraError);
+}
+
 }  // namespace
 }  // namespace picking::scanner

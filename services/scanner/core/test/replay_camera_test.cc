@@ -106,5 +106,29 @@ TEST(CameraBackendTest, DroppedFramesAreDetected) {
   EXPECT_NO_THROW(CheckConsecutiveFrameIds({}));
 }
 
+// GigE Vision 1.x block ids are 16 bit and skip 0: 65535 is followed by 1.
+TEST(CameraBackendTest, SixteenBitFrameCounterWrapsWithoutALoss) {
+  std::vector<Frame> frames(3);
+  frames[0].frame_id = 65534;
+  frames[1].frame_id = 65535;
+  frames[2].frame_id = 1;
+  EXPECT_NO_THROW(CheckConsecutiveFrameIds(frames));
+  frames[2].frame_id = 2;  // Frame 1 lost across the wrap.
+  EXPECT_THROW(CheckConsecutiveFrameIds(frames), DroppedFrameError);
+  frames[2].frame_id = 0;
+  EXPECT_THROW(CheckConsecutiveFrameIds(frames), DroppedFrameError);
+}
+
+TEST_F(ReplayCameraTest, ArmingChangesNothingAndChecksItsCount) {
+  WriteImage("frame_000.png", 16, 8, 0);
+  WriteImage("frame_001.png", 16, 8, 10);
+  ReplayCamera camera(dir_.string());
+  camera.Configure({});
+  camera.Arm(2);
+  EXPECT_EQ(camera.next_index(), 0u);
+  EXPECT_EQ(camera.Capture(2)[1].image.at(5, 5), 10);
+  EXPECT_THROW(camera.Arm(0), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace picking::scanner
