@@ -238,6 +238,8 @@ void GrayCodeDecoder::Decode(const std::vector<ImageView>& images, Correspondenc
 namespace {
 
 constexpr int kRefineRowsPerBand = 16;
+// Camera columns whose rows are refined together: the strip is scanned row by row (row-major
+// reads of the map and the captures), with one event scan per column.
 constexpr int kRefineColumnsPerStrip = 32;
 
 // Where a line of pixels (a camera row or column) changes: after pixel `boundary` either
@@ -266,124 +268,135 @@ inline int LowestSetBit(unsigned value) {
 #endif
 }
 
-// Refines one line of n pixels; pixel i's code, valid flag and output are at element i *
-// step; `events` has room for n. diff(i, bit) is pattern - inverse at pixel i for Gray-code bit
-// `bit` of the value (0 = least significant). Up to max_gap invalid pixels between two valid ones
-// are bridged (pixels straddling a stripe edge often fail the decoder's bit-contrast test). Writes
-// the continuous coordinate of every valid pixel that can be refined and NaN elsewhere; returns the
-// number of knots.
-template <typename Diff>
-std::size_t RefineLine(int n, const std::uint16_t* code, const std::uint8_t* valid,
-                       std::ptrdiff_t step, int max_gap, const Diff& diff, float* out,
-                       LineEvent* events) {
-  const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  int m = 0;  // Events so far; there are at most n.
-  std::size_t num_knots = 0;
-  const auto push_break = [&](int boundary) {
-    events[m++] = LineEvent{boundary, boundary + 1, false, 0.0f, 0.0f};
-  };
-  for (int i = 0; i + 1 < n; ++i) {
-    const std::uint8_t va = valid[i * step];
-    const std::uint8_t vb = valid[(i + 1) * step];
-    if ((va | vb) == 0) continue;
-    if (!va) {  // The end of a stretch of invalid pixels that was not bridged.
-      push_break(i);
-      continue;
-    }
-    // The next valid pixel, if it is within max_gap invalid pixels.
-    int k = i + 1;
-    if (!vb) {
-      while (k < n && k - i - 1 <= max_gap && !valid[k * step]) ++k;
-      if (k >= n || k - i - 1 > max_gap) {
-        push_break(i);
-        continue;
-      }
-    }
-    const int ca = code[i * step];
-    const int cb = code[k * step];
-    if (ca == cb) {
-      i = k - 1;  // The run goes on (over the gap, if any).
-      continue;
-    }
-    if (ca - cb != 1 && cb - ca != 1) {
-      push_break(i);
-      continue;
-    }
-    // c and c + 1 differ in exactly one Gray-code bit: the lowest set bit of c + 1. Its
-    // (pattern - inverse) changes sign between pixels i and k; the edge is where it crosses
-    // zero (the middle of the first and last crossing if noise makes several in a gap).
-    const int bit = LowestSetBit(static_cast<unsigned>(ca > cb ? ca : cb));
-    float first = -1.0f;
-    float last = -1.0f;
-    int d0 = diff(i, bit);
-    for (int m = i; m < k; ++m) {
-      const int d1 = diff(m + 1, bit);
-      if ((d0 > 0) != (d1 > 0)) {
-        const float denominator = static_cast<float>(d0 - d1);
-        const float fraction = denominator != 0.0f ? static_cast<float>(d0) / denominator : 0.5f;
-        const float t = static_cast<float>(m) + std::min(1.0f, std::max(0.0f, fraction));
-        if (first < 0.0f) first = t;
-        last = t;
-      }
-      d0 = d1;
-    }
-    // Without a sign change (captures other than the decoded ones) the gap's middle.
-    const float t = first < 0.0f ? 0.5f * static_cast<float>(i + k) : 0.5f * (first + last);
-    events[m++] = LineEvent{i, k, true, t, 0.5f * static_cast<float>(ca + cb)};
-    ++num_knots;
-    i = k - 1;
-  }
-  push_break(n - 1);
+// The event scan of one line, fed its valid pixels in order (ScanValidPixel) and closed
+// with FinishLine. Up to max_gap invalid pixels between two valid ones are bridged (pixels
+// straddling a stripe edge often fail the decoder's bit-contrast test); longer stretches and
+// jumps of more than one code break the line. A line of n pixels has at most n events.
+struct LineScan {
+  int last = -1;      // The last valid pixel so far, -1 before the first.
+  int last_code = 0;  // Its code.
+  int count = 0;      // Events written so far.
+};
 
+inline void PushBreak(int boundary, LineScan* scan, LineEvent* events) {
+  events[scan->count++] = LineEvent{boundary, boundary + 1, false, 0.0f, 0.0f};
+}
+
+// Feeds valid pixel p with code `code` into `scan`; returns 1 if that makes a knot.
+// diff(i, bit) is pattern - inverse at pixel i of the line for Gray-code bit `bit` of the
+// value (0 = least significant); it is read only at the pixels from the previous valid
+// pixel to p, so a scan that visits the lines of a strip row by row reads recent rows only.
+template <typename Diff>
+inline int ScanValidPixel(int p, int code, int max_gap, const Diff& diff, LineScan* scan,
+                          LineEvent* events) {
+  const int previous = scan->last;
+  const int previous_code = scan->last_code;
+  scan->last = p;
+  scan->last_code = code;
+  if (previous < 0) {  // The first valid pixel: a break before it, unless it starts the line.
+    if (p > 0) PushBreak(p - 1, scan, events);
+    return 0;
+  }
+  const int gap = p - previous - 1;
+  if (gap > max_gap) {  // A stretch of invalid pixels that is not bridged.
+    PushBreak(previous, scan, events);
+    PushBreak(p - 1, scan, events);
+    return 0;
+  }
+  if (previous_code == code) return 0;  // The run goes on (over the gap, if any).
+  if (previous_code - code != 1 && code - previous_code != 1) {
+    PushBreak(previous, scan, events);
+    if (gap > 0) PushBreak(p - 1, scan, events);
+    return 0;
+  }
+  // c and c + 1 differ in exactly one Gray-code bit: the lowest set bit of c + 1. Its
+  // (pattern - inverse) changes sign between the two pixels; the edge is where it crosses
+  // zero (the middle of the first and last crossing if noise makes several in a gap).
+  const int bit = LowestSetBit(static_cast<unsigned>(std::max(previous_code, code)));
+  float first = -1.0f;
+  float last = -1.0f;
+  int d0 = diff(previous, bit);
+  for (int m = previous; m < p; ++m) {
+    const int d1 = diff(m + 1, bit);
+    if ((d0 > 0) != (d1 > 0)) {
+      const float denominator = static_cast<float>(d0 - d1);
+      const float fraction = denominator != 0.0f ? static_cast<float>(d0) / denominator : 0.5f;
+      const float t = static_cast<float>(m) + std::min(1.0f, std::max(0.0f, fraction));
+      if (first < 0.0f) first = t;
+      last = t;
+    }
+    d0 = d1;
+  }
+  // Without a sign change (captures other than the decoded ones) the gap's middle.
+  const float t = first < 0.0f ? 0.5f * static_cast<float>(previous + p) : 0.5f * (first + last);
+  events[scan->count++] =
+      LineEvent{previous, p, true, t, 0.5f * static_cast<float>(previous_code + code)};
+  return 1;
+}
+
+// Closes the scan of a line of n pixels (n - 1 is the last event's boundary).
+inline void FinishLine(int n, LineScan* scan, LineEvent* events) {
+  if (scan->last >= 0 && scan->last < n - 1) PushBreak(scan->last, scan, events);
+  PushBreak(n - 1, scan, events);
+}
+
+// Writes the continuous coordinate of every pixel of a line (contiguous code, valid and out)
+// from its m events: linear between the knots around each run of equal codes, extrapolated
+// with the neighbouring run's slope where a run has a knot on one side only, NaN for invalid
+// pixels and runs that cannot be refined. Calls unrefined(i) for every valid pixel i left NaN.
+template <typename Unrefined>
+inline void InterpolateRuns(const std::uint16_t* code, const std::uint8_t* valid,
+                            const LineEvent* e, int m, float* out, const Unrefined& unrefined) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
   // Runs between consecutive events: pixels (previous.boundary, event.boundary]; a run is
   // valid if its first valid pixel (previous.next) is, and may contain bridged gaps.
-  const LineEvent* e = events;
   for (int j = 0; j < m; ++j) {
     const int first = j == 0 ? 0 : e[j - 1].boundary + 1;
     const int first_valid = j == 0 ? 0 : e[j - 1].next;
     const int last = e[j].boundary;
-    if (first_valid > last || !valid[first_valid * step]) {
-      for (int i = first; i <= last; ++i) out[i * step] = kNaN;
-      continue;
-    }
-    const float c = code[first_valid * step];
-    const bool left = j > 0 && e[j - 1].knot;
-    const bool right = e[j].knot;
-    // Value v0 at position t0 and slope per pixel, from two knots.
+    bool ok = false;
     float t0 = 0.0f;
     float v0 = 0.0f;
     float slope = 0.0f;
-    const auto from_knots = [&](const LineEvent& a, const LineEvent& b, const LineEvent& anchor) {
-      const float dt = b.t - a.t;
-      if (!(dt > 1e-3f) || a.value == b.value) return false;
-      slope = (b.value - a.value) / dt;
-      t0 = anchor.t;
-      v0 = anchor.value;
-      return true;
-    };
-    bool ok = false;
-    if (left && right) {
-      ok = from_knots(e[j - 1], e[j], e[j - 1]);
-    } else if (left && j >= 2 && e[j - 2].knot) {
-      // Extrapolate past the last knot with the neighbouring run's slope; moving into the
-      // run must move towards its code.
-      ok = from_knots(e[j - 2], e[j - 1], e[j - 1]) && (slope > 0.0f) == (c > v0);
-    } else if (right && j + 1 < m && e[j + 1].knot) {
-      // Likewise before the first knot, moving backwards.
-      ok = from_knots(e[j], e[j + 1], e[j]) && (slope < 0.0f) == (c > v0);
+    float c = 0.0f;
+    if (first_valid <= last && valid[first_valid]) {
+      c = code[first_valid];
+      const bool left = j > 0 && e[j - 1].knot;
+      const bool right = e[j].knot;
+      // Value v0 at position t0 and slope per pixel, from two knots.
+      const auto from_knots = [&](const LineEvent& a, const LineEvent& b, const LineEvent& anchor) {
+        const float dt = b.t - a.t;
+        if (!(dt > 1e-3f) || a.value == b.value) return false;
+        slope = (b.value - a.value) / dt;
+        t0 = anchor.t;
+        v0 = anchor.value;
+        return true;
+      };
+      if (left && right) {
+        ok = from_knots(e[j - 1], e[j], e[j - 1]);
+      } else if (left && j >= 2 && e[j - 2].knot) {
+        // Extrapolate past the last knot with the neighbouring run's slope; moving into the
+        // run must move towards its code.
+        ok = from_knots(e[j - 2], e[j - 1], e[j - 1]) && (slope > 0.0f) == (c > v0);
+      } else if (right && j + 1 < m && e[j + 1].knot) {
+        // Likewise before the first knot, moving backwards.
+        ok = from_knots(e[j], e[j + 1], e[j]) && (slope < 0.0f) == (c > v0);
+      }
     }
     if (!ok) {
-      for (int i = first; i <= last; ++i) out[i * step] = kNaN;
+      for (int i = first; i <= last; ++i) {
+        out[i] = kNaN;
+        if (valid[i]) unrefined(i);
+      }
       continue;
     }
     const float low = c - 0.5f;
     const float high = c + 0.5f;
     for (int i = first; i <= last; ++i) {
       const float v = v0 + slope * (static_cast<float>(i) - t0);
-      out[i * step] = !valid[i * step] ? kNaN : (v < low ? low : (v > high ? high : v));
+      out[i] = !valid[i] ? kNaN : (v < low ? low : (v > high ? high : v));
     }
   }
-  return num_knots;
 }
 
 // The coordinate of a valid pixel that its line could not refine, from the refined pixels up
@@ -427,6 +440,27 @@ inline float FillAcross(const float* value, const std::uint16_t* code, std::ptrd
   return std::min(cf + 0.5f, std::max(cf - 0.5f, v));
 }
 
+// Per-thread buffers of the refinement passes, kept between calls (the pool's threads live
+// as long as the refiner), so that no pass allocates or page-faults per call.
+struct RefineScratch {
+  std::vector<LineEvent> events;
+  std::vector<std::uint16_t> codes;
+  std::vector<std::uint8_t> valids;
+  std::vector<float> values;
+};
+
+RefineScratch& ThreadScratch() {
+  thread_local RefineScratch scratch;
+  return scratch;
+}
+
+// Valid pixels that a line left NaN, by global pixel index, and what filling across the
+// line gives them.
+struct Candidates {
+  std::vector<std::size_t> pixels;
+  std::vector<float> fills;
+};
+
 }  // namespace
 
 SubpixelRefiner::SubpixelRefiner(const PatternSequence& patterns, const RefinementOptions& options)
@@ -458,15 +492,23 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
           "map buffers are not width * height = " + std::to_string(n) + " long", kWho);
   const int projector_width = patterns_.projector_width();
   const int projector_height = patterns_.projector_height();
+  const int num_bands = (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
   {
     const std::uint16_t* column = map->column.data();
     const std::uint16_t* row = map->row.data();
     const std::uint8_t* valid = map->valid.data();
-    int outside = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      outside |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
-    }
-    if (outside) {
+    std::atomic<int> outside{0};
+    pool_->Run(num_bands, [&](int band) {
+      const std::size_t i0 = static_cast<std::size_t>(band) * kRefineRowsPerBand * width;
+      const std::size_t i1 =
+          static_cast<std::size_t>(std::min(height, (band + 1) * kRefineRowsPerBand)) * width;
+      int local = 0;
+      for (std::size_t i = i0; i < i1; ++i) {
+        local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+      }
+      if (local) outside.store(1, std::memory_order_relaxed);
+    });
+    if (outside.load()) {
       for (std::size_t i = 0; i < n; ++i) {
         Require(!valid[i] || (column[i] < projector_width && row[i] < projector_height),
                 "valid pixel " + std::to_string(i) + " has correspondence (" +
@@ -497,145 +539,194 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   }
 
   const int max_gap = options_.max_gap_px;
+  const int num_strips = (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip;
   std::atomic<std::size_t> column_knots{0};
   std::atomic<std::size_t> row_knots{0};
-  // Columns along camera rows.
-  const int num_bands = (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
-  pool_->Run(num_bands, [&](int band) {
-    std::vector<LineEvent> events(static_cast<std::size_t>(width));
-    std::size_t knots = 0;
-    const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
-    for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
-      const std::size_t offset = static_cast<std::size_t>(y) * width;
-      const auto diff = [&](int x, int bit) {
-        return static_cast<int>(column_pattern[bit]->row(y)[x]) -
-               static_cast<int>(column_inverse[bit]->row(y)[x]);
-      };
-      knots += RefineLine(width, map->column.data() + offset, map->valid.data() + offset, 1,
-                          max_gap, diff, map->column_subpixel.data() + offset, events.data());
+  std::atomic<std::size_t> total_valid{0};
+  // Valid pixels left NaN: columns per band of rows, rows per strip of columns.
+  std::vector<Candidates> column_candidates(num_bands);
+  std::vector<Candidates> row_candidates(num_strips);
+  const std::uint16_t* column_code = map->column.data();
+  const std::uint16_t* row_code = map->row.data();
+  const std::uint8_t* valid = map->valid.data();
+  float* column_subpixel = map->column_subpixel.data();
+  float* row_subpixel = map->row_subpixel.data();
+
+  // Columns along camera rows (tasks [0, num_bands)) and rows along camera columns (tasks
+  // [num_bands, num_bands + num_strips)): independent, so one job.
+  pool_->Run(num_bands + num_strips, [&](int task) {
+    RefineScratch& scratch = ThreadScratch();
+    if (task < num_bands) {
+      const int band = task;
+      if (scratch.events.size() < static_cast<std::size_t>(width)) scratch.events.resize(width);
+      LineEvent* events = scratch.events.data();
+      std::vector<std::size_t>& candidates = column_candidates[band].pixels;
+      std::size_t knots = 0;
+      std::size_t count = 0;
+      const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
+      for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
+        const std::size_t offset = static_cast<std::size_t>(y) * width;
+        std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
+        std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
+        for (int b = 0; b < column_bits; ++b) {
+          pattern[b] = column_pattern[b]->row(y);
+          inverse[b] = column_inverse[b]->row(y);
+        }
+        const auto diff = [&](int x, int bit) {
+          return static_cast<int>(pattern[bit][x]) - static_cast<int>(inverse[bit][x]);
+        };
+        const std::uint16_t* code = column_code + offset;
+        const std::uint8_t* line_valid = valid + offset;
+        LineScan scan;
+        for (int x = 0; x < width; ++x) {
+          if (!line_valid[x]) continue;
+          ++count;
+          knots += ScanValidPixel(x, code[x], max_gap, diff, &scan, events);
+        }
+        FinishLine(width, &scan, events);
+        InterpolateRuns(code, line_valid, events, scan.count, column_subpixel + offset,
+                        [&](int x) { candidates.push_back(offset + x); });
+      }
+      column_knots.fetch_add(knots, std::memory_order_relaxed);
+      total_valid.fetch_add(count, std::memory_order_relaxed);
+      return;
     }
-    column_knots.fetch_add(knots, std::memory_order_relaxed);
-  });
-  // Rows along camera columns, in strips of neighbouring columns copied into contiguous
-  // (transposed) lines and back.
-  const int num_strips = (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip;
-  pool_->Run(num_strips, [&](int strip) {
-    constexpr int kStrip = kRefineColumnsPerStrip;
+    // A strip of columns, scanned row by row; its codes, validity and results are kept
+    // transposed (one contiguous line per column) for the interpolation.
+    const int strip = task - num_bands;
+    const int x0 = strip * kRefineColumnsPerStrip;
+    const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
+    const int strip_width = x1 - x0;
     const std::size_t h = static_cast<std::size_t>(height);
-    std::vector<LineEvent> events(h);
-    std::vector<std::uint16_t> codes(kStrip * h);
-    std::vector<std::uint8_t> valids(kStrip * h);
-    std::vector<float> values(kStrip * h);
+    const std::size_t size = h * kRefineColumnsPerStrip;
+    if (scratch.codes.size() < size) {
+      scratch.events.resize(std::max(scratch.events.size(), size));
+      scratch.codes.resize(size);
+      scratch.valids.resize(size);
+      scratch.values.resize(size);
+    }
+    LineEvent* events = scratch.events.data();
+    std::uint16_t* codes = scratch.codes.data();
+    std::uint8_t* valids = scratch.valids.data();
+    float* values = scratch.values.data();
+    std::array<LineScan, kRefineColumnsPerStrip> scans{};
     std::size_t knots = 0;
-    const int x0 = strip * kStrip;
-    const int x1 = std::min(width, x0 + kStrip);
+    std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
+    std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
+    std::array<std::ptrdiff_t, PatternSequence::kMaxBits> pattern_stride{};
+    std::array<std::ptrdiff_t, PatternSequence::kMaxBits> inverse_stride{};
+    for (int b = 0; b < row_bits; ++b) {
+      pattern[b] = row_pattern[b]->data + x0;
+      inverse[b] = row_inverse[b]->data + x0;
+      pattern_stride[b] = row_pattern[b]->stride_bytes;
+      inverse_stride[b] = row_inverse[b]->stride_bytes;
+    }
     for (int y = 0; y < height; ++y) {
-      const std::size_t offset = static_cast<std::size_t>(y) * width;
-      for (int x = x0; x < x1; ++x) {
-        codes[(x - x0) * h + y] = map->row[offset + x];
-        valids[(x - x0) * h + y] = map->valid[offset + x];
+      const std::size_t offset = static_cast<std::size_t>(y) * width + x0;
+      const std::uint16_t* code = row_code + offset;
+      const std::uint8_t* line_valid = valid + offset;
+      for (int j = 0; j < strip_width; ++j) {
+        codes[j * h + y] = code[j];
+        valids[j * h + y] = line_valid[j];
+      }
+      for (int j = 0; j < strip_width; ++j) {
+        if (!line_valid[j]) continue;
+        const auto diff = [&](int yy, int bit) {
+          return static_cast<int>(pattern[bit][yy * pattern_stride[bit] + j]) -
+                 static_cast<int>(inverse[bit][yy * inverse_stride[bit] + j]);
+        };
+        knots += ScanValidPixel(y, code[j], max_gap, diff, &scans[j], events + j * h);
       }
     }
-    for (int x = x0; x < x1; ++x) {
-      const auto diff = [&](int y, int bit) {
-        return static_cast<int>(row_pattern[bit]->row(y)[x]) -
-               static_cast<int>(row_inverse[bit]->row(y)[x]);
-      };
-      const std::size_t line = (x - x0) * h;
-      knots += RefineLine(height, codes.data() + line, valids.data() + line, 1, max_gap, diff,
-                          values.data() + line, events.data());
+    std::vector<std::size_t>& candidates = row_candidates[strip].pixels;
+    for (int j = 0; j < strip_width; ++j) {
+      const std::size_t line = j * h;
+      FinishLine(height, &scans[j], events + line);
+      InterpolateRuns(
+          codes + line, valids + line, events + line, scans[j].count, values + line,
+          [&](int y) { candidates.push_back(static_cast<std::size_t>(y) * width + x0 + j); });
     }
     for (int y = 0; y < height; ++y) {
-      float* out = map->row_subpixel.data() + static_cast<std::size_t>(y) * width;
-      for (int x = x0; x < x1; ++x) out[x] = values[(x - x0) * h + y];
+      float* out = row_subpixel + static_cast<std::size_t>(y) * width + x0;
+      for (int j = 0; j < strip_width; ++j) out[j] = values[j * h + y];
     }
     row_knots.fetch_add(knots, std::memory_order_relaxed);
   });
 
-  // Columns that a camera row could not refine, from the pixels above and below; all are
-  // decided before any is written, so that fills do not feed each other.
-  std::vector<std::vector<std::pair<std::size_t, float>>> column_fills(num_bands);
-  pool_->Run(num_bands, [&](int band) {
-    std::vector<std::pair<std::size_t, float>>& fills = column_fills[band];
-    const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
-    for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
-      const std::size_t offset = static_cast<std::size_t>(y) * width;
-      for (int x = 0; x < width; ++x) {
-        const std::size_t i = offset + x;
-        if (!map->valid[i] || !std::isnan(map->column_subpixel[i])) continue;
-        const float v = FillAcross(map->column_subpixel.data() + i, map->column.data() + i, width,
-                                   y, height - 1 - y);
-        if (!std::isnan(v)) fills.emplace_back(i, v);
+  // What the pixels across the line give the candidates: columns from the pixels above and
+  // below, rows from the pixels left and right, all decided before any is written, so that
+  // fills do not feed each other.
+  pool_->Run(num_bands + num_strips, [&](int task) {
+    if (task < num_bands) {
+      Candidates& c = column_candidates[task];
+      c.fills.resize(c.pixels.size());
+      for (std::size_t k = 0; k < c.pixels.size(); ++k) {
+        const std::size_t i = c.pixels[k];
+        const int y = static_cast<int>(i / width);
+        c.fills[k] = FillAcross(column_subpixel + i, column_code + i, width, y, height - 1 - y);
+      }
+    } else {
+      Candidates& c = row_candidates[task - num_bands];
+      c.fills.resize(c.pixels.size());
+      for (std::size_t k = 0; k < c.pixels.size(); ++k) {
+        const std::size_t i = c.pixels[k];
+        const int x = static_cast<int>(i % width);
+        c.fills[k] = FillAcross(row_subpixel + i, row_code + i, 1, x, width - 1 - x);
       }
     }
   });
+  std::size_t filled = 0;
+  const auto apply = [&](const std::vector<Candidates>& lists, float* values) {
+    for (const Candidates& c : lists) {
+      for (std::size_t k = 0; k < c.pixels.size(); ++k) {
+        if (std::isnan(c.fills[k])) continue;
+        values[c.pixels[k]] = c.fills[k];
+        ++filled;
+      }
+    }
+  };
+  apply(column_candidates, column_subpixel);
+  apply(row_candidates, row_subpixel);
 
-  // Rows that a camera column could not refine, from the pixels left and right, then the
-  // pixels with a coordinate that could not be refined.
-  std::atomic<std::size_t> num_filled{0};
-  std::atomic<std::size_t> refined{0};
-  std::atomic<std::size_t> unrefined{0};
+  // The candidates still without a coordinate cannot be refined (a pixel may be a candidate
+  // of both lists; it is handled at its first appearance).
   const bool reject = options_.reject_unrefined;
-  pool_->Run(num_bands, [&](int band) {
-    const float kNaN = std::numeric_limits<float>::quiet_NaN();
-    std::size_t local_refined = 0;
-    std::size_t local_unrefined = 0;
-    const std::size_t i0 = static_cast<std::size_t>(band) * kRefineRowsPerBand * width;
-    const std::size_t i1 =
-        static_cast<std::size_t>(std::min(height, (band + 1) * kRefineRowsPerBand)) * width;
-    std::uint8_t* valid = map->valid.data();
-    float* column_subpixel = map->column_subpixel.data();
-    float* row_subpixel = map->row_subpixel.data();
-    for (const auto& [i, v] : column_fills[band]) column_subpixel[i] = v;
-    std::size_t filled = column_fills[band].size();
-    std::vector<std::pair<std::size_t, float>> fills;
-    fills.reserve(static_cast<std::size_t>(width));
-    for (std::size_t row_start = i0; row_start < i1; row_start += width) {
-      fills.clear();
-      for (int x = 0; x < width; ++x) {
-        const std::size_t i = row_start + x;
-        if (!valid[i] || !std::isnan(row_subpixel[i])) continue;
-        const float v = FillAcross(row_subpixel + i, map->row.data() + i, 1, x, width - 1 - x);
-        if (!std::isnan(v)) fills.emplace_back(i, v);
-      }
-      for (const auto& [i, v] : fills) row_subpixel[i] = v;
-      filled += fills.size();
-    }
-    num_filled.fetch_add(filled, std::memory_order_relaxed);
-    for (std::size_t i = i0; i < i1; ++i) {
-      if (!valid[i]) continue;
-      const bool column_ok = !std::isnan(column_subpixel[i]);
-      const bool row_ok = !std::isnan(row_subpixel[i]);
-      if (column_ok && row_ok) {
-        ++local_refined;
-        continue;
-      }
-      ++local_unrefined;
-      if (reject) {
-        valid[i] = 0;
-        map->column[i] = 0;
-        map->row[i] = 0;
-        column_subpixel[i] = kNaN;
-        row_subpixel[i] = kNaN;
-      } else {
-        if (!column_ok) column_subpixel[i] = map->column[i];
-        if (!row_ok) row_subpixel[i] = map->row[i];
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  std::size_t unrefined = 0;
+  const auto settle = [&](const std::vector<Candidates>& lists) {
+    for (const Candidates& c : lists) {
+      for (const std::size_t i : c.pixels) {
+        if (!map->valid[i]) continue;
+        const bool column_ok = !std::isnan(column_subpixel[i]);
+        const bool row_ok = !std::isnan(row_subpixel[i]);
+        if (column_ok && row_ok) continue;
+        ++unrefined;
+        if (reject) {
+          map->valid[i] = 0;
+          map->column[i] = 0;
+          map->row[i] = 0;
+          column_subpixel[i] = kNaN;
+          row_subpixel[i] = kNaN;
+        } else {
+          if (!column_ok) column_subpixel[i] = map->column[i];
+          if (!row_ok) row_subpixel[i] = map->row[i];
+        }
       }
     }
-    refined.fetch_add(local_refined, std::memory_order_relaxed);
-    unrefined.fetch_add(local_unrefined, std::memory_order_relaxed);
-  });
+  };
+  settle(column_candidates);
+  settle(row_candidates);
 
   RefinementResult result;
-  result.num_refined = refined.load();
+  result.num_refined = total_valid.load() - unrefined;
   result.num_column_transitions = column_knots.load();
   result.num_row_transitions = row_knots.load();
-  result.num_filled_across = num_filled.load();
+  result.num_filled_across = filled;
   if (reject) {
-    result.num_rejected = unrefined.load();
+    result.num_rejected = unrefined;
     map->num_valid = result.num_refined;
   } else {
-    result.num_kept_integer = unrefined.load();
+    result.num_kept_integer = unrefined;
   }
   return result;
 }
