@@ -3,7 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <fstream>
+#include <iostream>
 #include <limits>
 #include <memory>
 #include <set>
@@ -443,6 +445,152 @@ TEST_F(SimulatorRpcTest, RefusedRequestsNameTheProblemAndChangeNothing) {
   EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
 
   EXPECT_EQ(Truth().SerializeAsString(), before) << "a refused request changed the world";
+}
+
+// ---------------------------------------------------------------------------------------
+// RenderDepth: the ground truth of the scanner's camera.
+
+struct DepthImage {
+  grpc::Status status;
+  std::vector<common::ImageHeader> headers;
+  std::vector<float> depth_m;  // The first image's pixels.
+  int width = 0;
+  float at(int x, int y) const { return depth_m[static_cast<std::size_t>(y) * width + x]; }
+};
+
+DepthImage RenderDepth(sim::SimulatorService::Stub* stub, const sim::RenderDepthRequest& req) {
+  DepthImage out;
+  grpc::ClientContext ctx;
+  auto reader = stub->RenderDepth(&ctx, req);
+  common::ImageChunk chunk;
+  std::string bytes;
+  while (reader->Read(&chunk)) {
+    if (chunk.has_header()) out.headers.push_back(chunk.header());
+    if (out.headers.size() == 1) bytes += chunk.data();
+  }
+  out.status = reader->Finish();
+  out.depth_m.resize(bytes.size() / sizeof(float));
+  std::memcpy(out.depth_m.data(), bytes.data(), out.depth_m.size() * sizeof(float));
+  if (!out.headers.empty()) out.width = static_cast<int>(out.headers[0].width());
+  return out;
+}
+
+sim::RenderDepthRequest DepthRequest(const sim::RenderPatternsRequest& view) {
+  sim::RenderDepthRequest req;
+  *req.mutable_camera() = view.camera();
+  *req.mutable_x_base_camera() = view.x_base_camera();
+  return req;
+}
+
+TEST_F(SimulatorRpcTest, RenderDepthSeesTheTableTopAtTheCameraHeight) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 1).ok());
+  const sim::GetCellResponse cell = Cell();
+  const auto& table = cell.x_base_table().position();
+  // ShelfView's camera, with a distorted lens, 0.8 m above the centre of the table's top
+  // looking straight down (camera axes in base: x = x, y = -y, z = -z).
+  constexpr double kHeightM = 0.8;
+  sim::RenderPatternsRequest view = ShelfView();
+  auto* pose = view.mutable_x_base_camera();
+  pose->mutable_position()->set_x(table.x());
+  pose->mutable_position()->set_y(table.y());
+  pose->mutable_position()->set_z(table.z() + kHeightM);
+  pose->mutable_orientation()->set_w(0.0);
+  pose->mutable_orientation()->set_x(1.0);
+  pose->mutable_orientation()->set_y(0.0);
+  pose->mutable_orientation()->set_z(0.0);
+  for (double k : {-0.05, 0.02, 0.001, -0.001, 0.0}) view.mutable_camera()->add_distortion(k);
+  const DepthImage depth = RenderDepth(stub_.get(), DepthRequest(view));
+  ASSERT_TRUE(depth.status.ok()) << depth.status.error_message();
+  ASSERT_EQ(depth.headers.size(), 1u);
+  EXPECT_EQ(depth.headers[0].format(), common::PIXEL_FORMAT_FLOAT32);
+  EXPECT_EQ(depth.headers[0].name(), "depth");
+  EXPECT_EQ(depth.headers[0].width(), 160u);
+  EXPECT_EQ(depth.headers[0].height(), 120u);
+  ASSERT_EQ(depth.depth_m.size(), 160u * 120u);
+  // The 0.6 m square top fills the middle of the view (0.43 m either side at 0.8 m): the
+  // top is perpendicular to the optical axis, so every pixel that sees it has the depth
+  // kHeightM, whatever the distortion; pixels beyond its edges see lower things (the floor,
+  // the pedestal) or nothing.
+  std::size_t on_top = 0, beyond = 0;
+  for (int y = 0; y < 120; ++y) {
+    for (int x = 0; x < 160; ++x) {
+      const float d = depth.at(x, y);
+      if (std::abs(x - 79.5) < 50 && std::abs(y - 59.5) < 50) {
+        ASSERT_NEAR(d, kHeightM, 1e-5) << x << "," << y;
+        ++on_top;
+      } else if (!(std::abs(d - kHeightM) < 1e-5)) {
+        EXPECT_TRUE(std::isnan(d) || d > kHeightM + 0.05) << x << "," << y << ": " << d;
+        ++beyond;
+      }
+    }
+  }
+  EXPECT_GT(beyond, 1000u);
+  std::cout << on_top << " pixels on the table's top, " << beyond << " beyond it\n";
+}
+
+TEST_F(SimulatorRpcTest, RenderDepthIsNaNExactlyWhereTheCameraSeesNothing) {
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  // Turned a little up and sideways, so the view shows both the shelf and empty space.
+  sim::RenderPatternsRequest view = ShelfView();
+  auto* q = view.mutable_x_base_camera()->mutable_orientation();
+  q->set_w(0.56);
+  q->set_x(-0.44);
+  q->set_y(0.56);
+  q->set_z(-0.44);
+  const double norm = std::sqrt(0.56 * 0.56 * 2 + 0.44 * 0.44 * 2);
+  q->set_w(q->w() / norm), q->set_x(q->x() / norm), q->set_y(q->y() / norm),
+      q->set_z(q->z() / norm);
+  view.mutable_x_base_camera()->mutable_position()->set_z(1.2);
+  *view.mutable_x_base_projector() = view.x_base_camera();
+  view.add_patterns()->set_solid_level(1.0);
+  view.mutable_options()->set_ambient(0.5);  // Lights every surface, even in shadow.
+  const Rendered white = Render(stub_.get(), view);
+  ASSERT_TRUE(white.status.ok()) << white.status.error_message();
+  const DepthImage depth = RenderDepth(stub_.get(), DepthRequest(view));
+  ASSERT_TRUE(depth.status.ok()) << depth.status.error_message();
+  ASSERT_EQ(depth.depth_m.size(), white.pixels[0].size());
+  std::size_t surface = 0, empty = 0;
+  for (std::size_t i = 0; i < depth.depth_m.size(); ++i) {
+    const auto level = static_cast<unsigned char>(white.pixels[0][i]);
+    if (std::isnan(depth.depth_m[i])) {
+      EXPECT_EQ(level, 0) << "pixel " << i << " has no depth but shows a surface";
+      ++empty;
+    } else {
+      ++surface;
+    }
+  }
+  std::cout << surface << " pixels see a surface, " << empty << " see nothing\n";
+  EXPECT_GT(surface, 1000u);
+  EXPECT_GT(empty, 1000u);
+}
+
+TEST_F(SimulatorRpcTest, RenderDepthRefusesBadRequests) {
+  const sim::RenderDepthRequest good = DepthRequest(ShelfView());
+  auto expect_refused = [&](const sim::RenderDepthRequest& req, const std::string& field) {
+    const DepthImage depth = RenderDepth(stub_.get(), req);
+    EXPECT_EQ(depth.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << field;
+    EXPECT_NE(depth.status.error_message().find(field), std::string::npos)
+        << depth.status.error_message();
+    EXPECT_TRUE(depth.headers.empty());
+  };
+  sim::RenderDepthRequest req = good;
+  req.mutable_camera()->set_height(0);
+  expect_refused(req, "camera");
+  req = good;
+  req.mutable_camera()->set_width(20000);
+  expect_refused(req, "camera");
+  req = good;
+  req.mutable_camera()->set_fx(-1.0);
+  expect_refused(req, "camera");
+  req = good;
+  req.mutable_x_base_camera()->mutable_position()->set_y(std::numeric_limits<double>::quiet_NaN());
+  expect_refused(req, "X_base_camera");
+  req = good;
+  req.mutable_x_base_camera()->mutable_orientation()->set_w(3.0);
+  expect_refused(req, "X_base_camera");
+  req = good;
+  req.clear_x_base_camera();
+  expect_refused(req, "X_base_camera");
 }
 
 }  // namespace

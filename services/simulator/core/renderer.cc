@@ -21,6 +21,8 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 // Rows per work item of the parallel loops: small enough to balance two to a few dozen
 // threads, large enough to keep scheduling overhead negligible.
 constexpr int kRowsPerBlock = 8;
+// Rays per Embree packet (rtcIntersect8).
+constexpr int kLanes = 8;
 
 int ResolveThreads(int requested) {
   if (requested > 0) return requested;
@@ -627,6 +629,56 @@ struct StructuredLightRenderer::Impl {
     ray_tables.push_back({model, directions});
     return directions;
   }
+
+  // Casts one ray per pixel centre of a width x height camera at X_BaseCamera (directions
+  // `rays` in the camera frame, row-major), as packets of kLanes neighbouring pixels of a
+  // row so that coherent rays traverse the BVH together, blocks of rows spread over
+  // `threads`. Calls on_packet(i0, lanes, packet, context) for each packet: i0 the index of
+  // its first pixel, lanes the number of pixels in it (<= kLanes, fewer at a row's end),
+  // packet the hits (geomID RTC_INVALID_GEOMETRY_ID where none) and a coherent intersection
+  // context for further rays of the packet. `on_packet` must not throw.
+  template <class OnPacket>
+  void CastCameraRays(const std::vector<Eigen::Vector3f>& rays, int width, int height,
+                      const Eigen::Isometry3d& X_BaseCamera, int threads,
+                      const OnPacket& on_packet) const {
+    const Eigen::Matrix3d R_BC = X_BaseCamera.linear();
+    const Eigen::Vector3d p_BC = X_BaseCamera.translation();
+    const int blocks = (height + kRowsPerBlock - 1) / kRowsPerBlock;
+    ParallelFor(blocks, threads, [&](int b) {
+      RTCIntersectContext coherent;
+      rtcInitIntersectContext(&coherent);
+      coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+      RTCRayHit8 packet;
+      alignas(32) int valid[kLanes];
+      for (int y = b * kRowsPerBlock; y < std::min(height, (b + 1) * kRowsPerBlock); ++y) {
+        for (int x0 = 0; x0 < width; x0 += kLanes) {
+          const std::size_t i0 = std::size_t(y) * width + x0;
+          const int lanes = std::min(kLanes, width - x0);
+          for (int k = 0; k < kLanes; ++k) {
+            valid[k] = k < lanes ? -1 : 0;
+            const Eigen::Vector3d d_B =
+                k < lanes ? Eigen::Vector3d(R_BC * rays[i0 + k].cast<double>()) : R_BC.col(2);
+            packet.ray.org_x[k] = static_cast<float>(p_BC.x());
+            packet.ray.org_y[k] = static_cast<float>(p_BC.y());
+            packet.ray.org_z[k] = static_cast<float>(p_BC.z());
+            packet.ray.dir_x[k] = static_cast<float>(d_B.x());
+            packet.ray.dir_y[k] = static_cast<float>(d_B.y());
+            packet.ray.dir_z[k] = static_cast<float>(d_B.z());
+            packet.ray.tnear[k] = 0.0f;
+            packet.ray.tfar[k] = std::numeric_limits<float>::infinity();
+            packet.ray.time[k] = 0.0f;
+            packet.ray.mask[k] = 0xFFFFFFFFu;
+            packet.ray.id[k] = static_cast<unsigned>(k);
+            packet.ray.flags[k] = 0;
+            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+            packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+          }
+          rtcIntersect8(valid, scene, &coherent, &packet);
+          on_packet(i0, lanes, packet, &coherent);
+        }
+      }
+    });
+  }
 };
 
 StructuredLightRenderer::StructuredLightRenderer(const std::vector<SceneObject>& objects)
@@ -776,48 +828,18 @@ void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOption
   const Impl& impl = *impl_;
   RTCScene scene = impl.scene;
 
-  const int blocks = (g.height + kRowsPerBlock - 1) / kRowsPerBlock;
-  ParallelFor(blocks, threads, [&](int b) {
-    // Packets of kLanes neighbouring pixels of a row: coherent camera rays traverse the BVH
-    // together; their shadow rays, which all end at the projector centre, as well.
-    constexpr int kLanes = 8;
-    RTCIntersectContext coherent;
-    rtcInitIntersectContext(&coherent);
-    coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-    RTCRayHit8 packet;
-    RTCRay8 shadow;
-    alignas(32) int valid[kLanes];
-    alignas(32) int shadow_valid[kLanes];
-    Eigen::Vector3d p_BX[kLanes];
-    Eigen::Vector3d n_B[kLanes];
-    double cos_theta[kLanes];
-    double r_projector[kLanes];
-    Eigen::Vector2d uv[kLanes];
-    for (int y = b * kRowsPerBlock; y < std::min(g.height, (b + 1) * kRowsPerBlock); ++y) {
-      for (int x0 = 0; x0 < g.width; x0 += kLanes) {
-        const std::size_t i0 = std::size_t(y) * g.width + x0;
-        const int lanes = std::min(kLanes, g.width - x0);
-        for (int k = 0; k < kLanes; ++k) {
-          valid[k] = k < lanes ? -1 : 0;
-          const Eigen::Vector3d d_B =
-              k < lanes ? Eigen::Vector3d(R_BC * (*rays)[i0 + k].cast<double>()) : R_BC.col(2);
-          packet.ray.org_x[k] = static_cast<float>(p_BC.x());
-          packet.ray.org_y[k] = static_cast<float>(p_BC.y());
-          packet.ray.org_z[k] = static_cast<float>(p_BC.z());
-          packet.ray.dir_x[k] = static_cast<float>(d_B.x());
-          packet.ray.dir_y[k] = static_cast<float>(d_B.y());
-          packet.ray.dir_z[k] = static_cast<float>(d_B.z());
-          packet.ray.tnear[k] = 0.0f;
-          packet.ray.tfar[k] = std::numeric_limits<float>::infinity();
-          packet.ray.time[k] = 0.0f;
-          packet.ray.mask[k] = 0xFFFFFFFFu;
-          packet.ray.id[k] = static_cast<unsigned>(k);
-          packet.ray.flags[k] = 0;
-          packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-          packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
-        }
-        rtcIntersect8(valid, scene, &coherent, &packet);
-
+  impl.CastCameraRays(
+      *rays, g.width, g.height, pose.X_BaseCamera, threads,
+      [&](std::size_t i0, int lanes, const RTCRayHit8& packet, RTCIntersectContext* coherent) {
+        // Shadow rays of the packet's hits, which all end at the projector centre, also
+        // travel as one packet.
+        RTCRay8 shadow;
+        alignas(32) int shadow_valid[kLanes];
+        Eigen::Vector3d p_BX[kLanes];
+        Eigen::Vector3d n_B[kLanes];
+        double cos_theta[kLanes];
+        double r_projector[kLanes];
+        Eigen::Vector2d uv[kLanes];
         for (int k = 0; k < kLanes; ++k) {
           shadow_valid[k] = 0;
           shadow.tnear[k] = 0.0f;
@@ -870,9 +892,9 @@ void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOption
           shadow.tfar[k] = static_cast<float>(std::max(0.0, r_projector[k] - eps));
         }
         if (std::none_of(shadow_valid, shadow_valid + kLanes, [](int v) { return v != 0; })) {
-          continue;
+          return;
         }
-        rtcOccluded8(shadow_valid, scene, &coherent, &shadow);
+        rtcOccluded8(shadow_valid, scene, coherent, &shadow);
         for (int k = 0; k < kLanes; ++k) {
           if (shadow_valid[k] == 0) continue;
           const std::size_t i = i0 + k;
@@ -886,9 +908,35 @@ void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOption
           const double falloff = options.inverse_square_falloff ? ref2 / (r * r) : 1.0;
           g.gain[i] = static_cast<float>(g.albedo[i] * cos_theta[k] * falloff);
         }
-      }
-    }
-  });
+      });
+}
+
+DepthImage StructuredLightRenderer::RenderDepth(const camera::PinholeCamera& camera,
+                                                const Eigen::Isometry3d& X_BaseCamera,
+                                                int num_threads) const {
+  if (!IsFinitePose(X_BaseCamera)) {
+    throw std::invalid_argument("RenderDepth: X_BaseCamera is not a finite rigid transform");
+  }
+  if (num_threads < 0) {
+    throw std::invalid_argument("RenderDepth: num_threads must not be negative");
+  }
+  const int threads = ResolveThreads(num_threads);
+  const auto rays = impl_->Rays(camera, threads);
+  DepthImage depth;
+  depth.width = camera.width();
+  depth.height = camera.height();
+  depth.depth_m.assign(depth.size(), kNaN);
+  impl_->CastCameraRays(
+      *rays, depth.width, depth.height, X_BaseCamera, threads,
+      [&](std::size_t i0, int lanes, const RTCRayHit8& packet, RTCIntersectContext*) {
+        for (int k = 0; k < lanes; ++k) {
+          if (packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) continue;
+          // As Prepare computes ScanGeometry::depth_m, so that both agree to the bit.
+          const double t = packet.ray.tfar[k];
+          depth.depth_m[i0 + k] = static_cast<float>(t * (*rays)[i0 + k].cast<double>().z());
+        }
+      });
+  return depth;
 }
 
 // ---------------------------------------------------------------------------------------

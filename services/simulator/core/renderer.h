@@ -95,6 +95,18 @@ struct ScanGeometry {
   std::size_t size() const { return std::size_t(width) * height; }
 };
 
+/// Ground-truth depth image of one camera pose: z of the first surface along each pixel
+/// centre's ray, in the camera frame (metres), row-major with `width * height` entries; NaN
+/// where the ray hits nothing.
+struct DepthImage {
+  int width = 0;   ///< Camera width, pixels.
+  int height = 0;  ///< Camera height, pixels.
+  std::vector<float> depth_m;
+
+  std::size_t size() const { return std::size_t(width) * height; }
+  float at(int column, int row) const { return depth_m[std::size_t(row) * width + column]; }
+};
+
 /// How a projector image value is sampled at a sub-pixel projector coordinate.
 enum class ProjectorSampling : std::uint8_t { kNearest, kBilinear };
 
@@ -165,6 +177,14 @@ class StructuredLightRenderer final {
   /// Prepare() into an existing ScanGeometry, reusing its buffers (no allocation when the
   /// camera size is unchanged). On a thrown error `*geometry` is unchanged.
   void Prepare(const ScanPose& pose, const GeometryOptions& options, ScanGeometry* geometry) const;
+
+  /// Ground-truth depth of what `camera` sees from X_BaseCamera (base frame, metres): the
+  /// same camera rays as Prepare() (pixel centres through the lens distortion, same ray
+  /// cache), without any projector, so the result equals Prepare()'s ScanGeometry::depth_m
+  /// bit for bit. `num_threads` 0 = hardware_concurrency. Throws std::invalid_argument if
+  /// the pose is not a finite rigid transform or num_threads is negative.
+  DepthImage RenderDepth(const camera::PinholeCamera& camera, const Eigen::Isometry3d& X_BaseCamera,
+                         int num_threads = 0) const;
 
  private:
   struct Impl;

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <map>
@@ -262,10 +263,13 @@ RenderOptions RenderOptionsFromProto(const pb::RenderOptions& o) {
   check(o.noise_sigma(), "noise_sigma", true);
   check(o.gamma(), "gamma", true);
   check(o.exposure(), "exposure", true);
+  check(o.electrons_per_dn(), "electrons_per_dn", true);
+  check(o.projector_blur_sigma_px(), "projector_blur_sigma_px", true);
   RenderOptions r;
   r.ambient = o.ambient();
   r.read_noise_dn = o.noise_sigma();
-  r.electrons_per_dn = 0.0;  // The contract's noise is one Gaussian sigma in grey levels.
+  r.electrons_per_dn = o.electrons_per_dn();  // 0: read noise only.
+  r.projector_blur_sigma_px = o.projector_blur_sigma_px();
   r.camera_gamma = o.gamma() == 0.0 ? 1.0 : o.gamma();
   r.exposure = o.exposure() == 0.0 ? 1.0 : o.exposure();
   r.seed = o.seed();
@@ -505,12 +509,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
                                             projector_model.height(),
                                             "patterns[" + std::to_string(i) + "]"));
       }
-      // The renderer copies the meshes, so the world is only held while it is built.
-      std::unique_ptr<StructuredLightRenderer> renderer;
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        renderer = std::make_unique<StructuredLightRenderer>(world_->SceneMeshes());
-      }
+      const std::unique_ptr<StructuredLightRenderer> renderer = SceneRenderer();
       const ScanPose pose{camera_model, X_BaseCamera, projector_model, X_BaseProjector};
       const ScanGeometry geometry = renderer->Prepare(pose);
       for (std::size_t i = 0; i < patterns.size(); ++i) {
@@ -533,7 +532,41 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
     });
   }
 
+  grpc::Status RenderDepth(grpc::ServerContext*, const pb::RenderDepthRequest* request,
+                           grpc::ServerWriter<common::ImageChunk>* writer) override {
+    return runtime::Guard([&] {
+      const camera::PinholeCamera camera_model = PinholeFromProto(request->camera(), "camera");
+      if (!request->has_x_base_camera()) throw std::invalid_argument("X_base_camera is unset");
+      const Eigen::Isometry3d X_BaseCamera =
+          pc::PoseFromProto(request->x_base_camera(), "X_base_camera");
+      const DepthImage depth = SceneRenderer()->RenderDepth(camera_model, X_BaseCamera);
+      pc::Image out;
+      out.width = static_cast<std::uint32_t>(depth.width);
+      out.height = static_cast<std::uint32_t>(depth.height);
+      out.format = common::PIXEL_FORMAT_FLOAT32;
+      out.name = "depth";
+      out.index = 0;
+      out.data.resize(depth.depth_m.size() * sizeof(float));
+      static_assert(sizeof(float) == 4, "FLOAT32 pixels");
+      // Little-endian IEEE 754 on the wire, as on every supported host.
+      std::memcpy(out.data.data(), depth.depth_m.data(), out.data.size());
+      for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
+        if (!writer->Write(chunk)) {
+          return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
+        }
+      }
+      return grpc::Status::OK;
+    });
+  }
+
  private:
+  // A renderer of the world's scene now. It copies the meshes, so the world is only held
+  // while it is built.
+  std::unique_ptr<StructuredLightRenderer> SceneRenderer() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return std::make_unique<StructuredLightRenderer>(world_->SceneMeshes());
+  }
+
   const ur10::Ur10Kinematics& collisions_kinematics() const { return world_->kinematics(); }
 
   std::mutex mutex_;

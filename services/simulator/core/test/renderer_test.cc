@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace picking::simulator {
@@ -599,6 +600,107 @@ TEST(StructuredLightRendererTest, BadInputIsRejectedAndChangesNothing) {
   geometry_options.reference_distance_m = 0.0;
   EXPECT_THROW(renderer.Prepare(TestPose(), geometry_options), std::invalid_argument);
   EXPECT_THROW(RenderImage(ScanGeometry{}, Uniform(g, 0), NoiseFree()), std::invalid_argument);
+}
+
+// A square nearer than a tilted back plane: two depths, edges and empty pixels.
+struct DepthScene {
+  world::TriangleMesh back = Square(0.35);
+  world::TriangleMesh front = Square(0.06);
+  Eigen::Isometry3d X_BaseBack = Translation(0.03, -0.02, 0.9);
+  Eigen::Isometry3d X_BaseFront = Translation(-0.02, 0.01, 0.6);
+  Eigen::Isometry3d X_BaseCamera = Translation(0.01, 0.02, -0.05);
+  DepthScene() {
+    X_BaseBack.linear() = (Eigen::AngleAxisd(0.35, Eigen::Vector3d::UnitY()) *
+                           Eigen::AngleAxisd(-0.2, Eigen::Vector3d::UnitX()))
+                              .toRotationMatrix();
+    X_BaseCamera.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  }
+  std::vector<SceneObject> objects() const { return {{&back, X_BaseBack}, {&front, X_BaseFront}}; }
+};
+
+TEST(StructuredLightRendererTest, RenderDepthEqualsPrepareDepthBitForBit) {
+  const DepthScene scene;
+  StructuredLightRenderer renderer(scene.objects());
+  const ScanPose pose{TestCamera(), scene.X_BaseCamera, TestProjector(),
+                      scene.X_BaseCamera * ProjectorPose()};
+  const ScanGeometry g = renderer.Prepare(pose);
+  for (int threads : {1, 3, 0}) {
+    const DepthImage depth = renderer.RenderDepth(TestCamera(), scene.X_BaseCamera, threads);
+    ASSERT_EQ(depth.width, 160);
+    ASSERT_EQ(depth.height, 128);
+    ASSERT_EQ(depth.depth_m.size(), g.size());
+    std::size_t hits = 0, empty = 0;
+    for (std::size_t i = 0; i < g.size(); ++i) {
+      if (std::isnan(g.depth_m[i])) {
+        ASSERT_TRUE(std::isnan(depth.depth_m[i])) << i;
+        ++empty;
+      } else {
+        ASSERT_EQ(depth.depth_m[i], g.depth_m[i]) << i;
+        ++hits;
+      }
+    }
+    // The scene fills part of the image only: both kinds of pixel occur.
+    EXPECT_GT(hits, g.size() / 4);
+    EXPECT_GT(empty, 100u);
+  }
+}
+
+TEST(StructuredLightRendererTest, RenderDepthIsTheNearestSurfaceAlongEachDistortedRay) {
+  const DepthScene scene;
+  StructuredLightRenderer renderer(scene.objects());
+  const PinholeCamera camera = TestCamera();
+  const DepthImage depth = renderer.RenderDepth(camera, scene.X_BaseCamera);
+  // Both squares as planes n . p = c in the camera frame, with their extents.
+  struct Plane {
+    Eigen::Isometry3d X_CameraPlane;
+    double half_m;
+  };
+  const Plane planes[] = {{scene.X_BaseCamera.inverse() * scene.X_BaseBack, 0.35},
+                          {scene.X_BaseCamera.inverse() * scene.X_BaseFront, 0.06}};
+  std::size_t front = 0, back = 0, none = 0;
+  for (int y = 0; y < depth.height; ++y) {
+    for (int x = 0; x < depth.width; ++x) {
+      // The ray through the pixel centre, with the lens distortion.
+      const Eigen::Vector3d ray = camera.Unproject(Eigen::Vector2d(x, y));
+      double expected = std::numeric_limits<double>::infinity();
+      bool near_edge = false;
+      for (const Plane& plane : planes) {
+        const Eigen::Vector3d n_C = plane.X_CameraPlane.linear().col(2);
+        const double t = n_C.dot(plane.X_CameraPlane.translation()) / n_C.dot(ray);
+        const Eigen::Vector3d p_Plane = plane.X_CameraPlane.inverse() * (t * ray);
+        const double inside = plane.half_m - p_Plane.head<2>().cwiseAbs().maxCoeff();
+        if (std::abs(inside) < 2e-3) near_edge = true;
+        if (inside > 0.0 && t > 0.0) expected = std::min(expected, t * ray.z());
+      }
+      if (near_edge) continue;  // Which side a pixel's ray falls on is a matter of rounding.
+      const float d = depth.at(x, y);
+      if (std::isinf(expected)) {
+        EXPECT_TRUE(std::isnan(d)) << x << "," << y;
+        ++none;
+      } else {
+        EXPECT_NEAR(d, expected, 2e-5 * expected) << x << "," << y;
+        ++(expected < 0.7 ? front : back);
+      }
+    }
+  }
+  EXPECT_GT(front, 500u);
+  EXPECT_GT(back, 2000u);
+  EXPECT_GT(none, 100u);
+}
+
+TEST(StructuredLightRendererTest, RenderDepthRejectsBadInput) {
+  const world::TriangleMesh plane = Square(5.0);
+  StructuredLightRenderer renderer({{&plane, Translation(0.0, 0.0, 0.8)}});
+  Eigen::Isometry3d nan_pose = Eigen::Isometry3d::Identity();
+  nan_pose.translation().x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(renderer.RenderDepth(TestCamera(), nan_pose), std::invalid_argument);
+  Eigen::Isometry3d scaled = Eigen::Isometry3d::Identity();
+  scaled.linear() *= 1.5;
+  EXPECT_THROW(renderer.RenderDepth(TestCamera(), scaled), std::invalid_argument);
+  EXPECT_THROW(renderer.RenderDepth(TestCamera(), Eigen::Isometry3d::Identity(), -1),
+               std::invalid_argument);
+  const DepthImage depth = renderer.RenderDepth(TestCamera(), Eigen::Isometry3d::Identity());
+  EXPECT_NEAR(depth.at(80, 63), 0.8, 1e-6);
 }
 
 }  // namespace
