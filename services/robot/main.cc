@@ -21,7 +21,7 @@ int main(int argc, char** argv) {
       "ur.connect_timeout_s=T               (default 3)",
       "ur.power_on=BOOL                     power on and release brakes at start (default false)",
       "data_dir=DIR                         bundled data (UR10 description in ur10/)",
-      "tcp_xyz_m=X,Y,Z                      tool centre point in the flange frame (default 0,0,0)",
+      "tcp_xyz_m=X,Y,Z                      tool centre point, flange frame (default 0,0,0.35)",
       "ur10.max_acceleration_rad_s2=A       joint acceleration limit (default 2.5)",
       "safety.workspace_min_m / safety.workspace_max_m=X,Y,Z  TCP box in base",
       "safety.forbidden_zones=NAME,...      zones (default pedestal,shelf_base); each needs",

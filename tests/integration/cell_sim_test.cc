@@ -31,9 +31,8 @@ namespace robot = ::picking::robot::v1;
 namespace gripper = ::picking::gripper::v1;
 namespace common = ::picking::common::v1;
 
-// The suction cup's lip in the flange frame, given to the simulator and the robot alike.
+// The suction cup's lip in the flange frame: the servers' common default tool centre point.
 constexpr double kToolLengthM = 0.35;
-const char kTcp[] = "--tcp_xyz_m=0,0,0.35";
 constexpr std::uint64_t kSeed = 7;
 constexpr double kForceThresholdN = 10.0;
 constexpr double kLiftM = 0.01;
@@ -103,10 +102,9 @@ class CellSimTest : public ::testing::Test {
  protected:
   CellSimTest()
       : kinematics_(ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10")),
-        simulator_(ServerBinary("picking-simulator"), {kTcp}),
-        robot_(
-            ServerBinary("picking-robot"),
-            {"--backend=sim", "--sim.address=" + simulator_.address(), kTcp, "--sim.time_scale=5"}),
+        simulator_(ServerBinary("picking-simulator"), {}),
+        robot_(ServerBinary("picking-robot"),
+               {"--backend=sim", "--sim.address=" + simulator_.address(), "--sim.time_scale=5"}),
         gripper_(ServerBinary("picking-gripper"),
                  {"--backend=sim", "--sim.address=" + simulator_.address()}),
         sim_(sim::SimulatorService::NewStub(simulator_.Channel())),

@@ -100,10 +100,15 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(data_dir + "/ur10", model_options));
   // The tool centre point (suction cup tip) in the flange frame: along the flange's z axis.
-  const std::vector<double> tcp = config.GetDoubles("tcp_xyz_m", {0.0, 0.0, 0.0});
+  const Eigen::Vector3d tcp_default = ur10::DefaultTcpXyzM();
+  const std::vector<double> tcp =
+      config.GetDoubles("tcp_xyz_m", {tcp_default.x(), tcp_default.y(), tcp_default.z()});
   if (tcp.size() != 3) throw std::invalid_argument("setting 'tcp_xyz_m' needs 3 values");
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
   X_ToolTcp.translation() = Eigen::Vector3d(tcp[0], tcp[1], tcp[2]);
+  if (!X_ToolTcp.translation().allFinite()) {
+    throw std::invalid_argument("setting 'tcp_xyz_m' must be finite");
+  }
 
   runtime::ServiceSet set;
   set.Add(std::make_shared<PlannerServiceImpl>(std::move(kinematics), X_ToolTcp),

@@ -709,7 +709,7 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   model_options.max_acceleration_rad_s2 =
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
-  const Eigen::Vector3d tcp = Vector3Setting(config, "tcp_xyz_m", Eigen::Vector3d::Zero());
+  const Eigen::Vector3d tcp = Vector3Setting(config, "tcp_xyz_m", ur10::DefaultTcpXyzM());
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
   X_ToolTcp.translation() = tcp;
 
