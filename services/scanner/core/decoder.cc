@@ -597,7 +597,10 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
     const int x0 = strip * kRefineColumnsPerStrip;
     const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
     const int strip_width = x1 - x0;
-    const std::size_t h = static_cast<std::size_t>(height);
+    // Line length in the transposed buffers: an odd multiple of 32 elements, so that the
+    // lines of neighbouring columns fall into different cache sets (a power-of-two stride
+    // would put all of them into a few sets of the L1 cache).
+    const std::size_t h = (static_cast<std::size_t>(height) + 63) / 64 * 64 + 32;
     const std::size_t size = h * kRefineColumnsPerStrip;
     if (scratch.codes.size() < size) {
       scratch.events.resize(std::max(scratch.events.size(), size));

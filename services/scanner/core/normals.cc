@@ -62,40 +62,76 @@ NormalResult EstimateNormals(geometry::PointCloud* cloud, const NormalOptions& o
   Eigen::Vector3f* normals = cloud->normals.data();
   std::atomic<std::size_t> total{0};
 
+  // Normal of pixel i from its tangents; false (and a NaN normal) if there is none.
+  const auto set_normal = [&](std::size_t i, const Eigen::Vector3f& du, const Eigen::Vector3f& dv,
+                              bool ok) {
+    const Eigen::Vector3f& p = points[i];
+    // Cross product written out: keeps it inlined whatever other libraries export.
+    const float nx = du.y() * dv.z() - du.z() * dv.y();
+    const float ny = du.z() * dv.x() - du.x() * dv.z();
+    const float nz = du.x() * dv.y() - du.y() * dv.x();
+    const float norm2 = nx * nx + ny * ny + nz * nz;
+    if (!ok || !(norm2 > 0.0f)) {
+      normals[i].setConstant(kNaN);
+      return false;
+    }
+    // Unit length, and towards the sensor at the origin (n . p < 0).
+    const float facing = nx * p.x() + ny * p.y() + nz * p.z();
+    const float scale = (facing > 0.0f ? -1.0f : 1.0f) / std::sqrt(norm2);
+    normals[i] = Eigen::Vector3f(nx * scale, ny * scale, nz * scale);
+    return true;
+  };
+  // Any pixel, with the image borders checked.
+  const auto general = [&](int x, int y) {
+    const std::size_t i = static_cast<std::size_t>(y) * width + x;
+    const Eigen::Vector3f& p = points[i];
+    if (std::isnan(p.z())) {
+      normals[i].setConstant(kNaN);
+      return false;
+    }
+    Eigen::Vector3f du;
+    Eigen::Vector3f dv;
+    const bool ok = Tangent(points + i, p, x - step >= 0, x + step < width, step, max_jump, &du) &&
+                    Tangent(points + i, p, y - step >= 0, y + step < height,
+                            static_cast<std::ptrdiff_t>(step) * width, max_jump, &dv);
+    return set_normal(i, du, dv, ok);
+  };
+
   BandPool pool(options.num_threads);
   const int num_bands = (height + kRowsPerBand - 1) / kRowsPerBand;
   pool.Run(num_bands, [&](int band) {
     const int y0 = band * kRowsPerBand;
     const int y1 = std::min(height, y0 + kRowsPerBand);
+    const std::ptrdiff_t down = static_cast<std::ptrdiff_t>(step) * width;
     std::size_t count = 0;
     for (int y = y0; y < y1; ++y) {
-      const bool has_up = y - step >= 0;
-      const bool has_down = y + step < height;
-      for (int x = 0; x < width; ++x) {
+      if (y - step < 0 || y + step >= height || 2 * step >= width) {
+        for (int x = 0; x < width; ++x) count += general(x, y);
+        continue;
+      }
+      for (int x = 0; x < step; ++x) count += general(x, y);
+      // Interior: all four neighbours exist; the one-sided fallbacks are selects.
+      for (int x = step; x < width - step; ++x) {
         const std::size_t i = static_cast<std::size_t>(y) * width + x;
         const Eigen::Vector3f& p = points[i];
-        Eigen::Vector3f& normal = normals[i];
-        normal.setConstant(kNaN);
-        if (std::isnan(p.z())) continue;
-        Eigen::Vector3f du;
-        Eigen::Vector3f dv;
-        if (!Tangent(points + i, p, x - step >= 0, x + step < width, step, max_jump, &du) ||
-            !Tangent(points + i, p, has_up, has_down, static_cast<std::ptrdiff_t>(step) * width,
-                     max_jump, &dv)) {
+        if (std::isnan(p.z())) {
+          normals[i].setConstant(kNaN);
           continue;
         }
-        // Cross product written out: keeps it inlined whatever other libraries export.
-        const float nx = du.y() * dv.z() - du.z() * dv.y();
-        const float ny = du.z() * dv.x() - du.x() * dv.z();
-        const float nz = du.x() * dv.y() - du.y() * dv.x();
-        const float norm2 = nx * nx + ny * ny + nz * nz;
-        if (!(norm2 > 0.0f)) continue;
-        // Unit length, and towards the sensor at the origin (n . p < 0).
-        const float facing = nx * p.x() + ny * p.y() + nz * p.z();
-        const float scale = (facing > 0.0f ? -1.0f : 1.0f) / std::sqrt(norm2);
-        normal = Eigen::Vector3f(nx * scale, ny * scale, nz * scale);
-        ++count;
+        const Eigen::Vector3f& left = points[i - step];
+        const Eigen::Vector3f& right = points[i + step];
+        const Eigen::Vector3f& up = points[i - down];
+        const Eigen::Vector3f& below = points[i + down];
+        // False for NaN neighbours.
+        const bool left_ok = std::abs(left.z() - p.z()) <= max_jump;
+        const bool right_ok = std::abs(right.z() - p.z()) <= max_jump;
+        const bool up_ok = std::abs(up.z() - p.z()) <= max_jump;
+        const bool below_ok = std::abs(below.z() - p.z()) <= max_jump;
+        const Eigen::Vector3f du = (right_ok ? right : p) - (left_ok ? left : p);
+        const Eigen::Vector3f dv = (below_ok ? below : p) - (up_ok ? up : p);
+        count += set_normal(i, du, dv, (left_ok || right_ok) && (up_ok || below_ok));
       }
+      for (int x = width - step; x < width; ++x) count += general(x, y);
     }
     total.fetch_add(count, std::memory_order_relaxed);
   });

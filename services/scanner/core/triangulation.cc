@@ -93,33 +93,60 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
                 "the camera is " + std::to_string(camera_width_) + " x " +
                 std::to_string(camera_height_));
   }
-  for (std::size_t i = 0; i < n; ++i) {
-    if (map.valid[i] && (map.column[i] >= projector_width_ || map.row[i] >= projector_height_)) {
-      Require(false, "correspondence (" + std::to_string(map.column[i]) + ", " +
-                         std::to_string(map.row[i]) + ") at pixel " + std::to_string(i) +
-                         " lies outside the " + std::to_string(projector_width_) + " x " +
-                         std::to_string(projector_height_) + " projector");
-    }
-  }
   const bool subpixel = map.has_subpixel();
   if (subpixel) {
     Require(map.column_subpixel.size() == n && map.row_subpixel.size() == n,
             "sub-pixel correspondence maps are not width * height long");
-    // The projector image spans [-0.5, size - 0.5]; NaN fails the test too.
-    const float max_u = static_cast<float>(projector_width_) - 0.5f;
-    const float max_v = static_cast<float>(projector_height_) - 0.5f;
+  }
+  const int num_bands = (camera_height_ + kRowsPerBand - 1) / kRowsPerBand;
+  // The projector image spans [-0.5, size - 0.5]; NaN fails the test too.
+  const float max_u = static_cast<float>(projector_width_) - 0.5f;
+  const float max_v = static_cast<float>(projector_height_) - 0.5f;
+  const auto inside = [&](std::size_t i) {
+    return map.column[i] < projector_width_ && map.row[i] < projector_height_ &&
+           (!subpixel || (map.column_subpixel[i] >= -0.5f && map.column_subpixel[i] <= max_u &&
+                          map.row_subpixel[i] >= -0.5f && map.row_subpixel[i] <= max_v));
+  };
+  {
+    // A branch-free pass over all pixels finds whether any is bad; only then are they
+    // searched for the first one to name it.
+    std::atomic<int> outside{0};
+    const std::uint8_t* valid = map.valid.data();
+    const std::uint16_t* column = map.column.data();
+    const std::uint16_t* row = map.row.data();
     const float* u = map.column_subpixel.data();
     const float* v = map.row_subpixel.data();
-    int outside = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      outside |= map.valid[i] & !(u[i] >= -0.5f && u[i] <= max_u && v[i] >= -0.5f && v[i] <= max_v);
-    }
-    for (std::size_t i = 0; outside && i < n; ++i) {
-      Require(!map.valid[i] || (u[i] >= -0.5f && u[i] <= max_u && v[i] >= -0.5f && v[i] <= max_v),
-              "sub-pixel correspondence (" + std::to_string(u[i]) + ", " + std::to_string(v[i]) +
-                  ") at pixel " + std::to_string(i) + " lies outside the " +
-                  std::to_string(projector_width_) + " x " + std::to_string(projector_height_) +
-                  " projector");
+    const int projector_width = projector_width_;
+    const int projector_height = projector_height_;
+    pool_->Run(num_bands, [&](int band) {
+      const std::size_t i0 = static_cast<std::size_t>(band) * kRowsPerBand * camera_width_;
+      const std::size_t i1 =
+          static_cast<std::size_t>(std::min(camera_height_, (band + 1) * kRowsPerBand)) *
+          camera_width_;
+      int local = 0;
+      for (std::size_t i = i0; i < i1; ++i) {
+        local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+      }
+      if (subpixel) {
+        for (std::size_t i = i0; i < i1; ++i) {
+          local |=
+              valid[i] & !((u[i] >= -0.5f) & (u[i] <= max_u) & (v[i] >= -0.5f) & (v[i] <= max_v));
+        }
+      }
+      if (local) outside.store(1, std::memory_order_relaxed);
+    });
+    for (std::size_t i = 0; outside.load() && i < n; ++i) {
+      if (!map.valid[i] || inside(i)) continue;
+      if (map.column[i] >= projector_width_ || map.row[i] >= projector_height_) {
+        Require(false, "correspondence (" + std::to_string(map.column[i]) + ", " +
+                           std::to_string(map.row[i]) + ") at pixel " + std::to_string(i) +
+                           " lies outside the " + std::to_string(projector_width_) + " x " +
+                           std::to_string(projector_height_) + " projector");
+      }
+      Require(false, "sub-pixel correspondence (" + std::to_string(map.column_subpixel[i]) + ", " +
+                         std::to_string(map.row_subpixel[i]) + ") at pixel " + std::to_string(i) +
+                         " lies outside the " + std::to_string(projector_width_) + " x " +
+                         std::to_string(projector_height_) + " projector");
     }
   }
 
@@ -144,7 +171,6 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   const float min_depth = static_cast<float>(options_.min_depth_m);
   const float max_depth = static_cast<float>(options_.max_depth_m);
   const Eigen::Vector3f o = p_CameraProjector_;
-  const int num_bands = (camera_height_ + kRowsPerBand - 1) / kRowsPerBand;
   std::atomic<std::size_t> rejected_residual{0};
   std::atomic<std::size_t> rejected_depth{0};
   std::atomic<std::size_t> num_points{0};
@@ -204,8 +230,9 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
         const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
         const float ew = e.w();                                         // e . (0 - o)
         const float denominator = dd - de * de;
-        const float t = (de * ew - dw) / denominator;
-        const float s = (dd * ew - de * dw) / denominator;
+        const float inverse = 1.0f / denominator;
+        const float t = (de * ew - dw) * inverse;
+        const float s = (dd * ew - de * dw) * inverse;
         // Plain float arithmetic (no Eigen expression calls) keeps this loop inlined.
         const float px = t * ray.x();
         const float py = t * ray.y();
@@ -240,7 +267,7 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   if (options_.remove_isolated && options_.min_neighbors > 0) {
     // Decide from the unfiltered cloud, then remove, so the result does not depend on the
     // order in which bands run.
-    std::vector<std::uint8_t> remove(n, 0);
+    std::vector<std::vector<std::size_t>> remove(num_bands);
     const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
     const int min_neighbors = options_.min_neighbors;
     pool_->Run(num_bands, [&](int band) {
@@ -278,16 +305,14 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
               }
             }
           }
-          remove[i] = neighbors < min_neighbors;
+          if (neighbors < min_neighbors) remove[band].push_back(i);
         }
       }
     });
     std::size_t removed = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (remove[i]) {
-        cloud.points[i].setConstant(kNaN);
-        ++removed;
-      }
+    for (const std::vector<std::size_t>& band : remove) {
+      for (const std::size_t i : band) cloud.points[i].setConstant(kNaN);
+      removed += band.size();
     }
     result->num_removed_isolated = removed;
   }
