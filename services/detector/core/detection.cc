@@ -111,15 +111,6 @@ std::size_t LineOf(const std::string& text, std::size_t byte) {
 
 }  // namespace
 
-void PinholeCamera::Validate() const {
-  if (width <= 0 || height <= 0)
-    throw std::invalid_argument("PinholeCamera: width and height must be positive");
-  if (!(fx > 0.0) || !(fy > 0.0))
-    throw std::invalid_argument("PinholeCamera: fx and fy must be positive");
-  if (!std::isfinite(cx) || !std::isfinite(cy))
-    throw std::invalid_argument("PinholeCamera: cx and cy must be finite");
-}
-
 std::string ToString(Method method) {
   switch (method) {
     case Method::kPpf:

@@ -8,24 +8,16 @@
 #include <string>
 #include <vector>
 
+#include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
 
 namespace picking::detector {
 
-/// A pinhole camera: pixel (u, v) of a point p_CameraPoint with z > 0 is
-/// (fx * x / z + cx, fy * y / z + cy). Camera frame: x right, y down, z forward (optical
-/// axis), metres. Pixel centres are at integer coordinates.
-struct PinholeCamera {
-  int width = 640;
-  int height = 480;
-  double fx = 600.0;  ///< Focal length in pixels.
-  double fy = 600.0;
-  double cx = 319.5;  ///< Principal point in pixels.
-  double cy = 239.5;
-
-  /// Throws std::invalid_argument when a size or focal length is not positive.
-  void Validate() const;
-};
+/// The sensor model of the detector is the shared one of libs/camera (pinhole with OpenCV
+/// distortion; camera frame x right, y down, z forward, metres; pixel centres at integer
+/// coordinates).
+using camera::Distortion;
+using camera::PinholeCamera;
 
 /// The three pose estimation methods of the detector.
 enum class Method { kPpf, kSift, kRangeTemplates };

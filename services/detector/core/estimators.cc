@@ -42,7 +42,6 @@ SceneContext::SceneContext(const geometry::PointCloud& scene, const Eigen::Isome
       X_BaseSensor_(X_BaseSensor),
       camera_(std::move(camera)),
       options_(std::move(options)) {
-  if (camera_) camera_->Validate();
   if (options_.max_clusters < 1) {
     throw std::invalid_argument("SceneContext: max_clusters must be >= 1");
   }
@@ -284,6 +283,87 @@ std::vector<std::shared_ptr<Estimator>> MakeEstimators(
 
 // --- Scene helpers --------------------------------------------------------------------------
 
+namespace {
+
+// Gauss-Newton fit of (fx, fy, cx, cy, k1, k2, p1, p2) to samples (x/z, y/z, u, v), started
+// from the pinhole fit u = fu[0] x/z + fu[1], v = fv[0] y/z + fv[1].
+std::optional<PinholeCamera> FitDistortedIntrinsics(const std::vector<Eigen::Vector4d>& all,
+                                                    int width, int height,
+                                                    const Eigen::Vector2d& fu,
+                                                    const Eigen::Vector2d& fv, double max_rms_px) {
+  using Vector8d = Eigen::Matrix<double, 8, 1>;
+  using Matrix8d = Eigen::Matrix<double, 8, 8>;
+  const std::size_t stride = std::max<std::size_t>(1, all.size() / 4000);
+  std::vector<Eigen::Vector4d> samples;
+  for (std::size_t i = 0; i < all.size(); i += stride) samples.push_back(all[i]);
+  Vector8d k;
+  k << fu[0], fv[0], fu[1], fv[1], 0.0, 0.0, 0.0, 0.0;
+  // Pixel of normalised (x, y) and its Jacobian with respect to the parameters.
+  const auto project = [](const Vector8d& c, double x, double y,
+                          Eigen::Matrix<double, 2, 8>* J) -> Eigen::Vector2d {
+    const double r2 = x * x + y * y;
+    const double radial = 1.0 + c[4] * r2 + c[5] * r2 * r2;
+    const double xd = x * radial + 2.0 * c[6] * x * y + c[7] * (r2 + 2.0 * x * x);
+    const double yd = y * radial + c[6] * (r2 + 2.0 * y * y) + 2.0 * c[7] * x * y;
+    if (J) {
+      J->setZero();
+      (*J)(0, 0) = xd;
+      (*J)(0, 2) = 1.0;
+      (*J)(1, 1) = yd;
+      (*J)(1, 3) = 1.0;
+      (*J)(0, 4) = c[0] * x * r2;
+      (*J)(0, 5) = c[0] * x * r2 * r2;
+      (*J)(0, 6) = c[0] * 2.0 * x * y;
+      (*J)(0, 7) = c[0] * (r2 + 2.0 * x * x);
+      (*J)(1, 4) = c[1] * y * r2;
+      (*J)(1, 5) = c[1] * y * r2 * r2;
+      (*J)(1, 6) = c[1] * (r2 + 2.0 * y * y);
+      (*J)(1, 7) = c[1] * 2.0 * x * y;
+    }
+    return {c[0] * xd + c[2], c[1] * yd + c[3]};
+  };
+  const auto rms = [&](const Vector8d& c) {
+    double sum = 0.0;
+    for (const auto& s : samples) {
+      sum += (project(c, s[0], s[1], nullptr) - s.tail<2>()).squaredNorm();
+    }
+    return std::sqrt(sum / static_cast<double>(samples.size()));
+  };
+  double current = rms(k);
+  for (int iteration = 0; iteration < 20; ++iteration) {
+    Matrix8d JtJ = Matrix8d::Zero();
+    Vector8d Jtr = Vector8d::Zero();
+    Eigen::Matrix<double, 2, 8> J;
+    for (const auto& s : samples) {
+      const Eigen::Vector2d r = project(k, s[0], s[1], &J) - s.tail<2>();
+      JtJ += J.transpose() * J;
+      Jtr += J.transpose() * r;
+    }
+    const Vector8d step = JtJ.ldlt().solve(-Jtr);
+    if (!step.allFinite()) break;
+    const Vector8d next = k + step;
+    const double next_rms = rms(next);
+    if (!(next_rms < current)) break;
+    const bool converged = current - next_rms < 1e-6 * current;
+    k = next;
+    current = next_rms;
+    if (converged) break;
+  }
+  if (!(current <= max_rms_px) || !(k[0] > 0.0) || !(k[1] > 0.0)) return std::nullopt;
+  try {
+    Distortion distortion;
+    distortion.k1 = k[4];
+    distortion.k2 = k[5];
+    distortion.p1 = k[6];
+    distortion.p2 = k[7];
+    return PinholeCamera(width, height, k[0], k[1], k[2], k[3], distortion);
+  } catch (const std::invalid_argument&) {
+    return std::nullopt;  // A distortion that cannot be inverted over the image.
+  }
+}
+
+}  // namespace
+
 std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
                                                     const Eigen::Isometry3d& X_BaseSensor,
                                                     double max_rms_px) {
@@ -323,15 +403,12 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
     const double dv = fv[0] * s[1] + fv[1] - s[3];
     sum_sq += du * du + dv * dv;
   }
-  if (std::sqrt(sum_sq / static_cast<double>(n)) > max_rms_px) return std::nullopt;
-  PinholeCamera camera;
-  camera.width = static_cast<int>(cloud.width);
-  camera.height = static_cast<int>(cloud.height);
-  camera.fx = fu[0];
-  camera.cx = fu[1];
-  camera.fy = fv[0];
-  camera.cy = fv[1];
-  return camera;
+  const int width = static_cast<int>(cloud.width);
+  const int height = static_cast<int>(cloud.height);
+  if (std::sqrt(sum_sq / static_cast<double>(n)) <= max_rms_px) {
+    return PinholeCamera(width, height, fu[0], fv[0], fu[1], fv[1]);
+  }
+  return FitDistortedIntrinsics(samples, width, height, fu, fv, max_rms_px);
 }
 
 void IntensitiesFromColors(geometry::PointCloud* cloud) {

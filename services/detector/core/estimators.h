@@ -40,8 +40,7 @@ class SceneContext final {
  public:
   /// `camera`: the sensor's intrinsics; without them there is no visibility-based
   /// verification (scores fall back to ICP fitness) and no range templates.
-  /// Throws std::invalid_argument when the scene has no finite point or the camera is
-  /// invalid.
+  /// Throws std::invalid_argument when the scene has no finite point.
   SceneContext(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
                std::optional<PinholeCamera> camera, SceneContextOptions options = {});
   ~SceneContext();
@@ -161,10 +160,11 @@ std::vector<std::shared_ptr<Estimator>> MakeEstimators(
     const std::shared_ptr<const ModelLibrary>& library,
     const std::shared_ptr<SceneContext>& context);
 
-/// Pinhole intrinsics of an organised cloud: least-squares fit of u = fx x/z + cx and
-/// v = fy y/z + cy over its finite pixels (points in the sensor frame S). nullopt when the
-/// cloud is not organised, has fewer than 100 finite points or the fit's RMS residual is
-/// above `max_rms_px`.
+/// Intrinsics of an organised cloud: least-squares fit of the pixel (u, v) of each finite
+/// point (points in the sensor frame S) by the pinhole model u = fx x/z + cx, v = fy y/z + cy;
+/// when that leaves more than `max_rms_px` RMS residual, by the model with OpenCV lens
+/// distortion (k1, k2, p1, p2; Gauss-Newton from the pinhole fit). nullopt when the cloud is
+/// not organised, has fewer than 100 finite points or neither fit is within `max_rms_px`.
 std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
                                                     const Eigen::Isometry3d& X_BaseSensor,
                                                     double max_rms_px = 1.0);

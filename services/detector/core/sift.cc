@@ -214,7 +214,6 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
                                 const std::optional<PinholeCamera>& camera,
                                 const SiftPoseOptions& options) {
   const GrayImage image = IntensityImage(scene);
-  if (camera) camera->Validate();
   if (options.min_inliers < 3 || options.ransac_iterations < 1 ||
       !(options.inlier_threshold_m > 0.0) || !(options.reprojection_threshold_px > 0.0))
     throw std::invalid_argument("SiftPoseOptions: a count or threshold is out of range");
@@ -317,8 +316,7 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
         for (std::size_t i = 0; i < model_all.size(); ++i) {
           const Eigen::Vector3d p = X_SensorItem * model_all[i];
           if (p.z() <= 0.0) continue;
-          const Eigen::Vector2d px(camera->fx * p.x() / p.z() + camera->cx,
-                                   camera->fy * p.y() / p.z() + camera->cy);
+          const Eigen::Vector2d px = *camera->Project(p);
           const bool has_3d =
               std::find(pixels_3d.begin(), pixels_3d.end(), pixels_all[i]) != pixels_3d.end();
           if (!has_3d && (px - pixels_all[i]).norm() <= options.reprojection_threshold_px) {
@@ -336,14 +334,15 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
         object_points.emplace_back(model_all[i].x(), model_all[i].y(), model_all[i].z());
         image_points.emplace_back(pixels_all[i].x(), pixels_all[i].y());
       }
-      const cv::Matx33d K(camera->fx, 0, camera->cx, 0, camera->fy, camera->cy, 0, 0, 1);
+      const cv::Matx33d K(camera->fx(), 0, camera->cx(), 0, camera->fy(), camera->cy(), 0, 0, 1);
+      const Distortion& k = camera->distortion();
+      const cv::Mat distortion = (cv::Mat_<double>(1, 5) << k.k1, k.k2, k.p1, k.p2, k.k3);
       cv::Mat rvec, tvec;
       std::vector<int> inliers;
       cv::theRNG().state = options.seed;
-      const bool ok = cv::solvePnPRansac(object_points, image_points, K, cv::noArray(), rvec, tvec,
-                                         false, options.ransac_iterations,
-                                         static_cast<float>(options.reprojection_threshold_px),
-                                         0.999, inliers, cv::SOLVEPNP_EPNP);
+      const bool ok = cv::solvePnPRansac(
+          object_points, image_points, K, distortion, rvec, tvec, false, options.ransac_iterations,
+          static_cast<float>(options.reprojection_threshold_px), 0.999, inliers, cv::SOLVEPNP_EPNP);
       if (ok && static_cast<int>(inliers.size()) >= options.min_inliers) {
         // Polish on the inliers with Levenberg-Marquardt.
         std::vector<cv::Point3f> in_obj;
@@ -352,7 +351,7 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
           in_obj.push_back(object_points[i]);
           in_img.push_back(image_points[i]);
         }
-        cv::solvePnPRefineLM(in_obj, in_img, K, cv::noArray(), rvec, tvec);
+        cv::solvePnPRefineLM(in_obj, in_img, K, distortion, rvec, tvec);
         cv::Mat R;
         cv::Rodrigues(rvec, R);
         Eigen::Matrix3d R_e;

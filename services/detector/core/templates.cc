@@ -25,12 +25,11 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 // Splat z-buffer; `winner` (optional) receives the index of the point that owns each pixel.
 RangeImage Render(const PointCloud& model, const Eigen::Isometry3d& X_CameraItem,
                   const PinholeCamera& camera, double spacing_m, std::vector<int>* winner) {
-  camera.Validate();
   if (!(spacing_m > 0.0)) throw std::invalid_argument("RenderRangeImage: spacing must be > 0");
   RangeImage image;
-  image.width = camera.width;
-  image.height = camera.height;
-  image.depth_m.assign(static_cast<std::size_t>(camera.width) * camera.height, kNaN);
+  image.width = camera.width();
+  image.height = camera.height();
+  image.depth_m.assign(static_cast<std::size_t>(camera.width()) * camera.height(), kNaN);
   if (winner) winner->assign(image.depth_m.size(), -1);
   const Eigen::Isometry3f X = X_CameraItem.cast<float>();
   const bool normals = model.normals.size() == model.size();
@@ -42,15 +41,16 @@ RangeImage Render(const PointCloud& model, const Eigen::Isometry3d& X_CameraItem
       const Eigen::Vector3f n = X.linear() * model.normals[i];
       if (n.allFinite() && n.dot(p) >= 0.0f) continue;  // facing away from the camera
     }
-    const double u = camera.fx * p.x() / p.z() + camera.cx;
-    const double v = camera.fy * p.y() / p.z() + camera.cy;
-    const int r = static_cast<int>(std::floor(0.7 * camera.fx * spacing_m / p.z()));
-    const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
+    const Eigen::Vector2d uv =
+        camera.NormalizedToPixel(Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()));
+    const int r = static_cast<int>(std::floor(0.7 * camera.fx() * spacing_m / p.z()));
+    const int ui = static_cast<int>(std::lround(uv.x())),
+              vi = static_cast<int>(std::lround(uv.y()));
     for (int dv = -r; dv <= r; ++dv) {
       for (int du = -r; du <= r; ++du) {
         const int uu = ui + du, vv = vi + dv;
-        if (uu < 0 || vv < 0 || uu >= camera.width || vv >= camera.height) continue;
-        const std::size_t k = static_cast<std::size_t>(vv) * camera.width + uu;
+        if (uu < 0 || vv < 0 || uu >= camera.width() || vv >= camera.height()) continue;
+        const std::size_t k = static_cast<std::size_t>(vv) * camera.width() + uu;
         float& z = image.depth_m[k];
         if (!(z <= p.z())) {
           z = p.z();
@@ -89,9 +89,11 @@ double Cost(const RangeTemplate& t, const PinholeCamera& template_camera,
     const Eigen::Vector3f q = X_SensorCamera * p;
     float r = tau;
     if (q.z() > 1e-3f) {
-      const int u = static_cast<int>(std::lround(camera.fx * q.x() / q.z() + camera.cx));
-      const int v = static_cast<int>(std::lround(camera.fy * q.y() / q.z() + camera.cy));
-      if (u >= 0 && v >= 0 && u < camera.width && v < camera.height) {
+      const Eigen::Vector2d uv =
+          camera.NormalizedToPixel(Eigen::Vector2d(q.x() / q.z(), q.y() / q.z()));
+      const int u = static_cast<int>(std::lround(uv.x()));
+      const int v = static_cast<int>(std::lround(uv.y()));
+      if (u >= 0 && v >= 0 && u < camera.width() && v < camera.height()) {
         const float zs = scene_depth.at(u, v);
         if (std::isfinite(zs)) r = std::min(std::abs(zs - q.z()), tau);
       }
@@ -104,12 +106,12 @@ double Cost(const RangeTemplate& t, const PinholeCamera& template_camera,
     const Eigen::Vector3f p = X_CameraSensor * s;
     float r = tau;
     if (p.z() > 1e-3f) {
-      const int u =
-          static_cast<int>(std::lround(template_camera.fx * p.x() / p.z() + template_camera.cx)) -
-          t.u0;
-      const int v =
-          static_cast<int>(std::lround(template_camera.fy * p.y() / p.z() + template_camera.cy)) -
-          t.v0;
+      const int u = static_cast<int>(
+                        std::lround(template_camera.fx() * p.x() / p.z() + template_camera.cx())) -
+                    t.u0;
+      const int v = static_cast<int>(
+                        std::lround(template_camera.fy() * p.y() / p.z() + template_camera.cy())) -
+                    t.v0;
       if (u >= 0 && v >= 0 && u < t.image.width && v < t.image.height) {
         const float zt = t.image.at(u, v);
         if (std::isfinite(zt)) r = std::min(std::abs(zt - p.z()), tau);
@@ -216,8 +218,7 @@ PointCloud RangeImageToCloud(const RangeImage& image, const PinholeCamera& camer
     for (int u = 0; u < image.width; ++u) {
       const float z = image.at(u, v);
       out.points[static_cast<std::size_t>(v) * image.width + u] =
-          std::isfinite(z) ? Eigen::Vector3f(static_cast<float>((u - camera.cx) * z / camera.fx),
-                                             static_cast<float>((v - camera.cy) * z / camera.fy), z)
+          std::isfinite(z) ? (camera.Unproject(Eigen::Vector2d(u, v)) * z).cast<float>().eval()
                            : Eigen::Vector3f::Constant(kNaN);
     }
   }
@@ -249,9 +250,7 @@ RangeTemplateSet::RangeTemplateSet(const PointCloud& model, const TemplateOption
   const int size = static_cast<int>(std::ceil(options.image_size_px * options.distance_m /
                                               (options.distance_m - 0.5 * diameter_m_))) +
                    4;
-  camera_.width = camera_.height = size;
-  camera_.fx = camera_.fy = f;
-  camera_.cx = camera_.cy = 0.5 * (size - 1);
+  camera_ = PinholeCamera(size, size, f, f, 0.5 * (size - 1), 0.5 * (size - 1));
   const double pixel_m = options.distance_m / f;
   const double spacing = options.model_spacing_m > 0.0 ? options.model_spacing_m : 0.5 * pixel_m;
   model_ = VoxelDownsample(model, spacing);
@@ -288,8 +287,8 @@ RangeTemplateSet::RangeTemplateSet(const PointCloud& model, const TemplateOption
         const float z = full.at(u, v);
         t.image.depth_m[static_cast<std::size_t>(v - v_min) * t.image.width + (u - u_min)] = z;
         if (!std::isfinite(z)) continue;
-        const Eigen::Vector3f p(static_cast<float>((u - camera_.cx) * z / f),
-                                static_cast<float>((v - camera_.cy) * z / f), z);
+        const Eigen::Vector3f p(static_cast<float>((u - camera_.cx()) * z / f),
+                                static_cast<float>((v - camera_.cy()) * z / f), z);
         points.push_back(p);
         normals.push_back(R * model_.normals[winner[static_cast<std::size_t>(v) * size + u]]);
         if (p.norm() < closest) {
@@ -314,7 +313,6 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const Eigen::Isometry3d& X_BaseSensor,
                                           const PinholeCamera& camera,
                                           const TemplateMatchOptions& options) {
-  camera.Validate();
   if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
       !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
       options.max_cluster_points < 10)
@@ -323,17 +321,19 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
   const Eigen::Isometry3f X_SensorBase_f = X_SensorBase.cast<float>();
   // The scene's range image seen from the sensor.
   RangeImage scene_depth;
-  scene_depth.width = camera.width;
-  scene_depth.height = camera.height;
-  scene_depth.depth_m.assign(static_cast<std::size_t>(camera.width) * camera.height, kNaN);
+  scene_depth.width = camera.width();
+  scene_depth.height = camera.height();
+  scene_depth.depth_m.assign(static_cast<std::size_t>(camera.width()) * camera.height(), kNaN);
   for (const auto& p_Base : scene.points) {
     if (!p_Base.allFinite()) continue;
     const Eigen::Vector3f p = X_SensorBase_f * p_Base;
     if (p.z() <= 0.0f) continue;
-    const int u = static_cast<int>(std::lround(camera.fx * p.x() / p.z() + camera.cx));
-    const int v = static_cast<int>(std::lround(camera.fy * p.y() / p.z() + camera.cy));
-    if (u < 0 || v < 0 || u >= camera.width || v >= camera.height) continue;
-    float& z = scene_depth.depth_m[static_cast<std::size_t>(v) * camera.width + u];
+    const Eigen::Vector2d uv =
+        camera.NormalizedToPixel(Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()));
+    const int u = static_cast<int>(std::lround(uv.x()));
+    const int v = static_cast<int>(std::lround(uv.y()));
+    if (u < 0 || v < 0 || u >= camera.width() || v >= camera.height()) continue;
+    float& z = scene_depth.depth_m[static_cast<std::size_t>(v) * camera.width() + u];
     if (!(z <= p.z())) z = p.z();
   }
   const float tau = static_cast<float>(options.truncation_m);

@@ -38,7 +38,7 @@ geometry::PointCloud LoadModelCloud(const std::string& path);
 /// Renders `model` (item frame; normals optional, used for back-face culling) seen by
 /// `camera` at X_CameraItem with a z-buffer point splat: each point covers a square of about
 /// its own spacing (`point_spacing_m`) in the image. Throws std::invalid_argument on an
-/// invalid camera or point_spacing_m <= 0.
+/// point_spacing_m <= 0.
 RangeImage RenderRangeImage(const geometry::PointCloud& model,
                             const Eigen::Isometry3d& X_CameraItem, const PinholeCamera& camera,
                             double point_spacing_m);
@@ -89,7 +89,7 @@ class RangeTemplateSet final {
 
  private:
   std::vector<RangeTemplate> templates_;
-  PinholeCamera camera_;
+  PinholeCamera camera_{1, 1, 1.0, 1.0, 0.0, 0.0};
   geometry::PointCloud model_;
   double diameter_m_ = 0.0;
   Eigen::Vector3d p_ItemCenter_ = Eigen::Vector3d::Zero();
@@ -125,7 +125,7 @@ struct TemplateMatch {
 /// the template's range image); the best hypotheses are refined by point-to-plane ICP on the
 /// cluster and rescored. Returns matches below max_cost_m, best first (at most one per
 /// cluster). `scene` is in the base frame; `clusters` index its points.
-/// Throws std::invalid_argument on a bad camera, options or cluster index.
+/// Throws std::invalid_argument on bad options or a bad cluster index.
 std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const geometry::PointCloud& scene,
                                           const std::vector<std::vector<int>>& clusters,

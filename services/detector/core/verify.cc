@@ -24,11 +24,10 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
                                      const Eigen::Isometry3d& X_BaseSensor,
                                      const PinholeCamera& camera)
     : camera_(camera), X_BaseSensor_(X_BaseSensor), impl_(std::make_unique<Impl>()) {
-  camera_.Validate();
   if (!scene.normals.empty() && scene.normals.size() != scene.size())
     throw std::invalid_argument("VerificationScene: normals size differs from points size");
   const Eigen::Isometry3f X_SensorBase = X_BaseSensor.inverse().cast<float>();
-  impl_->depth.assign(static_cast<std::size_t>(camera_.width) * camera_.height, kNaN);
+  impl_->depth.assign(static_cast<std::size_t>(camera_.width()) * camera_.height(), kNaN);
   const bool normals = scene.has_normals();
   for (std::size_t i = 0; i < scene.size(); ++i) {
     if (!scene.points[i].allFinite()) continue;
@@ -36,10 +35,12 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
     impl_->p_SensorPoints.push_back(p);
     if (normals) impl_->n_SensorPoints.push_back(X_SensorBase.linear() * scene.normals[i]);
     if (p.z() <= 0.0f) continue;
-    const int u = static_cast<int>(std::lround(camera_.fx * p.x() / p.z() + camera_.cx));
-    const int v = static_cast<int>(std::lround(camera_.fy * p.y() / p.z() + camera_.cy));
-    if (u < 0 || v < 0 || u >= camera_.width || v >= camera_.height) continue;
-    float& d = impl_->depth[static_cast<std::size_t>(v) * camera_.width + u];
+    const auto uv = camera_.Project(p.cast<double>());
+    if (!uv) continue;
+    const int u = static_cast<int>(std::lround(uv->x()));
+    const int v = static_cast<int>(std::lround(uv->y()));
+    if (u < 0 || v < 0 || u >= camera_.width() || v >= camera_.height()) continue;
+    float& d = impl_->depth[static_cast<std::size_t>(v) * camera_.width() + u];
     if (!(d <= p.z())) d = p.z();
   }
   if (impl_->p_SensorPoints.empty())
@@ -50,16 +51,16 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
 VerificationScene::~VerificationScene() = default;
 
 float VerificationScene::DepthAt(int u, int v) const {
-  if (u < 0 || v < 0 || u >= camera_.width || v >= camera_.height) return kNaN;
-  const float d = impl_->depth[static_cast<std::size_t>(v) * camera_.width + u];
+  if (u < 0 || v < 0 || u >= camera_.width() || v >= camera_.height()) return kNaN;
+  const float d = impl_->depth[static_cast<std::size_t>(v) * camera_.width() + u];
   if (std::isfinite(d)) return d;
   // A single missing pixel (sparser clouds): nearest of the 8 neighbours.
   float best = kNaN;
   for (int dv = -1; dv <= 1; ++dv) {
     for (int du = -1; du <= 1; ++du) {
       const int uu = u + du, vv = v + dv;
-      if (uu < 0 || vv < 0 || uu >= camera_.width || vv >= camera_.height) continue;
-      const float n = impl_->depth[static_cast<std::size_t>(vv) * camera_.width + uu];
+      if (uu < 0 || vv < 0 || uu >= camera_.width() || vv >= camera_.height()) continue;
+      const float n = impl_->depth[static_cast<std::size_t>(vv) * camera_.width() + uu];
       if (std::isfinite(n) && !(best <= n)) best = n;
     }
   }
@@ -131,21 +132,23 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     int u, v;
   };
   std::vector<Projected> front;
-  std::vector<float> zbuf(static_cast<std::size_t>(cam.width) * cam.height,
+  std::vector<float> zbuf(static_cast<std::size_t>(cam.width()) * cam.height(),
                           std::numeric_limits<float>::infinity());
   for (std::size_t i = 0; i < sub.size(); ++i) {
     const Eigen::Vector3f& p = sub.points[i];
     if (p.z() <= 1e-3f || sub.normals[i].dot(p) >= 0.0f) continue;
-    const int u = static_cast<int>(std::lround(cam.fx * p.x() / p.z() + cam.cx));
-    const int v = static_cast<int>(std::lround(cam.fy * p.y() / p.z() + cam.cy));
-    if (u < 0 || v < 0 || u >= cam.width || v >= cam.height) continue;
+    const auto uv = cam.Project(p.cast<double>());
+    if (!uv) continue;
+    const int u = static_cast<int>(std::lround(uv->x()));
+    const int v = static_cast<int>(std::lround(uv->y()));
+    if (u < 0 || v < 0 || u >= cam.width() || v >= cam.height()) continue;
     front.push_back({i, u, v});
-    const int r = std::min(8, static_cast<int>(0.75 * cam.fx * spacing / p.z()));
+    const int r = std::min(8, static_cast<int>(0.75 * cam.fx() * spacing / p.z()));
     for (int dv = -r; dv <= r; ++dv) {
       for (int du = -r; du <= r; ++du) {
         const int uu = u + du, vv = v + dv;
-        if (uu < 0 || vv < 0 || uu >= cam.width || vv >= cam.height) continue;
-        float& z = zbuf[static_cast<std::size_t>(vv) * cam.width + uu];
+        if (uu < 0 || vv < 0 || uu >= cam.width() || vv >= cam.height()) continue;
+        float& z = zbuf[static_cast<std::size_t>(vv) * cam.width() + uu];
         z = std::min(z, p.z());
       }
     }
@@ -157,7 +160,8 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   double sum_sq = 0.0;
   for (const Projected& pr : front) {
     const Eigen::Vector3f& p = sub.points[pr.index];
-    if (p.z() > zbuf[static_cast<std::size_t>(pr.v) * cam.width + pr.u] + self_tolerance) continue;
+    if (p.z() > zbuf[static_cast<std::size_t>(pr.v) * cam.width() + pr.u] + self_tolerance)
+      continue;
     ++result.num_visible;
     float d_sq = 0.0f;
     const std::int32_t j = impl.tree.Nearest(p, &d_sq, distance_sq);

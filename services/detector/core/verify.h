@@ -19,7 +19,7 @@ class VerificationScene final {
  public:
   /// `scene`: points in the base frame (NaN allowed); `X_BaseSensor`: pose of the camera that
   /// saw it; `camera`: its intrinsics. Throws std::invalid_argument when the scene has no
-  /// finite point or the camera is invalid.
+  /// finite point.
   VerificationScene(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
                     const PinholeCamera& camera);
   ~VerificationScene();

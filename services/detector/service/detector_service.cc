@@ -52,7 +52,7 @@ pb::Method ToProto(const std::string& method_name) {
 // Settings of the service that are not the model library's.
 struct ServiceSettings {
   std::uint64_t max_points = 5'000'000;
-  PinholeCamera default_camera;  // For unorganised clouds.
+  PinholeCamera default_camera{640, 480, 525.0, 525.0, 319.5, 239.5};  // Unorganised clouds.
 };
 
 // The call deadline on the steady clock (max when the call has none).
@@ -397,15 +397,12 @@ runtime::ServiceSet BuildDetectorServices(const runtime::Config& config) {
                                 std::to_string(pc::kMaxStreamPoints) + "]");
   }
   settings.max_points = static_cast<std::uint64_t>(max_points);
-  PinholeCamera& camera = settings.default_camera;
-  camera.width = static_cast<int>(config.GetInt("camera.width", 640));
-  camera.height = static_cast<int>(config.GetInt("camera.height", 480));
-  camera.fx = config.GetDouble("camera.fx", 525.0);
-  camera.fy = config.GetDouble("camera.fy", 525.0);
-  camera.cx = config.GetDouble("camera.cx", 319.5);
-  camera.cy = config.GetDouble("camera.cy", 239.5);
   try {
-    camera.Validate();
+    settings.default_camera =
+        PinholeCamera(static_cast<int>(config.GetInt("camera.width", 640)),
+                      static_cast<int>(config.GetInt("camera.height", 480)),
+                      config.GetDouble("camera.fx", 525.0), config.GetDouble("camera.fy", 525.0),
+                      config.GetDouble("camera.cx", 319.5), config.GetDouble("camera.cy", 239.5));
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument(std::string("settings 'camera.*': ") + e.what());
   }

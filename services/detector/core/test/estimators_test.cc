@@ -15,39 +15,33 @@ namespace {
 constexpr double kDeg = M_PI / 180.0;
 
 TEST(FitOrganizedIntrinsicsTest, RecoversThePinholeOfAnOrganisedCloud) {
-  PinholeCamera truth;
-  truth.width = 160;
-  truth.height = 120;
-  truth.fx = 210.0;
-  truth.fy = 205.0;
-  truth.cx = 81.0;
-  truth.cy = 58.5;
+  const PinholeCamera truth(160, 120, 210.0, 205.0, 81.0, 58.5);
   std::mt19937 rng(11);
   const Eigen::Isometry3d X_BaseSensor = testing::RandomPose(&rng, 1.0);
   std::uniform_real_distribution<double> depth(0.4, 1.5);
   geometry::PointCloud cloud;
-  cloud.width = truth.width;
-  cloud.height = truth.height;
-  for (int v = 0; v < truth.height; ++v) {
-    for (int u = 0; u < truth.width; ++u) {
+  cloud.width = truth.width();
+  cloud.height = truth.height();
+  for (int v = 0; v < truth.height(); ++v) {
+    for (int u = 0; u < truth.width(); ++u) {
       if ((u + v) % 7 == 0) {  // Missing measurements.
         cloud.points.emplace_back(Eigen::Vector3f::Constant(NAN));
         continue;
       }
       const double z = depth(rng);
-      const Eigen::Vector3d p_Sensor((u - truth.cx) / truth.fx * z, (v - truth.cy) / truth.fy * z,
-                                     z);
+      const Eigen::Vector3d p_Sensor((u - truth.cx()) / truth.fx() * z,
+                                     (v - truth.cy()) / truth.fy() * z, z);
       cloud.points.push_back((X_BaseSensor * p_Sensor).cast<float>());
     }
   }
   const auto fitted = FitOrganizedIntrinsics(cloud, X_BaseSensor);
   ASSERT_TRUE(fitted.has_value());
-  EXPECT_EQ(fitted->width, truth.width);
-  EXPECT_EQ(fitted->height, truth.height);
-  EXPECT_NEAR(fitted->fx, truth.fx, 0.05);
-  EXPECT_NEAR(fitted->fy, truth.fy, 0.05);
-  EXPECT_NEAR(fitted->cx, truth.cx, 0.05);
-  EXPECT_NEAR(fitted->cy, truth.cy, 0.05);
+  EXPECT_EQ(fitted->width(), truth.width());
+  EXPECT_EQ(fitted->height(), truth.height());
+  EXPECT_NEAR(fitted->fx(), truth.fx(), 0.05);
+  EXPECT_NEAR(fitted->fy(), truth.fy(), 0.05);
+  EXPECT_NEAR(fitted->cx(), truth.cx(), 0.05);
+  EXPECT_NEAR(fitted->cy(), truth.cy(), 0.05);
   // The wrong sensor pose does not fit a pinhole.
   EXPECT_FALSE(FitOrganizedIntrinsics(cloud, Eigen::Isometry3d::Identity()).has_value());
   // Unorganised clouds have no pixel grid.
@@ -55,6 +49,39 @@ TEST(FitOrganizedIntrinsicsTest, RecoversThePinholeOfAnOrganisedCloud) {
   flat.width = static_cast<std::uint32_t>(flat.points.size());
   flat.height = 1;
   EXPECT_FALSE(FitOrganizedIntrinsics(flat, X_BaseSensor).has_value());
+}
+
+TEST(FitOrganizedIntrinsicsTest, RecoversALensWithDistortion) {
+  // The simulated scanner camera of data/scanner/sim_sensor at a quarter of its size.
+  Distortion k;
+  k.k1 = -0.08;
+  k.k2 = 0.05;
+  k.p1 = 0.0005;
+  k.p2 = -0.0003;
+  const PinholeCamera truth(320, 256, 450.0, 450.0, 160.7, 127.4, k);
+  std::mt19937 rng(5);
+  const Eigen::Isometry3d X_BaseSensor = testing::RandomPose(&rng, 1.0);
+  std::uniform_real_distribution<double> depth(0.4, 0.9);
+  geometry::PointCloud cloud;
+  cloud.width = truth.width();
+  cloud.height = truth.height();
+  for (int v = 0; v < truth.height(); ++v) {
+    for (int u = 0; u < truth.width(); ++u) {
+      const Eigen::Vector3d p_Sensor = truth.Unproject(Eigen::Vector2d(u, v)) * depth(rng);
+      cloud.points.push_back((X_BaseSensor * p_Sensor).cast<float>());
+    }
+  }
+  // A pinhole leaves pixels of residual at the image corners: the distortion model is fitted,
+  // and projects like the true lens.
+  const auto fitted = FitOrganizedIntrinsics(cloud, X_BaseSensor, 0.05);
+  ASSERT_TRUE(fitted.has_value());
+  EXPECT_FALSE(fitted->distortion().is_zero());
+  EXPECT_NEAR(fitted->fx(), truth.fx(), 0.5);
+  EXPECT_NEAR(fitted->cy(), truth.cy(), 0.5);
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Vector3d(0.3, 0.25, 0.8),
+                                   Eigen::Vector3d(-0.25, 0.2, 0.7)}) {
+    EXPECT_LT((*fitted->Project(p) - *truth.Project(p)).norm(), 0.05) << p.transpose();
+  }
 }
 
 TEST(IntensitiesFromColorsTest, UsesTheLuma) {
@@ -113,10 +140,10 @@ std::shared_ptr<const ModelLibrary>* MilkEstimatorTest::library_ = nullptr;
 TEST_F(MilkEstimatorTest, TheKinectSceneHasKinectIntrinsics) {
   const auto camera = FitOrganizedIntrinsics(*scene_, Eigen::Isometry3d::Identity());
   ASSERT_TRUE(camera.has_value());
-  EXPECT_EQ(camera->width, 640);
-  EXPECT_EQ(camera->height, 480);
-  EXPECT_GT(camera->fx, 450.0);
-  EXPECT_LT(camera->fx, 600.0);
+  EXPECT_EQ(camera->width(), 640);
+  EXPECT_EQ(camera->height(), 480);
+  EXPECT_GT(camera->fx(), 450.0);
+  EXPECT_LT(camera->fx(), 600.0);
 }
 
 TEST_F(MilkEstimatorTest, PpfFindsTheMilkAndVerifiesIt) {

@@ -85,11 +85,8 @@ class SiftPoseTest : public ::testing::Test {
   void SetUp() override {
     box_ = LoadGrayImage(kImages + "box.png");
     scene_image_ = LoadGrayImage(kImages + "box_in_scene.png");
-    camera_.width = scene_image_.width;
-    camera_.height = scene_image_.height;
-    camera_.fx = camera_.fy = 500.0;
-    camera_.cx = 0.5 * (camera_.width - 1);
-    camera_.cy = 0.5 * (camera_.height - 1);
+    camera_ = PinholeCamera(scene_image_.width, scene_image_.height, 500.0, 500.0,
+                            0.5 * (scene_image_.width - 1), 0.5 * (scene_image_.height - 1));
 
     const HomographyResult h = EstimateHomography(MatchSift(box_, scene_image_), 3.0);
     ASSERT_TRUE(h.found);
@@ -99,7 +96,7 @@ class SiftPoseTest : public ::testing::Test {
     A_inv << 1.0 / kMetresPerPixel, 0, 0.5 * (box_.width - 1), 0, 1.0 / kMetresPerPixel,
         0.5 * (box_.height - 1), 0, 0, 1;
     Eigen::Matrix3d K;
-    K << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1;
+    K << camera_.fx(), 0, camera_.cx(), 0, camera_.fy(), camera_.cy(), 0, 0, 1;
     Eigen::Matrix3d M = K.inverse() * h.H_ba * A_inv;
     double lambda = 2.0 / (M.col(0).norm() + M.col(1).norm());
     if (M(2, 2) * lambda < 0.0) lambda = -lambda;
@@ -113,17 +110,18 @@ class SiftPoseTest : public ::testing::Test {
 
     X_BaseSensor_ = Eigen::Translation3d(0.3, -0.2, 1.1) *
                     Eigen::AngleAxisd(2.6, Eigen::Vector3d(0.2, 1.0, 0.1).normalized());
-    scene_.width = camera_.width;
-    scene_.height = camera_.height;
+    scene_.width = camera_.width();
+    scene_.height = camera_.height();
     const Eigen::Vector3d n = R.col(2);
     const Eigen::Vector3d t = X_SensorItem_true_.translation();
-    for (int v = 0; v < camera_.height; ++v) {
-      for (int u = 0; u < camera_.width; ++u) {
-        const Eigen::Vector3d d((u - camera_.cx) / camera_.fx, (v - camera_.cy) / camera_.fy, 1.0);
+    for (int v = 0; v < camera_.height(); ++v) {
+      for (int u = 0; u < camera_.width(); ++u) {
+        const Eigen::Vector3d d((u - camera_.cx()) / camera_.fx(),
+                                (v - camera_.cy()) / camera_.fy(), 1.0);
         const Eigen::Vector3d p_Sensor = d * (n.dot(t) / n.dot(d));
         scene_.points.push_back((X_BaseSensor_ * p_Sensor).cast<float>());
         scene_.intensities.push_back(
-            scene_image_.pixels[static_cast<std::size_t>(v) * camera_.width + u] / 255.0f);
+            scene_image_.pixels[static_cast<std::size_t>(v) * camera_.width() + u] / 255.0f);
       }
     }
     model_ = std::make_shared<SiftModel>(std::vector<SiftView>{
@@ -140,7 +138,7 @@ class SiftPoseTest : public ::testing::Test {
   }
 
   GrayImage box_, scene_image_;
-  PinholeCamera camera_;
+  PinholeCamera camera_{1, 1, 1.0, 1.0, 0.0, 0.0};  // Set in SetUp.
   Eigen::Isometry3d X_SensorItem_true_, X_BaseSensor_;
   geometry::PointCloud scene_;
   std::shared_ptr<SiftModel> model_;
@@ -158,8 +156,8 @@ TEST_F(SiftPoseTest, RecoversPoseFromMeasured3dPoints) {
   const Eigen::Isometry3d X_true = X_BaseSensor_ * X_SensorItem_true_;
   for (std::size_t i = 0; i < r.inlier_pixels.size(); ++i) {
     const Eigen::Vector3d p = X_BaseSensor_.inverse() * X_true * r.inlier_model_points[i];
-    const Eigen::Vector2d px(camera_.fx * p.x() / p.z() + camera_.cx,
-                             camera_.fy * p.y() / p.z() + camera_.cy);
+    const Eigen::Vector2d px(camera_.fx() * p.x() / p.z() + camera_.cx(),
+                             camera_.fy() * p.y() / p.z() + camera_.cy());
     EXPECT_LT((px - r.inlier_pixels[i]).norm(), 6.0);
   }
 }
@@ -178,9 +176,9 @@ TEST_F(SiftPoseTest, FallsBackToEpnpWhen3dPointsAreMissing) {
 
 TEST_F(SiftPoseTest, MixedMissingPointsStillUse3d) {
   // Every second row unmeasured.
-  for (int v = 0; v < camera_.height; v += 2)
-    for (int u = 0; u < camera_.width; ++u)
-      scene_.points[static_cast<std::size_t>(v) * camera_.width + u].setConstant(
+  for (int v = 0; v < camera_.height(); v += 2)
+    for (int u = 0; u < camera_.width(); ++u)
+      scene_.points[static_cast<std::size_t>(v) * camera_.width() + u].setConstant(
           std::numeric_limits<float>::quiet_NaN());
   const SiftPoseResult r = EstimateSiftPose(*model_, scene_, X_BaseSensor_, camera_);
   ASSERT_TRUE(r.found);
@@ -192,9 +190,9 @@ TEST_F(SiftPoseTest, MixedMissingPointsStillUse3d) {
 TEST_F(SiftPoseTest, AbsentItemIsNotFound) {
   const GrayImage other = LoadGrayImage(kImages + "graf1.png");
   geometry::PointCloud scene = scene_;
-  for (int v = 0; v < camera_.height; ++v)
-    for (int u = 0; u < camera_.width; ++u)
-      scene.intensities[static_cast<std::size_t>(v) * camera_.width + u] =
+  for (int v = 0; v < camera_.height(); ++v)
+    for (int u = 0; u < camera_.width(); ++u)
+      scene.intensities[static_cast<std::size_t>(v) * camera_.width() + u] =
           other.pixels[static_cast<std::size_t>(v) * other.width + u] / 255.0f;
   EXPECT_FALSE(EstimateSiftPose(*model_, scene, X_BaseSensor_, camera_).found);
 }

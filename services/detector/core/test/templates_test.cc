@@ -39,17 +39,12 @@ Eigen::Matrix3d RandomRotation(std::mt19937& rng) {
 struct Scene {
   geometry::PointCloud cloud;
   Eigen::Isometry3d X_BaseSensor;
-  PinholeCamera camera;
+  PinholeCamera camera{320, 240, 300.0, 300.0, 159.5, 119.5};
 };
 
 Scene RenderScene(const geometry::PointCloud& model, double spacing_m,
                   const Eigen::Isometry3d& X_BaseItem, std::uint32_t seed) {
   Scene s;
-  s.camera.width = 320;
-  s.camera.height = 240;
-  s.camera.fx = s.camera.fy = 300.0;
-  s.camera.cx = 159.5;
-  s.camera.cy = 119.5;
   // Sensor 0.7 m above the floor, looking down and slightly tilted.
   s.X_BaseSensor = Eigen::Translation3d(0.05, -0.1, 0.7) *
                    Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()) *
@@ -58,13 +53,13 @@ Scene RenderScene(const geometry::PointCloud& model, double spacing_m,
   const RangeImage object = RenderRangeImage(model, X_SensorItem, s.camera, spacing_m);
   std::mt19937 rng(seed);
   std::normal_distribution<float> noise(0.0f, 0.0005f);
-  s.cloud.width = s.camera.width;
-  s.cloud.height = s.camera.height;
+  s.cloud.width = s.camera.width();
+  s.cloud.height = s.camera.height();
   const Eigen::Vector3d c = s.X_BaseSensor.translation();
-  for (int v = 0; v < s.camera.height; ++v) {
-    for (int u = 0; u < s.camera.width; ++u) {
-      const Eigen::Vector3d d_Sensor((u - s.camera.cx) / s.camera.fx,
-                                     (v - s.camera.cy) / s.camera.fy, 1.0);
+  for (int v = 0; v < s.camera.height(); ++v) {
+    for (int u = 0; u < s.camera.width(); ++u) {
+      const Eigen::Vector3d d_Sensor((u - s.camera.cx()) / s.camera.fx(),
+                                     (v - s.camera.cy()) / s.camera.fy(), 1.0);
       const Eigen::Vector3d d = s.X_BaseSensor.linear() * d_Sensor;
       double z = std::numeric_limits<double>::infinity();
       if (d.z() < 0.0) z = -c.z() / d.z();  // floor, in units of the ray's z_Sensor = 1
