@@ -48,6 +48,10 @@ struct ScanDefaults {
   int normals_step = 2;
   double exposure_us = 8000.0;
   double frame_timeout_s = 2.0;
+  // How frames are started: by the projector's trigger output (hardware), by the scanner
+  // (software), or by the camera's own clock (free run).
+  TriggerMode trigger_mode = TriggerMode::kHardware;
+  std::string trigger_line = "Line0";
 };
 
 struct ServiceOptions {
@@ -202,17 +206,28 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
         sim_link_(std::move(sim_link)),
         simulator_(std::move(simulator)),
         robot_(std::move(robot)) {
-    state_ = store_.Load();
+    try {
+      state_ = store_.Load();
+    } catch (const std::runtime_error& e) {
+      throw std::invalid_argument(
+          std::string("setting 'calibration.dir': ") + e.what() +
+          "; the scanner does not start with a calibration it cannot read (put back a good "
+          "file, e.g. from history/, or remove it to use the nominal value)");
+    }
     pipeline_ = MakePipeline(state_);
     devices_.camera = camera_.get();
     devices_.projector = projector_.get();
     auto* replay = dynamic_cast<ReplayCamera*>(camera_.get());
     devices_.before_capture = [this, replay](const std::optional<Eigen::Isometry3d>& X_BaseTool) {
       if (sim_link_) sim_link_->SetToolPose(X_BaseTool);
+      const int count = Pipeline()->patterns().num_images();
       // A recording plays in a loop: start again when it cannot give a whole sequence.
-      if (replay && pipeline_ &&
-          replay->next_index() + pipeline_->patterns().num_images() > replay->image_count()) {
-        replay->Rewind();
+      if (replay && replay->next_index() + count > replay->image_count()) replay->Rewind();
+      // The camera waits for its trigger before the projector starts the sequence.
+      try {
+        camera_->Arm(count);
+      } catch (const CameraError& e) {
+        throw UnavailableError(std::string("camera: ") + e.what());
       }
     };
   }
@@ -414,7 +429,8 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     CameraSettings settings;
     settings.exposure_us = exposure_s > 0 ? exposure_s * 1e6 : options_.scan.exposure_us;
     settings.frame_timeout_s = options_.scan.frame_timeout_s;
-    settings.trigger_mode = projector_ ? TriggerMode::kHardware : TriggerMode::kFreeRun;
+    settings.trigger_mode = options_.scan.trigger_mode;
+    settings.hardware_trigger_line = options_.scan.trigger_line;
     try {
       camera_->Configure(settings);
     } catch (const CameraError& e) {
@@ -587,43 +603,81 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     response->set_views_used(static_cast<std::uint32_t>(result.used_views.size()));
   }
 
+  // The projector the scanner drives: the projector device's size when there is one, else
+  // the current (calibrated or nominal) projector intrinsics' size.
+  PatternSequence ProjectorPatterns(const CalibrationState& current) const {
+    if (projector_) {
+      return PatternSequence(static_cast<int>(projector_->width()),
+                             static_cast<int>(projector_->height()));
+    }
+    if (current.projector) {
+      return PatternSequence(static_cast<int>(current.projector->width),
+                             static_cast<int>(current.projector->height));
+    }
+    throw PreconditionError(
+        "projector calibration: the projector size is unknown (no projector device and no "
+        "projector_intrinsics.json in calibration.dir or sensor.nominal_dir)");
+  }
+
+  // "view_001 (reason); view_004 (reason)" for an error message, at most `limit` entries.
+  static std::string ListReasons(const std::vector<std::pair<std::string, std::string>>& skipped,
+                                 std::size_t limit = 6) {
+    std::string out;
+    for (std::size_t i = 0; i < skipped.size() && i < limit; ++i) {
+      out += (i ? "; " : "") + skipped[i].first + ": " + skipped[i].second;
+    }
+    if (skipped.size() > limit) out += "; and " + std::to_string(skipped.size() - limit) + " more";
+    return out;
+  }
+
   void CalibrateProjectorKind(const pb::CalibrateRequest& request, const ChessboardSpec& board,
                               pb::CalibrateResponse* response) {
     const CalibrationState current = State();
+    const PatternSequence patterns = ProjectorPatterns(current);
     ProjectorCalibrationOptions options;
     options.board = board;
-    if (current.projector) {
-      options.projector.width = current.projector->width;
-      options.projector.height = current.projector->height;
-    }
+    options.projector.width = static_cast<std::uint32_t>(patterns.projector_width());
+    options.projector.height = static_cast<std::uint32_t>(patterns.projector_height());
+    options.projector.column_bits = patterns.column_bits();
+    options.projector.row_bits = patterns.row_bits();
     options.decode.min_contrast = options_.scan.min_contrast;
     options.decode.min_bit_difference = options_.scan.min_bit_contrast;
     ProjectorCalibrator calibrator(options);
     const std::vector<StoredView> views = ViewsOf(request, /*sequences=*/true);
-    std::vector<std::string> skipped;
+    std::vector<std::pair<std::string, std::string>> skipped;
     for (const auto& v : views) {
       try {
         calibrator.AddView(v.name, SequenceImages(v, options.projector.image_count()));
       } catch (const std::invalid_argument& e) {
-        skipped.push_back(v.name);
+        skipped.emplace_back(v.name, e.what());
         runtime::LogWarning("projector calibration: view skipped",
                             {{"view", v.name}, {"reason", e.what()}});
       }
     }
     if (calibrator.view_count() < kMinCalibrationViews) {
-      throw PreconditionError("projector calibration needs at least " +
-                              std::to_string(kMinCalibrationViews) + " usable views, got " +
-                              std::to_string(calibrator.view_count()) + " of " +
-                              std::to_string(views.size()));
+      throw PreconditionError(
+          "projector calibration needs at least " + std::to_string(kMinCalibrationViews) +
+          " views with the " + std::to_string(board.inner_corners_x) + " x " +
+          std::to_string(board.inner_corners_y) + " chessboard and the " +
+          std::to_string(options.projector.image_count()) + "-image Gray-code sequence of the " +
+          std::to_string(options.projector.width) + " x " +
+          std::to_string(options.projector.height) + " projector, got " +
+          std::to_string(calibrator.view_count()) + " of " + std::to_string(views.size()) +
+          (skipped.empty() ? std::string() : " (" + ListReasons(skipped) + ")"));
     }
-    const ProjectorCalibrationResult result = calibrator.Calibrate();
+    ProjectorCalibrationResult result;
+    try {
+      result = calibrator.Calibrate();
+    } catch (const std::invalid_argument& e) {
+      throw PreconditionError(std::string("projector calibration: ") + e.what());
+    }
     CalibrationState next = current;
     next.camera = result.camera;
     next.projector = result.projector;
     next.X_CameraProjector = result.X_CameraProjector;
     next.camera_calibrated = true;
     next.projector_calibrated = true;
-    MakePipeline(next);
+    MakePipeline(next);  // Throws (nothing saved) if the result cannot be used.
     store_.SaveIntrinsics(CalibrationKind::kCameraIntrinsics,
                           {result.camera, {"", result.camera_rms_px, "px"}});
     store_.SaveIntrinsics(CalibrationKind::kProjectorIntrinsics,
@@ -631,42 +685,90 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     response->set_calibration_file(
         store_.SavePose(CalibrationKind::kCameraProjectorExtrinsics,
                         {result.X_CameraProjector, {"", result.stereo_rms_px, "px"}}));
+    // The pose as stored (a quaternion), so that a restarted scanner has the same values.
+    next.X_CameraProjector =
+        LoadPose(response->calibration_file(), CalibrationKind::kCameraProjectorExtrinsics).pose;
     MakeCurrent(next);
     response->set_rms_reprojection_error_px(result.stereo_rms_px);
     response->set_views_used(static_cast<std::uint32_t>(calibrator.view_count()));
+    runtime::LogInfo("projector calibrated",
+                     {{"views", std::to_string(calibrator.view_count())},
+                      {"skipped", std::to_string(skipped.size())},
+                      {"projector_rms_px", std::to_string(result.projector_rms_px)},
+                      {"stereo_rms_px", std::to_string(result.stereo_rms_px)}});
   }
 
+  // Hand-eye (camera on the wrist): the board pose in each view from the current camera
+  // intrinsics (cv::solvePnP), paired with the robot pose of the view.
   void CalibrateHandEyeKind(const pb::CalibrateRequest& request, const ChessboardSpec& board,
                             pb::CalibrateResponse* response) {
-    std::vector<StoredView> views;
-    for (auto& v : ViewsOf(request, /*sequences=*/true)) {
-      if (v.X_BaseTool) views.push_back(std::move(v));
+    const CalibrationState current = State();
+    if (!current.camera) {
+      throw PreconditionError(
+          "hand-eye calibration needs the camera intrinsics (calibrate the "
+          "camera first)");
     }
-    std::vector<const StoredView*> used;
-    const std::vector<ChessboardView> board_views = BoardViews(views, board, &used);
-    CameraCalibrationOptions options;
-    options.board = board;
-    const CameraCalibrationResult camera = CalibrateCamera(board_views, options);
-    std::vector<Eigen::Isometry3d> X_BaseTool;
-    for (const StoredView* v : used) X_BaseTool.push_back(*v->X_BaseTool);
+    const std::vector<StoredView> views = ViewsOf(request, /*sequences=*/true);
+    std::vector<std::pair<std::string, std::string>> skipped;
+    std::vector<Eigen::Isometry3d> X_BaseTool, X_CameraBoard;
+    std::vector<double> rms_px;
+    for (const auto& v : views) {
+      if (!v.X_BaseTool) {
+        skipped.emplace_back(v.name, "no robot pose (X_base_tool.txt)");
+        continue;
+      }
+      const GrayImage image = WhiteImage(v);
+      if (image.width != current.camera->width || image.height != current.camera->height) {
+        throw PreconditionError(
+            "hand-eye calibration: view " + v.name + " is " + std::to_string(image.width) + " x " +
+            std::to_string(image.height) + " pixels but the camera intrinsics are for " +
+            std::to_string(current.camera->width) + " x " + std::to_string(current.camera->height));
+      }
+      BoardPose pose;
+      if (!EstimateBoardPose(image, board, *current.camera, &pose)) {
+        skipped.emplace_back(v.name, "chessboard not found");
+        continue;
+      }
+      X_BaseTool.push_back(*v.X_BaseTool);
+      X_CameraBoard.push_back(pose.X_CameraBoard);
+      rms_px.push_back(pose.rms_px);
+    }
+    if (static_cast<int>(X_BaseTool.size()) < kMinCalibrationViews) {
+      throw PreconditionError(
+          "hand-eye calibration needs at least " + std::to_string(kMinCalibrationViews) +
+          " views with a robot pose and the " + std::to_string(board.inner_corners_x) + " x " +
+          std::to_string(board.inner_corners_y) + " chessboard in sight, got " +
+          std::to_string(X_BaseTool.size()) + " of " + std::to_string(views.size()) +
+          (skipped.empty() ? std::string() : " (" + ListReasons(skipped) + ")"));
+    }
     HandEyeResult result;
     try {
-      result = CalibrateHandEye(X_BaseTool, camera.X_CameraBoard);
+      result = CalibrateHandEye(X_BaseTool, X_CameraBoard);
     } catch (const std::invalid_argument& e) {
-      throw PreconditionError(std::string("hand-eye calibration: ") + e.what());
+      throw PreconditionError(std::string("hand-eye calibration: ") + e.what() +
+                              " (turn the wrist about different axes between views)");
     }
-    CalibrationState next = State();
+    CalibrationState next = current;
     next.X_ToolCamera = result.X_ToolCamera;
     next.hand_eye_calibrated = true;
     MakePipeline(next);
     response->set_calibration_file(store_.SavePose(
         CalibrationKind::kHandEye, {result.X_ToolCamera, {"", result.translation_rms_m, "m"}}));
+    next.X_ToolCamera = LoadPose(response->calibration_file(), CalibrationKind::kHandEye).pose;
     MakeCurrent(next);
-    response->set_rms_reprojection_error_px(camera.rms_px);
-    for (double e : camera.per_view_rms_px) response->add_per_view_error_px(e);
-    response->set_views_used(static_cast<std::uint32_t>(used.size()));
+    double sum_sq = 0.0;
+    for (double e : rms_px) {
+      response->add_per_view_error_px(e);
+      sum_sq += e * e;
+    }
+    response->set_rms_reprojection_error_px(std::sqrt(sum_sq / static_cast<double>(rms_px.size())));
+    response->set_views_used(static_cast<std::uint32_t>(X_BaseTool.size()));
     response->set_residual_translation_m(result.translation_rms_m);
     response->set_residual_rotation_rad(result.rotation_rms_rad);
+    runtime::LogInfo("hand-eye calibrated",
+                     {{"views", std::to_string(X_BaseTool.size())},
+                      {"skipped", std::to_string(skipped.size())},
+                      {"translation_rms_m", std::to_string(result.translation_rms_m)}});
   }
 
   void CalibrateShelfKind(const pb::CalibrateRequest& request, pb::CalibrateResponse* response) {
@@ -683,15 +785,35 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     options.triangulation.min_depth_m = options_.scan.min_depth_m;
     options.triangulation.max_depth_m = options_.scan.max_depth_m;
     std::vector<geometry::PointCloud> clouds;
-    for (const auto& v : ViewsOf(request, /*sequences=*/true)) {
-      if (!v.X_BaseTool) continue;
-      geometry::PointCloud cloud =
-          pipeline->ProcessView(SequenceImages(v, pipeline->patterns().num_images()), options);
+    const std::vector<StoredView> views = ViewsOf(request, /*sequences=*/true);
+    std::vector<std::pair<std::string, std::string>> skipped;
+    for (const auto& v : views) {
+      if (!v.X_BaseTool) {
+        skipped.emplace_back(v.name, "no robot pose (X_base_tool.txt)");
+        continue;
+      }
+      geometry::PointCloud cloud;
+      double valid_fraction = 0.0;
+      try {
+        cloud = pipeline->ProcessView(SequenceImages(v, pipeline->patterns().num_images()), options,
+                                      &valid_fraction);
+      } catch (const std::invalid_argument& e) {
+        skipped.emplace_back(v.name, e.what());
+        continue;
+      }
+      if (valid_fraction <= 0.0) {
+        skipped.emplace_back(v.name, "no pixel decodes (is the projector lighting the shelf?)");
+        continue;
+      }
       TransformCloud(*v.X_BaseTool * *current.X_ToolCamera, "base", &cloud);
       clouds.push_back(std::move(cloud));
     }
     if (clouds.empty()) {
-      throw PreconditionError("shelf pose calibration needs at least one view with its robot pose");
+      throw PreconditionError(
+          "shelf pose calibration needs at least one scan of the shelf's top front edge with "
+          "its robot pose, got none of " +
+          std::to_string(views.size()) + " views" +
+          (skipped.empty() ? std::string() : " (" + ListReasons(skipped) + ")"));
     }
     const geometry::PointCloud merged = MergeClouds(clouds).cloud;
     ShelfPoseResult result;
@@ -705,6 +827,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     next.shelf_calibrated = true;
     response->set_calibration_file(store_.SavePose(
         CalibrationKind::kShelfPose, {result.X_BaseShelf, {"", result.fit_rms_m, "m"}}));
+    next.X_BaseShelf = LoadPose(response->calibration_file(), CalibrationKind::kShelfPose).pose;
     MakeCurrent(next);
     response->set_views_used(static_cast<std::uint32_t>(clouds.size()));
     response->set_residual_translation_m(result.fit_rms_m);
@@ -768,7 +891,7 @@ std::vector<std::string> ScannerSettingsHelp() {
       "sim.timeout_s, sim.ambient, sim.noise_sigma, sim.gamma, sim.seed: simulated rendering",
       "robot.address=HOST:PORT of picking-robot for poses of views without one (default none)",
       "robot.timeout_s=2",
-      "aravis.device=ID (default: first camera)",
+      "aravis.device=ID (default: first camera; a GigE Vision camera also by its IP address)",
       "replay.dir=FOLDER of PNG frames (camera=replay)",
       "dlpc350.device=/dev/hidrawN (projector=dlpc350)",
       "calibration.dir=FOLDER of the current calibration files (default <data>/scanner)",
@@ -777,7 +900,10 @@ std::vector<std::string> ScannerSettingsHelp() {
       "decode.min_contrast=20, decode.min_bit_contrast=5, decode.max_residual_m=0.001, "
       "decode.reference_distance_m=1",
       "scan.min_depth_m=0.1, scan.max_depth_m=3, scan.normals_step=2",
-      "camera.exposure_us=8000, camera.frame_timeout_s=2",
+      "camera.exposure_us=8000, camera.frame_timeout_s=2 (wait for a frame beyond its exposure)",
+      "camera.trigger=hardware|software|free_run (default: hardware with a projector, free_run "
+      "with projector=none), camera.trigger_line=Line0 (GenICam line of the projector's "
+      "trigger output)",
       "board.inner_corners_cols=9, board.inner_corners_rows=6, board.square_size_m=0.025",
       "shelf.top_corners_m=12 numbers (shelf frame top corners)",
   };
@@ -819,6 +945,24 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   d.normals_step = static_cast<int>(config.GetInt("scan.normals_step", d.normals_step));
   d.exposure_us = config.GetDouble("camera.exposure_us", d.exposure_us);
   d.frame_timeout_s = config.GetDouble("camera.frame_timeout_s", d.frame_timeout_s);
+  const std::string trigger =
+      config.GetString("camera.trigger", projector_kind == "none" ? "free_run" : "hardware");
+  if (trigger == "hardware") {
+    d.trigger_mode = TriggerMode::kHardware;
+  } else if (trigger == "software") {
+    d.trigger_mode = TriggerMode::kSoftware;
+  } else if (trigger == "free_run") {
+    d.trigger_mode = TriggerMode::kFreeRun;
+  } else {
+    throw std::invalid_argument(
+        "setting 'camera.trigger' must be hardware, software or free_run, got '" + trigger + "'");
+  }
+  d.trigger_line = config.GetString("camera.trigger_line", d.trigger_line);
+  if (d.trigger_line.empty()) throw std::invalid_argument("setting 'camera.trigger_line' is empty");
+  if (!(d.exposure_us > 0)) throw std::invalid_argument("setting 'camera.exposure_us' must be > 0");
+  if (!(d.frame_timeout_s > 0)) {
+    throw std::invalid_argument("setting 'camera.frame_timeout_s' must be > 0");
+  }
   options.board.inner_corners_x = static_cast<int>(config.GetInt("board.inner_corners_cols", 9));
   options.board.inner_corners_y = static_cast<int>(config.GetInt("board.inner_corners_rows", 6));
   options.board.square_size_m = config.GetDouble("board.square_size_m", 0.025);
