@@ -239,8 +239,8 @@ namespace {
 
 constexpr int kRefineRowsPerBand = 16;
 // Camera columns whose rows are refined together: the strip is scanned row by row (row-major
-// reads of the map and the captures), with one event scan per column.
-constexpr int kRefineColumnsPerStrip = 32;
+// reads of the map and the captures), with one line scan per column.
+constexpr int kRefineColumnsPerStrip = 64;
 
 // Where a line of pixels (a camera row or column) changes: after pixel `boundary` either
 // the code steps by one (a knot: projector coordinate `value` = c + 0.5 is seen at sub-pixel
@@ -268,51 +268,167 @@ inline int LowestSetBit(unsigned value) {
 #endif
 }
 
-// The event scan of one line, fed its valid pixels in order (ScanValidPixel) and closed
-// with FinishLine. Up to max_gap invalid pixels between two valid ones are bridged (pixels
-// straddling a stripe edge often fail the decoder's bit-contrast test); longer stretches and
-// jumps of more than one code break the line. A line of n pixels has at most n events.
-struct LineScan {
-  int last = -1;      // The last valid pixel so far, -1 before the first.
-  int last_code = 0;  // Its code.
-  int count = 0;      // Events written so far.
+// Asks for the cache line at `address` ahead of its use. The line scans read the Gray-code
+// captures only where a stripe edge is (irregularly, so the hardware prefetchers miss most of
+// it); the finest bits have edges nearly everywhere, so their lines ahead are requested.
+inline void Prefetch(const void* address) {
+#if defined(__GNUC__)
+  __builtin_prefetch(address);
+#else
+  (void)address;
+#endif
+}
+
+// Bits (from the least significant) whose lines the scans prefetch.
+constexpr int kPrefetchBits = 6;
+// How far ahead: bytes along a camera row, rows down a strip.
+constexpr int kPrefetchAheadBytes = 256;
+constexpr int kPrefetchAheadRows = 6;
+
+// One line of pixels (a camera row or a camera column) in the map: pixel i's code, valid
+// flag and output coordinate are at element i * step.
+struct LineView {
+  const std::uint16_t* code;
+  const std::uint8_t* valid;
+  float* out;
+  std::ptrdiff_t step;
 };
 
-inline void PushBreak(int boundary, LineScan* scan, LineEvent* events) {
-  events[scan->count++] = LineEvent{boundary, boundary + 1, false, 0.0f, 0.0f};
+// Writes the continuous coordinate of the pixels of one run, (before.boundary, e.boundary]
+// (from pixel 0 without `before`): linear between the knots around the run, extrapolated
+// with the neighbouring run's slope (from `before2` and `before`, or `e` and `after`) where
+// the run has a knot on one side only, clamped to its code +- 0.5; NaN for invalid pixels and
+// runs that cannot be refined. Calls unrefined(i) for every valid pixel i left NaN.
+template <typename Unrefined>
+inline void FinishRun(const LineEvent* before2, const LineEvent* before, const LineEvent& e,
+                      const LineEvent* after, const LineView& line, const Unrefined& unrefined) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  const std::ptrdiff_t step = line.step;
+  const int first = before != nullptr ? before->boundary + 1 : 0;
+  const int first_valid = before != nullptr ? before->next : 0;
+  const int last = e.boundary;
+  bool ok = false;
+  float t0 = 0.0f;
+  float v0 = 0.0f;
+  float slope = 0.0f;
+  float c = 0.0f;
+  // A run is valid if its first valid pixel (before.next) is; it may contain bridged gaps.
+  if (first_valid <= last && line.valid[first_valid * step]) {
+    c = line.code[first_valid * step];
+    const bool left = before != nullptr && before->knot;
+    const bool right = e.knot;
+    // Value v0 at position t0 and slope per pixel, from two knots.
+    const auto from_knots = [&](const LineEvent& a, const LineEvent& b, const LineEvent& anchor) {
+      const float dt = b.t - a.t;
+      if (!(dt > 1e-3f) || a.value == b.value) return false;
+      slope = (b.value - a.value) / dt;
+      t0 = anchor.t;
+      v0 = anchor.value;
+      return true;
+    };
+    if (left && right) {
+      ok = from_knots(*before, e, *before);
+    } else if (left && before2 != nullptr && before2->knot) {
+      // Extrapolate past the last knot with the neighbouring run's slope; moving into the
+      // run must move towards its code.
+      ok = from_knots(*before2, *before, *before) && (slope > 0.0f) == (c > v0);
+    } else if (right && after != nullptr && after->knot) {
+      // Likewise before the first knot, moving backwards.
+      ok = from_knots(e, *after, e) && (slope < 0.0f) == (c > v0);
+    }
+  }
+  if (!ok) {
+    for (int i = first; i <= last; ++i) {
+      line.out[i * step] = kNaN;
+      if (line.valid[i * step]) unrefined(i);
+    }
+    return;
+  }
+  const float low = c - 0.5f;
+  const float high = c + 0.5f;
+  for (int i = first; i <= last; ++i) {
+    const float v = v0 + slope * (static_cast<float>(i) - t0);
+    line.out[i * step] = !line.valid[i * step] ? kNaN : (v < low ? low : (v > high ? high : v));
+  }
+}
+
+// The refinement of one line as a single scan: fed its valid pixels in order
+// (ScanValidPixel) and closed with FinishLine. Up to max_gap invalid pixels between two
+// valid ones are bridged (pixels straddling a stripe edge often fail the decoder's
+// bit-contrast test); longer stretches and jumps of more than one code break the line. Each
+// run is written (FinishRun) as soon as the event after its closing event is known, so only
+// the last three events are kept and a scan that visits the lines of a strip row by row
+// writes recent rows only.
+struct LineScan {
+  int last = -1;                    // The last valid pixel so far, -1 before the first.
+  int last_code = 0;                // Its code.
+  int count = 0;                    // Events so far.
+  std::array<LineEvent, 3> recent;  // Events count - 3, count - 2, count - 1.
+};
+
+template <typename Unrefined>
+inline void PushEvent(const LineEvent& event, const LineView& line, LineScan* scan,
+                      const Unrefined& unrefined) {
+  const int m = scan->count;
+  if (m >= 1) {
+    FinishRun(m >= 3 ? &scan->recent[0] : nullptr, m >= 2 ? &scan->recent[1] : nullptr,
+              scan->recent[2], &event, line, unrefined);
+  }
+  scan->recent[0] = scan->recent[1];
+  scan->recent[1] = scan->recent[2];
+  scan->recent[2] = event;
+  scan->count = m + 1;
+}
+
+template <typename Unrefined>
+inline void PushBreak(int boundary, const LineView& line, LineScan* scan,
+                      const Unrefined& unrefined) {
+  PushEvent(LineEvent{boundary, boundary + 1, false, 0.0f, 0.0f}, line, scan, unrefined);
 }
 
 // Feeds valid pixel p with code `code` into `scan`; returns 1 if that makes a knot.
 // diff(i, bit) is pattern - inverse at pixel i of the line for Gray-code bit `bit` of the
 // value (0 = least significant); it is read only at the pixels from the previous valid
-// pixel to p, so a scan that visits the lines of a strip row by row reads recent rows only.
-template <typename Diff>
-inline int ScanValidPixel(int p, int code, int max_gap, const Diff& diff, LineScan* scan,
-                          LineEvent* events) {
+// pixel to p.
+template <typename Diff, typename Unrefined>
+inline int ScanValidPixel(int p, int code, int max_gap, const Diff& diff, const LineView& line,
+                          LineScan* scan, const Unrefined& unrefined) {
   const int previous = scan->last;
   const int previous_code = scan->last_code;
   scan->last = p;
   scan->last_code = code;
   if (previous < 0) {  // The first valid pixel: a break before it, unless it starts the line.
-    if (p > 0) PushBreak(p - 1, scan, events);
+    if (p > 0) PushBreak(p - 1, line, scan, unrefined);
     return 0;
   }
   const int gap = p - previous - 1;
   if (gap > max_gap) {  // A stretch of invalid pixels that is not bridged.
-    PushBreak(previous, scan, events);
-    PushBreak(p - 1, scan, events);
+    PushBreak(previous, line, scan, unrefined);
+    PushBreak(p - 1, line, scan, unrefined);
     return 0;
   }
   if (previous_code == code) return 0;  // The run goes on (over the gap, if any).
   if (previous_code - code != 1 && code - previous_code != 1) {
-    PushBreak(previous, scan, events);
-    if (gap > 0) PushBreak(p - 1, scan, events);
+    PushBreak(previous, line, scan, unrefined);
+    if (gap > 0) PushBreak(p - 1, line, scan, unrefined);
     return 0;
   }
   // c and c + 1 differ in exactly one Gray-code bit: the lowest set bit of c + 1. Its
   // (pattern - inverse) changes sign between the two pixels; the edge is where it crosses
   // zero (the middle of the first and last crossing if noise makes several in a gap).
   const int bit = LowestSetBit(static_cast<unsigned>(std::max(previous_code, code)));
+  const LineEvent knot{previous, p, true, 0.0f, 0.5f * static_cast<float>(previous_code + code)};
+  if (gap == 0) {  // Neighbours (most knots): one crossing or none, chosen without a branch.
+    const int d0 = diff(previous, bit);
+    const int d1 = diff(p, bit);
+    const float denominator = static_cast<float>(d0 - d1);  // Not 0 if the sign changes.
+    const float fraction = static_cast<float>(d0) / (denominator != 0.0f ? denominator : 1.0f);
+    const float crossing = static_cast<float>(previous) + std::min(1.0f, std::max(0.0f, fraction));
+    const float middle = 0.5f * static_cast<float>(previous + p);
+    PushEvent(LineEvent{previous, p, true, (d0 > 0) != (d1 > 0) ? crossing : middle, knot.value},
+              line, scan, unrefined);
+    return 1;
+  }
   float first = -1.0f;
   float last = -1.0f;
   int d0 = diff(previous, bit);
@@ -329,74 +445,18 @@ inline int ScanValidPixel(int p, int code, int max_gap, const Diff& diff, LineSc
   }
   // Without a sign change (captures other than the decoded ones) the gap's middle.
   const float t = first < 0.0f ? 0.5f * static_cast<float>(previous + p) : 0.5f * (first + last);
-  events[scan->count++] =
-      LineEvent{previous, p, true, t, 0.5f * static_cast<float>(previous_code + code)};
+  PushEvent(LineEvent{previous, p, true, t, knot.value}, line, scan, unrefined);
   return 1;
 }
 
-// Closes the scan of a line of n pixels (n - 1 is the last event's boundary).
-inline void FinishLine(int n, LineScan* scan, LineEvent* events) {
-  if (scan->last >= 0 && scan->last < n - 1) PushBreak(scan->last, scan, events);
-  PushBreak(n - 1, scan, events);
-}
-
-// Writes the continuous coordinate of every pixel of a line (contiguous code, valid and out)
-// from its m events: linear between the knots around each run of equal codes, extrapolated
-// with the neighbouring run's slope where a run has a knot on one side only, NaN for invalid
-// pixels and runs that cannot be refined. Calls unrefined(i) for every valid pixel i left NaN.
+// Closes the scan of a line of n pixels: the last events, then the last run.
 template <typename Unrefined>
-inline void InterpolateRuns(const std::uint16_t* code, const std::uint8_t* valid,
-                            const LineEvent* e, int m, float* out, const Unrefined& unrefined) {
-  const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  // Runs between consecutive events: pixels (previous.boundary, event.boundary]; a run is
-  // valid if its first valid pixel (previous.next) is, and may contain bridged gaps.
-  for (int j = 0; j < m; ++j) {
-    const int first = j == 0 ? 0 : e[j - 1].boundary + 1;
-    const int first_valid = j == 0 ? 0 : e[j - 1].next;
-    const int last = e[j].boundary;
-    bool ok = false;
-    float t0 = 0.0f;
-    float v0 = 0.0f;
-    float slope = 0.0f;
-    float c = 0.0f;
-    if (first_valid <= last && valid[first_valid]) {
-      c = code[first_valid];
-      const bool left = j > 0 && e[j - 1].knot;
-      const bool right = e[j].knot;
-      // Value v0 at position t0 and slope per pixel, from two knots.
-      const auto from_knots = [&](const LineEvent& a, const LineEvent& b, const LineEvent& anchor) {
-        const float dt = b.t - a.t;
-        if (!(dt > 1e-3f) || a.value == b.value) return false;
-        slope = (b.value - a.value) / dt;
-        t0 = anchor.t;
-        v0 = anchor.value;
-        return true;
-      };
-      if (left && right) {
-        ok = from_knots(e[j - 1], e[j], e[j - 1]);
-      } else if (left && j >= 2 && e[j - 2].knot) {
-        // Extrapolate past the last knot with the neighbouring run's slope; moving into the
-        // run must move towards its code.
-        ok = from_knots(e[j - 2], e[j - 1], e[j - 1]) && (slope > 0.0f) == (c > v0);
-      } else if (right && j + 1 < m && e[j + 1].knot) {
-        // Likewise before the first knot, moving backwards.
-        ok = from_knots(e[j], e[j + 1], e[j]) && (slope < 0.0f) == (c > v0);
-      }
-    }
-    if (!ok) {
-      for (int i = first; i <= last; ++i) {
-        out[i] = kNaN;
-        if (valid[i]) unrefined(i);
-      }
-      continue;
-    }
-    const float low = c - 0.5f;
-    const float high = c + 0.5f;
-    for (int i = first; i <= last; ++i) {
-      const float v = v0 + slope * (static_cast<float>(i) - t0);
-      out[i] = !valid[i] ? kNaN : (v < low ? low : (v > high ? high : v));
-    }
-  }
+inline void FinishLine(int n, const LineView& line, LineScan* scan, const Unrefined& unrefined) {
+  if (scan->last >= 0 && scan->last < n - 1) PushBreak(scan->last, line, scan, unrefined);
+  PushBreak(n - 1, line, scan, unrefined);
+  const int m = scan->count;
+  FinishRun(m >= 3 ? &scan->recent[0] : nullptr, m >= 2 ? &scan->recent[1] : nullptr,
+            scan->recent[2], nullptr, line, unrefined);
 }
 
 // The coordinate of a valid pixel that its line could not refine, from the refined pixels up
@@ -438,20 +498,6 @@ inline float FillAcross(const float* value, const std::uint16_t* code, std::ptrd
   const float cf = static_cast<float>(c);
   if (!(std::abs(v - cf) <= 0.75f)) return std::numeric_limits<float>::quiet_NaN();
   return std::min(cf + 0.5f, std::max(cf - 0.5f, v));
-}
-
-// Per-thread buffers of the refinement passes, kept between calls (the pool's threads live
-// as long as the refiner), so that no pass allocates or page-faults per call.
-struct RefineScratch {
-  std::vector<LineEvent> events;
-  std::vector<std::uint16_t> codes;
-  std::vector<std::uint8_t> valids;
-  std::vector<float> values;
-};
-
-RefineScratch& ThreadScratch() {
-  thread_local RefineScratch scratch;
-  return scratch;
 }
 
 // Valid pixels that a line left NaN, by global pixel index, and what filling across the
@@ -555,11 +601,8 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   // Columns along camera rows (tasks [0, num_bands)) and rows along camera columns (tasks
   // [num_bands, num_bands + num_strips)): independent, so one job.
   pool_->Run(num_bands + num_strips, [&](int task) {
-    RefineScratch& scratch = ThreadScratch();
     if (task < num_bands) {
       const int band = task;
-      if (scratch.events.size() < static_cast<std::size_t>(width)) scratch.events.resize(width);
-      LineEvent* events = scratch.events.data();
       std::vector<std::size_t>& candidates = column_candidates[band].pixels;
       std::size_t knots = 0;
       std::size_t count = 0;
@@ -575,43 +618,35 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
         const auto diff = [&](int x, int bit) {
           return static_cast<int>(pattern[bit][x]) - static_cast<int>(inverse[bit][x]);
         };
-        const std::uint16_t* code = column_code + offset;
-        const std::uint8_t* line_valid = valid + offset;
+        const LineView line{column_code + offset, valid + offset, column_subpixel + offset, 1};
+        const auto unrefined = [&](int x) { candidates.push_back(offset + x); };
         LineScan scan;
+        // Along a row every bit has edges every 2^(bit + 1) projector columns: all are read.
+        const int prefetch_bits = column_bits;
         for (int x = 0; x < width; ++x) {
-          if (!line_valid[x]) continue;
+          if ((x & 63) == 0) {
+            for (int b = 0; b < prefetch_bits; ++b) {
+              Prefetch(pattern[b] + x + kPrefetchAheadBytes);
+              Prefetch(inverse[b] + x + kPrefetchAheadBytes);
+            }
+          }
+          if (!line.valid[x]) continue;
           ++count;
-          knots += ScanValidPixel(x, code[x], max_gap, diff, &scan, events);
+          knots += ScanValidPixel(x, line.code[x], max_gap, diff, line, &scan, unrefined);
         }
-        FinishLine(width, &scan, events);
-        InterpolateRuns(code, line_valid, events, scan.count, column_subpixel + offset,
-                        [&](int x) { candidates.push_back(offset + x); });
+        FinishLine(width, line, &scan, unrefined);
       }
       column_knots.fetch_add(knots, std::memory_order_relaxed);
       total_valid.fetch_add(count, std::memory_order_relaxed);
       return;
     }
-    // A strip of columns, scanned row by row; its codes, validity and results are kept
-    // transposed (one contiguous line per column) for the interpolation.
+    // A strip of columns, scanned row by row with one line scan per column: the map and the
+    // captures are read row-major, and runs are written within a few rows of the scan.
     const int strip = task - num_bands;
     const int x0 = strip * kRefineColumnsPerStrip;
     const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
     const int strip_width = x1 - x0;
-    // Line length in the transposed buffers: an odd multiple of 32 elements, so that the
-    // lines of neighbouring columns fall into different cache sets (a power-of-two stride
-    // would put all of them into a few sets of the L1 cache).
-    const std::size_t h = (static_cast<std::size_t>(height) + 63) / 64 * 64 + 32;
-    const std::size_t size = h * kRefineColumnsPerStrip;
-    if (scratch.codes.size() < size) {
-      scratch.events.resize(std::max(scratch.events.size(), size));
-      scratch.codes.resize(size);
-      scratch.valids.resize(size);
-      scratch.values.resize(size);
-    }
-    LineEvent* events = scratch.events.data();
-    std::uint16_t* codes = scratch.codes.data();
-    std::uint8_t* valids = scratch.valids.data();
-    float* values = scratch.values.data();
+    std::vector<std::size_t>& candidates = row_candidates[strip].pixels;
     std::array<LineScan, kRefineColumnsPerStrip> scans{};
     std::size_t knots = 0;
     std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
@@ -624,34 +659,40 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
       pattern_stride[b] = row_pattern[b]->stride_bytes;
       inverse_stride[b] = row_inverse[b]->stride_bytes;
     }
+    const auto column_line = [&](int j) {
+      return LineView{row_code + x0 + j, valid + x0 + j, row_subpixel + x0 + j, width};
+    };
+    const int prefetch_bits = std::min(kPrefetchBits, row_bits);
     for (int y = 0; y < height; ++y) {
+      if (y + kPrefetchAheadRows < height) {
+        for (int b = 0; b < prefetch_bits; ++b) {
+          const std::uint8_t* p = pattern[b] + (y + kPrefetchAheadRows) * pattern_stride[b];
+          const std::uint8_t* q = inverse[b] + (y + kPrefetchAheadRows) * inverse_stride[b];
+          Prefetch(p);
+          Prefetch(p + strip_width - 1);
+          Prefetch(q);
+          Prefetch(q + strip_width - 1);
+        }
+      }
       const std::size_t offset = static_cast<std::size_t>(y) * width + x0;
       const std::uint16_t* code = row_code + offset;
       const std::uint8_t* line_valid = valid + offset;
-      for (int j = 0; j < strip_width; ++j) {
-        codes[j * h + y] = code[j];
-        valids[j * h + y] = line_valid[j];
-      }
       for (int j = 0; j < strip_width; ++j) {
         if (!line_valid[j]) continue;
         const auto diff = [&](int yy, int bit) {
           return static_cast<int>(pattern[bit][yy * pattern_stride[bit] + j]) -
                  static_cast<int>(inverse[bit][yy * inverse_stride[bit] + j]);
         };
-        knots += ScanValidPixel(y, code[j], max_gap, diff, &scans[j], events + j * h);
+        const auto unrefined = [&](int yy) {
+          candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
+        };
+        knots += ScanValidPixel(y, code[j], max_gap, diff, column_line(j), &scans[j], unrefined);
       }
     }
-    std::vector<std::size_t>& candidates = row_candidates[strip].pixels;
     for (int j = 0; j < strip_width; ++j) {
-      const std::size_t line = j * h;
-      FinishLine(height, &scans[j], events + line);
-      InterpolateRuns(
-          codes + line, valids + line, events + line, scans[j].count, values + line,
-          [&](int y) { candidates.push_back(static_cast<std::size_t>(y) * width + x0 + j); });
-    }
-    for (int y = 0; y < height; ++y) {
-      float* out = row_subpixel + static_cast<std::size_t>(y) * width + x0;
-      for (int j = 0; j < strip_width; ++j) out[j] = values[j * h + y];
+      FinishLine(height, column_line(j), &scans[j], [&](int yy) {
+        candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
+      });
     }
     row_knots.fetch_add(knots, std::memory_order_relaxed);
   });

@@ -71,6 +71,9 @@ struct ScanPipeline::Cache {
   std::unique_ptr<GrayCodeDecoder> decoder;
   std::unique_ptr<SubpixelRefiner> refiner;
   std::unique_ptr<Triangulator> triangulator;
+  // The correspondence map of the last view: its buffers (~17 MB at 1280 x 1024) are reused,
+  // so that a view does not page-fault fresh memory for them.
+  CorrespondenceMap map;
 };
 
 ScanPipeline::ScanPipeline(ScanCalibration calibration, PatternSequence patterns,
@@ -168,7 +171,8 @@ geometry::PointCloud ScanPipeline::ProcessViewLocked(const std::vector<GrayImage
     cache_->triangulator = std::make_unique<Triangulator>(
         calibration_.camera, calibration_.projector, calibration_.X_CameraProjector, triangulation);
   }
-  CorrespondenceMap map = cache_->decoder->Decode(views);
+  CorrespondenceMap& map = cache_->map;
+  cache_->decoder->Decode(views, &map);
   if (options.subpixel) {
     if (!cache_->refiner || !SameRefinement(cache_->refiner->options(), options.refinement)) {
       cache_->refiner = std::make_unique<SubpixelRefiner>(patterns_, options.refinement);
