@@ -5,6 +5,7 @@
 #include <grpcpp/security/credentials.h>
 
 #include <chrono>
+#include <cmath>
 #include <stdexcept>
 
 #include "libs/errors/errors.h"
@@ -63,6 +64,13 @@ SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSett
   if (address_.empty()) throw std::invalid_argument("setting 'sim.address' is empty");
   if (!(settings_.timeout_s > 0))
     throw std::invalid_argument("setting 'sim.timeout_s' must be > 0");
+  if (!(settings_.electrons_per_dn >= 0) || !std::isfinite(settings_.electrons_per_dn)) {
+    throw std::invalid_argument("setting 'sim.electrons_per_dn' must be finite and >= 0");
+  }
+  if (!(settings_.projector_blur_sigma_px >= 0) ||
+      !std::isfinite(settings_.projector_blur_sigma_px)) {
+    throw std::invalid_argument("setting 'sim.projector_blur_sigma_px' must be finite and >= 0");
+  }
   stub_ = simpb::SimulatorService::NewStub(MakeChannel(address_));
 }
 
@@ -98,6 +106,8 @@ std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& reque
   options->set_ambient(settings_.ambient);
   options->set_noise_sigma(settings_.noise_sigma);
   options->set_gamma(settings_.gamma);
+  options->set_electrons_per_dn(settings_.electrons_per_dn);
+  options->set_projector_blur_sigma_px(settings_.projector_blur_sigma_px);
   options->set_exposure(request.exposure);
   options->set_seed(request.seed);
 

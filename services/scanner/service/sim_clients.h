@@ -16,7 +16,13 @@ struct SimRenderSettings {
   double ambient = 0.03;     ///< Ambient light relative to the projector's white.
   double noise_sigma = 1.0;  ///< Camera noise, grey levels.
   double gamma = 1.0;        ///< Camera response gamma.
-  double timeout_s = 30.0;   ///< Deadline of one RenderPatterns call, seconds.
+  /// Shot noise: electrons per grey level (conversion gain of an 8-bit camera with a
+  /// ~10,000 e- full well, as the paper's Flea3); 0 = read noise only.
+  double electrons_per_dn = 40.0;
+  /// Projector defocus: Gaussian blur of the projected image, sigma in projector pixels;
+  /// 0 = perfectly sharp.
+  double projector_blur_sigma_px = 0.6;
+  double timeout_s = 30.0;  ///< Deadline of one RenderPatterns call, seconds.
 };
 
 /// PatternRenderer served by picking-simulator's RenderPatterns, plus the simulated arm's
@@ -25,7 +31,8 @@ struct SimRenderSettings {
 /// simulator's message.
 class SimulatorClient final : public PatternRenderer {
  public:
-  /// @throws std::invalid_argument for an empty address or a non-positive timeout.
+  /// @throws std::invalid_argument for an empty address, a non-positive timeout or a
+  ///   negative or non-finite noise or blur setting.
   SimulatorClient(const std::string& address, const SimRenderSettings& settings);
 
   std::vector<GrayImage> Render(const PatternRenderRequest& request) override;

@@ -958,7 +958,8 @@ std::vector<GrayImage> RenderSequence(const ScanGeometry& geometry,
 }
 
 void RenderSequence(const ScanGeometry& geometry, const std::vector<GrayImage>& projector_images,
-                    const RenderOptions& options, std::vector<GrayImage>* camera_images) {
+                    const RenderOptions& options, std::vector<GrayImage>* camera_images,
+                    std::uint64_t first_frame) {
   if (camera_images == nullptr) throw std::invalid_argument("RenderSequence: output is null");
   options.Validate();
   CheckGeometry(geometry);
@@ -967,7 +968,7 @@ void RenderSequence(const ScanGeometry& geometry, const std::vector<GrayImage>& 
     CheckProjectorImage(geometry, projector_images[k], k);
     images.push_back(&projector_images[k]);
   }
-  Shade(geometry, images, 0, options, camera_images);
+  Shade(geometry, images, first_frame, options, camera_images);
 }
 
 GrayImage RenderImage(const ScanGeometry& geometry, const GrayImage& projector_image,

@@ -205,8 +205,11 @@ std::vector<GrayImage> RenderSequence(const ScanGeometry& geometry,
 
 /// RenderSequence into `camera_images`, resized to the sequence length, reusing the buffers
 /// of images that already have the camera's size (a scan loop then allocates nothing).
+/// Image k is frame first_frame + k (its noise realisation), so a long sequence rendered in
+/// parts with first_frame = the part's offset equals the sequence rendered at once.
 void RenderSequence(const ScanGeometry& geometry, const std::vector<GrayImage>& projector_images,
-                    const RenderOptions& options, std::vector<GrayImage>* camera_images);
+                    const RenderOptions& options, std::vector<GrayImage>* camera_images,
+                    std::uint64_t first_frame = 0);
 
 /// The ground truth as an organised point cloud in the camera frame (frame_id "camera"):
 /// points, normals and albedo as intensity; NaN where the camera sees nothing.

@@ -3,6 +3,7 @@
 #include <grpcpp/server_context.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -12,6 +13,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "libs/apc/catalogue.h"
@@ -294,6 +296,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       const apc::Task task =
           ParseTaskJson(request->task_json(), world_->models().catalogue(), "task_json");
       std::lock_guard<std::mutex> lock(mutex_);
+      ++scene_generation_;
       LoadTaskInto(*world_, task, request->seed());
       in_collision_ = false;
       const auto instances = Instances(world_->items());
@@ -509,22 +512,32 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
                                             projector_model.height(),
                                             "patterns[" + std::to_string(i) + "]"));
       }
-      const std::unique_ptr<StructuredLightRenderer> renderer = SceneRenderer();
       const ScanPose pose{camera_model, X_BaseCamera, projector_model, X_BaseProjector};
-      const ScanGeometry geometry = renderer->Prepare(pose);
-      for (std::size_t i = 0; i < patterns.size(); ++i) {
+      const ScanGeometry geometry =
+          WithSceneRenderer([&](const StructuredLightRenderer& r) { return r.Prepare(pose); });
+      // A few frames per RenderSequence call share its per-block shading tables and threads,
+      // and the camera images' buffers are reused from part to part.
+      constexpr std::size_t kFramesPerPart = 4;
+      std::vector<GrayImage> part;
+      std::vector<GrayImage> images;
+      for (std::size_t first = 0; first < patterns.size(); first += kFramesPerPart) {
         if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
-        const GrayImage image = RenderImage(geometry, patterns[i].image, render_options, i);
-        pc::Image out;
-        out.width = static_cast<std::uint32_t>(image.width);
-        out.height = static_cast<std::uint32_t>(image.height);
-        out.format = common::PIXEL_FORMAT_MONO8;
-        out.name = patterns[i].name;
-        out.index = static_cast<std::uint32_t>(i);
-        out.data = image.pixels;
-        for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
-          if (!writer->Write(chunk)) {
-            return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
+        const std::size_t count = std::min(kFramesPerPart, patterns.size() - first);
+        part.resize(count);
+        for (std::size_t k = 0; k < count; ++k) part[k] = std::move(patterns[first + k].image);
+        RenderSequence(geometry, part, render_options, &images, first);
+        for (std::size_t k = 0; k < count; ++k) {
+          pc::Image out;
+          out.width = static_cast<std::uint32_t>(images[k].width);
+          out.height = static_cast<std::uint32_t>(images[k].height);
+          out.format = common::PIXEL_FORMAT_MONO8;
+          out.name = patterns[first + k].name;
+          out.index = static_cast<std::uint32_t>(first + k);
+          out.data = images[k].pixels;
+          for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
+            if (!writer->Write(chunk)) {
+              return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
+            }
           }
         }
       }
@@ -539,7 +552,9 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       if (!request->has_x_base_camera()) throw std::invalid_argument("X_base_camera is unset");
       const Eigen::Isometry3d X_BaseCamera =
           pc::PoseFromProto(request->x_base_camera(), "X_base_camera");
-      const DepthImage depth = SceneRenderer()->RenderDepth(camera_model, X_BaseCamera);
+      const DepthImage depth = WithSceneRenderer([&](const StructuredLightRenderer& r) {
+        return r.RenderDepth(camera_model, X_BaseCamera);
+      });
       pc::Image out;
       out.width = static_cast<std::uint32_t>(depth.width);
       out.height = static_cast<std::uint32_t>(depth.height);
@@ -560,17 +575,48 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
   }
 
  private:
-  // A renderer of the world's scene now. It copies the meshes, so the world is only held
-  // while it is built.
-  std::unique_ptr<StructuredLightRenderer> SceneRenderer() {
-    std::lock_guard<std::mutex> lock(mutex_);
-    return std::make_unique<StructuredLightRenderer>(world_->SceneMeshes());
+  // Calls f(renderer) with the renderer of the world's scene as it is now. The renderer is
+  // kept between calls, so that its BVH and its per-pixel camera rays (the lens model's
+  // undistortion) are reused: it is rebuilt when the item set changed (LoadLayout) and only
+  // moves the objects whose pose changed otherwise. Rendering calls are serialised; the
+  // world is only held while the renderer is brought up to date (it copies the meshes).
+  template <class F>
+  std::invoke_result_t<const F&, const StructuredLightRenderer&> WithSceneRenderer(const F& f) {
+    std::lock_guard<std::mutex> render_lock(render_mutex_);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      const std::vector<SceneObject> objects = world_->SceneMeshes();
+      if (!renderer_) {
+        renderer_ = std::make_unique<StructuredLightRenderer>(objects);
+      } else if (rendered_generation_ != scene_generation_ ||
+                 rendered_poses_.size() != objects.size()) {
+        renderer_->SetObjects(objects);
+      } else {
+        for (std::size_t i = 0; i < objects.size(); ++i) {
+          if (objects[i].X_BaseObject.matrix() != rendered_poses_[i].matrix()) {
+            renderer_->SetObjectPose(i, objects[i].X_BaseObject);
+          }
+        }
+      }
+      rendered_generation_ = scene_generation_;
+      rendered_poses_.clear();
+      for (const SceneObject& o : objects) rendered_poses_.push_back(o.X_BaseObject);
+    }
+    return f(static_cast<const StructuredLightRenderer&>(*renderer_));
   }
 
   const ur10::Ur10Kinematics& collisions_kinematics() const { return world_->kinematics(); }
 
   std::mutex mutex_;
   std::unique_ptr<SimWorld> world_;
+  // Bumped (under mutex_) whenever the world's item set may change.
+  std::uint64_t scene_generation_ = 0;
+  // The scene renderer (WithSceneRenderer), guarded by render_mutex_, which is taken before
+  // mutex_ when both are held.
+  std::mutex render_mutex_;
+  std::unique_ptr<StructuredLightRenderer> renderer_;
+  std::uint64_t rendered_generation_ = 0;
+  std::vector<Eigen::Isometry3d, Eigen::aligned_allocator<Eigen::Isometry3d>> rendered_poses_;
   std::unique_ptr<ArmCollisionChecker> collisions_;
   SimulatorServiceOptions options_;
   bool in_collision_ = false;  // the last SetArmJoints was in collision

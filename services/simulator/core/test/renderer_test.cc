@@ -292,6 +292,39 @@ TEST(StructuredLightRendererTest, RenderingIsDeterministicForASeed) {
   EXPECT_NE(other.pixels, frame1.pixels);
 }
 
+TEST(StructuredLightRendererTest, SequenceRenderedInPartsEqualsTheWholeSequence) {
+  const world::TriangleMesh plane = Square(5.0);
+  StructuredLightRenderer renderer({{&plane, Translation(0.0, 0.0, 0.8)}});
+  const ScanGeometry g = renderer.Prepare(TestPose());
+  std::vector<GrayImage> images;
+  for (int k = 0; k < 6; ++k) {
+    GrayImage stripes(g.projector_width, g.projector_height);
+    for (int r = 0; r < stripes.height; ++r) {
+      for (int c = 0; c < stripes.width; ++c) stripes.at(c, r) = (c >> k) % 2 ? 255 : 0;
+    }
+    images.push_back(stripes);
+  }
+  for (double blur : {0.0, 0.8}) {
+    RenderOptions options;
+    options.seed = 5;
+    options.projector_blur_sigma_px = blur;
+    const std::vector<GrayImage> whole = RenderSequence(g, images, options);
+    std::vector<GrayImage> part;
+    for (std::size_t first : {0u, 4u}) {
+      const std::vector<GrayImage> projected(images.begin() + first,
+                                             images.begin() + std::min<std::size_t>(first + 4, 6));
+      RenderSequence(g, projected, options, &part, first);
+      ASSERT_EQ(part.size(), projected.size());
+      for (std::size_t k = 0; k < part.size(); ++k) {
+        EXPECT_EQ(part[k].pixels, whole[first + k].pixels) << first + k << " blur " << blur;
+      }
+    }
+    // Without the offset the second part would repeat the first frames' noise.
+    RenderSequence(g, {images[4]}, options, &part);
+    EXPECT_NE(part[0].pixels, whole[4].pixels);
+  }
+}
+
 TEST(StructuredLightRendererTest, NoiseHasTheConfiguredStatistics) {
   const world::TriangleMesh plane = Square(5.0);
   StructuredLightRenderer renderer({{&plane, Translation(0.0, 0.0, 0.8)}});
