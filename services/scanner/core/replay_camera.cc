@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <stdexcept>
 
@@ -82,6 +83,24 @@ ReplayCamera::ReplayCamera(const std::string& folder) {
     }
     images_.push_back(std::move(image));
   }
+  // Frame ids: the number each file name ends with when every name has one (a recording
+  // that lost a frame then replays the loss), else the image index.
+  for (const std::string& file : files_) {
+    const std::string stem = fs::path(file).stem().string();
+    std::size_t digits = 0;
+    while (digits < stem.size() && digits < 18 &&
+           std::isdigit(static_cast<unsigned char>(stem[stem.size() - 1 - digits]))) {
+      ++digits;
+    }
+    if (digits == 0) {
+      frame_ids_.clear();
+      break;
+    }
+    frame_ids_.push_back(std::stoull(stem.substr(stem.size() - digits)));
+  }
+  if (frame_ids_.empty()) {
+    for (std::size_t i = 0; i < files_.size(); ++i) frame_ids_.push_back(i);
+  }
 }
 
 void ReplayCamera::Configure(const CameraSettings& settings) { ValidateCameraSettings(settings); }
@@ -101,7 +120,7 @@ std::vector<Frame> ReplayCamera::Capture(int count) {
   for (int i = 0; i < count; ++i) {
     Frame frame;
     frame.image = images_[next_];
-    frame.frame_id = next_;
+    frame.frame_id = frame_ids_[next_];
     frames.push_back(std::move(frame));
     ++next_;
   }

@@ -16,8 +16,10 @@ GrayImage ReadGrayImage(const std::string& path);
 void WriteGrayImage(const std::string& path, const GrayImage& image);
 
 /// A camera that plays back the PNG images of a folder, sorted by file name. Each capture
-/// returns the next images; frame ids are the image indices. Used to re-run the scanner on
-/// recorded captures.
+/// returns the next images. A frame's id is the number its file name ends with when every
+/// name ends with one (frame_0041.png: 41), so a recording with a missing frame replays as
+/// a dropped frame; otherwise the image index. Used to re-run the scanner on recorded
+/// captures.
 class ReplayCamera final : public CameraBackend {
  public:
   /// Loads every *.png of `folder`. Throws CameraError when the folder does not exist,
@@ -25,8 +27,10 @@ class ReplayCamera final : public CameraBackend {
   explicit ReplayCamera(const std::string& folder);
 
   void Configure(const CameraSettings& settings) override;
-  /// Returns the next `count` images. Throws std::invalid_argument for count <= 0 and
-  /// CameraTimeoutError when fewer than `count` images are left (nothing is consumed then).
+  /// Returns the next `count` images. Throws std::invalid_argument for count <= 0,
+  /// CameraTimeoutError when fewer than `count` images are left (nothing is consumed then),
+  /// and DroppedFrameError when their frame ids are not consecutive (they are consumed, as
+  /// a camera's frames would be).
   std::vector<Frame> Capture(int count) override;
   std::uint32_t width() const override { return width_; }
   std::uint32_t height() const override { return height_; }
@@ -41,6 +45,7 @@ class ReplayCamera final : public CameraBackend {
  private:
   std::vector<std::string> files_;
   std::vector<GrayImage> images_;
+  std::vector<std::uint64_t> frame_ids_;
   std::uint32_t width_ = 0;
   std::uint32_t height_ = 0;
   std::size_t next_ = 0;

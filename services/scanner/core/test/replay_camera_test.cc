@@ -119,6 +119,37 @@ TEST(CameraBackendTest, SixteenBitFrameCounterWrapsWithoutALoss) {
   EXPECT_THROW(CheckConsecutiveFrameIds(frames), DroppedFrameError);
 }
 
+// A recording that lost a frame replays the loss: ids come from the file names.
+TEST_F(ReplayCameraTest, FrameIdsFollowTheNumbersInTheFileNames) {
+  for (const char* name : {"frame_007.png", "frame_008.png", "frame_010.png", "frame_011.png"}) {
+    WriteImage(name, 16, 8, 0);
+  }
+  ReplayCamera camera(dir_.string());
+  camera.Configure({});
+  const std::vector<Frame> first = camera.Capture(2);
+  EXPECT_EQ(first[0].frame_id, 7u);
+  EXPECT_EQ(first[1].frame_id, 8u);
+  camera.Rewind();
+  try {
+    camera.Capture(3);
+    FAIL() << "expected a dropped frame";
+  } catch (const DroppedFrameError& e) {
+    EXPECT_NE(std::string(e.what()).find("expected 9"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(camera.next_index(), 3u);  // Consumed, as a camera's frames would be.
+  EXPECT_EQ(camera.Capture(1)[0].frame_id, 11u);
+}
+
+TEST_F(ReplayCameraTest, NamesWithoutNumbersGiveIndices) {
+  WriteImage("a.png", 16, 8, 0);
+  WriteImage("b7.png", 16, 8, 0);
+  ReplayCamera camera(dir_.string());
+  camera.Configure({});
+  const std::vector<Frame> frames = camera.Capture(2);
+  EXPECT_EQ(frames[0].frame_id, 0u);
+  EXPECT_EQ(frames[1].frame_id, 1u);
+}
+
 TEST_F(ReplayCameraTest, ArmingChangesNothingAndChecksItsCount) {
   WriteImage("frame_000.png", 16, 8, 0);
   WriteImage("frame_001.png", 16, 8, 10);
