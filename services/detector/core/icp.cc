@@ -59,13 +59,22 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
   std::vector<Pair> pairs;
   pairs.reserve(source.size());
 
+  // Nearest target point of each source point at the previous pose: its distance at the
+  // new pose bounds the search (the poses of successive iterations are close), which prunes
+  // most of the tree without changing the answer.
+  std::vector<std::int32_t> last(source.size(), KdTree::kNone);
   auto correspond = [&](const Eigen::Isometry3d& X_ts) {
     pairs.clear();
     const Eigen::Isometry3f Xf = X_ts.cast<float>();
     for (std::size_t i = 0; i < source.size(); ++i) {
       const Eigen::Vector3f p = Xf * source.points[i];
+      float bound = max_d2;
+      if (last[i] != KdTree::kNone) {
+        bound = std::min(bound, (target.points[last[i]] - p).squaredNorm() * 1.0001f + 1e-12f);
+      }
       float d2 = 0.0f;
-      const std::int32_t j = target_tree.Nearest(p, &d2, max_d2);
+      const std::int32_t j = target_tree.Nearest(p, &d2, bound);
+      last[i] = j;
       if (j == KdTree::kNone) continue;
       const Eigen::Vector3f& n = target.normals[j];
       if (use_normals && (Xf.linear() * source.normals[i]).dot(n) < min_cos) continue;

@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <unordered_map>
 
 #include "services/detector/core/ppf_cloud.h"
 
@@ -14,7 +15,9 @@ namespace picking::detector {
 namespace {
 
 constexpr float kPi = static_cast<float>(M_PI);
-constexpr std::size_t kMaxModelPoints = 8192;
+constexpr std::size_t kMaxModelPoints = 8192;  // model_reference fits 13 bits of a vote code
+constexpr int kCodeShift = 13;
+constexpr std::uint32_t kCodeMask = (1u << kCodeShift) - 1;
 
 float SafeAngle(const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
   // atan2 of |a x b| and a.b is accurate near 0 and pi, unlike acos.
@@ -31,6 +34,20 @@ void CheckUnitNormals(const geometry::PointCloud& cloud, const char* what) {
                                   " has a non-finite coordinate or a non-unit normal");
     }
   }
+}
+
+// atan2 with an absolute error below 2e-5 rad (a 7th order minimax polynomial of atan on
+// [0, 1]); the voting quantises the angle in steps of several milliradians.
+float FastAtan2(float y, float x) {
+  const float ax = std::abs(x), ay = std::abs(y);
+  const float hi = std::max(ax, ay);
+  if (!(hi > 0.0f)) return 0.0f;
+  const float a = std::min(ax, ay) / hi;
+  const float s = a * a;
+  float r = ((-0.0464964749f * s + 0.15931422f) * s - 0.327622764f) * s * a + a;
+  if (ay > ax) r = 0.5f * kPi - r;
+  if (x < 0.0f) r = kPi - r;
+  return y < 0.0f ? -r : r;
 }
 
 Eigen::Isometry3d ToDouble(const Eigen::Isometry3f& T) {
@@ -80,6 +97,54 @@ PpfQuantizer::PpfQuantizer(float distance_step_m, float max_distance_m, int angl
   }
   distance_cells_ = static_cast<int>(cells);
   num_keys_ = static_cast<std::uint32_t>(keys);
+  right_angle_cell_ =
+      std::clamp(static_cast<int>(0.5f * kPi / angle_step_rad_), 0, angle_cells_ - 1);
+  cos_bounds_.resize(angle_cells_);
+  for (int k = 0; k < angle_cells_; ++k) {
+    cos_bounds_[k] = std::cos(static_cast<float>(k) * angle_step_rad_);
+  }
+  // cos_lut_[i]: cell of the largest cosine of interval i, a lower bound of the cell of every
+  // cosine in the interval; the intervals are narrower than the gaps between the bounds, so
+  // at most one bound lies inside an interval.
+  cos_lut_.resize(kCosLutSize);
+  for (int i = 0; i < kCosLutSize; ++i) {
+    const float c = -1.0f + 2.0f * static_cast<float>(i + 1) / static_cast<float>(kCosLutSize);
+    int cell = 0;
+    while (cell + 1 < angle_cells_ && c <= cos_bounds_[cell + 1]) ++cell;
+    cos_lut_[i] = static_cast<std::uint8_t>(cell);
+  }
+}
+
+int PpfQuantizer::CosineCell(float c) const {
+  c = std::clamp(c, -1.0f, 1.0f);
+  const int i = std::min(static_cast<int>((c + 1.0f) * (0.5f * kCosLutSize)), kCosLutSize - 1);
+  int cell = cos_lut_[i];
+  while (cell + 1 < angle_cells_ && c <= cos_bounds_[cell + 1]) ++cell;
+  return cell;
+}
+
+bool PpfQuantizer::PairKey(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1,
+                           const Eigen::Vector3f& p2, const Eigen::Vector3f& n2, std::uint32_t* key,
+                           bool* planar) const {
+  const Eigen::Vector3f d = p2 - p1;
+  const float d2 = d.squaredNorm();
+  if (!(d2 > 0.0f) || !std::isfinite(d2)) return false;
+  const float distance = std::sqrt(d2);
+  if (distance > max_distance_m_) return false;
+  const float inv = 1.0f / distance;
+  const float c1 = n1.dot(d) * inv;
+  const float c2 = n2.dot(d) * inv;
+  const float c3 = n1.dot(n2);
+  if (!std::isfinite(c1) || !std::isfinite(c2) || !std::isfinite(c3)) return false;
+  const int a1 = CosineCell(c1), a2 = CosineCell(c2), a3 = CosineCell(c3);
+  const int dc = std::min(static_cast<int>(distance / distance_step_m_), distance_cells_ - 1);
+  *key = static_cast<std::uint32_t>(((dc * angle_cells_ + a1) * angle_cells_ + a2) * angle_cells_ +
+                                    a3);
+  if (planar != nullptr) {
+    *planar =
+        a3 == 0 && std::abs(a1 - right_angle_cell_) <= 1 && std::abs(a2 - right_angle_cell_) <= 1;
+  }
+  return true;
 }
 
 bool PpfQuantizer::Key(const Eigen::Vector4f& f, std::uint32_t* key) const {
@@ -152,11 +217,13 @@ PpfTable::PpfTable(const geometry::PointCloud& sampled_model, float diameter_m,
   for (std::size_t i = 0; i < n; ++i) {
     for (std::size_t j = 0; j < n; ++j) {
       if (i == j) continue;
-      const Eigen::Vector4f f =
-          ComputePpf(model_.points[i], model_.normals[i], model_.points[j], model_.normals[j]);
       std::uint32_t key = 0;
-      if (!quantizer_.Key(f, &key)) continue;
-      if (!store_planar_pairs_ && quantizer_.IsPlanar(f)) continue;
+      bool planar = false;
+      if (!quantizer_.PairKey(model_.points[i], model_.normals[i], model_.points[j],
+                              model_.normals[j], &key, &planar)) {
+        continue;
+      }
+      if (!store_planar_pairs_ && planar) continue;
       keys[i * n + j] = key;
       ++offsets_[key + 1];
     }
@@ -171,7 +238,20 @@ PpfTable::PpfTable(const geometry::PointCloud& sampled_model, float diameter_m,
       entries_[fill[key]++] = {static_cast<std::uint32_t>(i), PairAngle(T[i], model_.points[j])};
     }
   }
+  BuildVoteCodes();
   tree_ = KdTree(model_.points);
+}
+
+void PpfTable::BuildVoteCodes() {
+  const int units = quantizer_.angle_bins() * kAlphaSubsteps;
+  const float scale = static_cast<float>(units) / (2.0f * kPi);
+  vote_codes_.resize(entries_.size());
+  for (std::size_t k = 0; k < entries_.size(); ++k) {
+    const Entry& e = entries_[k];
+    const int code =
+        std::clamp(static_cast<int>(std::floor((e.alpha_m_rad + kPi) * scale)), 0, units - 1);
+    vote_codes_[k] = (e.model_reference << kCodeShift) | static_cast<std::uint32_t>(code);
+  }
 }
 
 PpfTable::PpfTable(geometry::PointCloud sampled_model, float diameter_m, float distance_step_m,
@@ -201,6 +281,7 @@ PpfTable::PpfTable(geometry::PointCloud sampled_model, float diameter_m, float d
       throw std::invalid_argument("PpfTable: an entry refers to a missing model point");
     }
   }
+  BuildVoteCodes();
   tree_ = KdTree(model_.points);
 }
 
@@ -229,19 +310,68 @@ std::vector<PpfHypothesis> ClusterPoses(const std::vector<Eigen::Isometry3d>& po
     int count = 0;
   };
   std::vector<Cluster> clusters;
+  // Clusters by the grid cell (edge = translation threshold) of their first pose, so that a
+  // pose only tests the clusters of the 27 cells around it; ids ascend within a cell, and the
+  // lowest matching id is the first cluster in creation order, as in a linear scan.
+  const bool use_grid = translation_threshold_m > 0.0 && std::isfinite(translation_threshold_m);
+  std::unordered_map<std::uint64_t, std::vector<std::int32_t>> grid;
+  const auto cell_of = [&](const Eigen::Vector3d& p) {
+    return (p / translation_threshold_m)
+        .array()
+        .floor()
+        .cwiseMax(-1.0e6)
+        .cwiseMin(1.0e6)
+        .cast<std::int64_t>()
+        .eval();
+  };
+  const auto cell_key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
+    constexpr std::int64_t kOffset = 1 << 20;
+    return (static_cast<std::uint64_t>(x + kOffset) << 42) |
+           (static_cast<std::uint64_t>(y + kOffset) << 21) |
+           static_cast<std::uint64_t>(z + kOffset);
+  };
   for (std::size_t idx : order) {
     const Eigen::Isometry3d& X = poses[idx];
-    Cluster* target = nullptr;
-    for (Cluster& c : clusters) {
-      if ((c.first.translation() - X.translation()).norm() < translation_threshold_m &&
-          RotationAngle(c.first.linear(), X.linear()) < rotation_threshold_rad) {
-        target = &c;
-        break;
+    const auto joins = [&](const Cluster& c) {
+      return (c.first.translation() - X.translation()).norm() < translation_threshold_m &&
+             RotationAngle(c.first.linear(), X.linear()) < rotation_threshold_rad;
+    };
+    std::int32_t found = -1;
+    if (use_grid && X.translation().allFinite()) {
+      const auto c = cell_of(X.translation());
+      for (std::int64_t dx = -1; dx <= 1; ++dx) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          for (std::int64_t dz = -1; dz <= 1; ++dz) {
+            const auto it = grid.find(cell_key(c[0] + dx, c[1] + dy, c[2] + dz));
+            if (it == grid.end()) continue;
+            for (std::int32_t id : it->second) {
+              if (found >= 0 && id >= found) break;
+              if (joins(clusters[id])) {
+                found = id;
+                break;
+              }
+            }
+          }
+        }
+      }
+    } else {
+      for (std::size_t id = 0; id < clusters.size(); ++id) {
+        if (joins(clusters[id])) {
+          found = static_cast<std::int32_t>(id);
+          break;
+        }
       }
     }
-    if (target == nullptr) {
+    Cluster* target = nullptr;
+    if (found >= 0) {
+      target = &clusters[found];
+    } else {
       clusters.push_back({X, Eigen::Quaterniond(X.linear())});
       target = &clusters.back();
+      if (use_grid && X.translation().allFinite()) {
+        const auto c = cell_of(X.translation());
+        grid[cell_key(c[0], c[1], c[2])].push_back(static_cast<std::int32_t>(clusters.size() - 1));
+      }
     }
     Eigen::Quaterniond q(X.linear());
     if (q.dot(target->q_first) < 0.0) q.coeffs() = -q.coeffs();
@@ -314,9 +444,32 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   const geometry::PointCloud& model = table.sampled_model();
   const int bins = quant.angle_bins();
   const std::size_t acc_size = model.size() * static_cast<std::size_t>(bins);
-  const float step_inv = 1.0f / quant.angle_step_rad();
-  const float planar_weight = options.planar_pair_weight;
-  const bool skip_planar = planar_weight <= 0.0f;
+  const bool skip_planar = options.planar_pair_weight <= 0.0f;
+  // Integer votes: a pair counts kVoteUnit, a planar pair its weight in units of 1 / kVoteUnit.
+  constexpr std::uint32_t kVoteUnit = 64;
+  const std::uint32_t planar_units =
+      skip_planar ? 0u
+                  : std::max<std::uint32_t>(1u, static_cast<std::uint32_t>(std::lround(
+                                                    options.planar_pair_weight * kVoteUnit)));
+  const std::uint32_t* codes = table.vote_codes().data();
+  const std::uint32_t* offsets = table.offsets().data();
+
+  // Fixed-point angles: `units` per turn. The alpha bin of (scene code s, model code m) is
+  // wrap[s - m + units + units / 2] (the extra half turn makes bin 0 start at -pi).
+  constexpr int kSub = PpfTable::kAlphaSubsteps;
+  const int units = bins * kSub;
+  const float code_scale = static_cast<float>(units) / (2.0f * kPi);
+  std::vector<std::uint16_t> wrap(3 * static_cast<std::size_t>(units));
+  for (std::size_t i = 0; i < wrap.size(); ++i) {
+    wrap[i] = static_cast<std::uint16_t>((i / kSub) % static_cast<std::size_t>(bins));
+  }
+  // Flag bit of a scene angle code for skip_duplicate_votes.
+  std::vector<std::uint32_t> flag_bit(units);
+  for (int c = 0; c < units; ++c) {
+    const int coarse = c / kSub;
+    flag_bit[c] = 1u << (bins <= 32 ? coarse : coarse * 32 / bins);
+  }
+  const bool skip_duplicates = options.skip_duplicate_votes;
 
   std::vector<std::int32_t> references;
   for (std::size_t i = 0; i < scene.size(); i += options.reference_step) {
@@ -332,13 +485,18 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   std::vector<std::vector<Peak>> peaks(threads);
   std::vector<std::int64_t> lookups(threads, 0);
   std::vector<std::int64_t> votes_cast(threads, 0);
+  std::vector<std::int64_t> duplicates(threads, 0);
   std::atomic<std::size_t> next{0};
   constexpr std::size_t kChunk = 8;
+  const float radius = table.diameter_m();
 
   auto worker = [&](int t) {
-    std::vector<float> acc(acc_size);
+    std::vector<std::uint32_t> acc(acc_size, 0);
+    std::vector<std::uint32_t> flags(skip_duplicates ? quant.num_keys() : 0, 0);
+    std::vector<std::uint32_t> flagged;
     std::vector<std::int32_t> neighbors;
-    std::vector<std::pair<float, std::int32_t>> top;
+    std::vector<std::pair<std::uint32_t, std::int32_t>> candidates;
+    std::int64_t n_lookups = 0, n_votes = 0, n_duplicates = 0;
     for (;;) {
       const std::size_t start = next.fetch_add(kChunk);
       if (start >= references.size()) break;
@@ -348,59 +506,82 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
         const Eigen::Vector3f& p_r = scene.points[ref];
         const Eigen::Vector3f& n_r = scene.normals[ref];
         const Eigen::Isometry3f T_s = AlignToXAxis(p_r, n_r);
-        std::fill(acc.begin(), acc.end(), 0.0f);
-        scene_tree.RadiusSearch(p_r, table.diameter_m(), &neighbors);
+        const Eigen::Vector3f row_y = T_s.linear().row(1).transpose();
+        const Eigen::Vector3f row_z = T_s.linear().row(2).transpose();
+        scene_tree.RadiusSearch(p_r, radius, &neighbors);
         for (std::int32_t i : neighbors) {
           if (i == ref) continue;
+          const Eigen::Vector3f& p_i = scene.points[i];
           const Eigen::Vector3f& n_i = scene.normals[i];
-          if (!n_i.allFinite()) continue;
-          const Eigen::Vector4f f = ComputePpf(p_r, n_r, scene.points[i], n_i);
           std::uint32_t key = 0;
-          if (!quant.Key(f, &key)) continue;
-          float w = 1.0f;
-          if (quant.IsPlanar(f)) {
+          bool planar = false;
+          if (!quant.PairKey(p_r, n_r, p_i, n_i, &key, &planar)) continue;
+          std::uint32_t w = kVoteUnit;
+          if (planar) {
             if (skip_planar) continue;
-            w = planar_weight;
+            w = planar_units;
           }
-          ++lookups[t];
-          const PpfTable::Entry* b = table.begin(key);
-          const PpfTable::Entry* e = table.end(key);
-          votes_cast[t] += e - b;
-          // alpha = theta_s - theta_m, binned over [-pi, pi).
-          const float shifted = PairAngle(T_s, scene.points[i]) + static_cast<float>(M_PI);
+          // alpha_s: rotation angle of p_i about x after T_s (PairAngle), as a code.
+          const Eigen::Vector3f d = p_i - p_r;
+          const float theta = FastAtan2(row_z.dot(d), row_y.dot(d));
+          const int s_code = std::clamp(static_cast<int>((theta + kPi) * code_scale), 0, units - 1);
+          if (skip_duplicates) {
+            std::uint32_t& word = flags[key];
+            const std::uint32_t bit = flag_bit[s_code];
+            if (word & bit) {
+              ++n_duplicates;
+              continue;
+            }
+            if (word == 0) flagged.push_back(key);
+            word |= bit;
+          }
+          ++n_lookups;
+          const std::uint32_t* b = codes + offsets[key];
+          const std::uint32_t* e = codes + offsets[key + 1];
+          n_votes += e - b;
+          const std::uint16_t* wrap_s = wrap.data() + s_code + units + units / 2;
           for (; b != e; ++b) {
-            int bin = static_cast<int>(std::floor((shifted - b->alpha_m_rad) * step_inv));
-            if (bin < 0) bin += bins;
-            if (bin >= bins) bin -= bins;
-            bin = std::clamp(bin, 0, bins - 1);
-            acc[static_cast<std::size_t>(b->model_reference) * bins + bin] += w;
+            const std::uint32_t c = *b;
+            acc[(c >> kCodeShift) * bins + wrap_s[-static_cast<int>(c & kCodeMask)]] += w;
           }
         }
-        // The highest peaks of this reference point.
-        top.clear();
-        const std::size_t k = static_cast<std::size_t>(options.peaks_per_reference);
+        for (std::uint32_t key : flagged) flags[key] = 0;
+        flagged.clear();
+
+        // The highest peaks of this reference point: the maximum, then every cell with at
+        // least peak_ratio of it, highest first (ties by cell index).
+        std::uint32_t best = 0;
+        for (std::size_t a = 0; a < acc_size; ++a) best = std::max(best, acc[a]);
+        if (best == 0) continue;
+        const std::uint32_t threshold = std::max<std::uint32_t>(
+            1u, static_cast<std::uint32_t>(std::ceil(options.peak_ratio * best)));
+        candidates.clear();
         for (std::size_t a = 0; a < acc_size; ++a) {
-          const float v = acc[a];
-          if (v <= 0.0f || (top.size() == k && v <= top.back().first)) continue;
-          auto it = std::upper_bound(
-              top.begin(), top.end(), v,
-              [](float value, const std::pair<float, std::int32_t>& p) { return value > p.first; });
-          top.insert(it, {v, static_cast<std::int32_t>(a)});
-          if (top.size() > k) top.pop_back();
+          if (acc[a] >= threshold) candidates.emplace_back(acc[a], static_cast<std::int32_t>(a));
         }
+        std::fill(acc.begin(), acc.end(), 0u);
+        const std::size_t k =
+            std::min(candidates.size(), static_cast<std::size_t>(options.peaks_per_reference));
+        std::partial_sort(candidates.begin(), candidates.begin() + k, candidates.end(),
+                          [](const auto& x, const auto& y) {
+                            return x.first != y.first ? x.first > y.first : x.second < y.second;
+                          });
         const Eigen::Isometry3d X_SceneAligned = ToDouble(T_s).inverse();
-        for (std::size_t rank = 0; rank < top.size(); ++rank) {
-          if (top[rank].first < options.peak_ratio * top.front().first) break;
-          const int m = top[rank].second / bins;
-          const int bin = top[rank].second % bins;
+        for (std::size_t rank = 0; rank < k; ++rank) {
+          const int m = candidates[rank].second / bins;
+          const int bin = candidates[rank].second % bins;
           const Eigen::Isometry3d T_m = ToDouble(AlignToXAxis(model.points[m], model.normals[m]));
           const Eigen::Isometry3d R_x(
               Eigen::AngleAxisd(quant.AlphaBinCenter(bin), Eigen::Vector3d::UnitX()));
-          peaks[t].push_back({ref, static_cast<std::int32_t>(rank), top[rank].first,
+          peaks[t].push_back({ref, static_cast<std::int32_t>(rank),
+                              static_cast<float>(candidates[rank].first) / kVoteUnit,
                               Orthonormalized(X_SceneAligned * R_x * T_m)});
         }
       }
     }
+    lookups[t] = n_lookups;
+    votes_cast[t] = n_votes;
+    duplicates[t] = n_duplicates;
   };
   std::vector<std::thread> pool;
   for (int t = 1; t < threads; ++t) pool.emplace_back(worker, t);
@@ -412,6 +593,7 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     all.insert(all.end(), peaks[t].begin(), peaks[t].end());
     result.pair_lookups += lookups[t];
     result.votes_cast += votes_cast[t];
+    result.duplicate_pairs += duplicates[t];
   }
   std::sort(all.begin(), all.end(), [](const Peak& a, const Peak& b) {
     return a.reference != b.reference ? a.reference < b.reference : a.rank < b.rank;

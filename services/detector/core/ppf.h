@@ -50,6 +50,19 @@ class PpfQuantizer final {
   /// them on planar objects.
   bool IsPlanar(const Eigen::Vector4f& feature) const;
 
+  /// Angle cell of the angle whose cosine is `cosine` (clamped to [-1, 1]): the number of
+  /// cell boundaries k * angle_step_rad (k >= 1) the angle reaches, at most
+  /// ceil(angle_bins / 2) - 1. Equals the cell Key() gives for acos(cosine) up to float
+  /// rounding at a boundary; no trigonometric call.
+  int CosineCell(float cosine) const;
+
+  /// Key of the pair (p1, n1) -> (p2, n2) (metres, unit normals) computed from the cosines of
+  /// its angles, the way training and matching both quantise pairs; `planar` (optional)
+  /// receives IsPlanar of the pair. False when p1 == p2, a value is not finite or the pair
+  /// is longer than the maximum distance.
+  bool PairKey(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
+               const Eigen::Vector3f& n2, std::uint32_t* key, bool* planar = nullptr) const;
+
  private:
   float distance_step_m_;
   float max_distance_m_;
@@ -58,6 +71,10 @@ class PpfQuantizer final {
   int distance_cells_;
   int angle_cells_;
   std::uint32_t num_keys_;
+  static constexpr int kCosLutSize = 4096;
+  int right_angle_cell_ = 0;
+  std::vector<float> cos_bounds_;      // cos(k * step), k = 0 .. angle_cells_ - 1
+  std::vector<std::uint8_t> cos_lut_;  // cell of the upper end of each cosine interval
 };
 
 /// The rigid transform T that maps p to the origin and rotates n onto +x (Drost's T_{m->g}).
@@ -116,6 +133,13 @@ class PpfTable final {
   const Entry* begin(std::uint32_t key) const { return entries_.data() + offsets_[key]; }
   const Entry* end(std::uint32_t key) const { return entries_.data() + offsets_[key + 1]; }
 
+  /// Sub-steps per alpha bin of the fixed-point model angles in vote_codes().
+  static constexpr int kAlphaSubsteps = 16;
+  /// The entries packed for voting, one per entry in the same order:
+  /// (model_reference << 13) | code, where code = floor((alpha_m_rad + pi) / (2 pi) *
+  /// angle_bins * kAlphaSubsteps) in [0, angle_bins * kAlphaSubsteps).
+  const std::vector<std::uint32_t>& vote_codes() const { return vote_codes_; }
+
  private:
   geometry::PointCloud model_;
   float diameter_m_ = 0.0f;
@@ -123,7 +147,10 @@ class PpfTable final {
   PpfQuantizer quantizer_{1.0f, 1.0f, 30};
   std::vector<std::uint32_t> offsets_;
   std::vector<Entry> entries_;
+  std::vector<std::uint32_t> vote_codes_;
   KdTree tree_;
+
+  void BuildVoteCodes();
 };
 
 /// Options of MatchPpf. Defaults suit a sensor scene sampled with the model's sampling
@@ -148,6 +175,11 @@ struct PpfMatchOptions {
   /// transform maps the sampled model onto itself within this mean distance, in units of
   /// the distance step. <= 0 disables the merge.
   float symmetry_tolerance_rel = 0.5f;
+  /// Hinterstoisser et al. (2016): per reference point, a scene pair whose feature key and
+  /// scene angle bin were already voted for is skipped (one 32-bit flag word per key; with
+  /// more than 32 angle bins neighbouring bins share a flag). Nearly identical scene pairs
+  /// then vote once, which removes most look-ups on dense surfaces.
+  bool skip_duplicate_votes = true;
   /// Number of pose hypotheses returned (>= 1).
   int max_hypotheses = 10;
   /// Worker threads over the reference points; 0 = hardware concurrency.
@@ -166,6 +198,8 @@ struct PpfMatchResult {
   int reference_points = 0;
   std::int64_t pair_lookups = 0;  ///< Scene pairs looked up in the table.
   std::int64_t votes_cast = 0;
+  /// Scene pairs not looked up because their key and scene angle bin had voted already.
+  std::int64_t duplicate_pairs = 0;
 };
 
 /// Drost's voting scheme: for each reference point of `scene` (points in the scene frame S

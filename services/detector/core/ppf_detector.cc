@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -14,6 +15,71 @@ double Seconds(std::chrono::steady_clock::time_point since) {
 }
 
 }  // namespace
+
+ViewRangeGrid::ViewRangeGrid(const std::vector<Eigen::Vector3f>& points_S,
+                             const Eigen::Vector3f& viewpoint_S, float cell_rad)
+    : viewpoint_(viewpoint_S), cell_rad_(cell_rad) {
+  if (!(cell_rad > 0.0f) || !std::isfinite(cell_rad)) {
+    throw std::invalid_argument("ViewRangeGrid: cell_rad must be positive, got " +
+                                std::to_string(cell_rad));
+  }
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points_S) {
+    const Eigen::Vector3f d = p - viewpoint_S;
+    const float n = d.norm();
+    if (n > 0.0f && std::isfinite(n)) mean += (d / n).cast<double>();
+  }
+  if (!(mean.norm() > 1e-9)) return;
+  const Eigen::Vector3f axis = mean.normalized().cast<float>();
+  const Eigen::Vector3f b = axis.unitOrthogonal();
+  R_.row(0) = axis.transpose();
+  R_.row(1) = b.transpose();
+  R_.row(2) = axis.cross(b).transpose();
+  float u_lo = std::numeric_limits<float>::max(), v_lo = u_lo, u_hi = -u_lo, v_hi = -u_lo;
+  for (const auto& p : points_S) {
+    const Eigen::Vector3f q = R_ * (p - viewpoint_S);
+    if (!(q.x() > 0.0f)) continue;
+    const float u = std::atan2(q.y(), q.x()), v = std::atan2(q.z(), q.x());
+    u_lo = std::min(u_lo, u);
+    u_hi = std::max(u_hi, u);
+    v_lo = std::min(v_lo, v);
+    v_hi = std::max(v_hi, v);
+  }
+  if (u_lo > u_hi) return;
+  constexpr double kMaxCells = 1 << 22;
+  const double cells = (static_cast<double>(u_hi - u_lo) / cell_rad_ + 1.0) *
+                       (static_cast<double>(v_hi - v_lo) / cell_rad_ + 1.0);
+  if (cells > kMaxCells) cell_rad_ *= static_cast<float>(std::sqrt(cells / kMaxCells)) * 1.01f;
+  u0_ = u_lo;
+  v0_ = v_lo;
+  width_ = static_cast<int>((u_hi - u_lo) / cell_rad_) + 1;
+  height_ = static_cast<int>((v_hi - v_lo) / cell_rad_) + 1;
+  ranges_.assign(static_cast<std::size_t>(width_) * height_,
+                 std::numeric_limits<float>::infinity());
+  for (const auto& p : points_S) {
+    int u = 0, v = 0;
+    if (!Cell(p, &u, &v)) continue;
+    float& r = ranges_[static_cast<std::size_t>(v) * width_ + u];
+    r = std::min(r, (p - viewpoint_S).norm());
+  }
+}
+
+bool ViewRangeGrid::Cell(const Eigen::Vector3f& p_S, int* u, int* v) const {
+  const Eigen::Vector3f q = R_ * (p_S - viewpoint_);
+  if (!(q.x() > 0.0f)) return false;
+  const float fu = (std::atan2(q.y(), q.x()) - u0_) / cell_rad_;
+  const float fv = (std::atan2(q.z(), q.x()) - v0_) / cell_rad_;
+  if (!(fu >= 0.0f && fv >= 0.0f && fu < width_ && fv < height_)) return false;
+  *u = static_cast<int>(fu);
+  *v = static_cast<int>(fv);
+  return true;
+}
+
+float ViewRangeGrid::MinRange(const Eigen::Vector3f& p_S) const {
+  int u = 0, v = 0;
+  if (ranges_.empty() || !Cell(p_S, &u, &v)) return std::numeric_limits<float>::infinity();
+  return ranges_[static_cast<std::size_t>(v) * width_ + u];
+}
 
 PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& model,
                          const PpfSceneOptions& options) {
@@ -40,18 +106,31 @@ PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& m
   out.sampled = VoxelAverage(out.fine, model.sampling_distance_m());
   out.fine_tree = KdTree(out.fine.points);
   out.sampled_tree = KdTree(out.sampled.points);
+  // Cells of about two fine voxels at the median range, so that a surface leaves few holes.
+  if (!out.fine.empty()) {
+    std::vector<float> ranges;
+    ranges.reserve(out.fine.size());
+    for (const auto& p : out.fine.points) ranges.push_back((p - options.viewpoint).norm());
+    std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
+    const float median = ranges[ranges.size() / 2];
+    if (median > 0.0f) {
+      out.view_ranges =
+          ViewRangeGrid(out.fine.points, options.viewpoint, 2.0f * model.fine_voxel_m() / median);
+    }
+  }
   return out;
 }
 
-double SceneSupport(const ObjectModel& model, const PpfScene& scene,
-                    const Eigen::Isometry3d& X_SceneModel, float distance_m, float normal_angle_rad,
-                    int* visible_points) {
+SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
+                                const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                float normal_angle_rad, float conflict_distance_m) {
   const Eigen::Isometry3f X = X_SceneModel.cast<float>();
   const float d2_max = distance_m * distance_m;
   const float min_cos = std::cos(normal_angle_rad);
   const geometry::PointCloud& m = model.icp_cloud();
   int visible = 0;
   int supported = 0;
+  int conflicts = 0;
   for (std::size_t i = 0; i < m.size(); ++i) {
     const Eigen::Vector3f p = X * m.points[i];
     const Eigen::Vector3f n = X.linear() * m.normals[i];
@@ -59,16 +138,46 @@ double SceneSupport(const ObjectModel& model, const PpfScene& scene,
     ++visible;
     float d2 = 0.0f;
     const std::int32_t j = scene.fine_tree.Nearest(p, &d2, d2_max);
-    if (j != KdTree::kNone && scene.fine.normals[j].dot(n) >= min_cos) ++supported;
+    if (j != KdTree::kNone && scene.fine.normals[j].dot(n) >= min_cos) {
+      ++supported;
+    } else if (scene.view_ranges.MinRange(p) - (p - scene.viewpoint).norm() > conflict_distance_m) {
+      ++conflicts;  // +infinity (no measurement on the ray) is not a conflict
+    }
   }
-  if (visible_points != nullptr) *visible_points = visible;
-  return visible == 0 ? 0.0 : static_cast<double>(supported) / visible;
+  SceneAgreement out;
+  out.visible_points = visible;
+  if (visible > 0) {
+    out.support = static_cast<double>(supported) / visible;
+    out.conflict_fraction = static_cast<double>(conflicts) / visible;
+  }
+  return out;
+}
+
+double SceneSupport(const ObjectModel& model, const PpfScene& scene,
+                    const Eigen::Isometry3d& X_SceneModel, float distance_m, float normal_angle_rad,
+                    int* visible_points) {
+  const SceneAgreement a =
+      MeasureAgreement(model, scene, X_SceneModel, distance_m, normal_angle_rad, 0.0f);
+  if (visible_points != nullptr) *visible_points = a.visible_points;
+  return a.support;
 }
 
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
                              const PpfDetectorOptions& options) {
   if (options.hypotheses_to_verify < 1) {
     throw std::invalid_argument("PpfDetectorOptions: hypotheses_to_verify must be >= 1");
+  }
+  if (!(options.max_conflict_fraction >= 0.0f && options.max_conflict_fraction <= 1.0f)) {
+    throw std::invalid_argument("PpfDetectorOptions: max_conflict_fraction must be in [0, 1]");
+  }
+  if (!(options.min_visible_fraction >= 0.0f && options.min_visible_fraction <= 1.0f)) {
+    throw std::invalid_argument("PpfDetectorOptions: min_visible_fraction must be in [0, 1]");
+  }
+  if (options.min_visible_points < 0) {
+    throw std::invalid_argument("PpfDetectorOptions: min_visible_points must be >= 0");
+  }
+  if (!(options.conflict_distance_rel > 0.0f)) {
+    throw std::invalid_argument("PpfDetectorOptions: conflict_distance_rel must be positive");
   }
   if (scene.sampled.empty() || scene.fine.empty()) {
     throw std::invalid_argument("DetectPpf: the prepared scene is empty");
@@ -102,17 +211,27 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     }
     d.icp = RunIcp(model.icp_cloud(), scene.fine, scene.fine_tree, X, fine);
     d.X_SceneModel = d.icp.correspondences >= fine.min_correspondences ? d.icp.X_TargetSource : X;
-    d.support = SceneSupport(model, scene, d.X_SceneModel, options.support_distance_rel * step,
-                             options.support_normal_angle_rad, &d.visible_points);
+    const SceneAgreement a =
+        MeasureAgreement(model, scene, d.X_SceneModel, options.support_distance_rel * step,
+                         options.support_normal_angle_rad, options.conflict_distance_rel * step);
+    d.support = a.support;
+    d.conflict_fraction = a.conflict_fraction;
+    d.visible_points = a.visible_points;
     verified.push_back(d);
   }
-  std::stable_sort(
-      verified.begin(), verified.end(),
-      [](const PpfDetection& a, const PpfDetection& b) { return a.support > b.support; });
+  std::stable_sort(verified.begin(), verified.end(),
+                   [](const PpfDetection& a, const PpfDetection& b) {
+                     return a.support - a.conflict_fraction > b.support - b.conflict_fraction;
+                   });
   if (!verified.empty()) result.best = verified.front();
+  const double min_visible =
+      std::max(static_cast<double>(options.min_visible_points),
+               options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
   // Keep distinct poses only: hypotheses that converged to the same place are one object.
   for (const PpfDetection& d : verified) {
     if (d.support < options.min_support) continue;
+    if (d.conflict_fraction > options.max_conflict_fraction) continue;
+    if (d.visible_points < min_visible) continue;
     bool duplicate = false;
     for (const PpfDetection& kept : result.detections) {
       if ((kept.X_SceneModel.translation() - d.X_SceneModel.translation()).norm() <

@@ -12,6 +12,37 @@
 
 namespace picking::detector {
 
+/// The smallest range (distance from a viewpoint, metres) of a scene's points per cell of an
+/// angular grid around the scene's mean viewing direction: what the sensor saw along each ray.
+class ViewRangeGrid final {
+ public:
+  ViewRangeGrid() = default;
+
+  /// Grid of `cell_rad` radians (> 0) over the directions of `points_S` (scene frame) seen
+  /// from `viewpoint_S`; points behind the viewpoint's half-space of the mean direction are
+  /// left out, and the cell is enlarged so that the grid has at most 2^22 cells. Throws
+  /// std::invalid_argument for a non-positive or non-finite cell_rad.
+  ViewRangeGrid(const std::vector<Eigen::Vector3f>& points_S, const Eigen::Vector3f& viewpoint_S,
+                float cell_rad);
+
+  bool empty() const { return ranges_.empty(); }
+  float cell_rad() const { return cell_rad_; }
+
+  /// Smallest scene range in the cell of the direction of p_S (metres); +infinity when the
+  /// cell holds no scene point or lies outside the grid.
+  float MinRange(const Eigen::Vector3f& p_S) const;
+
+ private:
+  bool Cell(const Eigen::Vector3f& p_S, int* u, int* v) const;
+
+  Eigen::Vector3f viewpoint_ = Eigen::Vector3f::Zero();
+  Eigen::Matrix3f R_ = Eigen::Matrix3f::Identity();  // rows: mean direction, two normals
+  float cell_rad_ = 1.0f;
+  float u0_ = 0.0f, v0_ = 0.0f;
+  int width_ = 0, height_ = 0;
+  std::vector<float> ranges_;
+};
+
 /// A scene prepared for one object model: the fine cloud with normals (ICP target and
 /// verification) and the cloud sampled with the model's distance step (PPF voting), both in
 /// the scene frame S, metres, with their search trees.
@@ -21,6 +52,8 @@ struct PpfScene {
   KdTree fine_tree;
   KdTree sampled_tree;
   Eigen::Vector3f viewpoint = Eigen::Vector3f::Zero();  ///< Sensor origin in S, metres.
+  /// Ranges of `fine` seen from the viewpoint (free-space checks); empty: no check.
+  ViewRangeGrid view_ranges;
 };
 
 /// Options of PreparePpfScene.
@@ -60,6 +93,19 @@ struct PpfDetectorOptions {
   /// visible points (the Stanford bunny in the PCL milk scene: 0.67), while true poses of a
   /// present object score above 0.8.
   float min_support = 0.75f;
+  /// Detections may have at most this fraction of their visible model points in conflict:
+  /// unsupported, and the scene was measured more than conflict_distance_rel (of the
+  /// sampling distance) behind them along the same ray, so the sensor saw through where
+  /// the model would be. A wrong object leaning on the scene's surfaces sticks out into
+  /// free space; a true pose has few conflicts.
+  float max_conflict_fraction = 0.1f;
+  float conflict_distance_rel = 2.0f;
+  /// Detections need at least this fraction of the model's ICP points facing the sensor: a
+  /// pose that turns the model's unscanned side (or an edge) to the sensor shows too few
+  /// points for the support to mean anything.
+  float min_visible_fraction = 0.15f;
+  /// ... and at least this many (a support over a handful of points means nothing).
+  int min_visible_points = 30;
   /// Hypotheses (by votes) refined by ICP and verified.
   int hypotheses_to_verify = 6;
 };
@@ -68,13 +114,17 @@ struct PpfDetectorOptions {
 struct PpfDetection {
   Eigen::Isometry3d X_SceneModel = Eigen::Isometry3d::Identity();
   double support = 0.0;  ///< Supported / visible model points, [0, 1].
+  /// Visible model points in measured free space / visible model points, [0, 1].
+  double conflict_fraction = 0.0;
   int visible_points = 0;
   double votes = 0.0;  ///< Votes of the PPF cluster it came from.
   IcpResult icp;
 };
 
 struct PpfDetectionResult {
-  /// Hypotheses with support >= min_support, best support first; distinct poses only.
+  /// Hypotheses with support >= min_support, conflict_fraction <= max_conflict_fraction and
+  /// enough visible points (min_visible_fraction), best support - conflict_fraction first;
+  /// distinct poses only.
   std::vector<PpfDetection> detections;
   /// The best verified hypothesis even when below min_support (support 0 when none).
   PpfDetection best;
@@ -89,6 +139,18 @@ struct PpfDetectionResult {
 double SceneSupport(const ObjectModel& model, const PpfScene& scene,
                     const Eigen::Isometry3d& X_SceneModel, float distance_m, float normal_angle_rad,
                     int* visible_points = nullptr);
+
+/// Agreement of a model pose with the scene (see SceneSupport): support, and the fraction of
+/// the facing model points that are unsupported and lie more than `conflict_distance_m` in
+/// front of the scene's range along their ray (0 when the scene has no range image).
+struct SceneAgreement {
+  double support = 0.0;
+  double conflict_fraction = 0.0;
+  int visible_points = 0;
+};
+SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
+                                const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                float normal_angle_rad, float conflict_distance_m);
 
 /// PPF voting, pose clustering, ICP refinement and verification of the best hypotheses.
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,

@@ -53,15 +53,58 @@ TEST_F(MilkSceneTest, RecoversPoseOfMovedModel) {
 
 TEST_F(MilkSceneTest, ObjectNotInSceneIsNotDetected) {
   const geometry::PointCloud bunny = LoadPcd(PointCloudPath("bun0.pcd"));
-  const ObjectModel model(bunny, ObjectModelOptions{});
+  // bun0 has 397 points: normals need a wider neighbourhood than the default.
+  ObjectModelOptions bunny_options;
+  bunny_options.normal_radius_rel = 0.1f;
+  const ObjectModel model(bunny, bunny_options);
+  ASSERT_GT(model.icp_cloud().size(), 200u);
   const PpfScene scene = PreparePpfScene(*scene_, model);
   const PpfDetectionResult result = DetectPpf(model, scene);
-  EXPECT_TRUE(result.detections.empty()) << "support " << result.detections.front().support;
+  EXPECT_TRUE(result.detections.empty())
+      << "support " << result.detections.front().support << ", conflicts "
+      << result.detections.front().conflict_fraction;
+  EXPECT_LT(result.best.support, 0.6);
   // The milk model, prepared the same way, is detected: the verification is not just strict.
   const ObjectModel milk(*milk_, ObjectModelOptions{});
   const PpfDetectionResult milk_result = DetectPpf(milk, PreparePpfScene(*scene_, milk));
   ASSERT_FALSE(milk_result.detections.empty());
-  EXPECT_GT(milk_result.detections.front().support, result.best.support + 0.2);
+  EXPECT_GT(milk_result.detections.front().support, result.best.support + 0.3);
+  EXPECT_LT(milk_result.detections.front().conflict_fraction, 0.02);
+}
+
+// A model whose ICP cloud has a handful of points (the 397-point bunny with the default
+// normal radius keeps 16) cannot be verified: no detection however well the points fit.
+TEST_F(MilkSceneTest, TooFewVisiblePointsAreNotADetection) {
+  const ObjectModel model(LoadPcd(PointCloudPath("bun0.pcd")), ObjectModelOptions{});
+  ASSERT_LT(model.icp_cloud().size(), 30u);
+  const PpfDetectionResult result = DetectPpf(model, PreparePpfScene(*scene_, model));
+  EXPECT_TRUE(result.detections.empty());
+  PpfDetectorOptions options;
+  options.min_visible_fraction = -0.1f;
+  EXPECT_THROW(DetectPpf(model, PreparePpfScene(*scene_, model), options), std::invalid_argument);
+}
+
+// A pose that puts the model in front of the measured surface (in space the sensor saw
+// through) is in conflict; the true pose is not.
+TEST_F(MilkSceneTest, FreeSpaceConflicts) {
+  const ObjectModel milk(*milk_, ObjectModelOptions{});
+  const PpfScene scene = PreparePpfScene(*scene_, milk);
+  ASSERT_FALSE(scene.view_ranges.empty());
+  const float step = milk.sampling_distance_m();
+  const SceneAgreement truth =
+      MeasureAgreement(milk, scene, Eigen::Isometry3d::Identity(), 0.5f * step, 0.5f, 2.0f * step);
+  EXPECT_GT(truth.support, 0.9);
+  EXPECT_LT(truth.conflict_fraction, 0.02);
+  // Pulled 10 cm toward the sensor (the scene's viewpoint is its origin).
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : milk.icp_cloud().points) centroid += p.cast<double>();
+  centroid /= static_cast<double>(milk.icp_cloud().size());
+  Eigen::Isometry3d X_front = Eigen::Isometry3d::Identity();
+  X_front.translation() = -0.1 * centroid.normalized();
+  const SceneAgreement front =
+      MeasureAgreement(milk, scene, X_front, 0.5f * step, 0.5f, 2.0f * step);
+  EXPECT_LT(front.support, 0.2);
+  EXPECT_GT(front.conflict_fraction, 0.5);
 }
 
 TEST_F(MilkSceneTest, BadScenesThrow) {
