@@ -150,9 +150,12 @@ TEST(SyntheticCaptureTest, ChessboardPoseIsRecoveredInBothOrientations) {
     SyntheticScene scene;
     scene.boards.push_back(board);
     const SyntheticCapture capture = RenderSyntheticCapture(rig, patterns, scene, options);
+    const auto origin_px = rig.camera.Project(board.X_CameraBoard.translation());
+    ASSERT_TRUE(origin_px.has_value());
     BoardPose pose;
     ASSERT_TRUE(EstimateBoardPose(WhiteImage(capture), spec, IntrinsicsOf(rig.camera), &pose))
         << "turn " << turn;
+    EXPECT_LT((pose.corners_px.front() - *origin_px).norm(), 3.0) << "turn " << turn;
     EXPECT_LT(pose.rms_px, 0.3);
     EXPECT_LT((pose.X_CameraBoard.translation() - board.X_CameraBoard.translation()).norm(), 0.002)
         << "turn " << turn;
