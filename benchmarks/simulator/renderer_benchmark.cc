@@ -6,6 +6,8 @@
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+
 #include <cmath>
 #include <vector>
 
@@ -179,6 +181,66 @@ void BM_Shading44(benchmark::State& state) {
 BENCHMARK(BM_Shading44)
     ->Arg(0)
     ->Arg(10)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime();
+
+// Ground-truth depth of the same camera (RenderDepth: camera rays only, no projector).
+void BM_RenderDepth(benchmark::State& state) {
+  Fixture& f = Shared();
+  std::size_t hits = 0;
+  for (auto _ : state) {
+    const DepthImage depth = f.renderer.RenderDepth(f.pose.camera, f.pose.X_BaseCamera);
+    hits = static_cast<std::size_t>(
+        std::count_if(depth.depth_m.begin(), depth.depth_m.end(), [](float d) { return d == d; }));
+    benchmark::DoNotOptimize(depth.depth_m.data());
+  }
+  SetCounters(state, f);
+  state.counters["hit_fraction"] = static_cast<double>(hits) / f.geometry.size();
+}
+BENCHMARK(BM_RenderDepth)->Unit(benchmark::kMillisecond)->UseRealTime()->MeasureProcessCPUTime();
+
+// The 44 images one RenderImage call each (fresh image, tables and threads per frame), as
+// the simulator service rendered them before. Arg: projector blur sigma in 1/10 pixels.
+void BM_Shading44PerImage(benchmark::State& state) {
+  Fixture& f = Shared();
+  RenderOptions options;
+  options.projector_blur_sigma_px = state.range(0) / 10.0;
+  for (auto _ : state) {
+    for (std::size_t k = 0; k < f.patterns.size(); ++k) {
+      const GrayImage image = RenderImage(f.geometry, f.patterns[k], options, k);
+      benchmark::DoNotOptimize(image.pixels.data());
+    }
+  }
+  SetCounters(state, f);
+}
+BENCHMARK(BM_Shading44PerImage)
+    ->Arg(0)
+    ->Arg(6)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime();
+
+// The 44 images in parts of 4 frames into reused buffers (RenderSequence with first_frame),
+// as the simulator service streams them. Arg: projector blur sigma in 1/10 pixels.
+void BM_Shading44InPartsOf4(benchmark::State& state) {
+  Fixture& f = Shared();
+  RenderOptions options;
+  options.projector_blur_sigma_px = state.range(0) / 10.0;
+  std::vector<GrayImage> part(4), images;
+  for (auto _ : state) {
+    for (std::size_t first = 0; first < f.patterns.size(); first += 4) {
+      const std::size_t count = std::min<std::size_t>(4, f.patterns.size() - first);
+      part.assign(f.patterns.begin() + first, f.patterns.begin() + first + count);
+      RenderSequence(f.geometry, part, options, &images, first);
+      benchmark::DoNotOptimize(images.data());
+    }
+  }
+  SetCounters(state, f);
+}
+BENCHMARK(BM_Shading44InPartsOf4)
+    ->Arg(0)
+    ->Arg(6)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MeasureProcessCPUTime();

@@ -893,6 +893,20 @@ class ScannerWithSimulatorTest : public ::testing::Test {
     return ToPose(R_BaseTool, p_BaseTool);
   }
 
+  // Decoding as the scans below ask for it. Every bit is decided by the sign of pattern -
+  // inverse (min_bit_contrast 1 instead of the default 5): with a Gray code an undecided
+  // bit only occurs at a stripe edge, where either choice is off by one column at most and
+  // the sub-pixel refinement places the pixel between the two columns anyway. The default
+  // threshold drops those edge pixels, most of all on dim surfaces where blurred fine
+  // stripes have little contrast: bin_E's coverage from 1 m falls from 73 % to 54 % of
+  // its pixels with the same median error.
+  static pb::DecodeOptions Decode() {
+    pb::DecodeOptions decode;
+    decode.set_min_bit_contrast(1);
+    decode.set_min_neighbours(3);
+    return decode;
+  }
+
   static TruthView Truth(const Rigid& X_BaseCamera) {
     TruthView truth;
     truth.X_BaseCamera = X_BaseCamera;
@@ -1017,7 +1031,7 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
   pb::ScanRequest request;
   *request.add_views()->mutable_x_base_tool() = ToolPoseFor(X_BaseCamera);
   request.set_frame_id("camera");
-  request.mutable_decode()->set_min_neighbours(3);
+  *request.mutable_decode() = Decode();
   const ScannedCloud cloud = RunScan(stub_, request);
   ASSERT_TRUE(cloud.status.ok()) << cloud.status.error_message();
   ASSERT_EQ(cloud.width, static_cast<std::uint32_t>(camera_->width));
@@ -1042,7 +1056,7 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
   ASSERT_GT(e.abs_error_m.size(), 100000u);
   EXPECT_LT(median_mm, 0.5);
   EXPECT_LT(GrossFraction(e), 0.02);
-  EXPECT_GT(static_cast<double>(e.bin_scanned) / e.bin_pixels, 0.5);
+  EXPECT_GT(static_cast<double>(e.bin_scanned) / e.bin_pixels, 0.65);
 }
 
 TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurface) {
@@ -1056,7 +1070,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
     *request.add_views()->mutable_x_base_tool() = ToolPoseFor(X_BaseCamera);
   }
   request.set_frame_id("base");
-  request.mutable_decode()->set_min_neighbours(3);
+  *request.mutable_decode() = Decode();
   const ScannedCloud cloud = RunScan(stub_, request);
   ASSERT_TRUE(cloud.status.ok()) << cloud.status.error_message();
   const int width = camera_->width, height = camera_->height;
@@ -1151,7 +1165,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
   ASSERT_GT(distance_m.size(), 300000u);
   EXPECT_LT(median_mm, 0.5);
   EXPECT_LT(static_cast<double>(gross + unmatched) / finite, 0.02);
-  EXPECT_GT(coverage, 0.6);
+  EXPECT_GT(coverage, 0.75);
 }
 
 }  // namespace
