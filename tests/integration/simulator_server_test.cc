@@ -564,6 +564,50 @@ TEST_F(SimulatorRpcTest, RenderDepthIsNaNExactlyWhereTheCameraSeesNothing) {
   EXPECT_GT(empty, 1000u);
 }
 
+TEST_F(SimulatorRpcTest, RenderDepthFollowsTheLoadedLayout) {
+  // ShelfView's camera, raised to look straight into bin_B (no distortion).
+  const sim::GetCellResponse cell = Cell();
+  const sim::BinInfo* bin = nullptr;
+  for (const auto& b : cell.bins()) {
+    if (b.bin() == common::CONTAINER_BIN_B) bin = &b;
+  }
+  ASSERT_NE(bin, nullptr);
+  sim::RenderPatternsRequest view = ShelfView();
+  view.mutable_x_base_camera()->mutable_position()->set_y(bin->x_base_bin().position().y());
+  view.mutable_x_base_camera()->mutable_position()->set_z(bin->x_base_bin().position().z());
+  const sim::RenderDepthRequest request = DepthRequest(view);
+  auto render = [&] {
+    const DepthImage depth = RenderDepth(stub_.get(), request);
+    EXPECT_TRUE(depth.status.ok()) << depth.status.error_message();
+    return depth.depth_m;
+  };
+  auto same = [](const std::vector<float>& a, const std::vector<float>& b) {
+    if (a.size() != b.size()) return false;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      if (!(a[i] == b[i] || (std::isnan(a[i]) && std::isnan(b[i])))) return false;
+    }
+    return true;
+  };
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  const std::vector<float> with_items = render();
+  ASSERT_TRUE(Load(TaskWithBinA("[]"), 1).ok());  // Every bin empty.
+  const std::vector<float> empty = render();
+  ASSERT_TRUE(Load(TaskJson("pick_layout_1"), 3).ok());
+  const std::vector<float> again = render();
+  ASSERT_EQ(with_items.size(), 160u * 120u);
+  // The items of bin_B stand in front of its back and floor: nearer where they are.
+  std::size_t nearer = 0;
+  for (std::size_t i = 0; i < empty.size(); ++i) {
+    if (with_items[i] < empty[i] - 0.01f || (std::isnan(empty[i]) && !std::isnan(with_items[i]))) {
+      ++nearer;
+    }
+    EXPECT_FALSE(with_items[i] > empty[i] + 1e-4f) << i << ": an item cannot push a surface back";
+  }
+  EXPECT_GT(nearer, 200u) << "bin_B's items are not seen";
+  EXPECT_TRUE(same(with_items, again)) << "the same layout must render the same depth";
+  EXPECT_FALSE(same(with_items, empty));
+}
+
 TEST_F(SimulatorRpcTest, RenderDepthRefusesBadRequests) {
   const sim::RenderDepthRequest good = DepthRequest(ShelfView());
   auto expect_refused = [&](const sim::RenderDepthRequest& req, const std::string& field) {
