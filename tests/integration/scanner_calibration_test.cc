@@ -570,12 +570,21 @@ TEST_F(HandEyeCalibrationThroughRpc, RecoversToolCameraFromASessionAndKeepsItOnF
   EXPECT_TRUE(fs::exists(calibration / "sessions" / "wrist" / "view_000" / "X_base_tool.txt"));
   // The recording starts again: two board views in another session are too few.
   for (int i = 0; i < 2; ++i) Capture(*server, "two_views", X_BaseTool_[i]);
+  // Three views where the wrist only moved, never turned: X_ToolCamera is not observable.
+  for (int i = 2; i < 5; ++i) {
+    Isometry3d X_BaseTool = X_BaseTool_[0];
+    X_BaseTool.translation() += Vector3d(0.03 * i, -0.02 * i, 0.01 * i);
+    Capture(*server, "no_turns", X_BaseTool);
+  }
 
   pb::CalibrateResponse response;
   grpc::Status status =
       server->Calibrate(pb::CALIBRATION_KIND_HAND_EYE, "", "two_views", &response);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << status.error_message();
   EXPECT_NE(status.error_message().find("at least 3"), std::string::npos) << status.error_message();
+  status = server->Calibrate(pb::CALIBRATION_KIND_HAND_EYE, "", "no_turns", &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << status.error_message();
+  EXPECT_NE(status.error_message().find("degenerate"), std::string::npos) << status.error_message();
   EXPECT_EQ(server->Current().SerializeAsString(), nominal.SerializeAsString());
   EXPECT_TRUE(Snapshot(calibration).empty());
 

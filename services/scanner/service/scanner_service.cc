@@ -745,7 +745,8 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     try {
       result = CalibrateHandEye(X_BaseTool, X_CameraBoard);
     } catch (const std::invalid_argument& e) {
-      throw PreconditionError(std::string("hand-eye calibration: ") + e.what() +
+      // The core's messages start with "hand-eye calibration".
+      throw PreconditionError(std::string(e.what()) +
                               " (turn the wrist about different axes between views)");
     }
     CalibrationState next = current;
