@@ -380,14 +380,25 @@ void BM_DecodeRefineTriangulateNormals(benchmark::State& state) {
   for (auto _ : state) {
     decoder.Decode(f.views, &map);
     refiner.Refine(f.views, &map);
-    triangulator.Run(map, &f.views[PatternSequence::kWhiteIndex], &result);
-    normals = EstimateNormals(&result.cloud);
+    if (state.range(0) == 1) {
+      triangulator.Run(map, &f.views[PatternSequence::kWhiteIndex], NormalOptions{}, &result,
+                       &normals);
+    } else {
+      triangulator.Run(map, &f.views[PatternSequence::kWhiteIndex], &result);
+      normals = EstimateNormals(&result.cloud);
+    }
     benchmark::DoNotOptimize(normals.num_normals);
   }
   ReportPoints(state, result);
   state.counters["normals"] = static_cast<double>(normals.num_normals);
 }
-BENCHMARK(BM_DecodeRefineTriangulateNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
+// Argument 1: triangulation and normals in one pass (Triangulator::Run with NormalOptions,
+// as ScanPipeline does); 0: Run, then EstimateNormals.
+BENCHMARK(BM_DecodeRefineTriangulateNormals)
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace picking::scanner

@@ -2,6 +2,8 @@
 
 #include "libs/geometry/point_cloud.h"
 
+#include <Eigen/Core>
+
 #include <cstddef>
 
 namespace picking::scanner {
@@ -28,5 +30,18 @@ struct NormalResult {
 /// @throws std::invalid_argument if the cloud is not organised (height > 1 and
 ///   width * height == size), step < 1, max_depth_jump_m <= 0 or num_threads < 0.
 NormalResult EstimateNormals(geometry::PointCloud* cloud, const NormalOptions& options = {});
+
+/// The normals of one row of an organised cloud as EstimateNormals computes them: `centre`
+/// is the row (width points), `up` and `down` the rows `step` above and below (null where
+/// outside the cloud), max_jump = max_depth_jump_m * step in metres. Writes width normals
+/// (NaN where there is none) and returns the number of finite ones. For pipelines that
+/// compute the cloud row by row (Triangulator with normals).
+std::size_t EstimateNormalsRow(const Eigen::Vector3f* up, const Eigen::Vector3f* centre,
+                               const Eigen::Vector3f* down, int width, int step, float max_jump,
+                               Eigen::Vector3f* normals);
+
+/// @throws std::invalid_argument, the message starting with `who`, if options.step < 1,
+///   options.max_depth_jump_m <= 0 or options.num_threads < 0.
+void CheckNormalOptions(const NormalOptions& options, const char* who);
 
 }  // namespace picking::scanner

@@ -181,9 +181,14 @@ geometry::PointCloud ScanPipeline::ProcessViewLocked(const std::vector<GrayImage
   }
   if (valid_fraction) *valid_fraction = map.decoded_fraction();
   const ImageView& white = views[PatternSequence::kWhiteIndex];
-  TriangulationResult result =
-      cache_->triangulator->Run(map, options.with_intensities ? &white : nullptr);
-  if (options.with_normals) EstimateNormals(&result.cloud, options.normals);
+  const ImageView* intensity = options.with_intensities ? &white : nullptr;
+  TriangulationResult result;
+  if (options.with_normals) {
+    // Triangulation, filtering and normals in one pass over the rows.
+    cache_->triangulator->Run(map, intensity, options.normals, &result);
+  } else {
+    cache_->triangulator->Run(map, intensity, &result);
+  }
   return std::move(result.cloud);
 }
 

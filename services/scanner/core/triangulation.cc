@@ -14,6 +14,8 @@ namespace picking::scanner {
 namespace {
 
 constexpr int kRowsPerBand = 16;
+// Rows per task of the triangulation with normals (plus 2 * (step + 1) rows recomputed).
+constexpr int kRowsPerChunk = 64;
 
 void Require(bool ok, const std::string& what) {
   if (!ok) throw std::invalid_argument("Triangulator: " + what);
@@ -77,6 +79,20 @@ TriangulationResult Triangulator::Run(const CorrespondenceMap& map,
 
 void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
                        TriangulationResult* result) const {
+  RunImpl(map, intensity, nullptr, result, nullptr);
+}
+
+void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
+                       const NormalOptions& normal_options, TriangulationResult* result,
+                       NormalResult* normal_result) const {
+  CheckNormalOptions(normal_options, "Triangulator");
+  Require(camera_height_ > 1, "normals need a camera with more than one row");
+  RunImpl(map, intensity, &normal_options, result, normal_result);
+}
+
+void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intensity,
+                           const NormalOptions* normal_options, TriangulationResult* result,
+                           NormalResult* normal_result) const {
   Require(result != nullptr, "result is null");
   const std::size_t n = static_cast<std::size_t>(camera_width_) * camera_height_;
   Require(map.width == camera_width_ && map.height == camera_height_,
@@ -171,9 +187,8 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   const float min_depth = static_cast<float>(options_.min_depth_m);
   const float max_depth = static_cast<float>(options_.max_depth_m);
   const Eigen::Vector3f o = p_CameraProjector_;
-  std::atomic<std::size_t> rejected_residual{0};
-  std::atomic<std::size_t> rejected_depth{0};
-  std::atomic<std::size_t> num_points{0};
+  const int w = camera_width_;
+  const int h = camera_height_;
 
   // The projector ray of a sub-pixel correspondence, interpolated bilinearly between the rays
   // of the four nearest mirror centres (the ray table is smooth; its curvature over one
@@ -195,128 +210,229 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
     return top + b * (bottom - top);
   };
 
-  const auto run_band = [&](auto subpixel_tag, int band) {
+  struct Counts {
+    std::size_t points = 0;
+    std::size_t residual = 0;
+    std::size_t depth = 0;
+    std::size_t removed = 0;
+    std::size_t normals = 0;
+  };
+  // Camera row y into out[0, w), before the isolated-point test.
+  const auto triangulate_row = [&](auto subpixel_tag, int y, Eigen::Vector3f* out, Counts* counts) {
     constexpr bool kSubpixel = decltype(subpixel_tag)::value;
-    const int y0 = band * kRowsPerBand;
-    const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
-    std::size_t local_residual = 0;
-    std::size_t local_depth = 0;
-    std::size_t local_points = 0;
-    for (int y = y0; y < y1; ++y) {
-      const std::size_t row_start = static_cast<std::size_t>(y) * camera_width_;
-      if (intensity != nullptr) {
-        const std::uint8_t* src = intensity->row(y);
-        float* dst = cloud.intensities.data() + row_start;
-        for (int x = 0; x < camera_width_; ++x) dst[x] = src[x] * (1.0f / 255.0f);
+    const std::size_t row_start = static_cast<std::size_t>(y) * w;
+    for (int x = 0; x < w; ++x) {
+      const std::size_t i = row_start + x;
+      Eigen::Vector3f& point = out[x];
+      if (!map.valid[i]) {
+        point.setConstant(kNaN);
+        continue;
       }
-      for (int x = 0; x < camera_width_; ++x) {
-        const std::size_t i = row_start + x;
-        Eigen::Vector3f& point = cloud.points[i];
-        if (!map.valid[i]) {
-          point.setConstant(kNaN);
-          continue;
-        }
-        // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
-        const Eigen::Vector2f& ray = rays_[i];
-        Eigen::Vector4f e;
-        if constexpr (kSubpixel) {
-          e = interpolated_ray(map.column_subpixel[i], map.row_subpixel[i]);
-        } else {
-          e = projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
-                              map.column[i]];
-        }
-        const float dd = ray.x() * ray.x() + ray.y() * ray.y() + 1.0f;
-        const float de = ray.x() * e.x() + ray.y() * e.y() + e.z();
-        const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
-        const float ew = e.w();                                         // e . (0 - o)
-        const float denominator = dd - de * de;
-        const float inverse = 1.0f / denominator;
-        const float t = (de * ew - dw) * inverse;
-        const float s = (dd * ew - de * dw) * inverse;
-        // Plain float arithmetic (no Eigen expression calls) keeps this loop inlined.
-        const float px = t * ray.x();
-        const float py = t * ray.y();
-        const float gx = px - (o.x() + s * e.x());
-        const float gy = py - (o.y() + s * e.y());
-        const float gz = t - (o.z() + s * e.z());
-        if (!(denominator > 1e-9f * dd) || !(t >= min_depth && t <= max_depth) || !(s > 0)) {
-          ++local_depth;
-          point.setConstant(kNaN);
-        } else if (gx * gx + gy * gy + gz * gz > residual_factor * s * s) {
-          ++local_residual;
-          point.setConstant(kNaN);
-        } else {
-          point = Eigen::Vector3f(px, py, t);
-          ++local_points;
-        }
+      // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
+      const Eigen::Vector2f& ray = rays_[i];
+      Eigen::Vector4f e;
+      if constexpr (kSubpixel) {
+        e = interpolated_ray(map.column_subpixel[i], map.row_subpixel[i]);
+      } else {
+        e = projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
+                            map.column[i]];
+      }
+      const float dd = ray.x() * ray.x() + ray.y() * ray.y() + 1.0f;
+      const float de = ray.x() * e.x() + ray.y() * e.y() + e.z();
+      const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
+      const float ew = e.w();                                         // e . (0 - o)
+      const float denominator = dd - de * de;
+      const float inverse = 1.0f / denominator;
+      const float t = (de * ew - dw) * inverse;
+      const float s = (dd * ew - de * dw) * inverse;
+      // Plain float arithmetic (no Eigen expression calls) keeps this loop inlined.
+      const float px = t * ray.x();
+      const float py = t * ray.y();
+      const float gx = px - (o.x() + s * e.x());
+      const float gy = py - (o.y() + s * e.y());
+      const float gz = t - (o.z() + s * e.z());
+      if (!(denominator > 1e-9f * dd) || !(t >= min_depth && t <= max_depth) || !(s > 0)) {
+        ++counts->depth;
+        point.setConstant(kNaN);
+      } else if (gx * gx + gy * gy + gz * gz > residual_factor * s * s) {
+        ++counts->residual;
+        point.setConstant(kNaN);
+      } else {
+        point = Eigen::Vector3f(px, py, t);
+        ++counts->points;
       }
     }
-    rejected_residual.fetch_add(local_residual, std::memory_order_relaxed);
-    rejected_depth.fetch_add(local_depth, std::memory_order_relaxed);
-    num_points.fetch_add(local_points, std::memory_order_relaxed);
   };
-  if (subpixel) {
-    pool_->Run(num_bands, [&](int band) { run_band(std::true_type{}, band); });
-  } else {
-    pool_->Run(num_bands, [&](int band) { run_band(std::false_type{}, band); });
-  }
-  result->num_rejected_residual = rejected_residual.load();
-  result->num_rejected_depth = rejected_depth.load();
-  result->num_removed_isolated = 0;
+  const auto copy_intensities = [&](int y) {
+    if (intensity == nullptr) return;
+    const std::uint8_t* src = intensity->row(y);
+    float* dst = cloud.intensities.data() + static_cast<std::size_t>(y) * w;
+    for (int x = 0; x < w; ++x) dst[x] = src[x] * (1.0f / 255.0f);
+  };
+  const auto triangulate = [&](int y, Eigen::Vector3f* out, Counts* counts) {
+    if (subpixel) {
+      triangulate_row(std::true_type{}, y, out, counts);
+    } else {
+      triangulate_row(std::false_type{}, y, out, counts);
+    }
+  };
 
-  if (options_.remove_isolated && options_.min_neighbors > 0) {
-    // Decide from the unfiltered cloud, then remove, so the result does not depend on the
-    // order in which bands run.
-    std::vector<std::vector<std::size_t>> remove(num_bands);
-    const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
-    const int min_neighbors = options_.min_neighbors;
+  // The isolated-point test of a row from the unfiltered rows above and below (null outside
+  // the image): calls isolated(x) for every point with fewer than min_neighbors of its 8
+  // neighbours within the depth tolerance.
+  const bool remove_isolated = options_.remove_isolated && options_.min_neighbors > 0;
+  const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
+  const int min_neighbors = options_.min_neighbors;
+  const auto test_row = [&](const Eigen::Vector3f* above, const Eigen::Vector3f* row,
+                            const Eigen::Vector3f* below, const auto& isolated) {
+    for (int x = 0; x < w; ++x) {
+      const float z = row[x].z();
+      if (std::isnan(z)) continue;
+      int neighbors = 0;
+      if (above != nullptr && below != nullptr && x > 0 && x + 1 < w) {
+        // Comparisons with NaN are false, so missing neighbours do not count.
+        neighbors = (std::abs(above[x - 1].z() - z) <= tolerance) +
+                    (std::abs(above[x].z() - z) <= tolerance) +
+                    (std::abs(above[x + 1].z() - z) <= tolerance) +
+                    (std::abs(row[x - 1].z() - z) <= tolerance) +
+                    (std::abs(row[x + 1].z() - z) <= tolerance) +
+                    (std::abs(below[x - 1].z() - z) <= tolerance) +
+                    (std::abs(below[x].z() - z) <= tolerance) +
+                    (std::abs(below[x + 1].z() - z) <= tolerance);
+      } else {
+        for (const Eigen::Vector3f* line : {above, row, below}) {
+          if (line == nullptr) continue;
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = x + dx;
+            if ((line == row && dx == 0) || xx < 0 || xx >= w) continue;
+            neighbors += std::abs(line[xx].z() - z) <= tolerance;
+          }
+        }
+      }
+      if (neighbors < min_neighbors) isolated(x);
+    }
+  };
+
+  Counts total;
+  if (normal_options == nullptr) {
+    const int num_bands = (h + kRowsPerBand - 1) / kRowsPerBand;
+    std::vector<Counts> band_counts(num_bands);
     pool_->Run(num_bands, [&](int band) {
-      const int y0 = band * kRowsPerBand;
-      const int y1 = std::min(camera_height_, y0 + kRowsPerBand);
-      const int w = camera_width_;
-      const Eigen::Vector3f* points = cloud.points.data();
-      for (int y = y0; y < y1; ++y) {
-        const bool interior_row = y > 0 && y + 1 < camera_height_;
-        for (int x = 0; x < w; ++x) {
-          const std::size_t i = static_cast<std::size_t>(y) * w + x;
-          const float z = points[i].z();
-          if (std::isnan(z)) continue;
-          int neighbors = 0;
-          if (interior_row && x > 0 && x + 1 < w) {
-            // Comparisons with NaN are false, so missing neighbours do not count.
-            const Eigen::Vector3f* up = points + i - w;
-            const Eigen::Vector3f* down = points + i + w;
-            neighbors =
-                (std::abs(up[-1].z() - z) <= tolerance) + (std::abs(up[0].z() - z) <= tolerance) +
-                (std::abs(up[1].z() - z) <= tolerance) +
-                (std::abs(points[i - 1].z() - z) <= tolerance) +
-                (std::abs(points[i + 1].z() - z) <= tolerance) +
-                (std::abs(down[-1].z() - z) <= tolerance) +
-                (std::abs(down[0].z() - z) <= tolerance) + (std::abs(down[1].z() - z) <= tolerance);
-          } else {
-            for (int dy = -1; dy <= 1; ++dy) {
-              const int yy = y + dy;
-              if (yy < 0 || yy >= camera_height_) continue;
-              for (int dx = -1; dx <= 1; ++dx) {
-                const int xx = x + dx;
-                if ((dx == 0 && dy == 0) || xx < 0 || xx >= w) continue;
-                neighbors +=
-                    std::abs(points[static_cast<std::size_t>(yy) * w + xx].z() - z) <= tolerance;
-              }
+      const int y1 = std::min(h, (band + 1) * kRowsPerBand);
+      for (int y = band * kRowsPerBand; y < y1; ++y) {
+        triangulate(y, cloud.points.data() + static_cast<std::size_t>(y) * w, &band_counts[band]);
+        copy_intensities(y);
+      }
+    });
+    if (remove_isolated) {
+      // Decide from the unfiltered cloud, then remove, so the result does not depend on the
+      // order in which bands run.
+      std::vector<std::vector<std::size_t>> remove(num_bands);
+      pool_->Run(num_bands, [&](int band) {
+        const Eigen::Vector3f* points = cloud.points.data();
+        const auto row = [&](int y) { return points + static_cast<std::size_t>(y) * w; };
+        const int y1 = std::min(h, (band + 1) * kRowsPerBand);
+        for (int y = band * kRowsPerBand; y < y1; ++y) {
+          const std::size_t row_start = static_cast<std::size_t>(y) * w;
+          test_row(y > 0 ? row(y - 1) : nullptr, row(y), y + 1 < h ? row(y + 1) : nullptr,
+                   [&](int x) { remove[band].push_back(row_start + x); });
+        }
+      });
+      for (int band = 0; band < num_bands; ++band) {
+        for (const std::size_t i : remove[band]) cloud.points[i].setConstant(kNaN);
+        band_counts[band].removed = remove[band].size();
+      }
+    }
+    for (const Counts& c : band_counts) {
+      total.points += c.points;
+      total.residual += c.residual;
+      total.depth += c.depth;
+      total.removed += c.removed;
+    }
+  } else {
+    // Triangulation, isolated-point removal and normals in one pass: each chunk of rows is
+    // streamed row by row through a ring of recent rows, so that every row is tested and
+    // its normals computed while it is in cache. Row r is triangulated, row r - 1 tested
+    // (it needs rows r - 2 ... r unfiltered), row r - 2 filtered (its last reader has been
+    // tested) and the normals of row r - step - 2 computed (they need the filtered rows
+    // step above and below). A chunk also triangulates and filters the step + 1 rows on
+    // each side that its own rows depend on.
+    const int step = normal_options->step;
+    const float max_jump = static_cast<float>(normal_options->max_depth_jump_m * step);
+    cloud.normals.resize(n);
+    const int ring_rows = 2 * step + 4;
+    const int num_chunks = (h + kRowsPerChunk - 1) / kRowsPerChunk;
+    std::vector<Counts> chunk_counts(num_chunks);
+    pool_->Run(num_chunks, [&](int chunk) {
+      const int a = chunk * kRowsPerChunk;
+      const int b = std::min(h, a + kRowsPerChunk);
+      const int first = std::max(0, a - step - 1);  // Rows triangulated: [first, end).
+      const int end = std::min(h, b + step + 1);
+      const int tested_first = std::max(0, a - step);  // Rows tested and filtered.
+      const int tested_end = std::min(h, b + step);
+      std::vector<Eigen::Vector3f> ring(static_cast<std::size_t>(ring_rows) * w);
+      std::vector<std::uint8_t> isolated(static_cast<std::size_t>(ring_rows) * w);
+      const auto row = [&](int y) {
+        return ring.data() + static_cast<std::size_t>(y % ring_rows) * w;
+      };
+      const auto flags = [&](int y) {
+        return isolated.data() + static_cast<std::size_t>(y % ring_rows) * w;
+      };
+      Counts& counts = chunk_counts[chunk];
+      for (int r = first; r <= b + step + 1; ++r) {
+        if (r < end) {
+          Counts row_counts;
+          triangulate(r, row(r), &row_counts);
+          if (r >= a && r < b) {
+            copy_intensities(r);
+            counts.points += row_counts.points;
+            counts.residual += row_counts.residual;
+            counts.depth += row_counts.depth;
+          }
+        }
+        const int q = r - 1;
+        if (remove_isolated && q >= tested_first && q < tested_end) {
+          std::uint8_t* f = flags(q);
+          std::fill(f, f + w, std::uint8_t{0});
+          test_row(q > 0 ? row(q - 1) : nullptr, row(q), q + 1 < h ? row(q + 1) : nullptr,
+                   [&](int x) { f[x] = 1; });
+        }
+        const int filtered = r - 2;
+        if (remove_isolated && filtered >= tested_first && filtered < tested_end) {
+          const std::uint8_t* f = flags(filtered);
+          Eigen::Vector3f* points = row(filtered);
+          std::size_t removed = 0;
+          for (int x = 0; x < w; ++x) {
+            if (f[x]) {
+              points[x].setConstant(kNaN);
+              ++removed;
             }
           }
-          if (neighbors < min_neighbors) remove[band].push_back(i);
+          if (filtered >= a && filtered < b) counts.removed += removed;
+        }
+        const int y = r - step - 2;
+        if (y >= a && y < b) {
+          const std::size_t row_start = static_cast<std::size_t>(y) * w;
+          counts.normals += EstimateNormalsRow(y - step >= 0 ? row(y - step) : nullptr, row(y),
+                                               y + step < h ? row(y + step) : nullptr, w, step,
+                                               max_jump, cloud.normals.data() + row_start);
+          std::copy(row(y), row(y) + w, cloud.points.data() + row_start);
         }
       }
     });
-    std::size_t removed = 0;
-    for (const std::vector<std::size_t>& band : remove) {
-      for (const std::size_t i : band) cloud.points[i].setConstant(kNaN);
-      removed += band.size();
+    for (const Counts& c : chunk_counts) {
+      total.points += c.points;
+      total.residual += c.residual;
+      total.depth += c.depth;
+      total.removed += c.removed;
+      total.normals += c.normals;
     }
-    result->num_removed_isolated = removed;
+    if (normal_result != nullptr) normal_result->num_normals = total.normals;
   }
-  result->num_points = num_points.load() - result->num_removed_isolated;
+  result->num_rejected_residual = total.residual;
+  result->num_rejected_depth = total.depth;
+  result->num_removed_isolated = total.removed;
+  result->num_points = total.points - total.removed;
 }
 
 }  // namespace picking::scanner

@@ -3,6 +3,7 @@
 #include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
 #include "services/scanner/core/decoder.h"
+#include "services/scanner/core/normals.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -90,7 +91,22 @@ class Triangulator final {
   void Run(const CorrespondenceMap& map, const ImageView* intensity,
            TriangulationResult* result) const;
 
+  /// As above, and the cloud's normals too: the result equals Run(map, intensity, result)
+  /// followed by EstimateNormals(&result->cloud, normal_options) (normal_options.num_threads
+  /// is ignored; this triangulator's threads are used), but each row is filtered and its
+  /// normals computed while it is in cache rather than in two more passes over the cloud.
+  /// Fills result->cloud.normals and, if not null, normal_result.
+  /// @throws as Run, and std::invalid_argument for bad normal_options (see EstimateNormals)
+  ///   or a camera with a single row. The result is untouched then.
+  void Run(const CorrespondenceMap& map, const ImageView* intensity,
+           const NormalOptions& normal_options, TriangulationResult* result,
+           NormalResult* normal_result = nullptr) const;
+
  private:
+  void RunImpl(const CorrespondenceMap& map, const ImageView* intensity,
+               const NormalOptions* normal_options, TriangulationResult* result,
+               NormalResult* normal_result) const;
+
   int camera_width_;
   int camera_height_;
   int projector_width_;
