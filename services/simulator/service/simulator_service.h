@@ -26,6 +26,9 @@ struct SimulatorServiceOptions {
 /// holds one mutex around the world, so calls are serialised; a refused request (any status
 /// but OK) leaves the world unchanged. `collisions` checks the arm placed by SetArmJoints;
 /// the world must have UR10 kinematics and the same X_FlangeTool as `collisions->tool()`.
+/// RenderPatterns and RenderDepth share one scene renderer that is kept between calls (its
+/// BVH and per-camera-model ray tables are reused; LoadLayout rebuilds it, moved items are
+/// re-posed), so they are serialised with each other.
 /// Throws std::invalid_argument for a null world or checker or bad options.
 std::shared_ptr<v1::SimulatorService::Service> MakeSimulatorService(
     std::unique_ptr<SimWorld> world, std::unique_ptr<ArmCollisionChecker> collisions,
