@@ -351,8 +351,8 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     }
   } else {
     // Triangulation, isolated-point removal and normals in one pass: each chunk of rows is
-    // streamed row by row through a ring of recent rows, so that every row is tested and
-    // its normals computed while it is in cache. Row r is triangulated, row r - 1 tested
+    // streamed row by row, so that every row is tested and its normals computed while it and
+    // its neighbours are in cache. Row r is triangulated, row r - 1 tested
     // (it needs rows r - 2 ... r unfiltered), row r - 2 filtered (its last reader has been
     // tested) and the normals of row r - step - 2 computed (they need the filtered rows
     // step above and below). A chunk also triangulates and filters the step + 1 rows on
@@ -360,7 +360,7 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     const int step = normal_options->step;
     const float max_jump = static_cast<float>(normal_options->max_depth_jump_m * step);
     cloud.normals.resize(n);
-    const int ring_rows = 2 * step + 4;
+    const int ring_rows = 4;  // Removal flags of rows r - 2 and r - 1.
     const int num_chunks = (h + kRowsPerChunk - 1) / kRowsPerChunk;
     std::vector<Counts> chunk_counts(num_chunks);
     pool_->Run(num_chunks, [&](int chunk) {
@@ -370,10 +370,14 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
       const int end = std::min(h, b + step + 1);
       const int tested_first = std::max(0, a - step);  // Rows tested and filtered.
       const int tested_end = std::min(h, b + step);
-      std::vector<Eigen::Vector3f> ring(static_cast<std::size_t>(ring_rows) * w);
+      // The chunk's own rows are computed in place in the cloud (no other task writes or
+      // reads them); the rows around it that it depends on go to a buffer of its own.
+      std::vector<Eigen::Vector3f> halo(static_cast<std::size_t>(2 * (step + 1)) * w);
       std::vector<std::uint8_t> isolated(static_cast<std::size_t>(ring_rows) * w);
       const auto row = [&](int y) {
-        return ring.data() + static_cast<std::size_t>(y % ring_rows) * w;
+        if (y >= a && y < b) return cloud.points.data() + static_cast<std::size_t>(y) * w;
+        const int slot = y < a ? y - first : (a - first) + (y - b);
+        return halo.data() + static_cast<std::size_t>(slot) * w;
       };
       const auto flags = [&](int y) {
         return isolated.data() + static_cast<std::size_t>(y % ring_rows) * w;
@@ -416,7 +420,6 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
           counts.normals += EstimateNormalsRow(y - step >= 0 ? row(y - step) : nullptr, row(y),
                                                y + step < h ? row(y + step) : nullptr, w, step,
                                                max_jump, cloud.normals.data() + row_start);
-          std::copy(row(y), row(y) + w, cloud.points.data() + row_start);
         }
       }
     });
