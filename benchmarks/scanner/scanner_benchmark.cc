@@ -11,6 +11,8 @@
 // Refinement: coverage = fraction of all camera pixels with a point (or a refined
 // correspondence); col_err_px / row_err_px = median |sub-pixel - true projector coordinate|;
 // depth_err_mm = median |z - true z| of the points.
+// BM_DecodeRefineTriangulateNormals/1 is the scan pipeline's path (triangulation, filtering
+// and normals in one streamed pass); /0 runs Triangulator::Run and EstimateNormals apart.
 
 #include "services/scanner/core/decoder.h"
 #include "services/scanner/core/normals.h"
