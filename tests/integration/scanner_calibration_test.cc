@@ -517,7 +517,8 @@ class HandEyeCalibrationThroughRpc : public ::testing::Test {
     int frame = 0;
     const auto record = [&](const std::vector<GrayImage>& images) {
       for (const GrayImage& image : images) {
-        scanner::WriteGrayImage((root / "frames" / Numbered("frame_", frame++, 4)).string(), image);
+        scanner::WriteGrayImage((root / "frames" / Numbered("frame_", frame++, 4, ".pgm")).string(),
+                                image);
       }
     };
     fs::create_directories(root / "frames");
@@ -760,7 +761,8 @@ TEST(ScannerDroppedFrameTest, ADroppedFrameIsDataLossAndTheNextCaptureWorks) {
   const GrayImage grey(640, 480, 90);
   for (int id = 0; id <= 80; ++id) {
     if (id == 17) continue;
-    scanner::WriteGrayImage((dir.path() / "frames" / Numbered("frame_", id, 4)).string(), grey);
+    scanner::WriteGrayImage((dir.path() / "frames" / Numbered("frame_", id, 4, ".pgm")).string(),
+                            grey);
   }
   ScannerServer server(dir.path() / "calibration", dir.path() / "nominal", dir.path() / "frames");
   for (int round = 0; round < 2; ++round) {

@@ -67,9 +67,11 @@ ReplayCamera::ReplayCamera(const std::string& folder) {
     std::string extension = entry.path().extension().string();
     std::transform(extension.begin(), extension.end(), extension.begin(),
                    [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-    if (extension == ".png") files_.push_back(entry.path().string());
+    if (extension == ".png" || extension == ".pgm") files_.push_back(entry.path().string());
   }
-  if (files_.empty()) throw CameraError("replay folder '" + folder + "' holds no PNG image");
+  if (files_.empty()) {
+    throw CameraError("replay folder '" + folder + "' holds no PNG or PGM image");
+  }
   std::sort(files_.begin(), files_.end());
   for (const std::string& file : files_) {
     GrayImage image = ReadGrayImage(file);

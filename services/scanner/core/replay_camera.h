@@ -15,15 +15,16 @@ GrayImage ReadGrayImage(const std::string& path);
 /// Writes `image` as a PNG file. Throws CameraError naming the file on failure.
 void WriteGrayImage(const std::string& path, const GrayImage& image);
 
-/// A camera that plays back the PNG images of a folder, sorted by file name. Each capture
+/// A camera that plays back the PNG (or PGM) images of a folder, sorted by file name. Each capture
 /// returns the next images. A frame's id is the number its file name ends with when every
 /// name ends with one (frame_0041.png: 41), so a recording with a missing frame replays as
 /// a dropped frame; otherwise the image index. Used to re-run the scanner on recorded
 /// captures.
 class ReplayCamera final : public CameraBackend {
  public:
-  /// Loads every *.png of `folder`. Throws CameraError when the folder does not exist,
-  /// holds no PNG, an image cannot be read, or the images differ in size (naming the file).
+  /// Loads every *.png and *.pgm of `folder`. Throws CameraError when the folder does not
+  /// exist, holds no image, an image cannot be read, or the images differ in size (naming the
+  /// file).
   explicit ReplayCamera(const std::string& folder);
 
   void Configure(const CameraSettings& settings) override;

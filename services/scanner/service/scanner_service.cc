@@ -893,7 +893,7 @@ std::vector<std::string> ScannerSettingsHelp() {
       "robot.address=HOST:PORT of picking-robot for poses of views without one (default none)",
       "robot.timeout_s=2",
       "aravis.device=ID (default: first camera; a GigE Vision camera also by its IP address)",
-      "replay.dir=FOLDER of PNG frames (camera=replay)",
+      "replay.dir=FOLDER of PNG or PGM frames, played in name order (camera=replay)",
       "dlpc350.device=/dev/hidrawN (projector=dlpc350)",
       "calibration.dir=FOLDER of the current calibration files (default <data>/scanner)",
       "sensor.nominal_dir=FOLDER of the nominal (simulated) sensor (default "
