@@ -146,8 +146,9 @@ struct RefinementResult {
 /// them. A pixel that its row cannot refine (isolated between invalid pixels) takes its
 /// column from refined pixels up to two rows above and below with a column within one of
 /// its own; rows likewise from the left and right. Rows likewise along camera
-/// columns with the row bits. Work runs in bands of rows (strips of columns) on a thread
-/// pool, with per-task scratch only (no allocation per pixel).
+/// columns with the row bits. Work runs on a thread pool in bands of rows and in strips of
+/// columns scanned row by row (row-major reads of the map and the captures), with per-task
+/// state only (no allocation per pixel); the fills visit only the pixels left unrefined.
 ///
 /// Refine may be called from several threads; calls are serialised.
 class SubpixelRefiner final {
