@@ -898,12 +898,11 @@ class ScannerAravisTest : public ::testing::Test {
 TEST_F(ScannerAravisTest, SoftwareTriggeredSequencesFromTheFakeGigECamera) {
   ServerProcess server(ServerBinary(kBinary), Args("software"));
   auto stub = pb::ScannerService::NewStub(server.Channel());
-  for (int round = 0; round < 2; ++round) {
-    int images = 0;
-    const grpc::Status status = CaptureImages(*stub, &images);
-    ASSERT_TRUE(status.ok()) << status.error_message();
-    EXPECT_EQ(images, 40) << "round " << round;
-  }
+  int images = 0;
+  const grpc::Status captured = CaptureImages(*stub, &images);
+  ASSERT_TRUE(captured.ok()) << captured.error_message();
+  EXPECT_EQ(images, 40);
+  // A second sequence, stored as a calibration view.
   grpc::ClientContext ctx;
   pb::CaptureCalibrationViewRequest request;
   request.set_session("gige");
