@@ -41,6 +41,7 @@ void Validate(const geometry::PointCloud& source, const geometry::PointCloud& ta
   if (!(o.loss_scale_m > 0.0f)) fail("loss_scale_m must be positive");
   if (o.min_correspondences < 6) fail("min_correspondences must be >= 6");
   if (!(o.max_step_rotation_rad > 0.0)) fail("max_step_rotation_rad must be positive");
+  if (o.coarse_stride < 1) fail("coarse_stride must be >= 1");
 }
 
 }  // namespace
@@ -63,10 +64,10 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
   // new pose bounds the search (the poses of successive iterations are close), which prunes
   // most of the tree without changing the answer.
   std::vector<std::int32_t> last(source.size(), KdTree::kNone);
-  auto correspond = [&](const Eigen::Isometry3d& X_ts) {
+  auto correspond = [&](const Eigen::Isometry3d& X_ts, std::size_t stride) {
     pairs.clear();
     const Eigen::Isometry3f Xf = X_ts.cast<float>();
-    for (std::size_t i = 0; i < source.size(); ++i) {
+    for (std::size_t i = 0; i < source.size(); i += stride) {
       const Eigen::Vector3f p = Xf * source.points[i];
       float bound = max_d2;
       if (last[i] != KdTree::kNone) {
@@ -82,8 +83,13 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     }
   };
 
+  std::size_t stride = static_cast<std::size_t>(options.coarse_stride);
+  if (source.size() / stride < 20 * static_cast<std::size_t>(options.min_correspondences)) {
+    stride = 1;
+  }
   for (int it = 0; it < options.max_iterations; ++it) {
-    correspond(X);
+    if (stride > 1 && 2 * it >= options.max_iterations) stride = 1;
+    correspond(X, stride);
     if (static_cast<int>(pairs.size()) < options.min_correspondences) break;
     if (options.trim_fraction < 1.0f) {
       const std::size_t keep = std::max<std::size_t>(
@@ -136,14 +142,19 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     X = dX * X;
     X.linear() = Eigen::Quaterniond(X.linear()).normalized().toRotationMatrix();
     result.iterations = it + 1;
-    if (angle < options.convergence_rotation_rad &&
-        x.tail<3>().norm() < options.convergence_translation_m) {
+    if (stride > 1) {
+      if (angle < 10.0 * options.convergence_rotation_rad &&
+          x.tail<3>().norm() < 10.0 * options.convergence_translation_m) {
+        stride = 1;
+      }
+    } else if (angle < options.convergence_rotation_rad &&
+               x.tail<3>().norm() < options.convergence_translation_m) {
       result.converged = true;
       break;
     }
   }
 
-  correspond(X);
+  correspond(X, 1);
   result.X_TargetSource = X;
   result.correspondences = static_cast<int>(pairs.size());
   result.fitness = static_cast<double>(pairs.size()) / static_cast<double>(source.size());

@@ -32,6 +32,12 @@ struct IcpOptions {
   /// limited to max_correspondence_distance_m.
   double max_step_rotation_rad = 0.1;
   int min_correspondences = 6;  ///< Fewer surviving pairs stop the iteration.
+  /// Coarse-to-fine: iterations first use every coarse_stride-th source point, until an
+  /// update moves less than 10 times the convergence thresholds (or half of max_iterations
+  /// have run), then all points; the result is always measured on all points. 1 = all
+  /// points throughout. Ignored when the subsample would have fewer than
+  /// 20 * min_correspondences points.
+  int coarse_stride = 4;
 };
 
 /// Quality figures of a registration.

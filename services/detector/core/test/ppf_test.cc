@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <numeric>
 #include <random>
 
 #include "services/detector/core/test/ppf_test_util.h"
@@ -96,6 +97,53 @@ TEST(PpfQuantizerTest, PlanarPairs) {
                                      Eigen::Vector3f::UnitX())));
 }
 
+// The cosine-based cells and keys agree with quantising the angles themselves, except within
+// float rounding of a cell boundary.
+TEST(PpfQuantizerTest, CosineCellsMatchAngleCells) {
+  for (int bins : {30, 45, 360}) {
+    const PpfQuantizer q(0.01f, 0.3f, bins);
+    const int cells = (bins + 1) / 2;
+    for (int k = 0; k <= 20000; ++k) {
+      const double angle = M_PI * k / 20000.0;
+      const double cell_real = angle / q.angle_step_rad();
+      if (std::abs(cell_real - std::round(cell_real)) < 1e-4) continue;  // on a boundary
+      const int expected = std::min(static_cast<int>(cell_real), cells - 1);
+      ASSERT_EQ(q.CosineCell(static_cast<float>(std::cos(angle))), expected)
+          << "bins " << bins << " angle " << angle;
+    }
+    EXPECT_EQ(q.CosineCell(1.5f), 0);
+    EXPECT_EQ(q.CosineCell(-1.5f), cells - 1);
+  }
+  const PpfQuantizer q(0.01f, 0.3f, 30);
+  std::mt19937 rng(17);
+  std::normal_distribution<float> g(0.0f, 1.0f);
+  int compared = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const Eigen::Vector3f p1(0.1f * g(rng), 0.1f * g(rng), 0.1f * g(rng));
+    const Eigen::Vector3f p2(0.1f * g(rng), 0.1f * g(rng), 0.1f * g(rng));
+    const Eigen::Vector3f n1 = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector3f n2 = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector4f f = ComputePpf(p1, n1, p2, n2);
+    std::uint32_t key = 0, expected = 0;
+    bool planar = true;
+    const bool ok = q.PairKey(p1, n1, p2, n2, &key, &planar);
+    ASSERT_EQ(ok, q.Key(f, &expected));
+    if (!ok) continue;
+    const Eigen::Vector4f cells = f / q.angle_step_rad();
+    const Eigen::Vector4f frac = (cells.array() - cells.array().round()).abs();
+    if (frac.tail<3>().minCoeff() < 1e-3f) continue;  // on an angle boundary
+    ++compared;
+    EXPECT_EQ(key, expected) << f.transpose();
+    EXPECT_EQ(planar, q.IsPlanar(f)) << f.transpose();
+  }
+  EXPECT_GT(compared, 5000);
+  std::uint32_t key = 0;
+  EXPECT_FALSE(q.PairKey(Eigen::Vector3f::Ones(), Eigen::Vector3f::UnitX(), Eigen::Vector3f::Ones(),
+                         Eigen::Vector3f::UnitX(), &key));
+  EXPECT_FALSE(q.PairKey(Eigen::Vector3f::Zero(), Eigen::Vector3f::UnitX(),
+                         Eigen::Vector3f(0.31f, 0.0f, 0.0f), Eigen::Vector3f::UnitX(), &key));
+}
+
 TEST(PpfAlignTest, AlignToXAxisIsProperAndMapsNormal) {
   std::mt19937 rng(11);
   std::normal_distribution<float> g(0.0f, 1.0f);
@@ -119,10 +167,12 @@ TEST(PpfTableTest, StoresEveryNonPlanarPairOnce) {
   for (std::size_t i = 0; i < box.size(); ++i) {
     for (std::size_t j = 0; j < box.size(); ++j) {
       if (i == j) continue;
-      const Eigen::Vector4f f =
-          ComputePpf(box.points[i], box.normals[i], box.points[j], box.normals[j]);
       std::uint32_t key = 0;
-      if (!q.Key(f, &key) || q.IsPlanar(f)) continue;
+      bool planar = false;
+      if (!q.PairKey(box.points[i], box.normals[i], box.points[j], box.normals[j], &key, &planar) ||
+          planar) {
+        continue;
+      }
       ++expected;
       // The pair is stored under its key with its alpha.
       const float alpha = PairAngle(AlignToXAxis(box.points[i], box.normals[i]), box.points[j]);
@@ -135,6 +185,15 @@ TEST(PpfTableTest, StoresEveryNonPlanarPairOnce) {
   }
   EXPECT_EQ(table.entries().size(), expected);
   EXPECT_EQ(table.offsets().size(), q.num_keys() + 1u);
+  // The vote codes carry each entry's model point and its angle to 1/kAlphaSubsteps of a bin.
+  ASSERT_EQ(table.vote_codes().size(), table.entries().size());
+  const float unit = q.angle_step_rad() / PpfTable::kAlphaSubsteps;
+  for (std::size_t k = 0; k < table.entries().size(); ++k) {
+    const std::uint32_t code = table.vote_codes()[k];
+    EXPECT_EQ(code >> 13, table.entries()[k].model_reference);
+    const float decoded = -kPi + (static_cast<float>(code & 0x1FFFu) + 0.5f) * unit;
+    EXPECT_LE(std::abs(decoded - table.entries()[k].alpha_m_rad), 0.5f * unit + 1e-5f);
+  }
 }
 
 TEST(PpfTableTest, RejectsBadModels) {
@@ -178,6 +237,122 @@ TEST(PpfMatchTest, FindsMovedBox) {
     }
     EXPECT_LT(worst, 0.012) << "trial " << trial;
   }
+}
+
+// Skipping duplicate scene pairs only removes look-ups (each skipped pair is counted), still
+// finds the pose, and the result does not depend on the number of threads.
+TEST(PpfMatchTest, DuplicateSkippingAndThreads) {
+  const geometry::PointCloud box = BoxSurface(0.12f, 0.07f, 0.04f, 0.01f);
+  const float diameter = std::sqrt(0.12f * 0.12f + 0.07f * 0.07f + 0.04f * 0.04f) + 1e-3f;
+  const PpfTable table(box, diameter, 0.01f);
+  std::mt19937 rng(23);
+  const Eigen::Isometry3d X = testing::RandomPose(&rng, 0.3);
+  const geometry::PointCloud scene = testing::Transformed(box, X);
+  const KdTree tree(scene.points);
+  PpfMatchOptions options;
+  options.reference_step = 2;
+  options.skip_duplicate_votes = false;
+  const PpfMatchResult all = MatchPpf(table, scene, tree, options);
+  options.skip_duplicate_votes = true;
+  options.num_threads = 1;
+  const PpfMatchResult one = MatchPpf(table, scene, tree, options);
+  options.num_threads = 3;
+  const PpfMatchResult three = MatchPpf(table, scene, tree, options);
+  EXPECT_EQ(all.duplicate_pairs, 0);
+  EXPECT_GT(one.duplicate_pairs, 0);
+  EXPECT_EQ(one.pair_lookups + one.duplicate_pairs, all.pair_lookups);
+  EXPECT_LT(one.votes_cast, all.votes_cast);
+  ASSERT_EQ(one.hypotheses.size(), three.hypotheses.size());
+  for (std::size_t h = 0; h < one.hypotheses.size(); ++h) {
+    EXPECT_EQ(one.hypotheses[h].votes, three.hypotheses[h].votes);
+    EXPECT_TRUE(one.hypotheses[h].X_SceneModel.isApprox(three.hypotheses[h].X_SceneModel, 1e-12));
+  }
+  for (const PpfMatchResult* r : {&all, &one}) {
+    ASSERT_FALSE(r->hypotheses.empty());
+    const Eigen::Isometry3d X_rel = X.inverse() * r->hypotheses.front().X_SceneModel;
+    double worst = 0.0;
+    for (const auto& p : box.points) {
+      float d2 = 0.0f;
+      table.model_tree().Nearest((X_rel.cast<float>() * p), &d2);
+      worst = std::max(worst, std::sqrt(static_cast<double>(d2)));
+    }
+    EXPECT_LT(worst, 0.02);
+  }
+}
+
+// Planar pairs with a weight in (0, 1) need a table that stores them and still find the box.
+TEST(PpfMatchTest, WeightedPlanarPairs) {
+  const geometry::PointCloud box = BoxSurface(0.12f, 0.07f, 0.04f, 0.01f);
+  const float diameter = std::sqrt(0.12f * 0.12f + 0.07f * 0.07f + 0.04f * 0.04f) + 1e-3f;
+  PpfTableOptions table_options;
+  table_options.store_planar_pairs = true;
+  const PpfTable with_planar(box, diameter, 0.01f, table_options);
+  const PpfTable without(box, diameter, 0.01f);
+  EXPECT_GT(with_planar.entries().size(), without.entries().size());
+  std::mt19937 rng(29);
+  const Eigen::Isometry3d X = testing::RandomPose(&rng, 0.3);
+  const geometry::PointCloud scene = testing::Transformed(box, X);
+  const KdTree tree(scene.points);
+  PpfMatchOptions options;
+  options.reference_step = 2;
+  options.planar_pair_weight = 0.25f;
+  const PpfMatchResult r = MatchPpf(with_planar, scene, tree, options);
+  ASSERT_FALSE(r.hypotheses.empty());
+  const Eigen::Isometry3d X_rel = X.inverse() * r.hypotheses.front().X_SceneModel;
+  double worst = 0.0;
+  for (const auto& p : box.points) {
+    float d2 = 0.0f;
+    with_planar.model_tree().Nearest((X_rel.cast<float>() * p), &d2);
+    worst = std::max(worst, std::sqrt(static_cast<double>(d2)));
+  }
+  EXPECT_LT(worst, 0.02);
+  options.planar_pair_weight = 1.5f;
+  EXPECT_THROW(MatchPpf(with_planar, scene, tree, options), std::invalid_argument);
+}
+
+// The grid-accelerated clustering equals the plain greedy scan over the clusters.
+TEST(PpfClusterTest, MatchesLinearGreedyClustering) {
+  std::mt19937 rng(31);
+  std::uniform_int_distribution<int> pick(0, 19);
+  std::uniform_real_distribution<double> vote(1.0, 10.0);
+  std::vector<Eigen::Isometry3d> centres;
+  for (int c = 0; c < 20; ++c) centres.push_back(testing::RandomPose(&rng, 0.2));
+  std::vector<Eigen::Isometry3d> poses;
+  std::vector<double> votes;
+  for (int i = 0; i < 2000; ++i) {
+    poses.push_back(centres[pick(rng)] *
+                    testing::Perturbation(&rng, 0.3 * vote(rng) / 10.0, 0.03 * vote(rng) / 10.0));
+    votes.push_back(std::round(vote(rng)));  // ties exercise the stable order
+  }
+  const double t_max = 0.02, r_max = 0.25;
+  const auto clusters = ClusterPoses(poses, votes, t_max, r_max);
+  // Reference: visit by decreasing votes (stable), join the first cluster in creation order.
+  std::vector<std::size_t> order(poses.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return votes[a] > votes[b]; });
+  std::vector<Eigen::Isometry3d> firsts;
+  std::vector<double> weights;
+  for (std::size_t idx : order) {
+    std::size_t c = 0;
+    while (c < firsts.size() &&
+           !((firsts[c].translation() - poses[idx].translation()).norm() < t_max &&
+             RotationAngle(firsts[c].linear(), poses[idx].linear()) < r_max)) {
+      ++c;
+    }
+    if (c == firsts.size()) {
+      firsts.push_back(poses[idx]);
+      weights.push_back(0.0);
+    }
+    weights[c] += votes[idx];
+  }
+  ASSERT_EQ(clusters.size(), firsts.size());
+  std::vector<double> got, expected = weights;
+  for (const auto& c : clusters) got.push_back(c.votes);
+  std::sort(got.begin(), got.end());
+  std::sort(expected.begin(), expected.end());
+  for (std::size_t i = 0; i < got.size(); ++i) EXPECT_NEAR(got[i], expected[i], 1e-9);
+  EXPECT_GT(clusters.size(), 20u);
 }
 
 TEST(PpfClusterTest, MergesNearbyPosesWithWeightedMean) {
