@@ -109,7 +109,7 @@ class PpfTable final {
   /// Trains on a sampled model (points in metres in the model frame M, unit normals) with
   /// distances quantised in steps of `distance_step_m`. `diameter_m` bounds the pair
   /// distance (pairs further apart are dropped). Throws std::invalid_argument for an empty
-  /// model, a model without normals, non-finite or non-unit normals, or more than 2^16
+  /// model, a model without normals, non-finite or non-unit normals, or more than 8192
   /// points (sample the model coarser).
   PpfTable(const geometry::PointCloud& sampled_model, float diameter_m, float distance_step_m,
            const PpfTableOptions& options = {});

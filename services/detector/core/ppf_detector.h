@@ -97,7 +97,8 @@ struct PpfDetectorOptions {
   /// unsupported, and the scene was measured more than conflict_distance_rel (of the
   /// sampling distance) behind them along the same ray, so the sensor saw through where
   /// the model would be. A wrong object leaning on the scene's surfaces sticks out into
-  /// free space; a true pose has few conflicts.
+  /// free space; a true pose has few conflicts. The check assumes the scene was seen from
+  /// `viewpoint`; for a cloud merged from several views set this to 1 (no check).
   float max_conflict_fraction = 0.1f;
   float conflict_distance_rel = 2.0f;
   /// Detections need at least this fraction of the model's ICP points facing the sensor: a
