@@ -598,11 +598,12 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   float* column_subpixel = map->column_subpixel.data();
   float* row_subpixel = map->row_subpixel.data();
 
-  // Columns along camera rows (tasks [0, num_bands)) and rows along camera columns (tasks
-  // [num_bands, num_bands + num_strips)): independent, so one job.
+  // Rows along camera columns (tasks [0, num_strips), the larger ones, first so that the
+  // bands even out the threads' load at the end) and columns along camera rows (tasks
+  // [num_strips, num_strips + num_bands)): independent, so one job.
   pool_->Run(num_bands + num_strips, [&](int task) {
-    if (task < num_bands) {
-      const int band = task;
+    if (task >= num_strips) {
+      const int band = task - num_strips;
       std::vector<std::size_t>& candidates = column_candidates[band].pixels;
       std::size_t knots = 0;
       std::size_t count = 0;
@@ -642,7 +643,7 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
     }
     // A strip of columns, scanned row by row with one line scan per column: the map and the
     // captures are read row-major, and runs are written within a few rows of the scan.
-    const int strip = task - num_bands;
+    const int strip = task;
     const int x0 = strip * kRefineColumnsPerStrip;
     const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
     const int strip_width = x1 - x0;
