@@ -5,17 +5,22 @@
 // scene milk_cartoon_all_small_clorox.pcd, in which the milk model's true pose is the
 // identity; the test moves the whole scene by a seeded random transform and expects the
 // detector to find the milk at that transform.
+//
+// DetectorBinScanTest (at the end) drives the detector with simulated shelf-bin scans made by
+// the picking-simulator and picking-scanner servers, judged by the simulator's ground truth.
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <limits>
 #include <map>
 #include <random>
@@ -24,6 +29,8 @@
 #include <vector>
 
 #include "picking/detector/v1/detector.grpc.pb.h"
+#include "picking/scanner/v1/scanner.grpc.pb.h"
+#include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "tests/harness/server_process.h"
 #include "tests/harness/service_checks.h"
 
@@ -523,6 +530,361 @@ TEST_F(DetectorSceneTest, RegionOutsideTheCloudIsInvalid) {
   pb::DetectResponse response;
   const grpc::Status s = Detect(params, *chunks_, &response);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+}
+
+// --- The detector on simulated shelf-bin scans ------------------------------------------------
+// picking-simulator lays out pick_layout_1 (seed 1), picking-scanner scans a bin from 0.55 m in
+// front of its opening (the simulator renders the 42 Gray-code captures, the scanner decodes
+// and triangulates them into the base frame), and the scan goes to picking-detector with the
+// bin as region and the bundled model manifest data/detector/models.json. The simulator's
+// ground truth judges the poses.
+
+namespace sim = ::picking::simulator::v1;
+namespace scan = ::picking::scanner::v1;
+
+Transform Compose(const Transform& a, const Transform& b) {
+  Transform out;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      out.R[r][c] = 0.0;
+      for (int k = 0; k < 3; ++k) out.R[r][c] += a.R[r][k] * b.R[k][c];
+    }
+  }
+  out.t = a.Apply(b.t);
+  return out;
+}
+
+Transform Inverse(const Transform& a) {
+  Transform out;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) out.R[r][c] = a.R[c][r];
+  }
+  const std::array<double, 3> t = out.Rotate(a.t);
+  out.t = {-t[0], -t[1], -t[2]};
+  return out;
+}
+
+std::array<double, 3> Normalized(const std::array<double, 3>& v) {
+  const double n = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  return {v[0] / n, v[1] / n, v[2] / n};
+}
+
+std::array<double, 3> Cross(const std::array<double, 3>& a, const std::array<double, 3>& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// Angle between the item frames' axes, up to the half turns of a box (about x, y or z).
+double BoxRotationErrorRad(const Transform& a, const Transform& b) {
+  double best = RotationErrorRad(a, b);
+  for (int axis = 0; axis < 3; ++axis) {
+    Transform flipped = b;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) flipped.R[r][c] = c == axis ? b.R[r][c] : -b.R[r][c];
+    }
+    best = std::min(best, RotationErrorRad(a, flipped));
+  }
+  return best;
+}
+
+// Angle between the item frames' x axes (a cylinder along x), either direction.
+double AxisErrorRad(const Transform& a, const Transform& b) {
+  double dot = 0.0;
+  for (int r = 0; r < 3; ++r) dot += a.R[r][0] * b.R[r][0];
+  return std::acos(std::min(1.0, std::abs(dot)));
+}
+
+class DetectorBinScanTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    for (const char* name : {"picking-simulator", "picking-scanner"}) {
+      ASSERT_TRUE(std::filesystem::exists(ServerBinary(name)))
+          << ServerBinary(name) << " is missing: build the " << name << " target";
+    }
+    layout_ = new std::string(
+        ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json"));
+    simulator_ = new ServerProcess(ServerBinary("picking-simulator"));
+    sim_stub_ = sim::SimulatorService::NewStub(simulator_->Channel()).release();
+    LoadLayout(*layout_);
+    sim::GetCellResponse cell;
+    {
+      grpc::ClientContext ctx;
+      ASSERT_TRUE(sim_stub_->GetCell(&ctx, sim::GetCellRequest(), &cell).ok());
+    }
+    bins_ = new std::map<int, sim::BinInfo>();
+    for (const auto& b : cell.bins()) (*bins_)[b.bin()] = b;
+
+    dir_ = new std::string(::testing::TempDir() + "/detector_bin_scan_test");
+    std::filesystem::remove_all(*dir_);
+    std::filesystem::create_directories(*dir_ + "/calibration");
+    scanner_ = new ServerProcess(
+        ServerBinary("picking-scanner"),
+        {"--sim.address=" + simulator_->address(), "--calibration.dir=" + *dir_ + "/calibration"});
+    scan_stub_ = scan::ScannerService::NewStub(scanner_->Channel()).release();
+    scan::GetCalibrationResponse calibration;
+    {
+      grpc::ClientContext ctx;
+      ASSERT_TRUE(
+          scan_stub_->GetCalibration(&ctx, scan::GetCalibrationRequest(), &calibration).ok());
+    }
+    X_ToolCamera_ = new Transform(FromPose(calibration.calibration().x_tool_camera()));
+    detector_ = new ServerProcess(ServerBinary(kBinary), {"--cache_dir=" + *dir_ + "/cache"});
+  }
+
+  static void TearDownTestSuite() {
+    for (ServerProcess* server : {detector_, scanner_, simulator_}) {
+      if (server != nullptr) {
+        EXPECT_EQ(server->Stop(), 0);
+      }
+      delete server;
+    }
+    detector_ = scanner_ = simulator_ = nullptr;
+    delete sim_stub_;
+    delete scan_stub_;
+    delete bins_;
+    delete X_ToolCamera_;
+    delete layout_;
+    if (dir_ != nullptr) std::filesystem::remove_all(*dir_);
+    delete dir_;
+  }
+
+  static void LoadLayout(const std::string& task_json) {
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest request;
+    request.set_task_json(task_json);
+    request.set_seed(1);
+    sim::LoadLayoutResponse response;
+    const grpc::Status status = sim_stub_->LoadLayout(&ctx, request, &response);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+  }
+
+  // True poses of `item` in `bin`, from the simulator.
+  static std::vector<Transform> TruePoses(common::Container bin, const std::string& item) {
+    grpc::ClientContext ctx;
+    sim::GetGroundTruthResponse truth;
+    EXPECT_TRUE(sim_stub_->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth).ok());
+    std::vector<Transform> out;
+    for (const auto& s : truth.items()) {
+      if (s.container() == bin && s.item().name() == item) out.push_back(FromPose(s.x_base_item()));
+    }
+    return out;
+  }
+
+  static Transform X_BaseBin(common::Container bin) {
+    return FromPose(bins_->at(bin).x_base_bin());
+  }
+  static std::array<double, 3> BinSize(common::Container bin) {
+    const auto& s = bins_->at(bin).size_m();
+    return {s.x(), s.y(), s.z()};
+  }
+
+  // The camera 0.55 m in front of the bin's opening (+x of the bin frame) and 0.1 m above its
+  // centre, looking at the middle of its floor.
+  static Transform CameraPose(common::Container bin) {
+    const std::array<double, 3> size = BinSize(bin);
+    const std::array<double, 3> target{0.0, 0.0, -0.5 * size[2] + 0.03};
+    const std::array<double, 3> eye{0.5 * size[0] + 0.55, 0.0, 0.1};
+    const std::array<double, 3> z =
+        Normalized({target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]});
+    const std::array<double, 3> x = Normalized(Cross({0.0, 0.0, -1.0}, z));
+    const std::array<double, 3> y = Cross(z, x);
+    Transform X_BinCamera;
+    for (int r = 0; r < 3; ++r) X_BinCamera.R[r] = {x[r], y[r], z[r]};
+    X_BinCamera.t = eye;
+    return Compose(X_BaseBin(bin), X_BinCamera);
+  }
+
+  // Scans `bin`; the chunks are ready for Detect (the header carries the sensor pose).
+  static std::vector<common::PointCloudChunk> ScanBin(common::Container bin) {
+    const Transform X_BaseCamera = CameraPose(bin);
+    const Transform X_BaseTool = Compose(X_BaseCamera, Inverse(*X_ToolCamera_));
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(240));
+    scan::ScanRequest request;
+    *request.add_views()->mutable_x_base_tool() = ToPose(X_BaseTool);
+    request.set_frame_id("base");
+    request.set_with_normals(true);
+    request.set_with_intensities(true);
+    request.mutable_decode()->set_min_neighbours(3);
+    auto reader = scan_stub_->Scan(&ctx, request);
+    std::vector<common::PointCloudChunk> chunks;
+    scan::ScanResponse response;
+    while (reader->Read(&response)) {
+      if (response.has_cloud()) chunks.push_back(response.cloud());
+    }
+    const grpc::Status status = reader->Finish();
+    EXPECT_TRUE(status.ok()) << status.error_message();
+    if (!chunks.empty()) {
+      *chunks.front().mutable_header()->mutable_sensor_pose() = ToPose(X_BaseCamera);
+    }
+    return chunks;
+  }
+
+  static pb::DetectParams BinQuery(common::Container bin, const std::string& item,
+                                   pb::Method method = pb::METHOD_UNSPECIFIED) {
+    pb::DetectParams params;
+    auto* q = params.add_queries();
+    q->set_item(item);
+    q->set_method(method);
+    *params.mutable_region()->mutable_x_frame_region() = ToPose(X_BaseBin(bin));
+    const std::array<double, 3> size = BinSize(bin);
+    params.mutable_region()->mutable_size_m()->set_x(size[0]);
+    params.mutable_region()->mutable_size_m()->set_y(size[1]);
+    params.mutable_region()->mutable_size_m()->set_z(size[2]);
+    params.mutable_region()->set_wall_margin_m(0.01);
+    return params;
+  }
+
+  static grpc::Status Detect(const pb::DetectParams& params,
+                             const std::vector<common::PointCloudChunk>& chunks,
+                             pb::DetectResponse* response) {
+    auto stub = pb::DetectorService::NewStub(detector_->Channel());
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    auto writer = stub->Detect(&ctx, response);
+    pb::DetectRequest first;
+    *first.mutable_params() = params;
+    writer->Write(first);
+    for (const auto& chunk : chunks) {
+      pb::DetectRequest request;
+      *request.mutable_cloud() = chunk;
+      if (!writer->Write(request)) break;
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  static double Diameter(const std::string& item) {
+    auto stub = pb::DetectorService::NewStub(detector_->Channel());
+    grpc::ClientContext ctx;
+    pb::ListModelsResponse models;
+    EXPECT_TRUE(stub->ListModels(&ctx, pb::ListModelsRequest(), &models).ok());
+    for (const auto& m : models.models()) {
+      if (m.item() == item && m.diameter_m() > 0.0) return m.diameter_m();
+    }
+    ADD_FAILURE() << item << " has no built model";
+    return 0.0;
+  }
+
+  // Detects `item` in a scan of `bin` and checks it against the simulator's ground truth.
+  static void ExpectFound(common::Container bin, const std::string& item, bool cylinder,
+                          pb::Method method = pb::METHOD_UNSPECIFIED) {
+    const std::vector<common::PointCloudChunk> chunks = ScanBin(bin);
+    ASSERT_FALSE(chunks.empty());
+    pb::DetectResponse response;
+    const grpc::Status status = Detect(BinQuery(bin, item, method), chunks, &response);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+    ASSERT_EQ(response.results_size(), 1);
+    const pb::ItemResult& result = response.results(0);
+    EXPECT_EQ(result.status().code(), 0) << result.status().message();
+    ASSERT_GE(result.detections_size(), 1) << item << " not found";
+    EXPECT_LT(response.points_after_preprocessing(), response.points_received());
+    const pb::Detection& d = result.detections(0);
+    if (method != pb::METHOD_UNSPECIFIED) {
+      EXPECT_EQ(d.method(), method);
+    }
+    const Transform X_found = FromPose(d.x_frame_item());
+    const std::vector<Transform> truth = TruePoses(bin, item);
+    ASSERT_FALSE(truth.empty());
+    double translation = 1e9, rotation = 1e9;
+    for (const Transform& X_true : truth) {
+      if (TranslationError(X_found, X_true) < translation) {
+        translation = TranslationError(X_found, X_true);
+        rotation = cylinder ? AxisErrorRad(X_found, X_true) : BoxRotationErrorRad(X_found, X_true);
+      }
+    }
+    const double diameter = Diameter(item);
+    EXPECT_LT(translation, 0.1 * diameter) << item;
+    EXPECT_LT(rotation, 10.0 * kPi / 180.0) << item;
+    EXPECT_GT(d.score(), 0.5);
+    std::cout << item << " (" << pb::Method_Name(d.method()) << "): " << translation * 1000
+              << " mm, " << rotation * 180.0 / kPi << " deg from the truth, score " << d.score()
+              << ", " << response.points_after_preprocessing() << " of "
+              << response.points_received() << " points in the bin, " << d.timings().total_s()
+              << " s\n";
+  }
+
+  static std::string* layout_;
+  static std::string* dir_;
+  static ServerProcess* simulator_;
+  static ServerProcess* scanner_;
+  static ServerProcess* detector_;
+  static sim::SimulatorService::Stub* sim_stub_;
+  static scan::ScannerService::Stub* scan_stub_;
+  static std::map<int, sim::BinInfo>* bins_;
+  static Transform* X_ToolCamera_;
+};
+std::string* DetectorBinScanTest::layout_ = nullptr;
+std::string* DetectorBinScanTest::dir_ = nullptr;
+ServerProcess* DetectorBinScanTest::simulator_ = nullptr;
+ServerProcess* DetectorBinScanTest::scanner_ = nullptr;
+ServerProcess* DetectorBinScanTest::detector_ = nullptr;
+sim::SimulatorService::Stub* DetectorBinScanTest::sim_stub_ = nullptr;
+scan::ScannerService::Stub* DetectorBinScanTest::scan_stub_ = nullptr;
+std::map<int, sim::BinInfo>* DetectorBinScanTest::bins_ = nullptr;
+Transform* DetectorBinScanTest::X_ToolCamera_ = nullptr;
+
+TEST_F(DetectorBinScanTest, FindsTheTissueBoxInBinA) {
+  ExpectFound(common::CONTAINER_BIN_A, "kleenex_tissue_box", /*cylinder=*/false);
+}
+
+TEST_F(DetectorBinScanTest, FindsThePaperTowelsInBinD) {
+  ExpectFound(common::CONTAINER_BIN_D, "kleenex_paper_towels", /*cylinder=*/true);
+}
+
+// The same layout without the tissue box in bin A: nothing is reported there, not even
+// with the item's whole chain, and the call is still OK.
+TEST_F(DetectorBinScanTest, ReportsNothingForAnItemThatIsNotInTheBin) {
+  std::string layout = *layout_;
+  const std::string bin_a = "\"kleenex_tissue_box\",";
+  const std::size_t at = layout.find(bin_a);
+  ASSERT_NE(at, std::string::npos);
+  layout.erase(at, bin_a.size());
+  const std::string order = "\"item\": \"kleenex_tissue_box\"";
+  const std::size_t order_at = layout.find(order);
+  ASSERT_NE(order_at, std::string::npos);
+  layout.replace(order_at, order.size(), "\"item\": \"creativity_chenille_stems\"");
+  LoadLayout(layout);
+  ASSERT_TRUE(TruePoses(common::CONTAINER_BIN_A, "kleenex_tissue_box").empty());
+  const std::vector<common::PointCloudChunk> chunks = ScanBin(common::CONTAINER_BIN_A);
+  LoadLayout(*layout_);
+  ASSERT_FALSE(chunks.empty());
+  pb::DetectResponse response;
+  const grpc::Status status =
+      Detect(BinQuery(common::CONTAINER_BIN_A, "kleenex_tissue_box"), chunks, &response);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  ASSERT_EQ(response.results_size(), 1);
+  EXPECT_EQ(response.results(0).status().code(), 0);
+  EXPECT_EQ(response.results(0).detections_size(), 0);
+  EXPECT_GE(response.results(0).methods_tried_size(), 1);
+}
+
+TEST_F(DetectorBinScanTest, RejectsBadRegionsAndReportsUnknownItems) {
+  const std::vector<common::PointCloudChunk> chunks = ScanBin(common::CONTAINER_BIN_D);
+  ASSERT_FALSE(chunks.empty());
+  pb::DetectResponse response;
+  // Another bin's region holds no point of this scan.
+  EXPECT_EQ(Detect(BinQuery(common::CONTAINER_BIN_L, "kleenex_paper_towels"), chunks, &response)
+                .error_code(),
+            grpc::StatusCode::INVALID_ARGUMENT);
+  pb::DetectParams params = BinQuery(common::CONTAINER_BIN_D, "kleenex_paper_towels");
+  params.mutable_region()->set_wall_margin_m(-0.01);
+  EXPECT_EQ(Detect(params, chunks, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  params = BinQuery(common::CONTAINER_BIN_D, "kleenex_paper_towels");
+  params.mutable_region()->mutable_size_m()->set_y(0.0);
+  EXPECT_EQ(Detect(params, chunks, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // An unknown item fails alone.
+  response.Clear();
+  params = BinQuery(common::CONTAINER_BIN_D, "no_such_item");
+  ASSERT_TRUE(Detect(params, chunks, &response).ok());
+  ASSERT_EQ(response.results_size(), 1);
+  EXPECT_EQ(response.results(0).status().code(), grpc::StatusCode::NOT_FOUND);
 }
 
 }  // namespace

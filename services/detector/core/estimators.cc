@@ -275,10 +275,11 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
 
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(
     const std::shared_ptr<const ModelLibrary>& library,
-    const std::shared_ptr<SceneContext>& context) {
-  return {std::make_shared<PpfEstimator>(library, context),
-          std::make_shared<SiftPoseEstimator>(library, context),
-          std::make_shared<RangeTemplateEstimator>(library, context)};
+    const std::shared_ptr<SceneContext>& context, const EstimatorOptions& options) {
+  return {std::make_shared<PpfEstimator>(library, context, options.ppf, options.refine),
+          std::make_shared<SiftPoseEstimator>(library, context, options.sift, options.refine),
+          std::make_shared<RangeTemplateEstimator>(library, context, options.templates,
+                                                   options.refine)};
 }
 
 // --- Scene helpers --------------------------------------------------------------------------

@@ -155,10 +155,33 @@ class RangeTemplateEstimator final : public Estimator {
   RefineVerifyOptions refine_;
 };
 
+/// Options of the three estimators made by MakeEstimators.
+struct EstimatorOptions {
+  /// PPF in a region of a scan (a shelf bin, the tote): every second sampled scene point is
+  /// a reference point and twelve hypotheses are refined, because a partly visible item
+  /// among others collects fewer votes than the clutter. DetectPpf's own support check only
+  /// pre-filters (min_support 0.4, conflicts not checked there: the pre-processing removed
+  /// walls and floor, which its free-space test cannot tell from free space); each candidate
+  /// is then scored by Verify against the sensor's depth image, where removed pixels are
+  /// unknown rather than free, and the item's thresholds decide.
+  PpfDetectorOptions ppf = [] {
+    PpfDetectorOptions o;
+    o.match.reference_step = 2;
+    o.match.max_hypotheses = 12;
+    o.hypotheses_to_verify = 12;
+    o.min_support = 0.4f;
+    o.max_conflict_fraction = 1.0f;
+    return o;
+  }();
+  SiftPoseOptions sift;
+  TemplateMatchOptions templates;
+  RefineVerifyOptions refine;
+};
+
 /// The three estimators above for one scene.
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(
     const std::shared_ptr<const ModelLibrary>& library,
-    const std::shared_ptr<SceneContext>& context);
+    const std::shared_ptr<SceneContext>& context, const EstimatorOptions& options = {});
 
 /// Intrinsics of an organised cloud: least-squares fit of the pixel (u, v) of each finite
 /// point (points in the sensor frame S) by the pinhole model u = fx x/z + cx, v = fy y/z + cy;

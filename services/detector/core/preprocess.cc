@@ -267,6 +267,127 @@ PlaneRemovalResult RemoveDominantPlane(const PointCloud& cloud,
   return result;
 }
 
+PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& box,
+                                  const FloorRemovalOptions& options) {
+  ValidateCloud(cloud, options.limits);
+  box.Validate();
+  if (!(options.search_height_m > 0.0) || !(options.max_tilt_rad > 0.0) ||
+      !(options.distance_threshold_m > 0.0) || !(options.margin_m >= 0.0) ||
+      options.max_iterations < 1) {
+    throw std::invalid_argument("RemoveBoxFloor: a distance, angle or count is out of range");
+  }
+  const Eigen::Isometry3d X_BoxBase = box.X_BaseBox.inverse();
+  const double bottom_z = -0.5 * box.size_m.z();
+  const double cos_tilt = std::cos(options.max_tilt_rad);
+  const bool normals = cloud.has_normals();
+  // Candidates in the Box frame.
+  std::vector<Eigen::Vector3d> candidates;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.points[i].allFinite()) continue;
+    const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
+    if (p.z() > bottom_z + options.search_height_m) continue;
+    if (normals) {
+      const Eigen::Vector3f& n = cloud.normals[i];
+      if (!n.allFinite() || (X_BoxBase.linear() * n.cast<double>()).z() < cos_tilt) continue;
+    }
+    candidates.push_back(p);
+  }
+  PlaneRemovalResult result;
+  if (candidates.size() < std::max<std::size_t>(3, options.min_inliers)) {
+    result.cloud = cloud;
+    return result;
+  }
+  // RANSAC for the best-supported plane; when enough candidates lie clearly below it, it was
+  // the top of a flat item and the search repeats among those.
+  std::mt19937 rng(options.seed);
+  const double threshold = options.distance_threshold_m;
+  const auto fit = [&](const std::vector<Eigen::Vector3d>& points, Eigen::Vector4d* plane) {
+    std::uniform_int_distribution<std::size_t> pick(0, points.size() - 1);
+    constexpr std::size_t kScoreSamples = 3000;
+    std::vector<std::size_t> subset;
+    for (std::size_t i = 0; i < std::min(kScoreSamples, points.size()); ++i) {
+      subset.push_back(points.size() <= kScoreSamples ? i : pick(rng));
+    }
+    Eigen::Vector4d best = Eigen::Vector4d::Zero();
+    std::size_t best_count = 0;
+    for (int it = 0; it < options.max_iterations; ++it) {
+      const Eigen::Vector3d& a = points[pick(rng)];
+      Eigen::Vector3d n = (points[pick(rng)] - a).cross(points[pick(rng)] - a);
+      if (n.norm() < 1e-12) continue;
+      n.normalize();
+      if (n.z() < 0.0) n = -n;
+      if (n.z() < cos_tilt) continue;
+      const double d = -n.dot(a);
+      std::size_t count = 0;
+      for (std::size_t i : subset) count += std::abs(n.dot(points[i]) + d) <= threshold ? 1 : 0;
+      if (count > best_count) {
+        best_count = count;
+        best << n, d;
+      }
+    }
+    if (best_count == 0) return std::size_t{0};
+    // Least-squares refit on the inliers.
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    std::size_t num = 0;
+    for (const auto& p : points) {
+      if (std::abs(best.head<3>().dot(p) + best[3]) <= threshold) {
+        mean += p;
+        ++num;
+      }
+    }
+    mean /= static_cast<double>(num);
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (const auto& p : points) {
+      if (std::abs(best.head<3>().dot(p) + best[3]) <= threshold) {
+        cov += (p - mean) * (p - mean).transpose();
+      }
+    }
+    Eigen::Vector3d n = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+    if (n.z() < 0.0) n = -n;
+    if (n.z() >= cos_tilt) best << n, -n.dot(mean);
+    *plane = best;
+    return num;
+  };
+  Eigen::Vector4d best = Eigen::Vector4d::Zero();
+  bool found = false;
+  for (int round = 0; round < 4 && candidates.size() >= options.min_inliers; ++round) {
+    Eigen::Vector4d plane = Eigen::Vector4d::Zero();
+    if (fit(candidates, &plane) < options.min_inliers) break;
+    // Height of the plane above the box's bottom at the box's centre (x = y = 0).
+    const double centre_height = -plane[3] / plane[2] - bottom_z;
+    if (centre_height <= options.max_centre_height_m) {
+      best = plane;
+      found = true;
+    }
+    std::vector<Eigen::Vector3d> below;
+    for (const auto& p : candidates) {
+      if (plane.head<3>().dot(p) + plane[3] < -2.0 * threshold) below.push_back(p);
+    }
+    candidates = std::move(below);
+  }
+  if (!found) {
+    result.cloud = cloud;
+    return result;
+  }
+  // Remove everything below the plane or within the margin above it.
+  std::vector<bool> keep(cloud.size(), true);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.points[i].allFinite()) continue;
+    const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
+    if (best.head<3>().dot(p) + best[3] < options.margin_m) {
+      keep[i] = false;
+      ++result.num_inliers;
+    }
+  }
+  result.cloud = Filter(cloud, keep, options.keep_organized);
+  // The plane in the cloud's frame.
+  const Eigen::Vector3d n_Base = box.X_BaseBox.linear() * best.head<3>();
+  const Eigen::Vector3d p_Base = box.X_BaseBox * (-best[3] * best.head<3>());
+  result.plane << n_Base, -n_Base.dot(p_Base);
+  result.removed = true;
+  return result;
+}
+
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_size_m, const CloudLimits& limits) {
   ValidateCloud(cloud, limits);
   if (!(leaf_size_m > 0.0) || !std::isfinite(leaf_size_m))

@@ -99,6 +99,40 @@ struct PlaneRemovalResult {
 PlaneRemovalResult RemoveDominantPlane(const geometry::PointCloud& cloud,
                                        const PlaneRemovalOptions& options = {});
 
+struct FloorRemovalOptions {
+  /// The floor is searched among the points at most this high above the box's bottom face
+  /// (shelf boards are not flat: they rise and sag by a few centimetres), metres.
+  double search_height_m = 0.05;
+  /// The floor plane's normal is within this angle of the box's +z axis, radians; points
+  /// with normals further from +z are not floor candidates.
+  double max_tilt_rad = 0.3;
+  /// The floor plane passes at most this high above the box's bottom face at the box's
+  /// centre (a higher plane is an item's top face over a hidden floor), metres.
+  double max_centre_height_m = 0.03;
+  double distance_threshold_m = 0.004;  ///< RANSAC inlier distance, metres.
+  /// Points below the floor plane or less than this above it are removed, metres.
+  double margin_m = 0.006;
+  int max_iterations = 300;
+  /// A plane needs this many supporting candidates to be the floor.
+  std::size_t min_inliers = 500;
+  std::uint32_t seed = 42;
+  bool keep_organized = true;
+  CloudLimits limits;
+};
+
+/// Removes the floor of a box region (a shelf bin's board, the tote's bottom) as measured in
+/// the cloud: RANSAC over the candidate points near the box's bottom face (upward normals
+/// when the cloud has normals) for a plane whose normal is near the box's +z, least-squares
+/// refit; while at least min_inliers candidates lie below that plane (it was the top of a flat
+/// item), the search repeats among them. The lowest such plane that passes low enough at the
+/// box's centre is the floor (items thinner than the floor's rise can be mistaken for it); every
+/// point below the plane or within margin_m above it is removed. Unlike RemoveBoxWalls this follows
+/// a floor that is tilted or higher than the box's bottom. `plane` of the result is n.p + d = 0 in
+/// the cloud's frame with n toward the box's +z. Throws as ValidateCloud, std::invalid_argument on
+/// bad options or box.
+PlaneRemovalResult RemoveBoxFloor(const geometry::PointCloud& cloud, const OrientedBox& box,
+                                  const FloorRemovalOptions& options = {});
+
 /// Voxel-grid down-sampling: one point per occupied voxel at the mean of its points (normals
 /// averaged and re-normalised, intensities and colours averaged). The result is unorganised.
 /// Throws std::invalid_argument on leaf_size_m <= 0 or an invalid cloud.

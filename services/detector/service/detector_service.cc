@@ -289,6 +289,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       walls.margin_m = region.wall_margin_m();
       walls.faces = kAllFaces;
       cropped = RemoveBoxWalls(cropped, box, walls);
+      // The measured floor too: shelf boards are tilted and rise above the box's bottom.
+      cropped = RemoveBoxFloor(cropped, box).cloud;
     }
     if (CountFinite(cropped) == 0) {
       throw std::invalid_argument("params.region: no point of the cloud lies inside the region");

@@ -138,6 +138,52 @@ TEST(PreprocessTest, RansacRemovesTheDominantPlane) {
   EXPECT_NEAR(static_cast<double>(r.cloud.size()), 500.0, 10.0);
 }
 
+// A bin whose board is tilted by 5 degrees and rises 2 cm above the box's bottom, with a
+// 4 cm high box and a 1.5 cm thin flat item on it: the floor goes, both items stay, and the
+// flat item's top is not taken for the floor although it is the larger plane.
+TEST(PreprocessTest, BoxFloorFollowsATiltedBoardBelowFlatItems) {
+  OrientedBox bin;
+  bin.X_BaseBox =
+      Eigen::Translation3d(1.0, 0.2, 0.8) * Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ());
+  bin.size_m = Eigen::Vector3d(0.4, 0.3, 0.25);
+  const double tilt = 5.0 * M_PI / 180.0;
+  const auto floor_z = [&](double x) { return -0.125 + 0.02 + std::tan(tilt) * x; };
+  std::mt19937 rng(3);
+  std::normal_distribution<float> noise(0.0f, 0.0003f);
+  geometry::PointCloud cloud;
+  std::size_t num_items = 0;
+  const auto add = [&](const Eigen::Vector3d& p_Box, const Eigen::Vector3d& n_Box, bool item) {
+    cloud.points.push_back((bin.X_BaseBox * p_Box).cast<float>() +
+                           Eigen::Vector3f::Constant(noise(rng)));
+    cloud.normals.push_back((bin.X_BaseBox.linear() * n_Box).cast<float>());
+    num_items += item ? 1 : 0;
+  };
+  const Eigen::Vector3d up(-std::sin(tilt), 0.0, std::cos(tilt));
+  for (double x = -0.19; x <= 0.19; x += 0.003) {
+    for (double y = -0.14; y <= 0.14; y += 0.003) {
+      const bool under_flat = x < 0.1 && y < 0.1;  // The flat item hides most of the board.
+      const bool under_box = x > 0.12 && y > 0.05;
+      if (!under_flat && !under_box) add({x, y, floor_z(x)}, up, false);
+      if (under_flat) add({x, y, floor_z(0.1) + 0.015}, Eigen::Vector3d::UnitZ(), true);
+      if (under_box && x < 0.17) add({x, y, floor_z(0.17) + 0.04}, Eigen::Vector3d::UnitZ(), true);
+    }
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  const PlaneRemovalResult r = RemoveBoxFloor(cloud, bin);
+  ASSERT_TRUE(r.removed);
+  EXPECT_EQ(r.cloud.size(), num_items);
+  const Eigen::Vector3d n_Base = bin.X_BaseBox.linear() * up;
+  EXPECT_GT(r.plane.head<3>().dot(n_Base), std::cos(1.0 * M_PI / 180.0));
+  // Without a floor candidate nothing is removed; bad options are refused.
+  geometry::PointCloud high = cloud;
+  for (auto& p : high.points)
+    p += (bin.X_BaseBox.linear() * Eigen::Vector3d(0, 0, 0.1)).cast<float>();
+  EXPECT_FALSE(RemoveBoxFloor(high, bin).removed);
+  FloorRemovalOptions bad;
+  bad.max_iterations = 0;
+  EXPECT_THROW(RemoveBoxFloor(cloud, bin, bad), std::invalid_argument);
+}
+
 TEST(PreprocessTest, VoxelDownsampleAveragesPerVoxel) {
   geometry::PointCloud c = Unorganised({{0.001f, 0.001f, 0.001f},
                                         {0.003f, 0.003f, 0.003f},

@@ -1,0 +1,69 @@
+#include "benchmarks/detector_eval/bin_detection.h"
+
+#include <chrono>
+
+#include "services/detector/core/estimators.h"
+#include "services/detector/core/preprocess.h"
+
+namespace picking::detector_eval {
+
+namespace {
+
+geometry::PointCloud Region(const BinScan& scan, const BinDetectionOptions& options) {
+  geometry::PointCloud region = detector::CropToBox(scan.cloud, scan.bin_box);
+  if (options.wall_margin_m > 0.0) {
+    detector::WallRemovalOptions walls;
+    walls.margin_m = options.wall_margin_m;
+    walls.faces = options.wall_faces;
+    region = detector::RemoveBoxWalls(region, scan.bin_box, walls);
+  }
+  if (options.remove_floor) region = detector::RemoveBoxFloor(region, scan.bin_box).cloud;
+  return region;
+}
+
+}  // namespace
+
+detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLibrary>& library,
+                                  const BinScan& scan, const std::string& item,
+                                  const Eigen::Isometry3d& X_BaseItem,
+                                  const BinDetectionOptions& options) {
+  const geometry::PointCloud region = Region(scan, options);
+  detector::SceneContext context(region, scan.X_BaseCamera, scan.camera);
+  return detector::RefineAndVerify(*library->Get(item), context, detector::Method::kPpf, X_BaseItem,
+                                   /*refine=*/false);
+}
+
+BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrary>& library,
+                               const BinScan& scan, const std::string& item,
+                               std::optional<detector::Method> method,
+                               const BinDetectionOptions& options) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  BinDetectionResult result;
+  const geometry::PointCloud region = Region(scan, options);
+  for (const auto& p : region.points) result.points_in_region += p.allFinite() ? 1 : 0;
+  std::optional<detector::PinholeCamera> camera =
+      detector::FitOrganizedIntrinsics(region, scan.X_BaseCamera);
+  result.intrinsics_fitted = camera.has_value();
+  if (!camera) camera = scan.camera;
+
+  auto context = std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera, camera);
+  detector::ObjectConfig config = library->ConfigFor(item);
+  config.item = item;
+  if (method) {
+    config.preferred = *method;
+    config.fallbacks.clear();
+  }
+  const detector::DetectionChain chain(detector::DetectorConfig(config, {{item, config}}),
+                                       detector::MakeEstimators(library, context));
+  detector::EstimatorInput input;
+  input.item = item;
+  input.scene = &region;
+  input.X_BaseSensor = scan.X_BaseCamera;
+  input.camera = camera;
+  result.chain = chain.Run(input);
+  result.total_s = std::chrono::duration<double>(Clock::now() - start).count();
+  return result;
+}
+
+}  // namespace picking::detector_eval

@@ -1,0 +1,50 @@
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "benchmarks/detector_eval/bin_scan_sim.h"
+#include "services/detector/core/detection.h"
+#include "services/detector/core/model_library.h"
+
+namespace picking::detector_eval {
+
+/// Options of DetectInBin: the pre-processing the detector service applies to a Detect
+/// request with the bin as region.
+struct BinDetectionOptions {
+  /// Points within this distance of the bin's walls, floor and ceiling are removed, metres
+  /// (the Region's wall_margin_m).
+  double wall_margin_m = 0.01;
+  /// Faces of the bin box whose points are removed (default: all, the open front too: items
+  /// stand at least 1 cm behind it, the shelf's lip does not).
+  std::uint32_t wall_faces = detector::kAllFaces;
+  /// Then the measured floor (the boards are not flat) is removed (RemoveBoxFloor).
+  bool remove_floor = true;
+};
+
+/// One full detection call and what it saw.
+struct BinDetectionResult {
+  detector::ChainResult chain;
+  std::size_t points_in_region = 0;  ///< Finite points after crop and wall removal.
+  bool intrinsics_fitted = false;    ///< The camera was recovered from the organised cloud.
+  double total_s = 0.0;              ///< Wall-clock time of the whole call.
+};
+
+/// Detects `item` in `scan` as the detector service does: crop to the bin box, remove the
+/// walls and the floor, fit the camera intrinsics to the organised cloud (falling back to the
+/// scan's true intrinsics), then the item's method chain from the library (or only `method`).
+/// Throws as the detector core does (unknown item, empty region).
+BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrary>& library,
+                               const BinScan& scan, const std::string& item,
+                               std::optional<detector::Method> method = std::nullopt,
+                               const BinDetectionOptions& options = {});
+
+/// The verification of the true pose `X_BaseItem` of `item` in the same pre-processed
+/// region (no refinement): what a perfect estimator would score. Throws as DetectInBin.
+detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLibrary>& library,
+                                  const BinScan& scan, const std::string& item,
+                                  const Eigen::Isometry3d& X_BaseItem,
+                                  const BinDetectionOptions& options = {});
+
+}  // namespace picking::detector_eval
