@@ -47,7 +47,10 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   result.intrinsics_fitted = camera.has_value();
   if (!camera) camera = scan.camera;
 
-  auto context = std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera, camera);
+  detector::SceneContextOptions context_options;
+  context_options.remove_dominant_plane = !options.remove_floor;
+  auto context =
+      std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera, camera, context_options);
   detector::ObjectConfig config = library->ConfigFor(item);
   config.item = item;
   if (method) {

@@ -838,6 +838,11 @@ TEST_F(DetectorBinScanTest, FindsThePaperTowelsInBinD) {
   ExpectFound(common::CONTAINER_BIN_D, "kleenex_paper_towels", /*cylinder=*/true);
 }
 
+TEST_F(DetectorBinScanTest, RangeTemplatesFindThePaperTowelsInBinD) {
+  ExpectFound(common::CONTAINER_BIN_D, "kleenex_paper_towels", /*cylinder=*/true,
+              pb::METHOD_RANGE_TEMPLATES);
+}
+
 // The same layout without the tissue box in bin A: nothing is reported there, not even
 // with the item's whole chain, and the call is still OK.
 TEST_F(DetectorBinScanTest, ReportsNothingForAnItemThatIsNotInTheBin) {

@@ -86,7 +86,7 @@ const SceneContext::Clusters& SceneContext::SceneClusters() {
     auto c = std::make_unique<Clusters>();
     PlaneRemovalOptions plane = options_.plane;
     plane.keep_organized = true;
-    c->cloud = RemoveDominantPlane(*scene_, plane).cloud;
+    c->cloud = options_.remove_dominant_plane ? RemoveDominantPlane(*scene_, plane).cloud : *scene_;
     c->clusters = EuclideanClusters(c->cloud, options_.clusters);
     if (c->clusters.size() > static_cast<std::size_t>(options_.max_clusters)) {
       c->clusters.resize(static_cast<std::size_t>(options_.max_clusters));

@@ -24,7 +24,10 @@ namespace picking::detector {
 
 /// Options of SceneContext's shared pre-processing.
 struct SceneContextOptions {
-  /// Range templates: the dominant plane (table, bin floor) is removed before clustering.
+  /// Range templates: the dominant plane (table, bin floor) is removed before clustering,
+  /// unless the pre-processing already removed the support (a region's walls and floor: a
+  /// large flat or gently curved item face would otherwise be taken for the plane).
+  bool remove_dominant_plane = true;
   PlaneRemovalOptions plane;
   ClusterOptions clusters;
   /// Range templates: at most this many clusters (the largest) are matched.

@@ -173,7 +173,12 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       response->set_points_after_preprocessing(CountFinite(scene));
       const std::optional<PinholeCamera> camera = CameraFor(scene, received.X_BaseSensor);
 
-      auto context = std::make_shared<SceneContext>(scene, received.X_BaseSensor, camera);
+      SceneContextOptions context_options;
+      // A region with a wall margin has lost its floor already.
+      context_options.remove_dominant_plane =
+          !(params.has_region() && params.region().wall_margin_m() > 0.0);
+      auto context =
+          std::make_shared<SceneContext>(scene, received.X_BaseSensor, camera, context_options);
       context->set_deadline(SteadyDeadline(ctx));
       const double shared_preprocess_s = SecondsSince(start);
 
