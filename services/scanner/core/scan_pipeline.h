@@ -48,7 +48,7 @@ struct ScanOptions {
   DecoderOptions decode;
   /// Refine the integer correspondences to sub-pixel projector coordinates before
   /// triangulating (SubpixelRefiner): the depth error drops from the projector column step
-  /// (~1.5 mm at 1 m) to a fraction of a millimetre, for ~23 ms more per view (2 threads,
+  /// (~1.5 mm at 1 m) to a fraction of a millimetre, for 15-25 ms more per view (2 threads,
   /// 1280 x 1024).
   bool subpixel = true;
   /// Pixels the refiner cannot refine (a camera coarser than the projector sees codes jump
