@@ -759,6 +759,8 @@ struct ScannedCloud {
   std::uint32_t width = 0, height = 0;
   std::vector<float> xyz;
   pb::ScanSummary summary;
+  bool has_sensor_pose = false;
+  picking::common::v1::Pose sensor_pose;
   Vec3 at(std::size_t i) const { return {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]}; }
 };
 
@@ -773,6 +775,8 @@ ScannedCloud RunScan(pb::ScannerService::Stub* stub, const pb::ScanRequest& requ
       if (response.cloud().has_header()) {
         out.width = response.cloud().header().width();
         out.height = response.cloud().header().height();
+        out.has_sensor_pose = response.cloud().header().has_sensor_pose();
+        out.sensor_pose = response.cloud().header().sensor_pose();
       }
       const auto p = DecodeFloats(response.cloud().positions());
       out.xyz.insert(out.xyz.end(), p.begin(), p.end());
@@ -1038,6 +1042,11 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
   ASSERT_EQ(cloud.height, static_cast<std::uint32_t>(camera_->height));
   ASSERT_EQ(cloud.xyz.size(), 3u * cloud.width * cloud.height);
   ASSERT_EQ(cloud.summary.valid_fraction_size(), 1);
+  // One view: the header names the sensor, here the camera frame's own origin.
+  ASSERT_TRUE(cloud.has_sensor_pose);
+  EXPECT_NEAR(cloud.sensor_pose.position().x(), 0.0, 1e-9);
+  EXPECT_NEAR(cloud.sensor_pose.position().z(), 0.0, 1e-9);
+  EXPECT_NEAR(std::abs(cloud.sensor_pose.orientation().w()), 1.0, 1e-9);
 
   const TruthView truth = Truth(X_BaseCamera);
   const std::vector<bool> bin_surface = BinSurface(truth);
@@ -1081,6 +1090,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
   ASSERT_EQ(cloud.height, 3u * static_cast<std::uint32_t>(height));
   ASSERT_EQ(cloud.xyz.size(), 3u * cloud.width * cloud.height);
   ASSERT_EQ(cloud.summary.x_frame_camera_size(), 3);
+  EXPECT_FALSE(cloud.has_sensor_pose);  // Three sensors: their poses are in the summary.
 
   std::vector<TruthView> truth;
   std::vector<std::vector<bool>> bin_surface;

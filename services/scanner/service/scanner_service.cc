@@ -268,7 +268,14 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
             progress.mutable_progress()->set_stage(ScanStageName(stage));
             writer->Write(progress);
           });
-      for (auto& chunk : pc::CloudToChunks(result.cloud)) {
+      std::vector<common::v1::PointCloudChunk> chunks = pc::CloudToChunks(result.cloud);
+      // One view has one sensor pose, which consumers use for visibility reasoning; a merge
+      // of several views has none (each view's pose is in the summary).
+      if (result.views.size() == 1 && !chunks.empty()) {
+        *chunks.front().mutable_header()->mutable_sensor_pose() =
+            pc::PoseToProto(result.views.front().X_FrameCamera);
+      }
+      for (auto& chunk : chunks) {
         pb::ScanResponse out;
         *out.mutable_cloud() = std::move(chunk);
         if (!writer->Write(out)) return grpc::Status(grpc::StatusCode::CANCELLED, "client gone");
