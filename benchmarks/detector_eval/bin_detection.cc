@@ -33,6 +33,21 @@ detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLib
                                    /*refine=*/false);
 }
 
+detector::SceneAgreement TruePoseAgreement(
+    const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
+    const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+    const BinDetectionOptions& options) {
+  const geometry::PointCloud region = Region(scan, options);
+  detector::SceneContext context(region, scan.X_BaseCamera, scan.camera);
+  const auto model = library->Get(item);
+  const detector::PpfScene& scene = context.PpfSceneFor(*model);
+  const detector::PpfDetectorOptions ppf;
+  const float step = model->object->sampling_distance_m();
+  return detector::MeasureAgreement(*model->object, scene, X_BaseItem,
+                                    ppf.support_distance_rel * step, ppf.support_normal_angle_rad,
+                                    ppf.conflict_distance_rel * step);
+}
+
 BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrary>& library,
                                const BinScan& scan, const std::string& item,
                                std::optional<detector::Method> method,
@@ -56,6 +71,7 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   if (method) {
     config.preferred = *method;
     config.fallbacks.clear();
+    config.time_budget_s = 0.0;  // One method on its own: its whole search.
   }
   const detector::DetectionChain chain(detector::DetectorConfig(config, {{item, config}}),
                                        detector::MakeEstimators(library, context));

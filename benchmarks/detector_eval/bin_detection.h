@@ -7,6 +7,7 @@
 #include "benchmarks/detector_eval/bin_scan_sim.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/model_library.h"
+#include "services/detector/core/ppf_detector.h"
 
 namespace picking::detector_eval {
 
@@ -46,5 +47,12 @@ detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLib
                                   const BinScan& scan, const std::string& item,
                                   const Eigen::Isometry3d& X_BaseItem,
                                   const BinDetectionOptions& options = {});
+
+/// The PPF detector's free-space agreement (support and conflicts with the default
+/// PpfDetectorOptions distances) of the true pose in the same pre-processed region.
+detector::SceneAgreement TruePoseAgreement(
+    const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
+    const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+    const BinDetectionOptions& options = {});
 
 }  // namespace picking::detector_eval

@@ -84,6 +84,8 @@ struct Outcome {
   std::string method;  // Accepting method.
   double score = 0.0;
   std::string error;
+  std::string
+      attempts;  // Methods tried and their durations, e.g. "ppf 0.41s range_templates 0.6s".
 };
 
 Outcome Judge(const BinDetectionResult& r, const detector::LoadedModel& model,
@@ -92,6 +94,11 @@ Outcome Judge(const BinDetectionResult& r, const detector::LoadedModel& model,
   o.total_s = r.total_s;
   for (const auto& a : r.chain.attempts) {
     if (!a.error.empty()) o.error = a.error;
+    if (!a.available) continue;
+    std::ostringstream s;
+    s << (o.attempts.empty() ? "" : " ") << detector::ToString(a.method) << " " << std::fixed
+      << std::setprecision(2) << a.duration_s << "s";
+    o.attempts += s.str();
   }
   if (!r.chain.detection) return o;
   o.detected = true;
@@ -223,11 +230,16 @@ int Run(const Args& args) {
                 << chain_result.points_in_region << " region points, intrinsics "
                 << (chain_result.intrinsics_fitted ? "fitted" : "NOT fitted") << ", scan "
                 << scan.render_s << " + " << scan.process_s << " s, model " << model_s << " s";
+      std::cout << ", tried: " << chain.attempts;
       if (!chain.error.empty()) std::cout << ", error: " << chain.error;
       for (const TrueItem& t : scan.items) {
         if (t.name != entry.item) continue;
         const detector::Detection truth = ScoreTruePose(library, scan, entry.item, t.X_BaseItem);
-        std::cout << "; true pose score " << truth.score << " fitness " << truth.fitness;
+        const detector::SceneAgreement agreement =
+            TruePoseAgreement(library, scan, entry.item, t.X_BaseItem);
+        std::cout << "; true pose score " << truth.score << " fitness " << truth.fitness
+                  << " ppf support " << agreement.support << " conflicts "
+                  << agreement.conflict_fraction;
       }
       if (args.per_method) {
         for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);

@@ -65,7 +65,10 @@ Thresholds ParseThresholds(const Json& node, Thresholds base, const std::string&
 
 ObjectConfig ParseObject(const Json& node, ObjectConfig base, const std::string& source,
                          const std::string& path) {
-  CheckKeys(node, {"preferred", "fallbacks", "thresholds", "method_thresholds"}, source, path);
+  CheckKeys(node, {"preferred", "fallbacks", "thresholds", "method_thresholds", "time_budget_s"},
+            source, path);
+  if (node.contains("time_budget_s"))
+    base.time_budget_s = ParseNumber(node["time_budget_s"], source, path + ".time_budget_s");
   if (node.contains("preferred"))
     base.preferred = ParseMethod(node["preferred"], source, path + ".preferred");
   if (node.contains("fallbacks")) {
@@ -163,6 +166,10 @@ void ObjectConfig::Validate() const {
       throw std::invalid_argument("method '" + ToString(m) +
                                   "' appears more than once in preferred + fallbacks");
   }
+  if (!(time_budget_s >= 0.0) || !std::isfinite(time_budget_s)) {
+    throw std::invalid_argument("time_budget_s must be finite and >= 0, got " +
+                                std::to_string(time_budget_s));
+  }
   thresholds.Validate();
   for (const auto& [method, t] : method_thresholds) {
     try {
@@ -241,8 +248,17 @@ DetectionChain::DetectionChain(DetectorConfig config,
 ChainResult DetectionChain::Run(const EstimatorInput& input) const {
   if (input.scene == nullptr) throw std::invalid_argument("DetectionChain::Run: null scene");
   const ObjectConfig object = config_.ForItem(input.item);
+  EstimatorInput budgeted = input;
+  if (object.time_budget_s > 0.0) {
+    const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+        std::chrono::duration<double>(object.time_budget_s));
+    budgeted.budget_end = std::min(input.budget_end, std::chrono::steady_clock::now() + budget);
+  }
   ChainResult result;
+  bool first = true;
   for (Method method : object.Order()) {
+    if (!first && std::chrono::steady_clock::now() > budgeted.budget_end) break;
+    first = false;
     ChainAttempt attempt;
     attempt.method = method;
     const auto it = estimators_.find(method);
@@ -254,7 +270,7 @@ ChainResult DetectionChain::Run(const EstimatorInput& input) const {
     const auto start = std::chrono::steady_clock::now();
     std::vector<Detection> candidates;
     try {
-      candidates = it->second->Estimate(input);
+      candidates = it->second->Estimate(budgeted);
     } catch (const std::exception& e) {
       attempt.error = e.what();
     }

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <chrono>
 #include <map>
 #include <memory>
 #include <optional>
@@ -71,6 +72,12 @@ struct ObjectConfig {
   Thresholds thresholds;
   /// Per-method overrides of `thresholds`.
   std::map<Method, Thresholds> method_thresholds;
+  /// Time budget of one detection call for this item, seconds (>= 0; 0: none). No fallback
+  /// method is started once it is spent, and methods with a long search (range templates)
+  /// stop it at the budget and report what they found so far: "nothing found" within the
+  /// budget instead of a call of many seconds. The preferred method always runs. The default
+  /// is the goal of one second per item (benchmarks/RESULTS.md, simulated shelf bins).
+  double time_budget_s = 1.0;
 
   /// preferred followed by fallbacks.
   std::vector<Method> Order() const;
@@ -88,7 +95,7 @@ struct ObjectConfig {
 ///                             "max_inlier_rmse_m": 0.01}},
 ///  "objects": {"expo_dry_erase_board_eraser": {
 ///                "preferred": "sift", "fallbacks": ["ppf", "range_templates"],
-///                "thresholds": {"min_score": 0.6},
+///                "thresholds": {"min_score": 0.6}, "time_budget_s": 2.0,
 ///                "method_thresholds": {"sift": {"min_score": 0.4}}}}}
 /// ```
 /// Every field is optional; an object's unspecified fields inherit from `default`. Unknown
@@ -124,6 +131,9 @@ struct EstimatorInput {
   Eigen::Isometry3d X_BaseSensor = Eigen::Isometry3d::Identity();
   /// Intrinsics of the sensor, when known (needed by SIFT EPnP and range templates).
   std::optional<PinholeCamera> camera;
+  /// End of the call's time budget (set by DetectionChain::Run from the item's
+  /// time_budget_s): an estimator with a long search stops it here and returns what it found.
+  std::chrono::steady_clock::time_point budget_end = std::chrono::steady_clock::time_point::max();
 };
 
 /// A pose estimation strategy (PPF, SIFT, range templates, or a fake in tests).
@@ -154,7 +164,7 @@ struct ChainResult {
 };
 
 /// Runs an item's methods in its configured order until one returns a detection that passes
-/// that method's thresholds.
+/// that method's thresholds, or the item's time budget is spent (no further method started).
 class DetectionChain final {
  public:
   /// Throws std::invalid_argument on a null estimator or two estimators for one method.

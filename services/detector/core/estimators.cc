@@ -255,9 +255,11 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   if (clusters.clusters.empty()) return {};
   context_->CheckDeadline();
   const auto estimate_start = Clock::now();
+  TemplateMatchOptions match = match_;
+  match.deadline = std::min(match.deadline, input.budget_end);
   const std::vector<TemplateMatch> matches =
       MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
-                     *context_->camera(), match_);
+                     *context_->camera(), match);
   const double estimate_s = SecondsSince(estimate_start);
   std::vector<Detection> out;
   for (const TemplateMatch& m : matches) {

@@ -29,7 +29,13 @@ struct SceneContextOptions {
   /// large flat or gently curved item face would otherwise be taken for the plane).
   bool remove_dominant_plane = true;
   PlaneRemovalOptions plane;
-  ClusterOptions clusters;
+  /// Euclidean clusters of the scene; grown over 3 mm voxels (a scan's sub-millimetre
+  /// points made exact clustering of a bin take seconds).
+  ClusterOptions clusters = [] {
+    ClusterOptions o;
+    o.subsample_voxel_m = 0.003;
+    return o;
+  }();
   /// Range templates: at most this many clusters (the largest) are matched.
   int max_clusters = 16;
 };

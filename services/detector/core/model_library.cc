@@ -39,7 +39,7 @@ std::size_t LineOf(const std::string& text, std::size_t byte) {
 }
 
 const std::set<std::string> kConfigKeys = {"preferred", "fallbacks", "thresholds",
-                                           "method_thresholds"};
+                                           "method_thresholds", "time_budget_s"};
 const std::set<std::string> kModelKeys = {"source", "frame", "symmetry", "axis", "fold"};
 
 std::string GetString(const Json& node, const std::string& key, const std::string& source,

@@ -495,16 +495,47 @@ std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
     throw std::invalid_argument("EuclideanClusters: tolerance_m must be > 0");
   if (options.min_size > options.max_size)
     throw std::invalid_argument("EuclideanClusters: min_size > max_size");
+  if (!(options.subsample_voxel_m >= 0.0 && options.subsample_voxel_m < options.tolerance_m))
+    throw std::invalid_argument(
+        "EuclideanClusters: subsample_voxel_m must be in [0, tolerance_m), got " +
+        std::to_string(options.subsample_voxel_m));
   auto pcl_cloud = ToPcl(cloud);
   auto indices = pcl::make_shared<std::vector<int>>(FiniteIndices(cloud));
+  // Voxel of each finite point and one representative per voxel.
+  std::vector<int> voxel_of;  // per finite point (position in *indices), index into reps
+  std::vector<int> reps;
+  if (options.subsample_voxel_m > 0.0) {
+    const double inv = 1.0 / options.subsample_voxel_m;
+    std::unordered_map<std::uint64_t, int> voxels;
+    voxels.reserve(indices->size() / 4 + 1);
+    voxel_of.reserve(indices->size());
+    for (int i : *indices) {
+      const Eigen::Vector3f& p = cloud.points[i];
+      const auto key = [&](float v) {
+        return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v * inv)) &
+                                          0x1FFFFF);
+      };
+      const std::uint64_t k = key(p.x()) | key(p.y()) << 21 | key(p.z()) << 42;
+      const auto [it, inserted] = voxels.emplace(k, static_cast<int>(reps.size()));
+      if (inserted) reps.push_back(i);
+      voxel_of.push_back(it->second);
+    }
+  }
+  const std::vector<int> all_finite = *indices;
+  if (options.subsample_voxel_m > 0.0) *indices = reps;
   auto tree = pcl::make_shared<pcl::search::KdTree<pcl::PointXYZ>>();
   tree->setInputCloud(pcl_cloud, indices);
   pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
   extraction.setClusterTolerance(options.tolerance_m);
-  extraction.setMinClusterSize(static_cast<int>(std::min<std::size_t>(
-      options.min_size, static_cast<std::size_t>(std::numeric_limits<int>::max()))));
-  extraction.setMaxClusterSize(static_cast<int>(std::min<std::size_t>(
-      options.max_size, static_cast<std::size_t>(std::numeric_limits<int>::max()))));
+  const bool subsampled = options.subsample_voxel_m > 0.0;
+  extraction.setMinClusterSize(
+      subsampled
+          ? 1
+          : static_cast<int>(std::min<std::size_t>(
+                options.min_size, static_cast<std::size_t>(std::numeric_limits<int>::max()))));
+  extraction.setMaxClusterSize(static_cast<int>(
+      std::min<std::size_t>(subsampled ? std::numeric_limits<int>::max() : options.max_size,
+                            static_cast<std::size_t>(std::numeric_limits<int>::max()))));
   extraction.setSearchMethod(tree);
   extraction.setInputCloud(pcl_cloud);
   extraction.setIndices(indices);
@@ -512,10 +543,26 @@ std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
   extraction.extract(clusters);
   std::vector<std::vector<int>> out;
   out.reserve(clusters.size());
-  for (auto& c : clusters) {
-    std::vector<int> members(c.indices.begin(), c.indices.end());
-    std::sort(members.begin(), members.end());
-    out.push_back(std::move(members));
+  if (subsampled) {
+    // Representative (point index) -> cluster, then every point joins its voxel's cluster.
+    std::unordered_map<int, int> cluster_of_rep;
+    for (std::size_t c = 0; c < clusters.size(); ++c) {
+      for (int i : clusters[c].indices) cluster_of_rep[i] = static_cast<int>(c);
+    }
+    std::vector<std::vector<int>> members(clusters.size());
+    for (std::size_t k = 0; k < all_finite.size(); ++k) {
+      const auto it = cluster_of_rep.find(reps[voxel_of[k]]);
+      if (it != cluster_of_rep.end()) members[it->second].push_back(all_finite[k]);
+    }
+    for (auto& m : members) {
+      if (m.size() >= options.min_size && m.size() <= options.max_size) out.push_back(std::move(m));
+    }
+  } else {
+    for (auto& c : clusters) {
+      std::vector<int> members(c.indices.begin(), c.indices.end());
+      std::sort(members.begin(), members.end());
+      out.push_back(std::move(members));
+    }
   }
   std::stable_sort(out.begin(), out.end(),
                    [](const auto& a, const auto& b) { return a.size() > b.size(); });

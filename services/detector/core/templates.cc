@@ -315,7 +315,8 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const TemplateMatchOptions& options) {
   if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
       !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
-      options.max_cluster_points < 10)
+      options.max_cluster_points < 10 || !(options.min_cluster_extent_rel >= 0.0) ||
+      !(options.max_cluster_extent_rel >= options.min_cluster_extent_rel))
     throw std::invalid_argument("TemplateMatchOptions: a count or threshold is out of range");
   const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
   const Eigen::Isometry3f X_SensorBase_f = X_SensorBase.cast<float>();
@@ -349,6 +350,13 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
       if (scene.points[i].allFinite()) cluster.points.push_back(X_SensorBase_f * scene.points[i]);
     }
     if (cluster.points.size() < 10) continue;
+    if (std::chrono::steady_clock::now() > options.deadline) break;
+    Eigen::AlignedBox3f box;
+    for (const auto& p : cluster.points) box.extend(p);
+    const double extent_m = box.diagonal().norm();
+    if (extent_m < options.min_cluster_extent_rel * templates.diameter_m() ||
+        extent_m > options.max_cluster_extent_rel * templates.diameter_m())
+      continue;
     cluster.width = static_cast<std::uint32_t>(cluster.points.size());
     NormalOptions normal_options;  // viewpoint: the sensor origin
     cluster = EstimateNormals(cluster, normal_options);
@@ -374,7 +382,9 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
     const Eigen::Matrix3d R_align = RotationZTo(closest.cast<double>());
     std::vector<Hypothesis> hypotheses;
     hypotheses.reserve(all.size() * options.in_plane_steps);
-    for (int k = 0; k < options.in_plane_steps; ++k) {
+    bool out_of_time = false;
+    for (int k = 0; k < options.in_plane_steps && !out_of_time; ++k) {
+      out_of_time = std::chrono::steady_clock::now() > options.deadline;
       const Eigen::Matrix3d R = R_align * Eigen::AngleAxisd(2.0 * M_PI * k / options.in_plane_steps,
                                                             Eigen::Vector3d::UnitZ())
                                               .toRotationMatrix();
@@ -387,6 +397,7 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
         hypotheses.push_back({cost, static_cast<int>(t), X});
       }
     }
+    if (out_of_time) break;  // An unfinished coarse search says nothing about the cluster.
     const std::size_t keep = std::min<std::size_t>(options.num_refine, hypotheses.size());
     std::partial_sort(hypotheses.begin(), hypotheses.begin() + keep, hypotheses.end(),
                       [](const Hypothesis& a, const Hypothesis& b) { return a.cost < b.cost; });

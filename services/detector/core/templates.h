@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <chrono>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -107,6 +108,16 @@ struct TemplateMatchOptions {
   double max_cost_m = 0.003;
   /// Scene samples per cluster used in the cost.
   int max_cluster_points = 400;
+  /// Only clusters of a plausible size for the item are matched: the diagonal of the
+  /// cluster's bounding box must lie within [min_cluster_extent_rel, max_cluster_extent_rel]
+  /// times the item's diameter. A smaller cluster shows too little of the item to fix a pose;
+  /// a larger one is several touching items (or a whole bin), whose closest point is rarely
+  /// the item's. Defaults 0.2 and 1.5; >= 0 and min <= max.
+  double min_cluster_extent_rel = 0.2;
+  double max_cluster_extent_rel = 1.5;
+  /// The search stops at this time point (the call's time budget; checked between clusters
+  /// and in-plane rotations) and returns the matches of the clusters finished so far.
+  std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
 };
 
 struct TemplateMatch {
@@ -124,7 +135,8 @@ struct TemplateMatch {
 /// range residual (template points against the scene's depth image, cluster points against
 /// the template's range image); the best hypotheses are refined by point-to-plane ICP on the
 /// cluster and rescored. Returns matches below max_cost_m, best first (at most one per
-/// cluster). `scene` is in the base frame; `clusters` index its points.
+/// cluster). `scene` is in the base frame; `clusters` index its points. Clusters of an
+/// implausible size for the item are skipped (see TemplateMatchOptions).
 /// Throws std::invalid_argument on bad options or a bad cluster index.
 std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const geometry::PointCloud& scene,

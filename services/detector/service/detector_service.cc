@@ -331,6 +331,9 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       default:
         break;
     }
+    // A method asked for by name runs to the end of its search (the call's deadline still
+    // applies); the item's time budget limits its configured chain only.
+    if (query.method() != pb::METHOD_UNSPECIFIED) config.time_budget_s = 0.0;
     if (query.min_score() > 0.0) {
       config.thresholds.min_score = query.min_score();
       for (auto& [method, thresholds] : config.method_thresholds) {

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -119,6 +120,54 @@ TEST(DetectionChainTest, PerMethodThresholdOverride) {
   EXPECT_TRUE(chain.Run({"duck", &scene, {}, std::nullopt}).detection.has_value());
 }
 
+// Sleeps for a given time before answering: a method with a long search.
+class SlowEstimator final : public Estimator {
+ public:
+  SlowEstimator(Method method, double duration_s) : method_(method), duration_s_(duration_s) {}
+  Method method() const override { return method_; }
+  std::vector<Detection> Estimate(const EstimatorInput& input) override {
+    ++calls;
+    budget_end = input.budget_end;
+    const auto until = std::chrono::steady_clock::now() +
+                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                           std::chrono::duration<double>(duration_s_));
+    while (std::chrono::steady_clock::now() < until) {
+    }
+    return {};
+  }
+  int calls = 0;
+  std::chrono::steady_clock::time_point budget_end;
+
+ private:
+  Method method_;
+  double duration_s_;
+};
+
+TEST(DetectionChainTest, NoFallbackIsStartedOnceTheTimeBudgetIsSpent) {
+  auto ppf = std::make_shared<SlowEstimator>(Method::kPpf, 0.05);
+  auto templates = std::make_shared<FakeEstimator>(Method::kRangeTemplates,
+                                                   std::vector<Detection>{MakeDetection(0.9, 1.0)});
+  ObjectConfig c = Config(Method::kPpf, {Method::kRangeTemplates}, 0.5);
+  c.time_budget_s = 0.01;  // spent by the preferred method
+  geometry::PointCloud scene;
+  const auto before = std::chrono::steady_clock::now();
+  const ChainResult spent = DetectionChain(DetectorConfig(c), {ppf, templates})
+                                .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  EXPECT_FALSE(spent.detection.has_value());
+  EXPECT_EQ(ppf->calls, 1);        // the preferred method always runs ...
+  EXPECT_EQ(templates->calls, 0);  // ... the fallback is not started
+  ASSERT_EQ(spent.attempts.size(), 1u);
+  EXPECT_GE(ppf->budget_end, before + std::chrono::milliseconds(10));
+  EXPECT_LE(ppf->budget_end, std::chrono::steady_clock::now());
+
+  c.time_budget_s = 0.0;  // no budget: the whole chain
+  const ChainResult whole = DetectionChain(DetectorConfig(c), {ppf, templates})
+                                .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  ASSERT_TRUE(whole.detection.has_value());
+  EXPECT_EQ(templates->calls, 1);
+  EXPECT_EQ(ppf->budget_end, std::chrono::steady_clock::time_point::max());
+}
+
 TEST(DetectionChainTest, RejectsBadConstruction) {
   auto a = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
   auto b = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
@@ -135,7 +184,7 @@ TEST(DetectorConfigTest, ParsesDefaultsObjectsAndOverrides) {
     "objects": {
       "expo_dry_erase_board_eraser": {"preferred": "sift", "fallbacks": ["ppf"],
                                       "method_thresholds": {"sift": {"min_score": 0.3}}},
-      "dove_beauty_bar": {"thresholds": {"min_fitness": 0.2}}
+      "dove_beauty_bar": {"thresholds": {"min_fitness": 0.2}, "time_budget_s": 2.5}
     }})";
   const DetectorConfig config = DetectorConfig::Parse(text);
   const ObjectConfig eraser = config.ForItem("expo_dry_erase_board_eraser");
@@ -148,6 +197,8 @@ TEST(DetectorConfigTest, ParsesDefaultsObjectsAndOverrides) {
   EXPECT_EQ(dove.Order(), (std::vector<Method>{Method::kPpf, Method::kRangeTemplates}));
   EXPECT_DOUBLE_EQ(dove.thresholds.min_fitness, 0.2);
   EXPECT_DOUBLE_EQ(dove.thresholds.min_score, 0.6);
+  EXPECT_DOUBLE_EQ(dove.time_budget_s, 2.5);
+  EXPECT_DOUBLE_EQ(eraser.time_budget_s, ObjectConfig().time_budget_s);  // the default
   const ObjectConfig other = config.ForItem("unknown_item");
   EXPECT_EQ(other.item, "unknown_item");
   EXPECT_EQ(other.preferred, Method::kPpf);
@@ -171,6 +222,8 @@ TEST(DetectorConfigTest, ValidationErrorsNameTheField) {
                    "more than once");
   ExpectParseError(R"({"objects": {"a": {"fallbacks": ["ppf", 3]}}})", "objects.a.fallbacks[1]");
   ExpectParseError("{\n\"default\": {\n  \"preferred\": }\n}", "detector.json:3");
+  ExpectParseError(R"({"objects": {"a": {"time_budget_s": -1}}})", "objects.a");
+  ExpectParseError(R"({"objects": {"a": {"time_budget_s": "1 s"}}})", "objects.a.time_budget_s");
 }
 
 TEST(DetectorConfigTest, LoadsFileAndReportsMissingFile) {

@@ -32,7 +32,8 @@ TEST_F(ModelTest, BuildsNormalsSamplingAndDiameter) {
   // The carton's bounding box is about 0.15 x 0.25 x 0.18 m.
   EXPECT_GT(model.diameter_m(), 0.25f);
   EXPECT_LT(model.diameter_m(), 0.36f);
-  EXPECT_FLOAT_EQ(model.sampling_distance_m(), 0.03f * model.diameter_m());
+  EXPECT_FLOAT_EQ(model.sampling_distance_m(),
+                  ObjectModelOptions{}.sampling_distance_rel * model.diameter_m());
   const geometry::PointCloud& sampled = model.table().sampled_model();
   EXPECT_GT(sampled.size(), 100u);
   EXPECT_LT(sampled.size(), model.fine_cloud().size());
@@ -86,7 +87,7 @@ TEST_F(ModelTest, WrongVersionTruncatedAndMissingFilesAreClearErrors) {
   EXPECT_FALSE(rebuilt);
   // Other options rebuild.
   ObjectModelOptions other;
-  other.sampling_distance_rel = 0.05f;
+  other.sampling_distance_rel = 0.03f;
   ObjectModel::LoadOrBuild(path, *milk_, other, &rebuilt);
   EXPECT_TRUE(rebuilt);
 

@@ -238,5 +238,36 @@ TEST(PreprocessTest, EuclideanClustersBySizeAndGap) {
   EXPECT_THROW(EuclideanClusters(Unorganised(points), options), std::invalid_argument);
 }
 
+// Clusters grown over voxel representatives equal the exact ones when the gaps between
+// clusters are much larger than a voxel; sizes count the original points.
+TEST(PreprocessTest, SubsampledEuclideanClustersMatchTheExactOnes) {
+  std::vector<Eigen::Vector3f> points;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> jitter(-0.0002f, 0.0002f);
+  for (int i = 0; i < 3600; ++i)  // a dense 6 cm patch, 1 mm spacing
+    points.emplace_back(0.001f * (i % 60) + jitter(rng), 0.001f * (i / 60) + jitter(rng), 0.0f);
+  for (int i = 0; i < 900; ++i)  // 3 cm away, a 3 cm patch
+    points.emplace_back(0.09f + 0.001f * (i % 30), 0.001f * (i / 30), jitter(rng));
+  for (int i = 0; i < 6; ++i) points.emplace_back(-0.1f, 0.001f * i, 0.0f);  // too small
+  points.push_back(Eigen::Vector3f::Constant(kNaN));
+  ClusterOptions exact;
+  exact.tolerance_m = 0.01;
+  exact.min_size = 20;
+  ClusterOptions voxels = exact;
+  voxels.subsample_voxel_m = 0.003;
+  const auto a = EuclideanClusters(Unorganised(points), exact);
+  const auto b = EuclideanClusters(Unorganised(points), voxels);
+  ASSERT_EQ(a.size(), 2u);
+  EXPECT_EQ(a, b);
+  EXPECT_EQ(b[0].size(), 3600u);
+  EXPECT_EQ(b[1].size(), 900u);
+  voxels.max_size = 1000;  // in points, not voxels
+  const auto small = EuclideanClusters(Unorganised(points), voxels);
+  ASSERT_EQ(small.size(), 1u);
+  EXPECT_EQ(small[0].size(), 900u);
+  voxels.subsample_voxel_m = 0.01;  // not below the tolerance
+  EXPECT_THROW(EuclideanClusters(Unorganised(points), voxels), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace picking::detector

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
+
 #include <cmath>
 #include <limits>
 #include <random>
@@ -223,13 +225,66 @@ TEST(RangeTemplateMatchTest, NoMatchOnFlatClutter) {
   cluster_options.min_size = 100;
   auto clusters = EuclideanClusters(without_floor.cloud, cluster_options);
   ASSERT_FALSE(clusters.empty());
+  // The slab is too large for the box and skipped by default; matched anyway, no template
+  // explains it.
   EXPECT_TRUE(
       MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor, scene.camera)
           .empty());
+  TemplateMatchOptions any_size;
+  any_size.max_cluster_extent_rel = 100.0;
+  EXPECT_TRUE(MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor,
+                             scene.camera, any_size)
+                  .empty());
   clusters[0].push_back(-1);
   EXPECT_THROW(
       MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor, scene.camera),
       std::invalid_argument);
+}
+
+// Clusters of an implausible size for the item and a spent time budget give no match;
+// the same cluster with a plausible size and time left does.
+TEST(RangeTemplateMatchTest, SkipsImplausibleClustersAndStopsAtTheDeadline) {
+  // The scene of RecoversBoxPose, seed 11.
+  const auto model = SampleMeshSurface(BoxMesh({0.1f, 0.06f, 0.03f}), 0.001, 5);
+  const RangeTemplateSet templates(model, TemplateOptions{});
+  std::mt19937 rng(11);
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  X_BaseItem.linear() = RandomRotation(rng);
+  std::uniform_real_distribution<double> xy(-0.06, 0.06);
+  double min_z = std::numeric_limits<double>::infinity();
+  for (const auto& p : model.points)
+    min_z = std::min(min_z, (X_BaseItem.linear() * p.cast<double>()).z());
+  X_BaseItem.translation() = Eigen::Vector3d(0.05 + xy(rng), -0.2 + xy(rng), 0.005 - min_z);
+  const Scene scene = RenderScene(model, 0.001, X_BaseItem, 11);
+  PlaneRemovalOptions plane;
+  plane.distance_threshold_m = 0.004;
+  const PlaneRemovalResult without_floor = RemoveDominantPlane(scene.cloud, plane);
+  ClusterOptions cluster_options;
+  cluster_options.min_size = 100;
+  const auto clusters = EuclideanClusters(without_floor.cloud, cluster_options);
+  ASSERT_FALSE(clusters.empty());
+  const auto match = [&](const TemplateMatchOptions& o) {
+    return MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor,
+                          scene.camera, o);
+  };
+  const TemplateMatchOptions defaults;
+  const auto found = match(defaults);
+  ASSERT_FALSE(found.empty());
+  EXPECT_LT(AddS(templates.model(), X_BaseItem, found.front().X_BaseItem), 0.012);
+  TemplateMatchOptions too_small = defaults;  // The visible box is larger than this.
+  too_small.min_cluster_extent_rel = 0.0;
+  too_small.max_cluster_extent_rel = 0.1;
+  EXPECT_TRUE(match(too_small).empty());
+  TemplateMatchOptions too_large = defaults;  // ... and smaller than this.
+  too_large.min_cluster_extent_rel = 2.0;
+  too_large.max_cluster_extent_rel = 3.0;
+  EXPECT_TRUE(match(too_large).empty());
+  TemplateMatchOptions late = defaults;
+  late.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  EXPECT_TRUE(match(late).empty());
+  TemplateMatchOptions bad = defaults;
+  bad.min_cluster_extent_rel = 2.0;  // above max
+  EXPECT_THROW(match(bad), std::invalid_argument);
 }
 
 }  // namespace
