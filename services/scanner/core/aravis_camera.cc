@@ -57,6 +57,19 @@ struct AravisCamera::Impl {
     if (stream == nullptr) throw CameraError(Name() + ": cannot create the stream");
     const guint payload = arv_camera_get_payload(camera, &error);
     Check(error, Name() + ": cannot read the payload size");
+    if (ARV_IS_GV_STREAM(stream)) {
+      // A GigE Vision frame arrives as a burst of UDP packets. The kernel charges each
+      // packet's whole buffer (several times its payload for 1.5 kB packets) against the
+      // socket's receive buffer, so the system default (about 200 kB) overflows within one
+      // frame whenever the stream thread is not scheduled at once, and a loaded host then
+      // drops frames. Room for several frames (the kernel caps it at net.core.rmem_max)
+      // and resend requests for what is still lost keep frames whole.
+      const guint64 wanted = 8ull * payload;
+      const gint buffer_bytes = static_cast<gint>(wanted < (64ull << 20) ? wanted : (64ull << 20));
+      g_object_set(G_OBJECT(stream), "socket-buffer", ARV_GV_STREAM_SOCKET_BUFFER_FIXED,
+                   "socket-buffer-size", buffer_bytes, "packet-resend",
+                   ARV_GV_STREAM_PACKET_RESEND_ALWAYS, nullptr);
+    }
     for (int i = 0; i < buffer_count; ++i) {
       arv_stream_push_buffer(stream, arv_buffer_new_allocate(payload));
     }
