@@ -23,17 +23,6 @@ double SecondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-camera::PinholeCamera ToPinhole(const scanner::CameraIntrinsics& c) {
-  camera::Distortion d;
-  d.k1 = c.distortion[0];
-  d.k2 = c.distortion[1];
-  d.p1 = c.distortion[2];
-  d.p2 = c.distortion[3];
-  d.k3 = c.distortion[4];
-  return camera::PinholeCamera(static_cast<int>(c.width), static_cast<int>(c.height), c.fx, c.fy,
-                               c.cx, c.cy, d);
-}
-
 }  // namespace
 
 struct SimulatedBinScanner::Impl {
@@ -54,13 +43,13 @@ SimulatedBinScanner::SimulatedBinScanner(const std::string& data_dir)
 
   const std::string sensor = data_dir + "/scanner/sim_sensor/";
   using scanner::CalibrationKind;
-  const camera::PinholeCamera cam = ToPinhole(
+  const camera::PinholeCamera cam =
       scanner::LoadIntrinsics(sensor + "camera_intrinsics.json", CalibrationKind::kCameraIntrinsics)
-          .intrinsics);
+          .intrinsics.ToPinholeCamera();
   const camera::PinholeCamera projector =
-      ToPinhole(scanner::LoadIntrinsics(sensor + "projector_intrinsics.json",
-                                        CalibrationKind::kProjectorIntrinsics)
-                    .intrinsics);
+      scanner::LoadIntrinsics(sensor + "projector_intrinsics.json",
+                              CalibrationKind::kProjectorIntrinsics)
+          .intrinsics.ToPinholeCamera();
   impl_->X_CameraProjector = scanner::LoadPose(sensor + "camera_projector.json",
                                                CalibrationKind::kCameraProjectorExtrinsics)
                                  .pose;

@@ -128,6 +128,17 @@ Eigen::Vector2d CameraIntrinsics::Project(const Eigen::Vector3d& p_DevicePoint) 
   return {fx * xd + cx, fy * yd + cy};
 }
 
+camera::PinholeCamera CameraIntrinsics::ToPinholeCamera() const {
+  camera::Distortion d;
+  d.k1 = distortion[0];
+  d.k2 = distortion[1];
+  d.p1 = distortion[2];
+  d.p2 = distortion[3];
+  d.k3 = distortion[4];
+  return camera::PinholeCamera(static_cast<int>(width), static_cast<int>(height), fx, fy, cx, cy,
+                               d);
+}
+
 void CameraIntrinsics::Validate() const {
   auto fail = [](const std::string& field, double value) {
     throw std::invalid_argument("CameraIntrinsics." + field +

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "libs/camera/pinhole_camera.h"
 #include "services/scanner/core/camera_backend.h"
 
 namespace picking::scanner {
@@ -26,6 +27,8 @@ struct CameraIntrinsics {
   Eigen::Vector2d Project(const Eigen::Vector3d& p_DevicePoint) const;
   /// Throws std::invalid_argument naming the field when a value is not usable.
   void Validate() const;
+  /// The same model as libs/camera's PinholeCamera (which validates it).
+  camera::PinholeCamera ToPinholeCamera() const;
 };
 
 /// A planar chessboard target. The board frame has its origin at the first inner corner,

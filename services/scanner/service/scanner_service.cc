@@ -65,17 +65,6 @@ struct ServiceOptions {
   std::string sessions_dir;
 };
 
-camera::PinholeCamera ToPinhole(const CameraIntrinsics& c) {
-  camera::Distortion d;
-  d.k1 = c.distortion[0];
-  d.k2 = c.distortion[1];
-  d.p1 = c.distortion[2];
-  d.p2 = c.distortion[3];
-  d.k3 = c.distortion[4];
-  return camera::PinholeCamera(static_cast<int>(c.width), static_cast<int>(c.height), c.fx, c.fy,
-                               c.cx, c.cy, d);
-}
-
 pb::CameraIntrinsics IntrinsicsToProto(const CameraIntrinsics& c) {
   pb::CameraIntrinsics out;
   out.set_width(c.width);
@@ -107,9 +96,9 @@ pb::CalibrationSet StateToProto(const CalibrationState& s) {
 // are missing.
 std::shared_ptr<ScanPipeline> MakePipeline(const CalibrationState& s) {
   if (!s.camera || !s.projector || !s.X_CameraProjector) return nullptr;
-  const camera::PinholeCamera projector = ToPinhole(*s.projector);
+  const camera::PinholeCamera projector = s.projector->ToPinholeCamera();
   return std::make_shared<ScanPipeline>(
-      ScanCalibration{ToPinhole(*s.camera), projector, *s.X_CameraProjector, s.X_ToolCamera},
+      ScanCalibration{s.camera->ToPinholeCamera(), projector, *s.X_CameraProjector, s.X_ToolCamera},
       PatternSequence(projector.width(), projector.height()));
 }
 
@@ -867,12 +856,11 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
 SimSensorModel LoadSimModel(const std::string& dir) {
   const std::string base = dir + "/";
   try {
-    SimSensorModel model{ToPinhole(LoadIntrinsics(base + "camera_intrinsics.json",
-                                                  CalibrationKind::kCameraIntrinsics)
-                                       .intrinsics),
-                         ToPinhole(LoadIntrinsics(base + "projector_intrinsics.json",
-                                                  CalibrationKind::kProjectorIntrinsics)
-                                       .intrinsics)};
+    SimSensorModel model{
+        LoadIntrinsics(base + "camera_intrinsics.json", CalibrationKind::kCameraIntrinsics)
+            .intrinsics.ToPinholeCamera(),
+        LoadIntrinsics(base + "projector_intrinsics.json", CalibrationKind::kProjectorIntrinsics)
+            .intrinsics.ToPinholeCamera()};
     model.X_CameraProjector =
         LoadPose(base + "camera_projector.json", CalibrationKind::kCameraProjectorExtrinsics).pose;
     model.X_ToolCamera = LoadPose(base + "hand_eye.json", CalibrationKind::kHandEye).pose;
