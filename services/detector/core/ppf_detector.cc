@@ -81,6 +81,18 @@ float ViewRangeGrid::MinRange(const Eigen::Vector3f& p_S) const {
   return ranges_[static_cast<std::size_t>(v) * width_ + u];
 }
 
+float ViewRangeGrid::MinRangeNear(const Eigen::Vector3f& p_S, int radius_cells) const {
+  int u = 0, v = 0;
+  if (ranges_.empty() || !Cell(p_S, &u, &v)) return std::numeric_limits<float>::infinity();
+  float r = std::numeric_limits<float>::infinity();
+  for (int y = std::max(0, v - radius_cells); y <= std::min(height_ - 1, v + radius_cells); ++y) {
+    for (int x = std::max(0, u - radius_cells); x <= std::min(width_ - 1, u + radius_cells); ++x) {
+      r = std::min(r, ranges_[static_cast<std::size_t>(y) * width_ + x]);
+    }
+  }
+  return r;
+}
+
 PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& model,
                          const PpfSceneOptions& options) {
   CheckCloudChannels(scene, "PreparePpfScene");
@@ -140,8 +152,14 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
     const std::int32_t j = scene.fine_tree.Nearest(p, &d2, d2_max);
     if (j != KdTree::kNone && scene.fine.normals[j].dot(n) >= min_cos) {
       ++supported;
-    } else if (scene.view_ranges.MinRange(p) - (p - scene.viewpoint).norm() > conflict_distance_m) {
-      ++conflicts;  // +infinity (no measurement on the ray) is not a conflict
+    } else {
+      // +infinity (no measurement around the ray) is not a conflict.
+      const Eigen::Vector3f ray = scene.viewpoint - p;
+      const float range = ray.norm();
+      if (n.dot(ray) >= kMinConflictViewCos * range &&
+          scene.view_ranges.MinRangeNear(p, 1) - range > conflict_distance_m) {
+        ++conflicts;
+      }
     }
   }
   SceneAgreement out;

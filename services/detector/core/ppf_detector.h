@@ -32,6 +32,12 @@ class ViewRangeGrid final {
   /// cell holds no scene point or lies outside the grid.
   float MinRange(const Eigen::Vector3f& p_S) const;
 
+  /// Smallest scene range over the cell of p_S and the cells within `radius_cells` of it
+  /// (a (2r+1)^2 window): what the sensor saw anywhere around the ray, so that a point next
+  /// to a depth edge is not compared with the background behind the edge alone. +infinity
+  /// when none of those cells holds a scene point or p_S lies outside the grid.
+  float MinRangeNear(const Eigen::Vector3f& p_S, int radius_cells) const;
+
  private:
   bool Cell(const Eigen::Vector3f& p_S, int* u, int* v) const;
 
@@ -143,12 +149,16 @@ double SceneSupport(const ObjectModel& model, const PpfScene& scene,
 
 /// Agreement of a model pose with the scene (see SceneSupport): support, and the fraction of
 /// the facing model points that are unsupported and lie more than `conflict_distance_m` in
-/// front of the scene's range along their ray (0 when the scene has no range image).
+/// front of the scene's range around their ray (0 when the scene has no range image). Only
+/// points seen at least kMinConflictViewCos (about 75 degrees from their normal) count as
+/// conflicts: a surface seen edge-on is mostly not measured, and its model points share range
+/// cells with the background beyond the item's silhouette.
 struct SceneAgreement {
   double support = 0.0;
   double conflict_fraction = 0.0;
   int visible_points = 0;
 };
+inline constexpr float kMinConflictViewCos = 0.26f;
 SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
                                 const Eigen::Isometry3d& X_SceneModel, float distance_m,
                                 float normal_angle_rad, float conflict_distance_m);
