@@ -21,6 +21,133 @@ void Require(bool ok, const std::string& what) {
   if (!ok) throw std::invalid_argument("Triangulator: " + what);
 }
 
+// On x86-64 with GCC the row kernels are also compiled for AVX2 (eight floats per
+// instruction; no FMA, so both versions round identically) and the best version is chosen
+// when the program loads.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define PICKING_TRIANGULATION_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PICKING_TRIANGULATION_CLONES
+#endif
+
+// What became of a camera pixel of a row.
+constexpr std::uint8_t kStatusPoint = 0;
+constexpr std::uint8_t kStatusDepth = 1;     // Parallel rays, depth range or behind the projector.
+constexpr std::uint8_t kStatusResidual = 2;  // The rays pass too far apart.
+constexpr std::uint8_t kStatusInvalid = 3;   // No correspondence.
+
+// Constants of the ray intersection shared by all pixels.
+struct IntersectConstants {
+  float ox, oy, oz;  // Projector centre in the camera frame.
+  float min_depth;
+  float max_depth;
+  float residual_factor;  // (max residual / projector focal length)^2.
+};
+
+// Intersects n camera rays (x, y, 1) (ray_xy: x, y interleaved) with their projector rays
+// (e: unit direction and -direction . centre, four floats per pixel; read only where valid)
+// in the least-squares sense and writes each point (x, y, z interleaved; NaN unless kept) and
+// its status. Branch-free, so that the compiler vectorises it.
+PICKING_TRIANGULATION_CLONES void IntersectRow(int n, const float* __restrict ray_xy,
+                                               const float* __restrict e,
+                                               const std::uint8_t* __restrict valid,
+                                               const IntersectConstants& k, float* __restrict out,
+                                               std::uint8_t* __restrict status) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  const float ox = k.ox;
+  const float oy = k.oy;
+  const float oz = k.oz;
+  const float min_depth = k.min_depth;
+  const float max_depth = k.max_depth;
+  const float residual_factor = k.residual_factor;
+  for (int i = 0; i < n; ++i) {
+    // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
+    const float rx = ray_xy[2 * i];
+    const float ry = ray_xy[2 * i + 1];
+    const float ex = e[4 * i];
+    const float ey = e[4 * i + 1];
+    const float ez = e[4 * i + 2];
+    const float ew = e[4 * i + 3];  // e . (0 - o)
+    const float dd = rx * rx + ry * ry + 1.0f;
+    const float de = rx * ex + ry * ey + ez;
+    const float dw = -(rx * ox + ry * oy + oz);  // d . (0 - o)
+    const float denominator = dd - de * de;
+    const float inverse = 1.0f / denominator;
+    const float t = (de * ew - dw) * inverse;
+    const float s = (dd * ew - de * dw) * inverse;
+    const float px = t * rx;
+    const float py = t * ry;
+    const float gx = px - (ox + s * ex);
+    const float gy = py - (oy + s * ey);
+    const float gz = t - (oz + s * ez);
+    const int depth_ok =
+        (denominator > 1e-9f * dd) & (t >= min_depth) & (t <= max_depth) & (s > 0.0f);
+    const int residual_ok = gx * gx + gy * gy + gz * gz <= residual_factor * s * s;
+    const int is_valid = valid[i] != 0;
+    // Invalid 3, else depth 1, else residual 2, else point 0 (arithmetic, not nested
+    // selects, which the vectoriser does not take).
+    const int inner = (1 - depth_ok) + depth_ok * 2 * (1 - residual_ok);
+    const int st = inner + (1 - is_valid) * (3 - inner);
+    const bool keep = st == kStatusPoint;
+    out[3 * i] = keep ? px : kNaN;
+    out[3 * i + 1] = keep ? py : kNaN;
+    out[3 * i + 2] = keep ? t : kNaN;
+    status[i] = static_cast<std::uint8_t>(st);
+  }
+}
+
+// Counts of the statuses of n pixels: points, depth and residual rejections.
+PICKING_TRIANGULATION_CLONES void CountStatuses(int n, const std::uint8_t* __restrict status,
+                                                std::size_t* points, std::size_t* depth,
+                                                std::size_t* residual) {
+  int p = 0;
+  int d = 0;
+  int r = 0;
+  for (int i = 0; i < n; ++i) {
+    p += status[i] == kStatusPoint;
+    d += status[i] == kStatusDepth;
+    r += status[i] == kStatusResidual;
+  }
+  *points += p;
+  *depth += d;
+  *residual += r;
+}
+
+// The isolated-point test of the interior pixels [1, w - 1) of a row whose rows above and
+// below exist (points x, y, z interleaved): flags[x] = 1 where the point exists and fewer
+// than min_neighbors of its 8 neighbours are within `tolerance` in depth, else 0.
+PICKING_TRIANGULATION_CLONES void IsolatedInterior(int w, const float* __restrict above,
+                                                   const float* __restrict row,
+                                                   const float* __restrict below, float tolerance,
+                                                   int min_neighbors,
+                                                   std::uint8_t* __restrict flags) {
+  for (int x = 1; x + 1 < w; ++x) {
+    const float z = row[3 * x + 2];
+    // Comparisons with NaN are false, so missing neighbours do not count.
+    const int neighbors = (std::abs(above[3 * x - 1] - z) <= tolerance) +
+                          (std::abs(above[3 * x + 2] - z) <= tolerance) +
+                          (std::abs(above[3 * x + 5] - z) <= tolerance) +
+                          (std::abs(row[3 * x - 1] - z) <= tolerance) +
+                          (std::abs(row[3 * x + 5] - z) <= tolerance) +
+                          (std::abs(below[3 * x - 1] - z) <= tolerance) +
+                          (std::abs(below[3 * x + 2] - z) <= tolerance) +
+                          (std::abs(below[3 * x + 5] - z) <= tolerance);
+    flags[x] = static_cast<std::uint8_t>((z == z) & (neighbors < min_neighbors));
+  }
+}
+
+// Sets the points of a row flagged 1 to NaN (few are); returns how many.
+int RemoveFlagged(int w, const std::uint8_t* flags, Eigen::Vector3f* points) {
+  int removed = 0;
+  for (int x = 0; x < w; ++x) {
+    if (flags[x]) {
+      points[x].setConstant(std::numeric_limits<float>::quiet_NaN());
+      ++removed;
+    }
+  }
+  return removed;
+}
+
 }  // namespace
 
 Triangulator::Triangulator(const camera::PinholeCamera& camera,
@@ -217,51 +344,51 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     std::size_t removed = 0;
     std::size_t normals = 0;
   };
-  // Camera row y into out[0, w), before the isolated-point test.
-  const auto triangulate_row = [&](auto subpixel_tag, int y, Eigen::Vector3f* out, Counts* counts) {
+  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float) &&
+                    sizeof(Eigen::Vector2f) == 2 * sizeof(float) &&
+                    sizeof(Eigen::Vector4f) == 4 * sizeof(float),
+                "the row kernels read points and rays as packed floats");
+  const IntersectConstants constants{o.x(), o.y(), o.z(), min_depth, max_depth, residual_factor};
+  // Per-task buffers of one row: the projector rays of its pixels and their statuses.
+  struct RowScratch {
+    std::vector<Eigen::Vector4f> rays;
+    std::vector<std::uint8_t> status;
+    std::vector<std::uint8_t> flags;
+  };
+  const auto make_scratch = [&]() {
+    RowScratch scratch;
+    scratch.rays.assign(static_cast<std::size_t>(w), Eigen::Vector4f::Zero());
+    scratch.status.resize(static_cast<std::size_t>(w));
+    scratch.flags.resize(static_cast<std::size_t>(w));
+    return scratch;
+  };
+  // Camera row y into out[0, w), before the isolated-point test: the projector ray of every
+  // valid pixel is looked up (interpolated for sub-pixel correspondences), then all pixels
+  // are intersected by the vectorised kernel.
+  const auto triangulate_row = [&](auto subpixel_tag, int y, Eigen::Vector3f* out,
+                                   RowScratch* scratch, Counts* counts) {
     constexpr bool kSubpixel = decltype(subpixel_tag)::value;
     const std::size_t row_start = static_cast<std::size_t>(y) * w;
-    for (int x = 0; x < w; ++x) {
-      const std::size_t i = row_start + x;
-      Eigen::Vector3f& point = out[x];
-      if (!map.valid[i]) {
-        point.setConstant(kNaN);
-        continue;
+    const std::uint8_t* valid = map.valid.data() + row_start;
+    Eigen::Vector4f* rays = scratch->rays.data();
+    if constexpr (kSubpixel) {
+      const float* u = map.column_subpixel.data() + row_start;
+      const float* v = map.row_subpixel.data() + row_start;
+      for (int x = 0; x < w; ++x) {
+        if (valid[x]) rays[x] = interpolated_ray(u[x], v[x]);
       }
-      // Closest point on the camera ray t d (d = (x, y, 1)) to the projector ray o + s e.
-      const Eigen::Vector2f& ray = rays_[i];
-      Eigen::Vector4f e;
-      if constexpr (kSubpixel) {
-        e = interpolated_ray(map.column_subpixel[i], map.row_subpixel[i]);
-      } else {
-        e = projector_rays_[static_cast<std::size_t>(map.row[i]) * projector_width_ +
-                            map.column[i]];
-      }
-      const float dd = ray.x() * ray.x() + ray.y() * ray.y() + 1.0f;
-      const float de = ray.x() * e.x() + ray.y() * e.y() + e.z();
-      const float dw = -(ray.x() * o.x() + ray.y() * o.y() + o.z());  // d . (0 - o)
-      const float ew = e.w();                                         // e . (0 - o)
-      const float denominator = dd - de * de;
-      const float inverse = 1.0f / denominator;
-      const float t = (de * ew - dw) * inverse;
-      const float s = (dd * ew - de * dw) * inverse;
-      // Plain float arithmetic (no Eigen expression calls) keeps this loop inlined.
-      const float px = t * ray.x();
-      const float py = t * ray.y();
-      const float gx = px - (o.x() + s * e.x());
-      const float gy = py - (o.y() + s * e.y());
-      const float gz = t - (o.z() + s * e.z());
-      if (!(denominator > 1e-9f * dd) || !(t >= min_depth && t <= max_depth) || !(s > 0)) {
-        ++counts->depth;
-        point.setConstant(kNaN);
-      } else if (gx * gx + gy * gy + gz * gz > residual_factor * s * s) {
-        ++counts->residual;
-        point.setConstant(kNaN);
-      } else {
-        point = Eigen::Vector3f(px, py, t);
-        ++counts->points;
+    } else {
+      const std::uint16_t* column = map.column.data() + row_start;
+      const std::uint16_t* row = map.row.data() + row_start;
+      const Eigen::Vector4f* table = projector_rays_.data();
+      for (int x = 0; x < w; ++x) {
+        if (valid[x])
+          rays[x] = table[static_cast<std::size_t>(row[x]) * projector_width_ + column[x]];
       }
     }
+    IntersectRow(w, rays_[row_start].data(), rays->data(), valid, constants, out->data(),
+                 scratch->status.data());
+    CountStatuses(w, scratch->status.data(), &counts->points, &counts->depth, &counts->residual);
   };
   const auto copy_intensities = [&](int y) {
     if (intensity == nullptr) return;
@@ -269,48 +396,42 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     float* dst = cloud.intensities.data() + static_cast<std::size_t>(y) * w;
     for (int x = 0; x < w; ++x) dst[x] = src[x] * (1.0f / 255.0f);
   };
-  const auto triangulate = [&](int y, Eigen::Vector3f* out, Counts* counts) {
+  const auto triangulate = [&](int y, Eigen::Vector3f* out, RowScratch* scratch, Counts* counts) {
     if (subpixel) {
-      triangulate_row(std::true_type{}, y, out, counts);
+      triangulate_row(std::true_type{}, y, out, scratch, counts);
     } else {
-      triangulate_row(std::false_type{}, y, out, counts);
+      triangulate_row(std::false_type{}, y, out, scratch, counts);
     }
   };
 
   // The isolated-point test of a row from the unfiltered rows above and below (null outside
-  // the image): calls isolated(x) for every point with fewer than min_neighbors of its 8
-  // neighbours within the depth tolerance.
+  // the image): flags[x] = 1 for every point with fewer than min_neighbors of its 8
+  // neighbours within the depth tolerance, 0 elsewhere.
   const bool remove_isolated = options_.remove_isolated && options_.min_neighbors > 0;
   const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
   const int min_neighbors = options_.min_neighbors;
   const auto test_row = [&](const Eigen::Vector3f* above, const Eigen::Vector3f* row,
-                            const Eigen::Vector3f* below, const auto& isolated) {
-    for (int x = 0; x < w; ++x) {
+                            const Eigen::Vector3f* below, std::uint8_t* flags) {
+    const auto general = [&](int x) {
       const float z = row[x].z();
-      if (std::isnan(z)) continue;
       int neighbors = 0;
-      if (above != nullptr && below != nullptr && x > 0 && x + 1 < w) {
-        // Comparisons with NaN are false, so missing neighbours do not count.
-        neighbors = (std::abs(above[x - 1].z() - z) <= tolerance) +
-                    (std::abs(above[x].z() - z) <= tolerance) +
-                    (std::abs(above[x + 1].z() - z) <= tolerance) +
-                    (std::abs(row[x - 1].z() - z) <= tolerance) +
-                    (std::abs(row[x + 1].z() - z) <= tolerance) +
-                    (std::abs(below[x - 1].z() - z) <= tolerance) +
-                    (std::abs(below[x].z() - z) <= tolerance) +
-                    (std::abs(below[x + 1].z() - z) <= tolerance);
-      } else {
-        for (const Eigen::Vector3f* line : {above, row, below}) {
-          if (line == nullptr) continue;
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int xx = x + dx;
-            if ((line == row && dx == 0) || xx < 0 || xx >= w) continue;
-            neighbors += std::abs(line[xx].z() - z) <= tolerance;
-          }
+      for (const Eigen::Vector3f* line : {above, row, below}) {
+        if (line == nullptr) continue;
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int xx = x + dx;
+          if ((line == row && dx == 0) || xx < 0 || xx >= w) continue;
+          neighbors += std::abs(line[xx].z() - z) <= tolerance;
         }
       }
-      if (neighbors < min_neighbors) isolated(x);
+      flags[x] = static_cast<std::uint8_t>(!std::isnan(z) && neighbors < min_neighbors);
+    };
+    if (above == nullptr || below == nullptr || w < 3) {
+      for (int x = 0; x < w; ++x) general(x);
+      return;
     }
+    general(0);
+    IsolatedInterior(w, above->data(), row->data(), below->data(), tolerance, min_neighbors, flags);
+    general(w - 1);
   };
 
   Counts total;
@@ -318,9 +439,11 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     const int num_bands = (h + kRowsPerBand - 1) / kRowsPerBand;
     std::vector<Counts> band_counts(num_bands);
     pool_->Run(num_bands, [&](int band) {
+      RowScratch scratch = make_scratch();
       const int y1 = std::min(h, (band + 1) * kRowsPerBand);
       for (int y = band * kRowsPerBand; y < y1; ++y) {
-        triangulate(y, cloud.points.data() + static_cast<std::size_t>(y) * w, &band_counts[band]);
+        triangulate(y, cloud.points.data() + static_cast<std::size_t>(y) * w, &scratch,
+                    &band_counts[band]);
         copy_intensities(y);
       }
     });
@@ -331,11 +454,15 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
       pool_->Run(num_bands, [&](int band) {
         const Eigen::Vector3f* points = cloud.points.data();
         const auto row = [&](int y) { return points + static_cast<std::size_t>(y) * w; };
+        std::vector<std::uint8_t> flags(static_cast<std::size_t>(w));
         const int y1 = std::min(h, (band + 1) * kRowsPerBand);
         for (int y = band * kRowsPerBand; y < y1; ++y) {
           const std::size_t row_start = static_cast<std::size_t>(y) * w;
           test_row(y > 0 ? row(y - 1) : nullptr, row(y), y + 1 < h ? row(y + 1) : nullptr,
-                   [&](int x) { remove[band].push_back(row_start + x); });
+                   flags.data());
+          for (int x = 0; x < w; ++x) {
+            if (flags[x]) remove[band].push_back(row_start + x);
+          }
         }
       });
       for (int band = 0; band < num_bands; ++band) {
@@ -374,6 +501,7 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
       // reads them); the rows around it that it depends on go to a buffer of its own.
       std::vector<Eigen::Vector3f> halo(static_cast<std::size_t>(2 * (step + 1)) * w);
       std::vector<std::uint8_t> isolated(static_cast<std::size_t>(ring_rows) * w);
+      RowScratch scratch = make_scratch();
       const auto row = [&](int y) {
         if (y >= a && y < b) return cloud.points.data() + static_cast<std::size_t>(y) * w;
         const int slot = y < a ? y - first : (a - first) + (y - b);
@@ -386,7 +514,7 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
       for (int r = first; r <= b + step + 1; ++r) {
         if (r < end) {
           Counts row_counts;
-          triangulate(r, row(r), &row_counts);
+          triangulate(r, row(r), &scratch, &row_counts);
           if (r >= a && r < b) {
             copy_intensities(r);
             counts.points += row_counts.points;
@@ -396,23 +524,13 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
         }
         const int q = r - 1;
         if (remove_isolated && q >= tested_first && q < tested_end) {
-          std::uint8_t* f = flags(q);
-          std::fill(f, f + w, std::uint8_t{0});
           test_row(q > 0 ? row(q - 1) : nullptr, row(q), q + 1 < h ? row(q + 1) : nullptr,
-                   [&](int x) { f[x] = 1; });
+                   flags(q));
         }
         const int filtered = r - 2;
         if (remove_isolated && filtered >= tested_first && filtered < tested_end) {
-          const std::uint8_t* f = flags(filtered);
-          Eigen::Vector3f* points = row(filtered);
-          std::size_t removed = 0;
-          for (int x = 0; x < w; ++x) {
-            if (f[x]) {
-              points[x].setConstant(kNaN);
-              ++removed;
-            }
-          }
-          if (filtered >= a && filtered < b) counts.removed += removed;
+          const int removed = RemoveFlagged(w, flags(filtered), row(filtered));
+          if (filtered >= a && filtered < b) counts.removed += static_cast<std::size_t>(removed);
         }
         const int y = r - step - 2;
         if (y >= a && y < b) {
