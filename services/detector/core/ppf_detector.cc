@@ -140,9 +140,12 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
   const float d2_max = distance_m * distance_m;
   const float min_cos = std::cos(normal_angle_rad);
   const geometry::PointCloud& m = model.icp_cloud();
+  // Something measured this far in front of a model point hides it from the sensor.
+  const float occlusion_m = std::max(conflict_distance_m, 2.0f * distance_m);
   int visible = 0;
   int supported = 0;
   int conflicts = 0;
+  int occluded = 0;
   for (std::size_t i = 0; i < m.size(); ++i) {
     const Eigen::Vector3f p = X * m.points[i];
     const Eigen::Vector3f n = X.linear() * m.normals[i];
@@ -152,21 +155,24 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
     const std::int32_t j = scene.fine_tree.Nearest(p, &d2, d2_max);
     if (j != KdTree::kNone && scene.fine.normals[j].dot(n) >= min_cos) {
       ++supported;
-    } else {
-      // +infinity (no measurement around the ray) is not a conflict.
-      const Eigen::Vector3f ray = scene.viewpoint - p;
-      const float range = ray.norm();
-      if (n.dot(ray) >= kMinConflictViewCos * range &&
-          scene.view_ranges.MinRangeNear(p, 1) - range > conflict_distance_m) {
-        ++conflicts;
-      }
+      continue;
+    }
+    const Eigen::Vector3f ray = scene.viewpoint - p;
+    const float range = ray.norm();
+    if (scene.view_ranges.MinRange(p) < range - occlusion_m) {
+      ++occluded;
+    } else if (n.dot(ray) >= kMinConflictViewCos * range &&
+               scene.view_ranges.MinRangeNear(p, 1) - range > conflict_distance_m) {
+      ++conflicts;  // +infinity (no measurement around the ray) is not a conflict
     }
   }
   SceneAgreement out;
   out.visible_points = visible;
-  if (visible > 0) {
-    out.support = static_cast<double>(supported) / visible;
-    out.conflict_fraction = static_cast<double>(conflicts) / visible;
+  out.occluded_points = occluded;
+  const int unoccluded = visible - occluded;
+  if (unoccluded > 0) {
+    out.support = static_cast<double>(supported) / unoccluded;
+    out.conflict_fraction = static_cast<double>(conflicts) / unoccluded;
   }
   return out;
 }
