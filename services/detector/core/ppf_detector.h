@@ -154,9 +154,12 @@ double SceneSupport(const ObjectModel& model, const PpfScene& scene,
 /// conflicts: a surface seen edge-on is mostly not measured, and its model points share range
 /// cells with the background beyond the item's silhouette.
 struct SceneAgreement {
-  double support = 0.0;
-  double conflict_fraction = 0.0;
-  int visible_points = 0;
+  double support = 0.0;            ///< Supported / (visible - occluded) model points.
+  double conflict_fraction = 0.0;  ///< In conflict / (visible - occluded) model points.
+  int visible_points = 0;          ///< Model points facing the viewpoint.
+  /// Facing points behind a measured surface (nearer than them on their ray by more than
+  /// max(conflict_distance_m, 2 distance_m)): hidden by other objects, no evidence either way.
+  int occluded_points = 0;
 };
 inline constexpr float kMinConflictViewCos = 0.26f;
 SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
