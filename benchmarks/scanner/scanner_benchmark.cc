@@ -11,12 +11,17 @@
 // Refinement: coverage = fraction of all camera pixels with a point (or a refined
 // correspondence); col_err_px / row_err_px = median |sub-pixel - true projector coordinate|;
 // depth_err_mm = median |z - true z| of the points.
-// BM_DecodeRefineTriangulateNormals/1 is the scan pipeline's path (triangulation, filtering
-// and normals in one streamed pass); /0 runs Triangulator::Run and EstimateNormals apart.
+// BM_DecodeRefineTriangulateNormals/1/* is the scan pipeline's path (triangulation,
+// filtering and normals in one streamed pass); /0/* runs Triangulator::Run and
+// EstimateNormals apart. The second argument: 1 refines projector rows too, 0 only columns
+// (ScanOptions' default). BM_ScanPipelineProcessView runs ScanPipeline::ProcessView with the
+// default ScanOptions: what the scanner server does with one view's captures, including a
+// fresh cloud per call.
 
 #include "services/scanner/core/decoder.h"
 #include "services/scanner/core/normals.h"
 #include "services/scanner/core/patterns.h"
+#include "services/scanner/core/scan_pipeline.h"
 #include "services/scanner/core/synthetic_capture.h"
 #include "services/scanner/core/triangulation.h"
 
@@ -320,10 +325,12 @@ void ReportPoints(benchmark::State& state, const TriangulationResult& result) {
 
 // The refinement stage alone: from the decoded map (copied in, as Decode would have
 // written it) to the sub-pixel maps.
+// Arguments: threads, refine rows too (1) or columns only (0).
 void BM_Refine(benchmark::State& state) {
   AreaSampledFixture& f = GetAreaSampledFixture();
   RefinementOptions options;
   options.num_threads = static_cast<int>(state.range(0));
+  options.refine_rows = state.range(1) != 0;
   const SubpixelRefiner refiner(f.patterns, options);
   CorrespondenceMap map = f.decoded;
   RefinementResult result;
@@ -340,7 +347,13 @@ void BM_Refine(benchmark::State& state) {
   ReportRefinement(state, map);
   state.counters["rejected"] = static_cast<double>(result.num_rejected);
 }
-BENCHMARK(BM_Refine)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Refine)
+    ->Args({1, 1})
+    ->Args({2, 1})
+    ->Args({1, 0})
+    ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // Integer decode on the area-sampled captures, for comparison with the refined runs.
 void BM_TriangulateInteger_AreaSampled(benchmark::State& state) {
@@ -355,10 +368,13 @@ void BM_TriangulateInteger_AreaSampled(benchmark::State& state) {
 }
 BENCHMARK(BM_TriangulateInteger_AreaSampled)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// Argument: rows refined too (1) or integer rows (0).
 void BM_TriangulateSubpixel(benchmark::State& state) {
   AreaSampledFixture& f = GetAreaSampledFixture();
   CorrespondenceMap map = f.decoded;
-  SubpixelRefiner(f.patterns).Refine(f.views, &map);
+  RefinementOptions options;
+  options.refine_rows = state.range(0) != 0;
+  SubpixelRefiner(f.patterns, options).Refine(f.views, &map);
   const Triangulator triangulator(f.rig.camera, f.rig.projector, f.rig.X_CameraProjector);
   TriangulationResult result;
   for (auto _ : state) {
@@ -367,14 +383,18 @@ void BM_TriangulateSubpixel(benchmark::State& state) {
   }
   ReportPoints(state, result);
 }
-BENCHMARK(BM_TriangulateSubpixel)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_TriangulateSubpixel)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // One view end to end with refinement: 44 captures in, organised cloud with intensities and
 // normals from sub-pixel correspondences out.
 void BM_DecodeRefineTriangulateNormals(benchmark::State& state) {
   AreaSampledFixture& f = GetAreaSampledFixture();
   const GrayCodeDecoder decoder(f.patterns, DecoderOptions{kMinContrast, kMinBitContrast, 0});
-  const SubpixelRefiner refiner(f.patterns);
+  // The scan pipeline's refinement options (unrefined pixels keep their integer
+  // correspondence), with or without the rows.
+  RefinementOptions refinement = ScanOptions{}.refinement;
+  refinement.refine_rows = state.range(1) != 0;
+  const SubpixelRefiner refiner(f.patterns, refinement);
   const Triangulator triangulator(f.rig.camera, f.rig.projector, f.rig.X_CameraProjector);
   CorrespondenceMap map;
   TriangulationResult result;
@@ -394,13 +414,45 @@ void BM_DecodeRefineTriangulateNormals(benchmark::State& state) {
   ReportPoints(state, result);
   state.counters["normals"] = static_cast<double>(normals.num_normals);
 }
-// Argument 1: triangulation and normals in one pass (Triangulator::Run with NormalOptions,
-// as ScanPipeline does); 0: Run, then EstimateNormals.
+// First argument 1: triangulation and normals in one pass (Triangulator::Run with
+// NormalOptions, as ScanPipeline does); 0: Run, then EstimateNormals. Second argument: rows
+// refined too (1) or columns only (0, ScanOptions' default).
 BENCHMARK(BM_DecodeRefineTriangulateNormals)
-    ->Arg(0)
-    ->Arg(1)
+    ->Args({0, 1})
+    ->Args({1, 1})
+    ->Args({1, 0})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
+
+// ScanPipeline::ProcessView with the default ScanOptions in the camera frame: decode,
+// refine, triangulate, normals and intensities into a new cloud per call, as the scanner
+// server processes each view.
+void BM_ScanPipelineProcessView(benchmark::State& state) {
+  AreaSampledFixture& f = GetAreaSampledFixture();
+  ScanPipeline pipeline(ScanCalibration{f.rig.camera, f.rig.projector, f.rig.X_CameraProjector, {}},
+                        f.patterns);
+  std::vector<GrayImage> images;
+  for (const ImageView& view : f.views) {
+    GrayImage image(static_cast<std::uint32_t>(view.width),
+                    static_cast<std::uint32_t>(view.height));
+    for (int y = 0; y < view.height; ++y) {
+      std::copy(view.row(y), view.row(y) + view.width,
+                image.pixels.begin() + static_cast<std::ptrdiff_t>(y) * view.width);
+    }
+    images.push_back(std::move(image));
+  }
+  ScanOptions options;
+  options.frame = ScanFrame::kCamera;
+  TriangulationResult result;
+  for (auto _ : state) {
+    result.cloud = pipeline.ProcessView(images, options);
+    benchmark::DoNotOptimize(result.cloud.points.data());
+  }
+  result.num_points = 0;
+  for (const Eigen::Vector3f& p : result.cloud.points) result.num_points += !std::isnan(p.z());
+  ReportPoints(state, result);
+}
+BENCHMARK(BM_ScanPipelineProcessView)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace picking::scanner

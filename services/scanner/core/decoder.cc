@@ -585,7 +585,9 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   }
 
   const int max_gap = options_.max_gap_px;
-  const int num_strips = (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip;
+  const bool refine_rows = options_.refine_rows;
+  const int num_strips =
+      refine_rows ? (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip : 0;
   std::atomic<std::size_t> column_knots{0};
   std::atomic<std::size_t> row_knots{0};
   std::atomic<std::size_t> total_valid{0};
@@ -636,6 +638,15 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
           knots += ScanValidPixel(x, line.code[x], max_gap, diff, line, &scan, unrefined);
         }
         FinishLine(width, line, &scan, unrefined);
+        if (!refine_rows) {
+          // Integer rows: the row of every valid pixel, NaN elsewhere.
+          const float kNaN = std::numeric_limits<float>::quiet_NaN();
+          const std::uint16_t* rows = row_code + offset;
+          float* out = row_subpixel + offset;
+          for (int x = 0; x < width; ++x) {
+            out[x] = line.valid[x] ? static_cast<float>(rows[x]) : kNaN;
+          }
+        }
       }
       column_knots.fetch_add(knots, std::memory_order_relaxed);
       total_valid.fetch_add(count, std::memory_order_relaxed);

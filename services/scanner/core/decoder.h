@@ -114,6 +114,15 @@ struct RefinementOptions {
   /// bit has pattern ~ inverse there); without bridging their neighbours could not be
   /// interpolated. Bridged pixels stay invalid. In [0, 16].
   int max_gap_px = 2;
+  /// Refine the projector rows too (along camera columns). If false, row_subpixel is the
+  /// integer row of every valid pixel (NaN elsewhere), a pixel counts as refined when its
+  /// column is, and the refinement costs about half as much. With the baseline along the
+  /// projector's columns (horizontal), the depth comes from the column: the row moves the
+  /// projector ray along the column's light plane, which shifts the intersection with the
+  /// camera ray only through the plane's curvature (projector distortion). On the benchmark
+  /// scene (bench_scanner) the median depth error is 0.150 mm with integer rows against
+  /// 0.145 mm with refined rows (1.26 mm with integer columns and rows).
+  bool refine_rows = true;
   /// Threads including the caller; 0 uses std::thread::hardware_concurrency().
   int num_threads = 0;
 };
@@ -124,7 +133,8 @@ struct RefinementResult {
   std::size_t num_rejected = 0;            ///< Valid pixels made invalid (reject_unrefined).
   std::size_t num_kept_integer = 0;        ///< Unrefined pixels kept (!reject_unrefined).
   std::size_t num_column_transitions = 0;  ///< Column edges located along camera rows.
-  std::size_t num_row_transitions = 0;     ///< Row edges located along camera columns.
+  /// Row edges located along camera columns (0 unless RefinementOptions::refine_rows).
+  std::size_t num_row_transitions = 0;
   /// Pixel coordinates that their line could not refine, taken from refined neighbours up to
   /// two pixels away across the line (a column from the pixels above and below, a row from
   /// those left and right), e.g. for pixels inside a stripe-edge line of invalid pixels.
@@ -146,7 +156,8 @@ struct RefinementResult {
 /// them. A pixel that its row cannot refine (isolated between invalid pixels) takes its
 /// column from refined pixels up to two rows above and below with a column within one of
 /// its own; rows likewise from the left and right. Rows likewise along camera
-/// columns with the row bits. Work runs on a thread pool in bands of rows and in strips of
+/// columns with the row bits (unless RefinementOptions::refine_rows is false: rows then
+/// stay integer). Work runs on a thread pool in bands of rows and in strips of
 /// columns scanned row by row (row-major reads of the map and the captures), with per-task
 /// state only (no allocation per pixel); the fills visit only the pixels left unrefined.
 ///

@@ -27,7 +27,7 @@ bool SameTriangulation(const TriangulationOptions& a, const TriangulationOptions
 
 bool SameRefinement(const RefinementOptions& a, const RefinementOptions& b) {
   return a.reject_unrefined == b.reject_unrefined && a.max_gap_px == b.max_gap_px &&
-         a.num_threads == b.num_threads;
+         a.refine_rows == b.refine_rows && a.num_threads == b.num_threads;
 }
 
 bool SameDecoder(const DecoderOptions& a, const DecoderOptions& b) {

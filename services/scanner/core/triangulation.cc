@@ -333,6 +333,7 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     const Eigen::Vector4f* e00 =
         projector_rays_.data() + static_cast<std::size_t>(v0) * projector_width_ + u0;
     const Eigen::Vector4f top = e00[0] + a * (e00[right] - e00[0]);
+    if (b == 0.0f) return top;  // An integer row (rows not refined): one table row.
     const Eigen::Vector4f bottom = e00[down] + a * (e00[down + right] - e00[down]);
     return top + b * (bottom - top);
   };

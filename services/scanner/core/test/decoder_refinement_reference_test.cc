@@ -194,7 +194,15 @@ RefinementResult ReferenceRefine(const PatternSequence& patterns,
         ReferenceLine(w, map->column.data() + o, map->valid.data() + o, 1, options.max_gap_px, diff,
                       map->column_subpixel.data() + o);
   }
-  for (int x = 0; x < w; ++x) {
+  for (int x = 0; x < w && !options.refine_rows; ++x) {
+    // Integer rows: the row of every valid pixel, nothing to fill.
+    for (int y = 0; y < h; ++y) {
+      const std::size_t i = static_cast<std::size_t>(y) * w + x;
+      map->row_subpixel[i] =
+          map->valid[i] ? static_cast<float>(map->row[i]) : std::numeric_limits<float>::quiet_NaN();
+    }
+  }
+  for (int x = 0; x < w && options.refine_rows; ++x) {
     const auto diff = [&](int y, int bit) {
       const int b = row_bits - 1 - bit;
       return pixel(patterns.RowImageIndex(b, false), x, y) -
@@ -341,6 +349,17 @@ TEST(DecoderRefinementReferenceTest, NoGapsAndLongGaps) {
     options.num_threads = 3;
     ExpectSameAsReference(GetScene().capture.views(), DecoderOptions{}, options);
     ExpectSameAsReference(GetScene().capture.views(), no_bit_test, options);
+  }
+}
+
+TEST(DecoderRefinementReferenceTest, IntegerRows) {
+  for (const bool reject : {true, false}) {
+    SCOPED_TRACE(reject);
+    RefinementOptions options;
+    options.refine_rows = false;
+    options.reject_unrefined = reject;
+    options.num_threads = 2;
+    ExpectSameAsReference(GetScene().capture.views(), DecoderOptions{}, options);
   }
 }
 

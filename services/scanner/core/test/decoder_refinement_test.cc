@@ -153,6 +153,46 @@ TEST(DecoderRefinementTest, PlaneAtOneMetreHasSubMillimetreDepthError) {
   EXPECT_LT(figures.subpixel_depth_error_m, 0.5e-3);
 }
 
+// Columns only (the scan pipeline's default): the column maps are those of the full
+// refinement, rows stay integer, and the depth error is nearly that of the full refinement.
+TEST(DecoderRefinementTest, IntegerRowsKeepColumnsAndDepthAccuracy) {
+  const Captures& c = GetCaptures();
+  const std::vector<ImageView> views = c.plane.views();
+  const CorrespondenceMap decoded = GrayCodeDecoder(c.patterns).Decode(views);
+  RefinementOptions options;
+  options.reject_unrefined = false;  // The same pixels stay valid in both runs.
+  CorrespondenceMap full = decoded;
+  const RefinementResult full_result = SubpixelRefiner(c.patterns, options).Refine(views, &full);
+  options.refine_rows = false;
+  CorrespondenceMap columns = decoded;
+  const RefinementResult columns_result =
+      SubpixelRefiner(c.patterns, options).Refine(views, &columns);
+  EXPECT_EQ(columns_result.num_column_transitions, full_result.num_column_transitions);
+  EXPECT_EQ(columns_result.num_row_transitions, 0u);
+  EXPECT_GT(full_result.num_row_transitions, 300000u);
+  ASSERT_TRUE(columns.valid == full.valid);
+  std::size_t column_mismatches = 0;
+  std::size_t row_mismatches = 0;
+  for (std::size_t i = 0; i < decoded.valid.size(); ++i) {
+    if (!columns.valid[i]) {
+      EXPECT_TRUE(std::isnan(columns.row_subpixel[i]));
+      continue;
+    }
+    column_mismatches += columns.column_subpixel[i] != full.column_subpixel[i];
+    row_mismatches += columns.row_subpixel[i] != static_cast<float>(decoded.row[i]);
+  }
+  EXPECT_EQ(column_mismatches, 0u);
+  EXPECT_EQ(row_mismatches, 0u);
+
+  const Triangulator triangulator(c.rig.camera, c.rig.projector, c.rig.X_CameraProjector);
+  const double full_error_m = MedianDepthError(triangulator.Run(full, &views[0]), c.plane);
+  const double columns_error_m = MedianDepthError(triangulator.Run(columns, &views[0]), c.plane);
+  std::cout << "plane at 1 m: median |depth error| " << full_error_m * 1e3
+            << " mm with refined rows, " << columns_error_m * 1e3 << " mm with integer rows\n";
+  EXPECT_LT(columns_error_m, 0.25e-3);
+  EXPECT_LT(columns_error_m, full_error_m + 0.05e-3);
+}
+
 // Gray code keeps a pixel with one ambiguous bit within one column of the truth, which the
 // refinement tolerates: without the bit-contrast test nearly every lit pixel gets a point.
 TEST(DecoderRefinementTest, PlaneWithoutBitContrastTestKeepsTheAccuracy) {

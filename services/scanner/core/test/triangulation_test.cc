@@ -128,6 +128,72 @@ TEST(TriangulationTest, PointsReprojectOntoTheirProjectorPixel) {
   EXPECT_LT(max_row_error, 0.55);
 }
 
+// Sub-pixel maps holding whole numbers (e.g. rows left integer by the refiner) take the
+// integer path's projector rays: the points and counts equal those of the integer map.
+// Sub-pixel columns with integer rows reproject onto their sub-pixel column.
+TEST(TriangulationTest, IntegerSubpixelMapsMatchTheIntegerMap) {
+  const ScannerRig rig = MakeExampleRig(640, 512);
+  const PatternSequence patterns;
+  SyntheticScene scene;
+  scene.planes.push_back(TruePlane());
+  const SyntheticCapture capture =
+      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
+  const CorrespondenceMap map = GrayCodeDecoder(patterns).Decode(capture.views());
+  CorrespondenceMap whole = map;
+  whole.column_subpixel.assign(map.valid.size(), std::nanf(""));
+  whole.row_subpixel.assign(map.valid.size(), std::nanf(""));
+  for (std::size_t i = 0; i < map.valid.size(); ++i) {
+    if (!map.valid[i]) continue;
+    whole.column_subpixel[i] = map.column[i];
+    whole.row_subpixel[i] = map.row[i];
+  }
+  const Triangulator triangulator(rig.camera, rig.projector, rig.X_CameraProjector);
+  const TriangulationResult expected = triangulator.Run(map);
+  const TriangulationResult actual = triangulator.Run(whole);
+  EXPECT_EQ(actual.num_points, expected.num_points);
+  EXPECT_EQ(actual.num_rejected_residual, expected.num_rejected_residual);
+  EXPECT_EQ(actual.num_rejected_depth, expected.num_rejected_depth);
+  EXPECT_EQ(actual.num_removed_isolated, expected.num_removed_isolated);
+  std::size_t mismatches = 0;
+  for (std::size_t i = 0; i < map.valid.size(); ++i) {
+    const Eigen::Vector3f& a = actual.cloud.points[i];
+    const Eigen::Vector3f& e = expected.cloud.points[i];
+    mismatches += !(a == e || (std::isnan(a.z()) && std::isnan(e.z())));
+  }
+  EXPECT_EQ(mismatches, 0u);
+  EXPECT_GT(expected.num_points, map.num_valid * 99 / 100);
+
+  // Columns a third of a mirror to the right, rows integer: the points move onto the
+  // shifted column (up to the effect of the row being off by up to half a mirror: the
+  // least-squares point of two rays that miss each other reprojects slightly off the column
+  // where the rows are not perpendicular to the epipolar plane).
+  CorrespondenceMap shifted = whole;
+  for (std::size_t i = 0; i < map.valid.size(); ++i) {
+    if (map.valid[i] && map.column[i] + 1 < rig.projector.width()) {
+      shifted.column_subpixel[i] += 1.0f / 3.0f;
+    }
+  }
+  const TriangulationResult moved = triangulator.Run(shifted);
+  const Eigen::Isometry3d X_ProjectorCamera = rig.X_CameraProjector.inverse();
+  std::vector<double> column_errors;
+  for (std::size_t i = 0; i < map.valid.size(); ++i) {
+    const Eigen::Vector3f& p = moved.cloud.points[i];
+    if (std::isnan(p.z())) continue;
+    const auto uv = rig.projector.Project(X_ProjectorCamera * p.cast<double>());
+    ASSERT_TRUE(uv.has_value());
+    column_errors.push_back(std::abs(uv->x() - shifted.column_subpixel[i]));
+  }
+  ASSERT_GT(column_errors.size(), map.num_valid * 99 / 100);
+  const double max_column_error = *std::max_element(column_errors.begin(), column_errors.end());
+  std::nth_element(column_errors.begin(), column_errors.begin() + column_errors.size() / 2,
+                   column_errors.end());
+  const double median_column_error = column_errors[column_errors.size() / 2];
+  std::cout << "shifted columns, integer rows: |reprojected column - column| median "
+            << median_column_error << " px, max " << max_column_error << " px\n";
+  EXPECT_LT(median_column_error, 0.02);
+  EXPECT_LT(max_column_error, 0.15);
+}
+
 // Points with correspondences inconsistent with the geometry are rejected by the residual.
 TEST(TriangulationTest, RejectsInconsistentCorrespondences) {
   const ScannerRig rig = MakeExampleRig(320, 256);
