@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -57,53 +59,68 @@ inline bool Tangent(const Eigen::Vector3f* minus, const Eigen::Vector3f& centre,
 #define PICKING_NORMALS_CLONES
 #endif
 
-// The normals of pixels [x0, x1) of a row whose four neighbours `step` away all exist
-// (points and normals x, y, z interleaved), as SetNormal and Tangent compute them, written
-// branch-free (selects) so that the compiler vectorises it. Returns the number of finite
-// normals.
-PICKING_NORMALS_CLONES int NormalsInterior(int x0, int x1, const float* __restrict up,
-                                           const float* __restrict centre,
-                                           const float* __restrict down, int step, float max_jump,
+// a ? b : c without a branch or a conditional load, so that the vectoriser takes it.
+inline float Select(bool a, float b, float c) {
+  std::uint32_t bits_b;
+  std::uint32_t bits_c;
+  std::memcpy(&bits_b, &b, sizeof(float));
+  std::memcpy(&bits_c, &c, sizeof(float));
+  const std::uint32_t mask = 0u - static_cast<std::uint32_t>(a);
+  const std::uint32_t bits = (bits_b & mask) | (bits_c & ~mask);
+  float result;
+  std::memcpy(&result, &bits, sizeof(float));
+  return result;
+}
+
+// The normals of n pixels whose four neighbours all exist, as SetNormal and Tangent compute
+// them: p the first pixel's point, left / right its neighbours `step` away in the row, above
+// / below those in the rows `step` away (points and normals x, y, z interleaved). Written
+// with selects so that the compiler vectorises it. Returns the number of finite normals.
+PICKING_NORMALS_CLONES int NormalsInterior(int n, const float* __restrict p,
+                                           const float* __restrict left,
+                                           const float* __restrict right,
+                                           const float* __restrict above,
+                                           const float* __restrict below, float max_jump,
                                            float* __restrict normals) {
   const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  const int s3 = 3 * step;
   int count = 0;
-  for (int x = x0; x < x1; ++x) {
-    const float* p = centre + 3 * x;
-    const float* left = p - s3;
-    const float* right = p + s3;
-    const float* above = up + 3 * x;
-    const float* below = down + 3 * x;
-    // Every neighbour is loaded, used or not, so that the selects need no branch.
-    const float px = p[0];
-    const float py = p[1];
-    const float pz = p[2];
-    const float lx = left[0], ly = left[1], lz = left[2];
-    const float rx = right[0], ry = right[1], rz = right[2];
-    const float ax = above[0], ay = above[1], az = above[2];
-    const float bx = below[0], by = below[1], bz = below[2];
+  for (int i = 0; i < n; ++i) {
+    const float px = p[3 * i];
+    const float py = p[3 * i + 1];
+    const float pz = p[3 * i + 2];
+    const float lx = left[3 * i];
+    const float ly = left[3 * i + 1];
+    const float lz = left[3 * i + 2];
+    const float rx = right[3 * i];
+    const float ry = right[3 * i + 1];
+    const float rz = right[3 * i + 2];
+    const float ax = above[3 * i];
+    const float ay = above[3 * i + 1];
+    const float az = above[3 * i + 2];
+    const float bx = below[3 * i];
+    const float by = below[3 * i + 1];
+    const float bz = below[3 * i + 2];
     // False for NaN (a missing centre makes all four false).
     const bool left_ok = std::abs(lz - pz) <= max_jump;
     const bool right_ok = std::abs(rz - pz) <= max_jump;
     const bool above_ok = std::abs(az - pz) <= max_jump;
     const bool below_ok = std::abs(bz - pz) <= max_jump;
-    const float dux = (right_ok ? rx : px) - (left_ok ? lx : px);
-    const float duy = (right_ok ? ry : py) - (left_ok ? ly : py);
-    const float duz = (right_ok ? rz : pz) - (left_ok ? lz : pz);
-    const float dvx = (below_ok ? bx : px) - (above_ok ? ax : px);
-    const float dvy = (below_ok ? by : py) - (above_ok ? ay : py);
-    const float dvz = (below_ok ? bz : pz) - (above_ok ? az : pz);
+    const float dux = Select(right_ok, rx, px) - Select(left_ok, lx, px);
+    const float duy = Select(right_ok, ry, py) - Select(left_ok, ly, py);
+    const float duz = Select(right_ok, rz, pz) - Select(left_ok, lz, pz);
+    const float dvx = Select(below_ok, bx, px) - Select(above_ok, ax, px);
+    const float dvy = Select(below_ok, by, py) - Select(above_ok, ay, py);
+    const float dvz = Select(below_ok, bz, pz) - Select(above_ok, az, pz);
     const float nx = duy * dvz - duz * dvy;
     const float ny = duz * dvx - dux * dvz;
     const float nz = dux * dvy - duy * dvx;
     const float norm2 = nx * nx + ny * ny + nz * nz;
     const float facing = nx * px + ny * py + nz * pz;
     const float scale = (facing > 0.0f ? -1.0f : 1.0f) / std::sqrt(norm2);
-    const int ok = static_cast<int>(left_ok | right_ok) & static_cast<int>(above_ok | below_ok) &
-                   static_cast<int>(norm2 > 0.0f);
-    normals[3 * x] = ok ? nx * scale : kNaN;
-    normals[3 * x + 1] = ok ? ny * scale : kNaN;
-    normals[3 * x + 2] = ok ? nz * scale : kNaN;
+    const bool ok = (left_ok | right_ok) & (above_ok | below_ok) & (norm2 > 0.0f);
+    normals[3 * i] = Select(ok, nx * scale, kNaN);
+    normals[3 * i + 1] = Select(ok, ny * scale, kNaN);
+    normals[3 * i + 2] = Select(ok, nz * scale, kNaN);
     count += ok;
   }
   return count;
@@ -137,8 +154,10 @@ std::size_t EstimateNormalsRow(const Eigen::Vector3f* up, const Eigen::Vector3f*
   for (int x = 0; x < step; ++x) count += general(x);
   // Interior: all four neighbours exist; the one-sided fallbacks are selects.
   static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float), "points are packed floats");
-  count += static_cast<std::size_t>(NormalsInterior(step, width - step, up->data(), centre->data(),
-                                                    down->data(), step, max_jump, normals->data()));
+  const float* p = centre[step].data();
+  count += static_cast<std::size_t>(NormalsInterior(width - 2 * step, p, p - 3 * step, p + 3 * step,
+                                                    up[step].data(), down[step].data(), max_jump,
+                                                    normals[step].data()));
   for (int x = width - step; x < width; ++x) count += general(x);
   return count;
 }

@@ -10,6 +10,10 @@
 #include <string>
 #include <type_traits>
 
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
+
 namespace picking::scanner {
 namespace {
 
@@ -29,6 +33,24 @@ void Require(bool ok, const std::string& what) {
 #else
 #define PICKING_TRIANGULATION_CLONES
 #endif
+
+// Asks the kernel to back the whole 2 MiB pages inside a large buffer with transparent huge
+// pages (Linux, where the system leaves it to madvise). A fresh 1280 x 1024 cloud is ~37 MB
+// of new memory per view; with 4 KiB pages its first writes cost ~9000 page faults, which on
+// a virtual machine take longer than computing the cloud. Pages already touched are left
+// as they are; failure (no THP support) changes nothing.
+void AdviseHugePages(void* data, std::size_t bytes) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  constexpr std::uintptr_t kHugePage = std::uintptr_t{2} << 20;
+  const auto begin = reinterpret_cast<std::uintptr_t>(data);
+  const std::uintptr_t first = (begin + kHugePage - 1) & ~(kHugePage - 1);
+  const std::uintptr_t last = (begin + bytes) & ~(kHugePage - 1);
+  if (last > first) madvise(reinterpret_cast<void*>(first), last - first, MADV_HUGEPAGE);
+#else
+  (void)data;
+  (void)bytes;
+#endif
+}
 
 // What became of a camera pixel of a row.
 constexpr std::uint8_t kStatusPoint = 0;
@@ -297,10 +319,15 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
   cloud.width = static_cast<std::uint32_t>(camera_width_);
   cloud.height = static_cast<std::uint32_t>(camera_height_);
   cloud.frame_id = options_.frame_id;
+  // Reserved and advised before the first write (resize zero-fills the intensities).
+  cloud.points.reserve(n);
+  AdviseHugePages(cloud.points.data(), n * sizeof(Eigen::Vector3f));
   cloud.points.resize(n);
   cloud.normals.clear();
   cloud.colors.clear();
   if (intensity != nullptr) {
+    cloud.intensities.reserve(n);
+    AdviseHugePages(cloud.intensities.data(), n * sizeof(float));
     cloud.intensities.resize(n);
   } else {
     cloud.intensities.clear();
@@ -487,6 +514,8 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
     // each side that its own rows depend on.
     const int step = normal_options->step;
     const float max_jump = static_cast<float>(normal_options->max_depth_jump_m * step);
+    cloud.normals.reserve(n);
+    AdviseHugePages(cloud.normals.data(), n * sizeof(Eigen::Vector3f));
     cloud.normals.resize(n);
     const int ring_rows = 4;  // Removal flags of rows r - 2 and r - 1.
     const int num_chunks = (h + kRowsPerChunk - 1) / kRowsPerChunk;
