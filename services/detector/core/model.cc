@@ -1,9 +1,11 @@
 #include "services/detector/core/model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <type_traits>
 #include <vector>
 
@@ -24,6 +26,14 @@ void ValidateOptions(const ObjectModelOptions& o) {
   positive(o.icp_voxel_rel, "icp_voxel_rel");
   positive(o.normal_radius_rel, "normal_radius_rel");
   positive(o.max_diameter_m, "max_diameter_m");
+  if (o.cylinder_symmetry_steps < 1) {
+    throw std::invalid_argument("ObjectModelOptions: cylinder_symmetry_steps must be >= 1, got " +
+                                std::to_string(o.cylinder_symmetry_steps));
+  }
+  const auto symmetry = static_cast<int>(o.symmetry);
+  if (symmetry < 0 || symmetry > static_cast<int>(ModelSymmetry::kSphere)) {
+    throw std::invalid_argument("ObjectModelOptions: symmetry has no valid value");
+  }
 }
 
 class Writer {
@@ -43,6 +53,7 @@ class Writer {
   void Cloud(const geometry::PointCloud& c) {
     Vector(c.points);
     Vector(c.normals);
+    Vector(c.intensities);
   }
   void Finish() {
     out_.flush();
@@ -87,6 +98,11 @@ class Reader {
       throw ModelCacheError("model cache " + path_ + ": field '" + field +
                             "' has mismatched normals");
     }
+    c.intensities = Vector<float>(field);
+    if (!c.intensities.empty() && c.intensities.size() != c.points.size()) {
+      throw ModelCacheError("model cache " + path_ + ": field '" + field +
+                            "' has mismatched albedo");
+    }
     c.width = static_cast<std::uint32_t>(c.points.size());
     return c;
   }
@@ -123,6 +139,8 @@ void WriteOptions(Writer& w, const ObjectModelOptions& o) {
   w.Pod<std::int32_t>(o.table.angle_bins);
   w.Pod<std::uint8_t>(o.table.store_planar_pairs);
   w.Pod(o.max_diameter_m);
+  w.Pod<std::int32_t>(static_cast<std::int32_t>(o.symmetry));
+  w.Pod<std::int32_t>(o.cylinder_symmetry_steps);
 }
 
 ObjectModelOptions ReadOptions(Reader& r) {
@@ -141,6 +159,12 @@ ObjectModelOptions ReadOptions(Reader& r) {
   o.table.angle_bins = r.Pod<std::int32_t>("angle_bins");
   o.table.store_planar_pairs = r.Pod<std::uint8_t>("store_planar_pairs") != 0;
   o.max_diameter_m = r.Pod<float>("max_diameter_m");
+  const auto symmetry = r.Pod<std::int32_t>("symmetry");
+  if (symmetry < 0 || symmetry > static_cast<std::int32_t>(ModelSymmetry::kSphere)) {
+    throw ModelCacheError("model cache " + r.path() + ": bad field 'symmetry'");
+  }
+  o.symmetry = static_cast<ModelSymmetry>(symmetry);
+  o.cylinder_symmetry_steps = r.Pod<std::int32_t>("cylinder_symmetry_steps");
   return o;
 }
 
@@ -151,7 +175,8 @@ bool SameOptions(const ObjectModelOptions& a, const ObjectModelOptions& b) {
          a.orientation == b.orientation && a.viewpoint == b.viewpoint &&
          a.table.angle_bins == b.table.angle_bins &&
          a.table.store_planar_pairs == b.table.store_planar_pairs &&
-         a.max_diameter_m == b.max_diameter_m;
+         a.max_diameter_m == b.max_diameter_m && a.symmetry == b.symmetry &&
+         a.cylinder_symmetry_steps == b.cylinder_symmetry_steps;
 }
 
 }  // namespace
@@ -167,7 +192,72 @@ std::uint64_t HashCloud(const geometry::PointCloud& cloud) {
   };
   mix(cloud.points.data(), cloud.points.size() * sizeof(Eigen::Vector3f));
   mix(cloud.normals.data(), cloud.normals.size() * sizeof(Eigen::Vector3f));
+  mix(cloud.intensities.data(), cloud.intensities.size() * sizeof(float));
   return h;
+}
+
+std::vector<Eigen::Isometry3d> SymmetryRotations(ModelSymmetry symmetry, int cylinder_steps) {
+  if (cylinder_steps < 1) {
+    throw std::invalid_argument("SymmetryRotations: cylinder_steps must be >= 1, got " +
+                                std::to_string(cylinder_steps));
+  }
+  std::vector<Eigen::Isometry3d> out{Eigen::Isometry3d::Identity()};
+  const auto turn = [](double angle, const Eigen::Vector3d& axis) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = Eigen::AngleAxisd(angle, axis).toRotationMatrix();
+    return X;
+  };
+  switch (symmetry) {
+    case ModelSymmetry::kNone:
+    case ModelSymmetry::kSphere:
+      break;
+    case ModelSymmetry::kBox:
+      for (int axis = 0; axis < 3; ++axis) {
+        out.push_back(turn(M_PI, Eigen::Vector3d::Unit(axis)));
+      }
+      break;
+    case ModelSymmetry::kCylinderX:
+    case ModelSymmetry::kCylinderZ: {
+      const Eigen::Vector3d axis = symmetry == ModelSymmetry::kCylinderX ? Eigen::Vector3d::UnitX()
+                                                                         : Eigen::Vector3d::UnitZ();
+      const Eigen::Vector3d across = axis.unitOrthogonal();
+      for (int flip = 0; flip < 2; ++flip) {
+        for (int k = 0; k < cylinder_steps; ++k) {
+          if (flip == 0 && k == 0) continue;
+          Eigen::Isometry3d X = turn(2.0 * M_PI * k / cylinder_steps, axis);
+          if (flip == 1) X = X * turn(M_PI, across);
+          out.push_back(X);
+        }
+      }
+      break;
+    }
+  }
+  return out;
+}
+
+std::string ToString(ModelSymmetry symmetry) {
+  switch (symmetry) {
+    case ModelSymmetry::kNone:
+      return "none";
+    case ModelSymmetry::kBox:
+      return "box";
+    case ModelSymmetry::kCylinderX:
+      return "cylinder-x";
+    case ModelSymmetry::kCylinderZ:
+      return "cylinder-z";
+    case ModelSymmetry::kSphere:
+      return "sphere";
+  }
+  return "none";
+}
+
+ModelSymmetry ModelSymmetryFromString(const std::string& name) {
+  for (ModelSymmetry s : {ModelSymmetry::kNone, ModelSymmetry::kBox, ModelSymmetry::kCylinderX,
+                          ModelSymmetry::kCylinderZ, ModelSymmetry::kSphere}) {
+    if (ToString(s) == name) return s;
+  }
+  throw std::invalid_argument("model symmetry '" + name +
+                              "' is not none, box, cylinder-x, cylinder-z or sphere");
 }
 
 ObjectModel::ObjectModel(const geometry::PointCloud& cloud_M, const ObjectModelOptions& options)
@@ -176,6 +266,14 @@ ObjectModel::ObjectModel(const geometry::PointCloud& cloud_M, const ObjectModelO
   if (cloud_M.empty()) throw std::invalid_argument("ObjectModel: the model cloud is empty");
   if (options.use_input_normals && !cloud_M.has_normals()) {
     throw std::invalid_argument("ObjectModel: use_input_normals set but the cloud has no normals");
+  }
+  CheckCloudChannels(cloud_M, "ObjectModel");
+  for (std::size_t i = 0; i < cloud_M.intensities.size(); ++i) {
+    const float a = cloud_M.intensities[i];
+    if (!(a >= 0.0f && a <= 1.0f)) {
+      throw std::invalid_argument("ObjectModel: albedo (intensities[" + std::to_string(i) + "]) " +
+                                  std::to_string(a) + " is not in [0, 1]");
+    }
   }
   source_hash_ = HashCloud(cloud_M);
   geometry::PointCloud valid = RemoveInvalidPoints(cloud_M);
@@ -214,15 +312,71 @@ ObjectModel::ObjectModel(const geometry::PointCloud& cloud_M, const ObjectModelO
     fine_ = EstimatePcaNormals(fine_, normal_options);
   }
   fine_.colors.clear();
-  fine_.intensities.clear();
   if (fine_.size() < 3) {
     throw std::invalid_argument(
         "ObjectModel: too few points with normals; the cloud is too "
         "sparse for normal_radius_rel");
   }
   icp_ = VoxelAverage(fine_, diameter_m_ * options.icp_voxel_rel);
-  table_ = PpfTable(VoxelAverage(fine_, sampling_distance_m_), diameter_m_, sampling_distance_m_,
-                    options.table);
+  geometry::PointCloud sampled = VoxelAverage(fine_, sampling_distance_m_);
+  sampled.intensities.clear();
+  if (options.symmetry == ModelSymmetry::kSphere) {
+    // A sphere's orientation is not fixed by its shape, so no pose can be checked against
+    // its printing.
+    fine_.intensities.clear();
+    icp_.intensities.clear();
+  }
+  if (fine_.has_intensities()) MaskEdgeAlbedo();
+  table_ = PpfTable(std::move(sampled), diameter_m_, sampling_distance_m_, options.table);
+  Finish();
+}
+
+void ObjectModel::MaskEdgeAlbedo() {
+  // Printed packaging (and the simulator's texture) has a border along every edge, and a
+  // scan's intensity is unreliable where the surface bends away: both would correlate for
+  // any item of the same shape, so the albedo near sharp edges is left out (NaN).
+  const float radius = std::clamp(0.05f * diameter_m_, 0.003f, 0.012f);
+  const float min_cos = std::cos(static_cast<float>(M_PI) / 6.0f);
+  const KdTree tree(fine_.points);
+  std::vector<std::int32_t> neighbours;
+  // Opposite-facing neighbours are the other side of a thin wall (a book's covers), not an
+  // edge.
+  const float max_cos_opposite = -0.7f;
+  const auto near_edge = [&](const Eigen::Vector3f& p, const Eigen::Vector3f& n) {
+    tree.RadiusSearch(p, radius, &neighbours);
+    for (std::int32_t j : neighbours) {
+      const float c = fine_.normals[j].dot(n);
+      if (c < min_cos && c > max_cos_opposite) return true;
+    }
+    return false;
+  };
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<float> fine_albedo = fine_.intensities;
+  for (std::size_t i = 0; i < fine_.size(); ++i) {
+    if (near_edge(fine_.points[i], fine_.normals[i])) fine_albedo[i] = nan;
+  }
+  for (std::size_t i = 0; i < icp_.size(); ++i) {
+    if (near_edge(icp_.points[i], icp_.normals[i])) icp_.intensities[i] = nan;
+  }
+  fine_.intensities = std::move(fine_albedo);
+}
+
+void ObjectModel::Finish() {
+  albedo_stddev_ = 0.0f;
+  if (fine_.has_intensities()) {
+    double sum = 0.0, sum_sq = 0.0, n = 0.0;
+    for (float a : fine_.intensities) {
+      if (!std::isfinite(a)) continue;
+      sum += a;
+      sum_sq += static_cast<double>(a) * a;
+      n += 1.0;
+    }
+    n = std::max(n, 1.0);
+    albedo_stddev_ =
+        static_cast<float>(std::sqrt(std::max(0.0, sum_sq / n - (sum / n) * (sum / n))));
+  }
+  fine_tree_ = KdTree(fine_.points);
+  symmetries_ = SymmetryRotations(options_.symmetry, options_.cylinder_symmetry_steps);
 }
 
 void ObjectModel::Save(const std::string& path) const {
@@ -277,6 +431,10 @@ ObjectModel ObjectModel::Load(const std::string& path) {
     m.table_ = PpfTable(std::move(sampled), m.diameter_m_, m.sampling_distance_m_,
                         m.options_.table.angle_bins, m.options_.table.store_planar_pairs,
                         std::move(offsets), std::move(entries));
+    if (m.icp_.has_intensities() != m.fine_.has_intensities()) {
+      throw std::invalid_argument("the fine and ICP clouds disagree on the albedo channel");
+    }
+    m.Finish();
   } catch (const std::invalid_argument& e) {
     throw ModelCacheError("model cache " + path + ": inconsistent: " + e.what());
   }

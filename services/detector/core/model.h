@@ -1,8 +1,11 @@
 #pragma once
 
+#include <Eigen/Geometry>
+
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "libs/geometry/point_cloud.h"
 #include "services/detector/core/kdtree.h"
@@ -10,6 +13,27 @@
 #include "services/detector/core/ppf_cloud.h"
 
 namespace picking::detector {
+
+/// Rotational symmetry of a model's shape about its frame's origin (the catalogue
+/// primitives: origin at the centre of the bounding box, axes along the box sides).
+enum class ModelSymmetry {
+  kNone,       ///< No symmetry used (scanned models).
+  kBox,        ///< A box: the identity and the three 180 degree turns about x, y and z.
+  kCylinderX,  ///< A cylinder along x: turns about x in steps, and the same turned end over end.
+  kCylinderZ,  ///< A cylinder along z.
+  kSphere,     ///< A sphere: every rotation; only the identity is tried.
+};
+
+/// The rotations R_MM' that map the model's shape onto itself (identity first); a pose
+/// X_SM of the model is as good as X_SM * R_MM' geometrically. Cylinders turn about their axis
+/// in `cylinder_steps` (>= 1) equal steps, each also turned end over end (2 * steps
+/// rotations). Throws std::invalid_argument for cylinder_steps < 1.
+std::vector<Eigen::Isometry3d> SymmetryRotations(ModelSymmetry symmetry, int cylinder_steps);
+
+/// "none", "box", "cylinder-x", "cylinder-z", "sphere" (the manifest's spelling).
+std::string ToString(ModelSymmetry symmetry);
+/// Inverse of ToString. Throws std::invalid_argument naming the bad value.
+ModelSymmetry ModelSymmetryFromString(const std::string& name);
 
 /// How an ObjectModel is derived from a model cloud. Lengths relative to the model diameter.
 struct ObjectModelOptions {
@@ -31,6 +55,11 @@ struct ObjectModelOptions {
   PpfTableOptions table;
   /// Models larger than this are rejected (a cloud in millimetres, or a whole scene).
   float max_diameter_m = 2.0f;
+  /// Symmetry of the shape; hypotheses are also tried turned by its rotations, and the
+  /// model's appearance (albedo) picks among them.
+  ModelSymmetry symmetry = ModelSymmetry::kNone;
+  /// Steps of a turn about a cylinder's axis tried for its appearance (>= 1).
+  int cylinder_symmetry_steps = 36;
 };
 
 /// Thrown when a model cache file cannot be used: missing, truncated, another format
@@ -42,17 +71,23 @@ class ModelCacheError final : public std::runtime_error {
 
 /// A known object as the detector uses it: in the model frame M, metres. Holds the fine
 /// cloud with normals, a coarser cloud for ICP and verification, and the PPF table trained
-/// on the sampled cloud.
+/// on the sampled cloud. When the input cloud has intensities they are the surface's albedo
+/// (reflectance in [0, 1]: a primitive's printed texture, a scan's colour luma); the fine and
+/// ICP clouds then carry it, voxel-averaged, in their `intensities`, NaN within about 5 % of
+/// the diameter (3-12 mm) of a sharp edge (normals more than 30 degrees apart): a printed
+/// border along the edges, which every package has, says nothing about which item it is. A
+/// sphere (ModelSymmetry::kSphere) keeps no albedo: its shape does not fix its orientation.
 class ObjectModel final {
  public:
   /// File format version of Save / Load; bumped whenever the layout or the meaning of a
   /// stored field changes.
-  static constexpr std::uint32_t kCacheVersion = 1;
+  static constexpr std::uint32_t kCacheVersion = 2;
 
   /// Builds from a model cloud (points in M, metres; normals used only with
-  /// use_input_normals). Throws std::invalid_argument for an empty cloud, a cloud with no
-  /// finite point, too few points for normals, a diameter above max_diameter_m, invalid
-  /// options or too many sampled points.
+  /// use_input_normals; intensities, when present, the albedo in [0, 1]). Throws
+  /// std::invalid_argument for an empty cloud, a cloud with no finite point, too few points for
+  /// normals, a diameter above max_diameter_m, invalid options, albedo outside [0, 1] or too many
+  /// sampled points.
   ObjectModel(const geometry::PointCloud& cloud_M, const ObjectModelOptions& options);
 
   /// Writes a versioned binary cache. Throws ModelCacheError when the file cannot be written.
@@ -78,8 +113,20 @@ class ObjectModel final {
   const geometry::PointCloud& fine_cloud() const { return fine_; }
   const geometry::PointCloud& icp_cloud() const { return icp_; }
   const PpfTable& table() const { return table_; }
+  /// True when the clouds carry the surface albedo in `intensities`.
+  bool has_albedo() const { return fine_.has_intensities(); }
+  /// Standard deviation of the fine cloud's finite albedo (0 without albedo): below a few percent
+  /// the texture is uniform and says nothing about a pose.
+  float albedo_stddev() const { return albedo_stddev_; }
+  /// Search tree over fine_cloud().points (albedo look-ups at model-frame positions).
+  const KdTree& fine_tree() const { return fine_tree_; }
+  /// SymmetryRotations(options().symmetry, options().cylinder_symmetry_steps).
+  const std::vector<Eigen::Isometry3d>& symmetries() const { return symmetries_; }
 
  private:
+  void MaskEdgeAlbedo();
+  void Finish();
+
   ObjectModel() = default;
 
   ObjectModelOptions options_;
@@ -89,9 +136,12 @@ class ObjectModel final {
   geometry::PointCloud fine_;
   geometry::PointCloud icp_;
   PpfTable table_;
+  float albedo_stddev_ = 0.0f;
+  KdTree fine_tree_;
+  std::vector<Eigen::Isometry3d> symmetries_;
 };
 
-/// FNV-1a over the point coordinates and normals of a cloud.
+/// FNV-1a over the point coordinates, normals and intensities of a cloud.
 std::uint64_t HashCloud(const geometry::PointCloud& cloud);
 
 }  // namespace picking::detector

@@ -19,6 +19,7 @@
 #include "libs/geometry/point_cloud_io.h"
 #include "libs/world/item_shapes.h"
 #include "libs/world/scanned_model.h"
+#include "services/detector/core/appearance.h"
 #include "services/detector/core/ppf_cloud.h"
 #include "services/detector/core/verify.h"
 
@@ -155,8 +156,22 @@ geometry::PointCloud ShapeCloud(const ModelSpec& spec, const ModelLibraryOptions
   shape.axis_along_long_side = spec.cylinder_axis_long;
   shape.fold_long = spec.fold_long;
   shape.fold_middle = spec.fold_middle;
+  // The printed texture (albedo, pattern) as the simulator paints it, from the shape table.
+  std::string table_path = options.shape_table_path;
+  if (table_path.empty()) {
+    const std::string default_path = world::DefaultShapeTablePath();
+    if (fs::exists(default_path)) table_path = default_path;
+  }
+  if (!table_path.empty()) {
+    const world::ItemShape painted =
+        world::ShapeTable::FromYamlFile(table_path, catalogue).at(spec.item);
+    shape.albedo = painted.albedo;
+    shape.pattern_albedo = painted.pattern_albedo;
+    shape.texture = painted.texture;
+    shape.pattern_period_m = painted.pattern_period_m;
+  }
   const world::TriangleMesh mesh = world::MakePrimitiveItemMesh(*item, shape);
-  return SampleMeshSurface(mesh, options.shape_spacing_m, /*seed=*/1);
+  return SampleTexturedMeshSurface(mesh, options.shape_spacing_m, /*seed=*/1);
 }
 
 std::string SafeFileName(const std::string& item) {
@@ -269,6 +284,7 @@ geometry::PointCloud ModelSourceCloud(const ModelSpec& spec, const ModelLibraryO
   cloud.width = static_cast<std::uint32_t>(cloud.size());
   cloud.height = 1;
   cloud.intensities.clear();
+  ColorsToAlbedo(&cloud);
   if (spec.frame == ScanFrame::kItem) {
     const std::string cache_dir =
         (fs::path(options.cache_dir.empty() ? DefaultDetectorCacheDir() : options.cache_dir) /
@@ -436,9 +452,16 @@ std::shared_ptr<const LoadedModel> ModelLibrary::Build(const ModelSpec& spec) co
       (fs::path(options_.cache_dir) /
        (SafeFileName(spec.item) + ".ppf.v" + std::to_string(ObjectModel::kCacheVersion) + ".bin"))
           .string();
+  // Geometry and albedo (the shape's texture, a scan's colour luma); colours stay with the
+  // SIFT views.
   geometry::PointCloud geometry_only = cloud;
   geometry_only.colors.clear();
   ObjectModelOptions object_options = options_.object;
+  try {
+    object_options.symmetry = ModelSymmetryFromString(spec.symmetry);
+  } catch (const std::invalid_argument&) {
+    object_options.symmetry = ModelSymmetry::kNone;  // A free-form note: no turns tried.
+  }
   if (spec.kind != ModelSourceKind::kScan) {
     // Sampled shapes carry exact outward face normals.
     object_options.use_input_normals = true;

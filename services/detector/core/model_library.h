@@ -111,6 +111,10 @@ struct ModelLibraryOptions {
   ObjectModelOptions object;
   /// Surface sampling of shape models, metres.
   double shape_spacing_m = 0.002;
+  /// The shape table (world::ShapeTable) whose texture (albedo, pattern) shape models carry
+  /// as their albedo; empty: world::DefaultShapeTablePath() when that file exists, else the
+  /// defaults of world::ItemShape.
+  std::string shape_table_path;
   /// Range templates (built when range_templates is in the item's chain).
   TemplateOptions templates;
   /// SIFT views (built when sift is in the item's chain and the model has colours): the
@@ -179,8 +183,10 @@ class ModelLibrary final {
 };
 
 /// The model surface points for `spec` in its item frame (scan read from file and moved
-/// into the item frame when requested; shapes sampled from the catalogue box). Exposed for
-/// tests. Throws std::runtime_error when the file or catalogue cannot be read.
+/// into the item frame when requested; shapes sampled from the catalogue box), with the
+/// surface albedo in `intensities` (a shape's printed texture from the shape table, a scan's
+/// colour luma; none for a scan without colours). Exposed for tests. Throws std::runtime_error when
+/// the file or catalogue cannot be read.
 geometry::PointCloud ModelSourceCloud(const ModelSpec& spec, const ModelLibraryOptions& options);
 
 /// SIFT views of a coloured model (points in the item frame with colours and normals): a

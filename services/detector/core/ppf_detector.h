@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/appearance.h"
 #include "services/detector/core/icp.h"
 #include "services/detector/core/kdtree.h"
 #include "services/detector/core/model.h"
@@ -51,7 +52,9 @@ class ViewRangeGrid final {
 
 /// A scene prepared for one object model: the fine cloud with normals (ICP target and
 /// verification) and the cloud sampled with the model's distance step (PPF voting), both in
-/// the scene frame S, metres, with their search trees.
+/// the scene frame S, metres, with their search trees. `fine` keeps the scene's intensities
+/// (voxel-averaged; the luma of its colours when it has colours only) for the appearance
+/// check.
 struct PpfScene {
   geometry::PointCloud fine;
   geometry::PointCloud sampled;
@@ -115,6 +118,16 @@ struct PpfDetectorOptions {
   int min_visible_points = 30;
   /// Hypotheses (by votes) refined by ICP and verified.
   int hypotheses_to_verify = 6;
+  /// Appearance: when the model has albedo and the scene intensities, each refined
+  /// hypothesis is also tried turned by the model's symmetries (a box's 180 degree flips, a
+  /// cylinder's turns) and the turn whose albedo best explains the scene's intensities is
+  /// kept (MatchSymmetricAppearance). Hypotheses are ranked by support - conflict_fraction +
+  /// appearance_weight * correlation (correlation 0 without evidence) ...
+  AppearanceOptions appearance;
+  float appearance_weight = 0.5f;
+  /// ... and rejected when the appearance has evidence and its correlation is below this: the
+  /// shape fits, the printing does not (a neighbour of the same size).
+  float min_appearance_correlation = 0.2f;
 };
 
 /// A verified pose of the model in the scene.
@@ -126,12 +139,17 @@ struct PpfDetection {
   int visible_points = 0;
   double votes = 0.0;  ///< Votes of the PPF cluster it came from.
   IcpResult icp;
+  /// Model albedo against scene intensity at X_SceneModel (not defined without texture).
+  AppearanceScore appearance;
+  /// Index into the model's symmetries() of the turn applied after ICP (0: none).
+  int symmetry = 0;
 };
 
 struct PpfDetectionResult {
-  /// Hypotheses with support >= min_support, conflict_fraction <= max_conflict_fraction and
-  /// enough visible points (min_visible_fraction), best support - conflict_fraction first;
-  /// distinct poses only.
+  /// Hypotheses with support >= min_support, conflict_fraction <= max_conflict_fraction,
+  /// enough visible points (min_visible_fraction) and no contradicting appearance, best
+  /// ranking (support - conflict_fraction + appearance_weight * correlation) first; distinct
+  /// poses only.
   std::vector<PpfDetection> detections;
   /// The best verified hypothesis even when below min_support (support 0 when none).
   PpfDetection best;
@@ -165,6 +183,32 @@ inline constexpr float kMinConflictViewCos = 0.26f;
 SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
                                 const Eigen::Isometry3d& X_SceneModel, float distance_m,
                                 float normal_angle_rad, float conflict_distance_m);
+
+/// Appearance of a model pose: over the model's ICP points that face the viewpoint and have
+/// a scene point within `distance_m` (normals within `normal_angle_rad`), the correlation of
+/// the model's albedo at the scene point's position with the scene point's shading-
+/// compensated intensity (ShadingCompensatedIntensity, scene normal, scene viewpoint). Not
+/// defined when the model has no albedo or the scene no intensities.
+AppearanceScore MeasureAppearance(const ObjectModel& model, const PpfScene& scene,
+                                  const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                  float normal_angle_rad, const AppearanceOptions& options = {});
+
+/// The best of the geometrically equivalent poses X_SceneModel * R (R in model.symmetries())
+/// by appearance: the scene points matched at X_SceneModel are compared with the albedo of
+/// every turned model; for a cylinder the best turn is then refined within +-3/8 of a step
+/// about the axis. `symmetry` indexes model.symmetries() (the grid turn the refinement
+/// started from); the identity (0) when no turn has evidence.
+struct SymmetricAppearance {
+  Eigen::Isometry3d X_SceneModel = Eigen::Isometry3d::Identity();
+  int symmetry = 0;
+  AppearanceScore appearance;
+  /// The identity's score, for comparison.
+  AppearanceScore unturned;
+};
+SymmetricAppearance MatchSymmetricAppearance(const ObjectModel& model, const PpfScene& scene,
+                                             const Eigen::Isometry3d& X_SceneModel,
+                                             float distance_m, float normal_angle_rad,
+                                             const AppearanceOptions& options = {});
 
 /// PPF voting, pose clustering, ICP refinement and verification of the best hypotheses.
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,

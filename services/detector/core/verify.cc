@@ -13,6 +13,7 @@ struct VerificationScene::Impl {
   std::vector<float> depth;  // row-major, NaN where nothing was measured
   std::vector<Eigen::Vector3f> p_SensorPoints;
   std::vector<Eigen::Vector3f> n_SensorPoints;  // empty when the scene has no normals
+  std::vector<float> intensities;               // empty when the scene has none
   KdTree tree;
 };
 
@@ -26,6 +27,10 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
     : camera_(camera), X_BaseSensor_(X_BaseSensor), impl_(std::make_unique<Impl>()) {
   if (!scene.normals.empty() && scene.normals.size() != scene.size())
     throw std::invalid_argument("VerificationScene: normals size differs from points size");
+  if (!scene.intensities.empty() && scene.intensities.size() != scene.size())
+    throw std::invalid_argument("VerificationScene: intensities size differs from points size");
+  if (!scene.colors.empty() && scene.colors.size() != scene.size())
+    throw std::invalid_argument("VerificationScene: colors size differs from points size");
   const Eigen::Isometry3f X_SensorBase = X_BaseSensor.inverse().cast<float>();
   impl_->depth.assign(static_cast<std::size_t>(camera_.width()) * camera_.height(), kNaN);
   const bool normals = scene.has_normals();
@@ -34,6 +39,12 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
     const Eigen::Vector3f p = X_SensorBase * scene.points[i];
     impl_->p_SensorPoints.push_back(p);
     if (normals) impl_->n_SensorPoints.push_back(X_SensorBase.linear() * scene.normals[i]);
+    if (scene.has_intensities()) {
+      impl_->intensities.push_back(scene.intensities[i]);
+    } else if (scene.has_colors()) {
+      const auto& c = scene.colors[i];
+      impl_->intensities.push_back((0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f);
+    }
     if (p.z() <= 0.0f) continue;
     const auto uv = camera_.Project(p.cast<double>());
     if (!uv) continue;
@@ -106,6 +117,14 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     throw std::invalid_argument("Verify: the model needs one normal per point");
   if (options.max_model_points < 1)
     throw std::invalid_argument("Verify: max_model_points must be >= 1");
+  if (!model.intensities.empty() && model.intensities.size() != model.size())
+    throw std::invalid_argument("Verify: the model's albedo (intensities) has " +
+                                std::to_string(model.intensities.size()) + " entries for " +
+                                std::to_string(model.size()) + " points");
+  options.appearance.Validate();
+  if (!(options.appearance_contradiction_scale >= 0.0 &&
+        options.appearance_contradiction_scale <= 1.0))
+    throw std::invalid_argument("Verify: appearance_contradiction_scale must be in [0, 1]");
   const PinholeCamera& cam = scene.camera();
   const VerificationScene::Impl& impl = *scene.impl_;
 
@@ -119,6 +138,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
     sub.points.push_back(X_SensorItem * model.points[i]);
     sub.normals.push_back(X_SensorItem.linear() * model.normals[i]);
+    if (model.has_intensities()) sub.intensities.push_back(model.intensities[i]);
   }
   sub.width = static_cast<std::uint32_t>(sub.points.size());
   VerifyResult result;
@@ -158,6 +178,8 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
       static_cast<float>(options.distance_tolerance_m * options.distance_tolerance_m);
   const float cos_normal = static_cast<float>(std::cos(options.normal_tolerance_rad));
   double sum_sq = 0.0;
+  const bool appearance = sub.has_intensities() && !impl.intensities.empty();
+  std::vector<float> albedo, intensity;
   for (const Projected& pr : front) {
     const Eigen::Vector3f& p = sub.points[pr.index];
     if (p.z() > zbuf[static_cast<std::size_t>(pr.v) * cam.width() + pr.u] + self_tolerance)
@@ -173,6 +195,15 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     if (supported) {
       ++result.num_supported;
       sum_sq += d_sq;
+      if (appearance) {
+        const Eigen::Vector3f& q = impl.p_SensorPoints[j];
+        const Eigen::Vector3f n = !impl.n_SensorPoints.empty() && impl.n_SensorPoints[j].allFinite()
+                                      ? impl.n_SensorPoints[j]
+                                      : sub.normals[pr.index];
+        albedo.push_back(sub.intensities[pr.index]);
+        intensity.push_back(ShadingCompensatedIntensity(
+            impl.intensities[j], q, n, Eigen::Vector3f::Zero(), options.appearance.min_cos));
+      }
       continue;
     }
     const float measured = scene.DepthAt(pr.u, pr.v);
@@ -192,6 +223,14 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
                    0.0, 1.0);
     result.conflict_fraction =
         static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
+  }
+  if (appearance) {
+    result.appearance = CorrelateAppearance(albedo, intensity, options.appearance);
+    if (result.appearance.defined &&
+        result.appearance.correlation < options.min_appearance_correlation) {
+      result.appearance_contradicts = true;
+      result.score *= options.appearance_contradiction_scale;
+    }
   }
   if (result.num_supported > 0)
     result.inlier_rmse_m = std::sqrt(sum_sq / static_cast<double>(result.num_supported));

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/appearance.h"
 #include "services/detector/core/detection.h"
 
 namespace picking::detector {
@@ -17,9 +18,10 @@ struct VerifyResult;
 /// k-d tree of its points, both in the sensor frame.
 class VerificationScene final {
  public:
-  /// `scene`: points in the base frame (NaN allowed); `X_BaseSensor`: pose of the camera that
-  /// saw it; `camera`: its intrinsics. Throws std::invalid_argument when the scene has no
-  /// finite point.
+  /// `scene`: points in the base frame (NaN allowed), with intensities (or colours, taken as
+  /// their luma) for the appearance check; `X_BaseSensor`: pose of the camera that saw it;
+  /// `camera`: its intrinsics. Throws std::invalid_argument when the scene has no finite
+  /// point or a channel's length differs from the point count.
   VerificationScene(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
                     const PinholeCamera& camera);
   ~VerificationScene();
@@ -58,6 +60,18 @@ struct VerifyOptions {
   int max_model_points = 4000;
   /// Fewer unoccluded visible points than this gives score 0.
   int min_visible_points = 20;
+  /// Appearance: when the model has albedo (its `intensities`) and the scene intensities,
+  /// the supported points' albedo is correlated with the scene's shading-compensated
+  /// intensity (VerifyResult::appearance). A correlation below min_appearance_correlation
+  /// (with evidence) means the printing contradicts the pose (another item of the same
+  /// shape, or a wrong turn of a symmetric one): the score is then multiplied by
+  /// appearance_contradiction_scale (in [0, 1]). The default 1 only reports it: Verify does
+  /// not know the model's symmetries, so a box or cylinder pose from range templates, right
+  /// up to a symmetric turn, would be taken for a contradiction (DetectPpf resolves the
+  /// turns and rejects contradicted hypotheses itself).
+  AppearanceOptions appearance;
+  double min_appearance_correlation = 0.2;
+  double appearance_contradiction_scale = 1.0;
 };
 
 struct VerifyResult {
@@ -70,13 +84,21 @@ struct VerifyResult {
   std::size_t num_conflicts = 0;   ///< Visible points in measured free space.
   double conflict_fraction = 0.0;  ///< num_conflicts / (num_visible - num_occluded).
   double inlier_rmse_m = 0.0;      ///< RMS distance of the supported points to the scene.
+  /// Model albedo against scene intensity over the supported points (not defined without
+  /// albedo, scene intensities or texture contrast).
+  AppearanceScore appearance;
+  /// True when the appearance has evidence and its correlation is below
+  /// min_appearance_correlation (the score is then scaled by appearance_contradiction_scale).
+  bool appearance_contradicts = false;
 };
 
-/// Scores a pose hypothesis X_BaseItem of `model` (points with normals, item frame) against
-/// the scene: back-face culling and a point-splat z-buffer give the model points the sensor
-/// would see; each is then supported (scene point within tolerance), occluded, in conflict
-/// (free-space violation) or unsupported. Throws std::invalid_argument when the model has no
-/// normals or is empty.
+/// Scores a pose hypothesis X_BaseItem of `model` (points with normals, item frame; optional
+/// albedo in `intensities`) against the scene: back-face culling and a point-splat z-buffer
+/// give the model points the sensor would see; each is then supported (scene point within
+/// tolerance), occluded, in conflict (free-space violation) or unsupported; the supported
+/// points' albedo is compared with the scene's intensities (see VerifyOptions). Throws
+/// std::invalid_argument when the model has no normals, is empty, has an albedo channel of
+/// another length or the options are invalid.
 VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& model,
                     const Eigen::Isometry3d& X_BaseItem, const VerifyOptions& options = {});
 

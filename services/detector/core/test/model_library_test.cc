@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <random>
 #include <string>
 
@@ -230,6 +231,66 @@ TEST_F(ModelLibraryTest, ScannedApcModelIsInTheItemFrameWithSiftViewsAndTemplate
   ASSERT_NE(eraser->sift, nullptr);
   EXPECT_GT(eraser->sift->num_features(), 50u);
   ASSERT_NE(eraser->templates, nullptr);
+}
+
+TEST_F(ModelLibraryTest, ShapeModelsCarryTheSimulatorsPrintedTextureAsAlbedo) {
+  const ModelLibrary library(ModelManifest::LoadFile(kDataDir + "/detector/models.json", kDataDir),
+                             Options());
+  // data/items/shapes.yaml: staples_index_cards {albedo: 0.9, pattern_albedo: 0.3, blocks}.
+  const geometry::PointCloud cloud =
+      ModelSourceCloud(*library.manifest().find("staples_index_cards"), library.options());
+  ASSERT_EQ(cloud.intensities.size(), cloud.size());
+  std::size_t base = 0, print = 0;
+  for (float a : cloud.intensities) {
+    base += std::abs(a - 0.9f) < 1e-5f ? 1 : 0;
+    print += std::abs(a - 0.3f) < 1e-5f ? 1 : 0;
+  }
+  EXPECT_EQ(base + print, cloud.size());
+  EXPECT_GT(print, cloud.size() / 10);
+  EXPECT_GT(base, cloud.size() / 10);
+
+  const auto model = library.Get("staples_index_cards");
+  ASSERT_TRUE(model->object->has_albedo());
+  EXPECT_GT(model->object->albedo_stddev(), 0.1f);
+  EXPECT_EQ(model->object->options().symmetry, ModelSymmetry::kBox);
+  EXPECT_EQ(library.Get("dasani_water_bottle")->object->options().symmetry,
+            ModelSymmetry::kCylinderX);
+  EXPECT_EQ(library.Get("scotch_duct_tape")->object->options().symmetry, ModelSymmetry::kCylinderZ);
+
+  // Another shape table: a uniform texture gives a uniform albedo.
+  const std::string table = cache_dir_ + "/shapes.yaml";
+  std::filesystem::create_directories(cache_dir_);
+  std::ofstream(table) << "version: 1\nitems:\n  staples_index_cards: {shape: box, albedo: 0.5, "
+                          "texture: uniform}\n";
+  ModelLibraryOptions options = Options();
+  options.shape_table_path = table;
+  const geometry::PointCloud plain =
+      ModelSourceCloud(*library.manifest().find("staples_index_cards"), options);
+  for (float a : plain.intensities) ASSERT_NEAR(a, 0.5f, 1e-6f);
+  options.shape_table_path = cache_dir_ + "/missing.yaml";
+  EXPECT_THROW(ModelSourceCloud(*library.manifest().find("staples_index_cards"), options),
+               std::exception);
+}
+
+TEST_F(ModelLibraryTest, ScannedModelAlbedoIsTheColourLuma) {
+  const ModelLibrary library(ModelManifest::LoadFile(kDataDir + "/detector/models.json", kDataDir),
+                             Options());
+  const geometry::PointCloud cloud =
+      ModelSourceCloud(*library.manifest().find("dove_beauty_bar"), library.options());
+  ASSERT_TRUE(cloud.has_colors());
+  ASSERT_EQ(cloud.intensities.size(), cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); i += 101) {
+    const auto& c = cloud.colors[i];
+    EXPECT_NEAR(cloud.intensities[i], (0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f,
+                1e-5f);
+  }
+  const auto model = library.Get("dove_beauty_bar");
+  EXPECT_TRUE(model->object->has_albedo());
+  EXPECT_GT(model->object->albedo_stddev(), 0.02f);
+  EXPECT_EQ(model->object->options().symmetry, ModelSymmetry::kNone);
+  // A scan without colours (the PCL milk carton) has no albedo.
+  const ModelLibrary test_library(TestManifest(), Options());
+  EXPECT_FALSE(test_library.Get("milk")->object->has_albedo());
 }
 
 TEST(RenderSiftViewsTest, PixelsShowTheModelPointsTheyStore) {

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <unistd.h>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <limits>
@@ -130,6 +131,107 @@ TEST_F(ModelTest, BadCloudsThrow) {
   too_fine.sampling_distance_rel = 0.002f;
   too_fine.fine_voxel_rel = 0.002f;
   EXPECT_THROW(ObjectModel(*milk_, too_fine), std::invalid_argument);
+}
+
+TEST_F(ModelTest, AlbedoChannelIsKeptAveragedAndCached) {
+  // The carton with a printed half: albedo 0.8 for x < centre, 0.2 beyond.
+  geometry::PointCloud painted = *milk_;
+  float lo = std::numeric_limits<float>::max(), hi = -lo;
+  for (const auto& p : painted.points) {
+    if (!p.allFinite()) continue;
+    lo = std::min(lo, p.x());
+    hi = std::max(hi, p.x());
+  }
+  const float mid = 0.5f * (lo + hi);
+  for (const auto& p : painted.points) painted.intensities.push_back(p.x() < mid ? 0.8f : 0.2f);
+  ObjectModelOptions options;
+  options.symmetry = ModelSymmetry::kBox;
+  const ObjectModel model(painted, options);
+  ASSERT_TRUE(model.has_albedo());
+  ASSERT_EQ(model.fine_cloud().intensities.size(), model.fine_cloud().size());
+  ASSERT_EQ(model.icp_cloud().intensities.size(), model.icp_cloud().size());
+  EXPECT_GT(model.albedo_stddev(), 0.2f);
+  EXPECT_EQ(model.symmetries().size(), 4u);
+  // Away from the paint's boundary and the carton's edges the albedo is the painted one.
+  int checked = 0, masked = 0;
+  for (std::size_t i = 0; i < model.fine_cloud().size(); ++i) {
+    const float a = model.fine_cloud().intensities[i];
+    const float x = model.fine_cloud().points[i].x();
+    if (!std::isfinite(a)) {
+      ++masked;
+      continue;
+    }
+    if (std::abs(x - mid) < 0.01f) continue;
+    EXPECT_NEAR(a, x < mid ? 0.8f : 0.2f, 1e-4f);
+    ++checked;
+  }
+  EXPECT_GT(checked, static_cast<int>(model.fine_cloud().size() / 3));
+  // The edges' albedo is left out, but most of the surface is kept.
+  EXPECT_GT(masked, 0);
+  EXPECT_LT(masked, static_cast<int>(model.fine_cloud().size() / 2));
+  // A different albedo is a different source.
+  EXPECT_NE(model.source_hash(), ObjectModel(*milk_, options).source_hash());
+
+  const std::string path = TempPath("albedo.ppfm");
+  model.Save(path);
+  const ObjectModel loaded = ObjectModel::Load(path);
+  std::remove(path.c_str());
+  ASSERT_EQ(loaded.fine_cloud().intensities.size(), model.fine_cloud().intensities.size());
+  for (std::size_t i = 0; i < model.fine_cloud().size(); ++i) {
+    const float a = model.fine_cloud().intensities[i], b = loaded.fine_cloud().intensities[i];
+    ASSERT_TRUE((std::isnan(a) && std::isnan(b)) || a == b) << i;
+  }
+  EXPECT_EQ(loaded.albedo_stddev(), model.albedo_stddev());
+  EXPECT_EQ(loaded.options().symmetry, ModelSymmetry::kBox);
+  EXPECT_EQ(loaded.symmetries().size(), 4u);
+  EXPECT_EQ(loaded.fine_tree().size(), loaded.fine_cloud().size());
+}
+
+TEST_F(ModelTest, AlbedoOutsideTheUnitRangeIsRejected) {
+  geometry::PointCloud painted = *milk_;
+  painted.intensities.assign(painted.size(), 0.5f);
+  painted.intensities[7] = 1.5f;
+  try {
+    ObjectModel model(painted, ObjectModelOptions{});
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("intensities[7]"), std::string::npos) << e.what();
+  }
+  painted.intensities.pop_back();
+  EXPECT_THROW(ObjectModel(painted, ObjectModelOptions{}), std::invalid_argument);
+  ObjectModelOptions options;
+  options.cylinder_symmetry_steps = 0;
+  EXPECT_THROW(ObjectModel(*milk_, options), std::invalid_argument);
+}
+
+TEST(SymmetryRotationsTest, MapTheShapesOntoThemselves) {
+  EXPECT_EQ(SymmetryRotations(ModelSymmetry::kNone, 36).size(), 1u);
+  EXPECT_EQ(SymmetryRotations(ModelSymmetry::kSphere, 36).size(), 1u);
+  const auto box = SymmetryRotations(ModelSymmetry::kBox, 36);
+  ASSERT_EQ(box.size(), 4u);
+  EXPECT_TRUE(box[0].isApprox(Eigen::Isometry3d::Identity()));
+  // A box's corner goes to a corner: every coordinate keeps its magnitude.
+  const Eigen::Vector3d corner(0.1, 0.05, 0.02);
+  for (const auto& X : box) {
+    EXPECT_TRUE((X * corner).cwiseAbs().isApprox(corner, 1e-12));
+    EXPECT_NEAR(X.translation().norm(), 0.0, 1e-12);
+  }
+  const auto cylinder = SymmetryRotations(ModelSymmetry::kCylinderX, 12);
+  ASSERT_EQ(cylinder.size(), 24u);
+  // Points on a cylinder along x stay on it (same radius, same |x|).
+  const Eigen::Vector3d rim(0.08, 0.03, 0.0);
+  for (const auto& X : cylinder) {
+    const Eigen::Vector3d q = X * rim;
+    EXPECT_NEAR(std::abs(q.x()), 0.08, 1e-12);
+    EXPECT_NEAR(q.tail<2>().norm(), 0.03, 1e-12);
+  }
+  const auto upright = SymmetryRotations(ModelSymmetry::kCylinderZ, 4);
+  ASSERT_EQ(upright.size(), 8u);
+  for (const auto& X : upright) EXPECT_NEAR(std::abs((X * rim).z()), 0.0, 1e-12);
+  EXPECT_THROW(SymmetryRotations(ModelSymmetry::kBox, 0), std::invalid_argument);
+  EXPECT_EQ(ModelSymmetryFromString("cylinder-z"), ModelSymmetry::kCylinderZ);
+  EXPECT_EQ(ToString(ModelSymmetry::kBox), "box");
+  EXPECT_THROW(ModelSymmetryFromString("cone"), std::invalid_argument);
 }
 
 }  // namespace

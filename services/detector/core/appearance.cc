@@ -1,0 +1,156 @@
+#include "services/detector/core/appearance.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+namespace picking::detector {
+
+void AppearanceOptions::Validate() const {
+  if (!(min_cos > 0.0f && min_cos <= 1.0f)) {
+    throw std::invalid_argument("AppearanceOptions: min_cos must be in (0, 1], got " +
+                                std::to_string(min_cos));
+  }
+  if (!(min_albedo_stddev >= 0.0f) || !std::isfinite(min_albedo_stddev)) {
+    throw std::invalid_argument("AppearanceOptions: min_albedo_stddev must be >= 0, got " +
+                                std::to_string(min_albedo_stddev));
+  }
+  if (!(min_intensity_rel_stddev >= 0.0f) || !std::isfinite(min_intensity_rel_stddev)) {
+    throw std::invalid_argument("AppearanceOptions: min_intensity_rel_stddev must be >= 0, got " +
+                                std::to_string(min_intensity_rel_stddev));
+  }
+  if (min_points < 3) {
+    throw std::invalid_argument("AppearanceOptions: min_points must be >= 3, got " +
+                                std::to_string(min_points));
+  }
+}
+
+float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
+                                  const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
+                                  float min_cos) {
+  const Eigen::Vector3f ray = viewpoint - p;
+  const float range_sq = ray.squaredNorm();
+  if (!(range_sq > 0.0f)) return intensity;
+  const float cos_incidence = std::abs(n.dot(ray)) / std::sqrt(range_sq);
+  return intensity * range_sq / std::max(cos_incidence, min_cos);
+}
+
+AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
+                                    const std::vector<float>& intensity,
+                                    const AppearanceOptions& options) {
+  options.Validate();
+  if (albedo.size() != intensity.size()) {
+    throw std::invalid_argument("CorrelateAppearance: " + std::to_string(albedo.size()) +
+                                " albedo values for " + std::to_string(intensity.size()) +
+                                " intensities");
+  }
+  AppearanceScore out;
+  const auto usable = [&](std::size_t k) {
+    return std::isfinite(albedo[k]) && std::isfinite(intensity[k]);
+  };
+  for (std::size_t k = 0; k < albedo.size(); ++k) out.points += usable(k) ? 1 : 0;
+  if (out.points < options.min_points) return out;
+  const double n = static_cast<double>(out.points);
+  double ma = 0.0, mi = 0.0;
+  for (std::size_t k = 0; k < albedo.size(); ++k) {
+    if (!usable(k)) continue;
+    ma += albedo[k];
+    mi += intensity[k];
+  }
+  ma /= n;
+  mi /= n;
+  double saa = 0.0, sii = 0.0, sai = 0.0;
+  for (std::size_t k = 0; k < albedo.size(); ++k) {
+    if (!usable(k)) continue;
+    const double a = albedo[k] - ma, i = intensity[k] - mi;
+    saa += a * a;
+    sii += i * i;
+    sai += a * i;
+  }
+  out.albedo_stddev = std::sqrt(saa / n);
+  const double intensity_stddev = std::sqrt(sii / n);
+  if (out.albedo_stddev < options.min_albedo_stddev) return out;
+  if (!(mi > 0.0) || intensity_stddev < options.min_intensity_rel_stddev * mi) return out;
+  out.defined = true;
+  out.correlation = std::clamp(sai / std::sqrt(saa * sii), -1.0, 1.0);
+  return out;
+}
+
+geometry::PointCloud SampleTexturedMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
+                                               std::uint32_t seed) {
+  if (mesh.empty()) throw std::invalid_argument("SampleTexturedMeshSurface: mesh has no triangles");
+  if (!(spacing_m > 0.0)) {
+    throw std::invalid_argument("SampleTexturedMeshSurface: spacing_m must be > 0");
+  }
+  if (!mesh.vertex_albedo.empty() && mesh.vertex_albedo.size() != mesh.vertices.size()) {
+    throw std::invalid_argument("SampleTexturedMeshSurface: vertex_albedo has " +
+                                std::to_string(mesh.vertex_albedo.size()) + " entries for " +
+                                std::to_string(mesh.vertices.size()) + " vertices");
+  }
+  // The same draws as SampleMeshSurface, so both give the same points.
+  std::vector<double> cumulative;
+  double total = 0.0;
+  for (std::size_t k = 0; k < mesh.triangles.size(); ++k) {
+    const auto& tri = mesh.triangles[k];
+    for (std::uint32_t idx : tri) {
+      if (idx >= mesh.vertices.size()) {
+        throw std::invalid_argument("SampleTexturedMeshSurface: triangle " + std::to_string(k) +
+                                    " has vertex index " + std::to_string(idx) + " out of range");
+      }
+    }
+    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
+    total += 0.5 * (b - a).cross(c - a).norm();
+    cumulative.push_back(total);
+  }
+  if (!(total > 0.0)) throw std::invalid_argument("SampleTexturedMeshSurface: mesh has zero area");
+  const std::size_t count = static_cast<std::size_t>(std::ceil(total / (spacing_m * spacing_m)));
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  geometry::PointCloud out;
+  out.points.reserve(count);
+  out.normals.reserve(count);
+  out.intensities.reserve(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const double pick = uniform(rng) * total;
+    const std::size_t k = std::min<std::size_t>(
+        std::lower_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
+        cumulative.size() - 1);
+    const auto& tri = mesh.triangles[k];
+    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
+    double s = uniform(rng), t = uniform(rng);
+    if (s + t > 1.0) {
+      s = 1.0 - s;
+      t = 1.0 - t;
+    }
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    if (n.norm() < 1e-15) continue;
+    out.points.push_back((a + s * (b - a) + t * (c - a)).cast<float>());
+    out.normals.push_back(n.normalized().cast<float>());
+    float albedo = mesh.albedo;
+    if (!mesh.vertex_albedo.empty()) {
+      albedo = static_cast<float>((1.0 - s - t) * mesh.vertex_albedo[tri[0]] +
+                                  s * mesh.vertex_albedo[tri[1]] + t * mesh.vertex_albedo[tri[2]]);
+    }
+    out.intensities.push_back(std::clamp(albedo, 0.0f, 1.0f));
+  }
+  out.width = static_cast<std::uint32_t>(out.points.size());
+  out.height = 1;
+  return out;
+}
+
+void ColorsToAlbedo(geometry::PointCloud* cloud) {
+  if (cloud == nullptr || !cloud->has_colors()) return;
+  cloud->intensities.resize(cloud->colors.size());
+  for (std::size_t i = 0; i < cloud->colors.size(); ++i) {
+    const auto& c = cloud->colors[i];
+    cloud->intensities[i] = (0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f;
+  }
+}
+
+}  // namespace picking::detector

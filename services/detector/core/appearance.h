@@ -1,0 +1,71 @@
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+#include "libs/world/mesh.h"
+
+namespace picking::detector {
+
+/// Options of the appearance comparison between a model's albedo and a scene's intensities.
+struct AppearanceOptions {
+  /// Incidence cosines below this are clamped to it in the shading compensation (grazing
+  /// surfaces, noisy normals), in (0, 1].
+  float min_cos = 0.25f;
+  /// The model's texture over the compared points must have at least this standard deviation
+  /// of albedo (reflectance units); below it the texture is uniform there and says nothing.
+  float min_albedo_stddev = 0.04f;
+  /// The compared scene intensities must vary at least this much (relative standard
+  /// deviation, std / mean), else the scene shows no texture (e.g. saturated or unlit).
+  float min_intensity_rel_stddev = 0.02f;
+  /// Fewer compared points than this give no evidence.
+  int min_points = 30;
+
+  /// Throws std::invalid_argument naming the bad field.
+  void Validate() const;
+};
+
+/// How well a model's albedo explains the scene's shading-compensated intensities at a pose.
+struct AppearanceScore {
+  /// False when there is no evidence: too few points, a uniform model texture there, no
+  /// scene intensities or no model albedo.
+  bool defined = false;
+  /// Pearson correlation of model albedo and compensated scene intensity, [-1, 1]; 0 when
+  /// not defined. Near 1: the printed texture is where the model says; near 0 or below:
+  /// another texture (another item, or the model turned the wrong way).
+  double correlation = 0.0;
+  int points = 0;              ///< Compared point pairs (finite ones).
+  double albedo_stddev = 0.0;  ///< Of the model albedo over the compared points.
+};
+
+/// The scene intensity with the projector's shading divided out: the structured-light
+/// sensor's white capture is about albedo * cos(incidence) / range^2 (plus a little ambient),
+/// so intensity * range^2 / max(cos, min_cos) is proportional to the albedo. `p`, `n` (unit)
+/// and `viewpoint` in one frame, metres; the result is relative (m^2), not in [0, 1].
+float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
+                                  const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
+                                  float min_cos);
+
+/// Pearson correlation of `albedo` and `intensity` (equal lengths, compensated intensities;
+/// pairs with a NaN are left out) with the evidence checks of `options`. Throws
+/// std::invalid_argument for different lengths or invalid options.
+AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
+                                    const std::vector<float>& intensity,
+                                    const AppearanceOptions& options = {});
+
+/// Points with outward face normals sampled uniformly over the mesh surface, exactly the
+/// points of SampleMeshSurface (templates.h) for the same spacing and seed, with the mesh's
+/// albedo at each point in `intensities` (interpolated per-vertex albedo, or the uniform
+/// `albedo`). Throws std::invalid_argument on an empty mesh, an out-of-range index,
+/// a vertex_albedo of the wrong length or spacing_m <= 0.
+geometry::PointCloud SampleTexturedMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
+                                               std::uint32_t seed = 1);
+
+/// The luma (0.299 R + 0.587 G + 0.114 B) / 255 of every colour of `cloud` as its
+/// intensities (an albedo in [0, 1] for a coloured scan). Does nothing without colours.
+void ColorsToAlbedo(geometry::PointCloud* cloud);
+
+}  // namespace picking::detector
