@@ -6,6 +6,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -500,6 +501,22 @@ inline float FillAcross(const float* value, const std::uint16_t* code, std::ptrd
   return std::min(cf + 0.5f, std::max(cf - 0.5f, v));
 }
 
+// out[i] = code[i] where valid, NaN elsewhere (the integer rows when rows are not refined).
+PICKING_DECODER_CLONES void IntegerCoordinates(int n, const std::uint16_t* __restrict code,
+                                               const std::uint8_t* __restrict valid,
+                                               float* __restrict out) {
+  // The NaN is or-ed in as bits: a select between floats is not vectorised here.
+  constexpr std::uint32_t kNaNBits = 0x7fc00000u;
+  for (int i = 0; i < n; ++i) {
+    const float value = static_cast<float>(code[i]);
+    std::uint32_t bits;
+    std::memcpy(&bits, &value, sizeof(float));
+    const std::uint32_t invalid = 0u - static_cast<std::uint32_t>(valid[i] == 0);
+    bits = (bits & ~invalid) | (kNaNBits & invalid);
+    std::memcpy(&out[i], &bits, sizeof(float));
+  }
+}
+
 // Valid pixels that a line left NaN, by global pixel index, and what filling across the
 // line gives them.
 struct Candidates {
@@ -639,13 +656,7 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
         }
         FinishLine(width, line, &scan, unrefined);
         if (!refine_rows) {
-          // Integer rows: the row of every valid pixel, NaN elsewhere.
-          const float kNaN = std::numeric_limits<float>::quiet_NaN();
-          const std::uint16_t* rows = row_code + offset;
-          float* out = row_subpixel + offset;
-          for (int x = 0; x < width; ++x) {
-            out[x] = line.valid[x] ? static_cast<float>(rows[x]) : kNaN;
-          }
+          IntegerCoordinates(width, row_code + offset, valid + offset, row_subpixel + offset);
         }
       }
       column_knots.fetch_add(knots, std::memory_order_relaxed);
