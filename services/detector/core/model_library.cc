@@ -300,8 +300,10 @@ geometry::PointCloud ModelSourceCloud(const ModelSpec& spec, const ModelLibraryO
 
 std::vector<SiftView> RenderSiftViews(const geometry::PointCloud& model, int num_views,
                                       int view_size_px) {
-  if (!model.has_colors() || model.colors.size() != model.points.size()) {
-    throw std::invalid_argument("RenderSiftViews: the model has no colours");
+  const bool colours = model.has_colors() && model.colors.size() == model.points.size();
+  const bool albedo = model.has_intensities() && model.intensities.size() == model.points.size();
+  if (!colours && !albedo) {
+    throw std::invalid_argument("RenderSiftViews: the model has no colours or albedo");
   }
   if (num_views < 1) throw std::invalid_argument("RenderSiftViews: num_views must be >= 1");
   if (view_size_px < 32) throw std::invalid_argument("RenderSiftViews: view_size_px must be >= 32");
@@ -365,8 +367,10 @@ std::vector<SiftView> RenderSiftViews(const geometry::PointCloud& model, int num
     view.p_ItemPixel.assign(depth.size(), Eigen::Vector3f::Constant(nan));
     for (std::size_t k = 0; k < depth.size(); ++k) {
       if (owner[k] < 0) continue;
+      const float grey =
+          colours ? Luma(model.colors[owner[k]]) : 255.0f * model.intensities[owner[k]];
       view.image.pixels[k] = static_cast<std::uint8_t>(
-          std::clamp(std::lround(Luma(model.colors[owner[k]])), 0L, 255L));
+          std::clamp(std::isfinite(grey) ? std::lround(grey) : 128L, 0L, 255L));
       view.p_ItemPixel[k] = model.points[owner[k]];
     }
     views.push_back(std::move(view));
@@ -477,7 +481,7 @@ std::shared_ptr<const LoadedModel> ModelLibrary::Build(const ModelSpec& spec) co
     loaded->templates =
         std::make_shared<const RangeTemplateSet>(loaded->object->icp_cloud(), options_.templates);
   }
-  if (ChainHas(loaded->config, Method::kSift) && cloud.has_colors()) {
+  if (ChainHas(loaded->config, Method::kSift) && (cloud.has_colors() || cloud.has_intensities())) {
     try {
       loaded->sift = std::make_shared<const SiftModel>(
           RenderSiftViews(cloud, options_.sift_views, options_.sift_view_size_px));

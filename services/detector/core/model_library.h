@@ -117,8 +117,9 @@ struct ModelLibraryOptions {
   std::string shape_table_path;
   /// Range templates (built when range_templates is in the item's chain).
   TemplateOptions templates;
-  /// SIFT views (built when sift is in the item's chain and the model has colours): the
-  /// coloured model is rendered from this many directions spread over the sphere.
+  /// SIFT views (built when sift is in the item's chain and the model has colours, or an
+  /// albedo: shape models carry their printed texture): the textured model is rendered from
+  /// this many directions spread over the sphere.
   int sift_views = 12;
   /// Pixels across the model's diameter in a SIFT view.
   int sift_view_size_px = 320;
@@ -132,8 +133,8 @@ struct LoadedModel {
   std::shared_ptr<const ObjectModel> object;
   /// Range templates; null when range_templates is not in the item's chain.
   std::shared_ptr<const RangeTemplateSet> templates;
-  /// SIFT views; null when sift is not in the chain or the model has no colours or too
-  /// little texture.
+  /// SIFT views; null when sift is not in the chain or the model has no colours or albedo,
+  /// or too little texture.
   std::shared_ptr<const SiftModel> sift;
   /// Number of points of the source cloud (scan) or surface sample (shape).
   std::size_t source_points = 0;
@@ -189,10 +190,11 @@ class ModelLibrary final {
 /// the file or catalogue cannot be read.
 geometry::PointCloud ModelSourceCloud(const ModelSpec& spec, const ModelLibraryOptions& options);
 
-/// SIFT views of a coloured model (points in the item frame with colours and normals): a
-/// point-splat rendering from `num_views` directions on a Fibonacci sphere, each pixel
-/// storing the model point it shows. Throws std::invalid_argument for a model without
-/// colours or bad sizes.
+/// SIFT views of a textured model (points in the item frame with normals and colours, or an
+/// albedo in [0, 1] in `intensities`, as shape models have it): a point-splat rendering from
+/// `num_views` directions on a Fibonacci sphere, grey levels the colour luma (or 255 *
+/// albedo), each pixel storing the model point it shows. Throws std::invalid_argument for a
+/// model without colours and albedo, or bad sizes.
 std::vector<SiftView> RenderSiftViews(const geometry::PointCloud& model, int num_views,
                                       int view_size_px);
 

@@ -293,6 +293,18 @@ TEST_F(ModelLibraryTest, ScannedModelAlbedoIsTheColourLuma) {
   EXPECT_FALSE(test_library.Get("milk")->object->has_albedo());
 }
 
+TEST_F(ModelLibraryTest, ShapeModelsGetSiftViewsOfTheirPrinting) {
+  // A catalogue box with SIFT in its chain: the views show the printed blocks.
+  const ModelManifest manifest = ModelManifest::Parse(
+      R"({"models": {"staples_index_cards": {"source": "shape:box", "preferred": "ppf",
+                                             "fallbacks": ["sift"]}}})",
+      "m.json", kDataDir, kDataDir);
+  const ModelLibrary library(manifest, Options());
+  const auto model = library.Get("staples_index_cards");
+  ASSERT_NE(model->sift, nullptr);
+  EXPECT_GT(model->sift->num_features(), 20u);
+}
+
 TEST(RenderSiftViewsTest, PixelsShowTheModelPointsTheyStore) {
   // A textured square 10 cm wide in the z = 0 plane with random grey blocks.
   geometry::PointCloud model;
@@ -326,6 +338,15 @@ TEST(RenderSiftViewsTest, PixelsShowTheModelPointsTheyStore) {
     }
   }
   EXPECT_GT(covered, 1000u);
+  // The same texture as an albedo (a shape model's printing) renders the same grey levels.
+  geometry::PointCloud albedo_model = model;
+  albedo_model.colors.clear();
+  for (const auto& c : model.colors) albedo_model.intensities.push_back(c[0] / 255.0f);
+  const std::vector<SiftView> albedo_views = RenderSiftViews(albedo_model, 4, 128);
+  ASSERT_EQ(albedo_views.size(), views.size());
+  for (std::size_t v = 0; v < views.size(); ++v) {
+    EXPECT_EQ(albedo_views[v].image.pixels, views[v].image.pixels);
+  }
   geometry::PointCloud grey_model = model;
   grey_model.colors.clear();
   EXPECT_THROW(RenderSiftViews(grey_model, 4, 128), std::invalid_argument);
