@@ -1,6 +1,7 @@
 #include "benchmarks/detector_eval/bin_detection.h"
 
 #include <chrono>
+#include <stdexcept>
 
 #include "services/detector/core/estimators.h"
 #include "services/detector/core/preprocess.h"
@@ -68,13 +69,18 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
       std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera, camera, context_options);
   detector::ObjectConfig config = library->ConfigFor(item);
   config.item = item;
+  if (!(options.budget_scale > 0.0)) {
+    throw std::invalid_argument("BinDetectionOptions: budget_scale must be positive");
+  }
+  config.time_budget_s *= options.budget_scale;
   if (method) {
     config.preferred = *method;
     config.fallbacks.clear();
     config.time_budget_s = 0.0;  // One method on its own: its whole search.
   }
-  const detector::DetectionChain chain(detector::DetectorConfig(config, {{item, config}}),
-                                       detector::MakeEstimators(library, context));
+  const detector::DetectionChain chain(
+      detector::DetectorConfig(config, {{item, config}}),
+      detector::MakeEstimators(library, context, options.estimators));
   detector::EstimatorInput input;
   input.item = item;
   input.scene = &region;

@@ -6,6 +6,7 @@
 
 #include "benchmarks/detector_eval/bin_scan_sim.h"
 #include "services/detector/core/detection.h"
+#include "services/detector/core/estimators.h"
 #include "services/detector/core/model_library.h"
 #include "services/detector/core/ppf_detector.h"
 
@@ -22,6 +23,12 @@ struct BinDetectionOptions {
   std::uint32_t wall_faces = detector::kAllFaces;
   /// Then the measured floor (the boards are not flat) is removed (RemoveBoxFloor).
   bool remove_floor = true;
+  /// The item's time budget (ObjectConfig::time_budget_s) is multiplied by this (> 0): on a
+  /// machine loaded by other work, a factor of the load keeps the budget's share of the
+  /// search as on a quiet one.
+  double budget_scale = 1.0;
+  /// The estimators' options (PPF per-segment hypotheses, sphere fits, ...).
+  detector::EstimatorOptions estimators;
 };
 
 /// One full detection call and what it saw.

@@ -9,7 +9,12 @@
 // the model's diameter.
 //
 // Usage: detector_eval [--layouts=1,2,3] [--seed=N] [--per_method=true|false]
-//                      [--bins=A,B,...] [--markdown=FILE]
+//                      [--bins=A,B,...] [--markdown=FILE] [--budget_scale=F]
+//                      [--ppf_segments=true|false] [--sphere_fit=true|false]
+//
+// --budget_scale multiplies every item's time budget (on a machine busy with other work,
+// the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
+// the sphere fit of ball models (detector::PpfSearchOptions) for comparisons.
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
@@ -45,7 +50,14 @@ struct Args {
   std::uint32_t seed = 1;
   bool per_method = true;
   std::string markdown;
+  BinDetectionOptions detection;
 };
+
+bool ParseBool(const std::string& key, const std::string& v) {
+  if (v == "true" || v == "1") return true;
+  if (v == "false" || v == "0") return false;
+  throw std::invalid_argument(key + " must be true or false, got '" + v + "'");
+}
 
 Args Parse(int argc, char** argv) {
   Args args;
@@ -65,6 +77,15 @@ Args Parse(int argc, char** argv) {
       args.per_method = *v == "true" || *v == "1";
     } else if (auto v = value("--markdown")) {
       args.markdown = *v;
+    } else if (auto v = value("--budget_scale")) {
+      args.detection.budget_scale = std::stod(*v);
+      if (!(args.detection.budget_scale > 0.0)) {
+        throw std::invalid_argument("--budget_scale must be positive");
+      }
+    } else if (auto v = value("--ppf_segments")) {
+      args.detection.estimators.ppf_search.per_segment_hypotheses = ParseBool("--ppf_segments", *v);
+    } else if (auto v = value("--sphere_fit")) {
+      args.detection.estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
     } else {
       throw std::invalid_argument("unknown argument '" + a +
                                   "' (see the header of detector_eval.cc)");
@@ -195,7 +216,8 @@ int Run(const Args& args) {
       const auto model = library->Get(entry.item);  // Built or loaded outside the timed call.
       const double model_s =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - model_start).count();
-      const BinDetectionResult chain_result = DetectInBin(library, scan, entry.item);
+      const BinDetectionResult chain_result =
+          DetectInBin(library, scan, entry.item, std::nullopt, args.detection);
       const Outcome chain = Judge(chain_result, *model, scan.items, entry.item);
       chain_total.Add(chain);
       per_item[entry.item].Add(chain);
@@ -208,7 +230,8 @@ int Run(const Args& args) {
                                  (m == detector::Method::kSift && model->sift) ||
                                  (m == detector::Method::kRangeTemplates && model->templates);
           if (has_model) {
-            o = Judge(DetectInBin(library, scan, entry.item, m), *model, scan.items, entry.item);
+            o = Judge(DetectInBin(library, scan, entry.item, m, args.detection), *model, scan.items,
+                      entry.item);
             per_method_total[detector::ToString(m)].Add(o);
             per_item_method[entry.item][detector::ToString(m)].Add(o);
           } else {

@@ -91,9 +91,40 @@ const SceneContext::Clusters& SceneContext::SceneClusters() {
     if (c->clusters.size() > static_cast<std::size_t>(options_.max_clusters)) {
       c->clusters.resize(static_cast<std::size_t>(options_.max_clusters));
     }
+    for (const auto& cluster : c->clusters) {
+      Eigen::AlignedBox3f box;
+      for (int i : cluster) box.extend(c->cloud.points[i]);
+      c->extent_m.push_back(cluster.empty() ? 0.0 : static_cast<double>(box.diagonal().norm()));
+    }
     clusters_ = std::move(c);
   }
   return *clusters_;
+}
+
+std::vector<std::int32_t> SceneContext::ClusterLabels(const std::vector<Eigen::Vector3f>& points,
+                                                      float max_distance_m) {
+  const Clusters& clusters = SceneClusters();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!cluster_tree_) {
+      std::vector<Eigen::Vector3f> clustered;
+      for (std::size_t c = 0; c < clusters.clusters.size(); ++c) {
+        for (int i : clusters.clusters[c]) {
+          clustered.push_back(clusters.cloud.points[i]);
+          cluster_labels_.push_back(static_cast<std::int32_t>(c));
+        }
+      }
+      cluster_tree_ = std::make_unique<KdTree>(clustered);
+    }
+  }
+  std::vector<std::int32_t> labels(points.size(), -1);
+  if (cluster_tree_->empty()) return labels;
+  const float max_sq = max_distance_m * max_distance_m;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const std::int32_t j = cluster_tree_->Nearest(points[i], nullptr, max_sq);
+    if (j != KdTree::kNone) labels[i] = cluster_labels_[j];
+  }
+  return labels;
 }
 
 // --- Refinement and verification ------------------------------------------------------------
@@ -151,12 +182,16 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
 
 PpfEstimator::PpfEstimator(std::shared_ptr<const ModelLibrary> library,
                            std::shared_ptr<SceneContext> context, PpfDetectorOptions ppf,
-                           RefineVerifyOptions refine)
+                           RefineVerifyOptions refine, PpfSearchOptions search)
     : library_(std::move(library)),
       context_(std::move(context)),
       ppf_(std::move(ppf)),
-      refine_(std::move(refine)) {
+      refine_(std::move(refine)),
+      search_(std::move(search)) {
   if (!library_ || !context_) throw std::invalid_argument("PpfEstimator: null library or context");
+  if (!(search_.voting_budget_fraction > 0.0f && search_.voting_budget_fraction <= 1.0f)) {
+    throw std::invalid_argument("PpfSearchOptions: voting_budget_fraction must be in (0, 1]");
+  }
 }
 
 std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
@@ -168,8 +203,48 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
   const PpfScene& scene = context_->PpfSceneFor(*model);
   const double preprocess_s = SecondsSince(preprocess_start);
   context_->CheckDeadline();
-  const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf_);
   std::vector<Detection> out;
+  if (search_.fit_spheres && model->spec.kind == ModelSourceKind::kShapeSphere) {
+    const auto estimate_start = Clock::now();
+    const std::vector<SphereFit> spheres =
+        FindSpheres(scene.fine, 0.5 * model->object->diameter_m(), search_.sphere);
+    const double estimate_s = SecondsSince(estimate_start);
+    for (const SphereFit& sphere : spheres) {
+      context_->CheckDeadline();
+      // The model frame's origin is the sphere's centre; any rotation places it alike.
+      Detection d =
+          RefineAndVerify(*model, *context_, Method::kPpf,
+                          Eigen::Isometry3d(Eigen::Translation3d(sphere.p_Centre)), true, refine_);
+      d.timings.preprocess_s = preprocess_s;
+      d.timings.estimate_s = estimate_s;
+      out.push_back(std::move(d));
+    }
+    SortByScore(&out);
+    for (auto& d : out) d.timings.total_s = SecondsSince(start);
+    return out;
+  }
+  PpfDetectorOptions ppf = ppf_;
+  if (search_.per_segment_hypotheses) {
+    const float diameter = model->object->diameter_m();
+    std::vector<std::int32_t> labels =
+        context_->ClusterLabels(scene.sampled.points, model->object->sampling_distance_m());
+    const SceneContext::Clusters& clusters = context_->SceneClusters();
+    for (std::int32_t& label : labels) {
+      if (label >= 0 && clusters.extent_m[static_cast<std::size_t>(label)] <
+                            search_.min_segment_extent_rel * diameter) {
+        label = -1;
+      }
+    }
+    ppf.match.segments = std::move(labels);
+  }
+  if (input.budget_end != Clock::time_point::max()) {
+    const auto now = Clock::now();
+    const auto remaining = std::max(Clock::duration::zero(), input.budget_end - now);
+    ppf.match.deadline = now + std::chrono::duration_cast<Clock::duration>(
+                                   remaining * search_.voting_budget_fraction);
+  }
+  context_->CheckDeadline();
+  const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
     // DetectPpf has refined the pose with ICP already.
@@ -278,7 +353,8 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(
     const std::shared_ptr<const ModelLibrary>& library,
     const std::shared_ptr<SceneContext>& context, const EstimatorOptions& options) {
-  return {std::make_shared<PpfEstimator>(library, context, options.ppf, options.refine),
+  return {std::make_shared<PpfEstimator>(library, context, options.ppf, options.refine,
+                                         options.ppf_search),
           std::make_shared<SiftPoseEstimator>(library, context, options.sift, options.refine),
           std::make_shared<RangeTemplateEstimator>(library, context, options.templates,
                                                    options.refine)};

@@ -13,7 +13,9 @@
 #include "libs/geometry/point_cloud.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/icp.h"
+#include "services/detector/core/kdtree.h"
 #include "services/detector/core/model_library.h"
+#include "services/detector/core/ppf_cloud.h"
 #include "services/detector/core/ppf_detector.h"
 #include "services/detector/core/preprocess.h"
 #include "services/detector/core/sift.h"
@@ -75,8 +77,15 @@ class SceneContext final {
   struct Clusters {
     geometry::PointCloud cloud;
     std::vector<std::vector<int>> clusters;
+    /// Bounding-box diagonal of each cluster, metres.
+    std::vector<double> extent_m;
   };
   const Clusters& SceneClusters();
+  /// For each of `points` (base frame): the index into SceneClusters().clusters of the
+  /// cluster of the nearest clustered scene point within max_distance_m (metres), -1 when
+  /// there is none. The search tree over the clustered points is built on first use.
+  std::vector<std::int32_t> ClusterLabels(const std::vector<Eigen::Vector3f>& points,
+                                          float max_distance_m);
 
  private:
   const geometry::PointCloud* scene_;
@@ -89,6 +98,8 @@ class SceneContext final {
   std::unique_ptr<VerificationScene> verification_;
   bool verification_built_ = false;
   std::unique_ptr<Clusters> clusters_;
+  std::unique_ptr<KdTree> cluster_tree_;      // over the clustered points
+  std::vector<std::int32_t> cluster_labels_;  // cluster of each point of cluster_tree_
 };
 
 /// Refinement and scoring shared by all estimators.
@@ -108,13 +119,36 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
                           const Eigen::Isometry3d& X_BaseItem, bool refine,
                           const RefineVerifyOptions& options = {});
 
+/// How PpfEstimator searches a scene beyond DetectPpf's own options.
+struct PpfSearchOptions {
+  /// Hypotheses per scene segment: the scene's euclidean clusters (SceneContext) label the
+  /// PPF reference points and every cluster contributes its best poses
+  /// (PpfMatchOptions::segments), so an item next to larger ones is not outvoted.
+  bool per_segment_hypotheses = true;
+  /// Clusters whose bounding-box diagonal is below this fraction of the model's diameter
+  /// cannot hold a visible part of it worth a pose: their reference points join the rest.
+  float min_segment_extent_rel = 0.2f;
+  /// With a time budget (EstimatorInput::budget_end), voting stops after this fraction of
+  /// the remaining budget, leaving the rest to refinement and verification; in (0, 1].
+  float voting_budget_fraction = 0.5f;
+  /// Sphere models (ModelSourceKind::kShapeSphere) are found by FindSpheres with the
+  /// model's radius instead of PPF voting: a ball's pose is its centre, and every pair of a
+  /// sphere votes alike, which makes voting slow and its peaks flat.
+  bool fit_spheres = true;
+  SphereSearchOptions sphere;
+};
+
 /// PPF voting, pose clustering and ICP (ppf_detector.h), then verification. Candidates are
-/// the hypotheses that pass DetectPpf's own support check, best score first.
+/// the hypotheses that pass DetectPpf's own support check, best score first. Sphere models
+/// are found by a sphere fit instead (PpfSearchOptions::fit_spheres), refined by ICP and
+/// verified the same way.
 class PpfEstimator final : public Estimator {
  public:
-  /// Throws std::invalid_argument on a null library or context.
+  /// Throws std::invalid_argument on a null library or context or a voting_budget_fraction
+  /// outside (0, 1].
   PpfEstimator(std::shared_ptr<const ModelLibrary> library, std::shared_ptr<SceneContext> context,
-               PpfDetectorOptions ppf = {}, RefineVerifyOptions refine = {});
+               PpfDetectorOptions ppf = {}, RefineVerifyOptions refine = {},
+               PpfSearchOptions search = {});
   Method method() const override { return Method::kPpf; }
   /// Throws NotFoundError for an unknown item, std::invalid_argument when input.scene is
   /// not the context's scene.
@@ -125,6 +159,7 @@ class PpfEstimator final : public Estimator {
   std::shared_ptr<SceneContext> context_;
   PpfDetectorOptions ppf_;
   RefineVerifyOptions refine_;
+  PpfSearchOptions search_;
 };
 
 /// SIFT features of the scene's intensity image matched to the model's rendered views
@@ -182,6 +217,7 @@ struct EstimatorOptions {
     o.max_conflict_fraction = 1.0f;
     return o;
   }();
+  PpfSearchOptions ppf_search;
   SiftPoseOptions sift;
   TemplateMatchOptions templates;
   RefineVerifyOptions refine;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <map>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -422,6 +423,7 @@ void ValidateMatchOptions(const PpfMatchOptions& o) {
   if (!(o.cluster_rotation_rad > 0.0f)) fail("cluster_rotation_rad must be positive");
   if (o.max_hypotheses < 1) fail("max_hypotheses must be >= 1");
   if (o.num_threads < 0) fail("num_threads must be >= 0");
+  if (o.hypotheses_per_segment < 1) fail("hypotheses_per_segment must be >= 1");
 }
 
 }  // namespace
@@ -438,6 +440,11 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   }
   if (table.entries().empty() && table.offsets().empty()) {
     throw std::invalid_argument("MatchPpf: the table is not trained");
+  }
+  if (!options.segments.empty() && options.segments.size() != scene.size()) {
+    throw std::invalid_argument(
+        "PpfMatchOptions: segments has " + std::to_string(options.segments.size()) +
+        " labels, the scene has " + std::to_string(scene.size()) + " points");
   }
   PpfMatchResult result;
   const PpfQuantizer& quant = table.quantizer();
@@ -478,6 +485,16 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     }
   }
   result.reference_points = static_cast<int>(references.size());
+  // Visit order spread over the scene (every kSpread-th reference point first, then the
+  // ones after them, ...), so that voting stopped by the deadline has covered all of it.
+  constexpr std::size_t kSpread = 16;
+  std::vector<std::int32_t> order;
+  order.reserve(references.size());
+  for (std::size_t offset = 0; offset < kSpread; ++offset) {
+    for (std::size_t i = offset; i < references.size(); i += kSpread) {
+      order.push_back(references[i]);
+    }
+  }
 
   int threads = options.num_threads > 0 ? options.num_threads
                                         : static_cast<int>(std::thread::hardware_concurrency());
@@ -486,7 +503,10 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   std::vector<std::int64_t> lookups(threads, 0);
   std::vector<std::int64_t> votes_cast(threads, 0);
   std::vector<std::int64_t> duplicates(threads, 0);
+  std::vector<int> voted(threads, 0);
   std::atomic<std::size_t> next{0};
+  std::atomic<bool> timed_out{false};
+  const bool has_deadline = options.deadline != std::chrono::steady_clock::time_point::max();
   constexpr std::size_t kChunk = 8;
   const float radius = table.diameter_m();
 
@@ -498,11 +518,16 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     std::vector<std::pair<std::uint32_t, std::int32_t>> candidates;
     std::int64_t n_lookups = 0, n_votes = 0, n_duplicates = 0;
     for (;;) {
+      if (has_deadline && std::chrono::steady_clock::now() >= options.deadline) {
+        timed_out = true;
+        break;
+      }
       const std::size_t start = next.fetch_add(kChunk);
-      if (start >= references.size()) break;
-      const std::size_t stop = std::min(references.size(), start + kChunk);
+      if (start >= order.size()) break;
+      const std::size_t stop = std::min(order.size(), start + kChunk);
+      voted[t] += static_cast<int>(stop - start);
       for (std::size_t r = start; r < stop; ++r) {
-        const std::int32_t ref = references[r];
+        const std::int32_t ref = order[r];
         const Eigen::Vector3f& p_r = scene.points[ref];
         const Eigen::Vector3f& n_r = scene.normals[ref];
         const Eigen::Isometry3f T_s = AlignToXAxis(p_r, n_r);
@@ -594,64 +619,110 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     result.pair_lookups += lookups[t];
     result.votes_cast += votes_cast[t];
     result.duplicate_pairs += duplicates[t];
+    result.voted_reference_points += voted[t];
   }
+  result.voted_reference_points = std::min(result.voted_reference_points, result.reference_points);
+  result.timed_out = timed_out.load() && result.voted_reference_points < result.reference_points;
   std::sort(all.begin(), all.end(), [](const Peak& a, const Peak& b) {
     return a.reference != b.reference ? a.reference < b.reference : a.rank < b.rank;
   });
-  std::vector<Eigen::Isometry3d> poses;
-  std::vector<double> votes;
-  poses.reserve(all.size());
-  votes.reserve(all.size());
-  for (const Peak& p : all) {
-    poses.push_back(p.X_SceneModel);
-    votes.push_back(p.votes);
-  }
-  std::vector<PpfHypothesis> clusters =
-      ClusterPoses(poses, votes, options.cluster_translation_rel * table.diameter_m(),
-                   options.cluster_rotation_rad);
 
-  // Merge clusters that place a symmetric model identically.
-  const std::size_t candidates =
-      std::min(clusters.size(), static_cast<std::size_t>(3 * options.max_hypotheses));
-  std::vector<bool> merged(candidates, false);
-  if (options.symmetry_tolerance_rel > 0.0f && candidates > 1) {
-    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-    for (const auto& p : model.points) centroid += p.cast<double>();
-    centroid /= static_cast<double>(model.size());
-    const std::size_t stride = std::max<std::size_t>(1, model.size() / 200);
-    const double tolerance = options.symmetry_tolerance_rel * quant.distance_step_m();
-    for (std::size_t j = 1; j < candidates; ++j) {
-      for (std::size_t i = 0; i < j; ++i) {
-        if (merged[i]) continue;
-        const Eigen::Isometry3d& X_i = clusters[i].X_SceneModel;
-        const Eigen::Isometry3d& X_j = clusters[j].X_SceneModel;
-        if ((X_i * centroid - X_j * centroid).norm() > 2.0 * quant.distance_step_m()) continue;
-        const Eigen::Isometry3f X_rel = (X_i.inverse() * X_j).cast<float>();
-        double sum = 0.0;
-        std::size_t count = 0;
-        for (std::size_t m = 0; m < model.size(); m += stride, ++count) {
-          float d2 = 0.0f;
-          table.model_tree().Nearest(X_rel * model.points[m], &d2);
-          sum += std::sqrt(d2);
-        }
-        if (sum / static_cast<double>(count) < tolerance) {
-          merged[j] = true;
-          clusters[i].votes += clusters[j].votes;
-          clusters[i].num_poses += clusters[j].num_poses;
-          break;
+  // Pose clusters of a set of peaks, merged where a symmetric model is placed identically,
+  // by votes; the best `keep` of them.
+  const auto cluster = [&](const std::vector<const Peak*>& group, std::size_t keep) {
+    std::vector<Eigen::Isometry3d> poses;
+    std::vector<double> votes;
+    poses.reserve(group.size());
+    votes.reserve(group.size());
+    for (const Peak* p : group) {
+      poses.push_back(p->X_SceneModel);
+      votes.push_back(p->votes);
+    }
+    std::vector<PpfHypothesis> clusters =
+        ClusterPoses(poses, votes, options.cluster_translation_rel * table.diameter_m(),
+                     options.cluster_rotation_rad);
+    const std::size_t candidates = std::min(clusters.size(), 3 * keep);
+    std::vector<bool> merged(candidates, false);
+    if (options.symmetry_tolerance_rel > 0.0f && candidates > 1) {
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (const auto& p : model.points) centroid += p.cast<double>();
+      centroid /= static_cast<double>(model.size());
+      const std::size_t stride = std::max<std::size_t>(1, model.size() / 200);
+      const double tolerance = options.symmetry_tolerance_rel * quant.distance_step_m();
+      for (std::size_t j = 1; j < candidates; ++j) {
+        for (std::size_t i = 0; i < j; ++i) {
+          if (merged[i]) continue;
+          const Eigen::Isometry3d& X_i = clusters[i].X_SceneModel;
+          const Eigen::Isometry3d& X_j = clusters[j].X_SceneModel;
+          if ((X_i * centroid - X_j * centroid).norm() > 2.0 * quant.distance_step_m()) continue;
+          const Eigen::Isometry3f X_rel = (X_i.inverse() * X_j).cast<float>();
+          double sum = 0.0;
+          std::size_t count = 0;
+          for (std::size_t m = 0; m < model.size(); m += stride, ++count) {
+            float d2 = 0.0f;
+            table.model_tree().Nearest(X_rel * model.points[m], &d2);
+            sum += std::sqrt(d2);
+          }
+          if (sum / static_cast<double>(count) < tolerance) {
+            merged[j] = true;
+            clusters[i].votes += clusters[j].votes;
+            clusters[i].num_poses += clusters[j].num_poses;
+            break;
+          }
         }
       }
     }
+    std::vector<PpfHypothesis> out;
+    for (std::size_t c = 0; c < clusters.size(); ++c) {
+      if (c < candidates && merged[c]) continue;
+      out.push_back(clusters[c]);
+    }
+    std::stable_sort(out.begin(), out.end(), [](const PpfHypothesis& a, const PpfHypothesis& b) {
+      return a.votes > b.votes;
+    });
+    if (out.size() > keep) out.resize(keep);
+    return out;
+  };
+
+  const auto max_hypotheses = static_cast<std::size_t>(options.max_hypotheses);
+  if (options.segments.empty()) {
+    std::vector<const Peak*> group;
+    group.reserve(all.size());
+    for (const Peak& p : all) group.push_back(&p);
+    result.hypotheses = cluster(group, max_hypotheses);
+    return result;
   }
-  for (std::size_t c = 0; c < clusters.size(); ++c) {
-    if (c < candidates && merged[c]) continue;
-    result.hypotheses.push_back(clusters[c]);
+  // Per segment (by label, in order of the labels), then in rounds over the segments.
+  std::map<std::int32_t, std::vector<const Peak*>> groups;
+  for (const Peak& p : all) groups[options.segments[p.reference]].push_back(&p);
+  std::vector<std::vector<PpfHypothesis>> per_segment;
+  for (const auto& [label, group] : groups) per_segment.push_back(cluster(group, max_hypotheses));
+  std::stable_sort(per_segment.begin(), per_segment.end(),
+                   [](const std::vector<PpfHypothesis>& a, const std::vector<PpfHypothesis>& b) {
+                     const double va = a.empty() ? 0.0 : a.front().votes;
+                     const double vb = b.empty() ? 0.0 : b.front().votes;
+                     return va > vb;
+                   });
+  const auto per = static_cast<std::size_t>(options.hypotheses_per_segment);
+  for (std::size_t round = 0; round < per; ++round) {
+    for (const auto& hypotheses : per_segment) {
+      if (round < hypotheses.size() && result.hypotheses.size() < max_hypotheses) {
+        result.hypotheses.push_back(hypotheses[round]);
+      }
+    }
   }
-  std::stable_sort(
-      result.hypotheses.begin(), result.hypotheses.end(),
-      [](const PpfHypothesis& a, const PpfHypothesis& b) { return a.votes > b.votes; });
-  if (result.hypotheses.size() > static_cast<std::size_t>(options.max_hypotheses)) {
-    result.hypotheses.resize(options.max_hypotheses);
+  // The remaining places go to the other clusters by votes, whatever their segment.
+  std::vector<PpfHypothesis> rest;
+  for (const auto& hypotheses : per_segment) {
+    if (hypotheses.size() > per)
+      rest.insert(rest.end(), hypotheses.begin() + per, hypotheses.end());
+  }
+  std::stable_sort(rest.begin(), rest.end(), [](const PpfHypothesis& a, const PpfHypothesis& b) {
+    return a.votes > b.votes;
+  });
+  for (const PpfHypothesis& h : rest) {
+    if (result.hypotheses.size() >= max_hypotheses) break;
+    result.hypotheses.push_back(h);
   }
   return result;
 }

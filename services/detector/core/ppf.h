@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <chrono>
 #include <cstdint>
 #include <vector>
 
@@ -184,6 +185,19 @@ struct PpfMatchOptions {
   int max_hypotheses = 10;
   /// Worker threads over the reference points; 0 = hardware concurrency.
   int num_threads = 0;
+  /// Scene segments (e.g. euclidean clusters): one label per scene point, any value (points
+  /// of no segment share one label, e.g. -1); empty: the whole scene is one segment. Each
+  /// segment's reference points have their poses clustered on their own and every segment
+  /// contributes its best hypotheses_per_segment clusters before the remaining places go by
+  /// votes: an item among larger neighbours gets hypotheses although the neighbours collect
+  /// more votes. Pairs still span segments.
+  std::vector<std::int32_t> segments;
+  /// Hypotheses kept per segment (>= 1) when `segments` is set.
+  int hypotheses_per_segment = 2;
+  /// Voting stops at this time and the hypotheses come from the reference points voted so
+  /// far (PpfMatchResult::timed_out). Reference points are visited in an order spread over
+  /// the whole scene, so a partial vote still covers it. Default: no limit.
+  std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
 };
 
 /// One pose cluster.
@@ -194,8 +208,16 @@ struct PpfHypothesis {
 };
 
 struct PpfMatchResult {
-  std::vector<PpfHypothesis> hypotheses;  ///< Sorted by votes, highest first.
+  /// Sorted by votes, highest first; with segments, in hypotheses_per_segment rounds first
+  /// (every segment's best hypothesis, segments by their best votes, then every segment's
+  /// second one, ...), then the other clusters of all segments by votes; at most
+  /// max_hypotheses in all.
+  std::vector<PpfHypothesis> hypotheses;
   int reference_points = 0;
+  /// Reference points that voted (fewer than reference_points when the deadline stopped the
+  /// voting).
+  int voted_reference_points = 0;
+  bool timed_out = false;
   std::int64_t pair_lookups = 0;  ///< Scene pairs looked up in the table.
   std::int64_t votes_cast = 0;
   /// Scene pairs not looked up because their key and scene angle bin had voted already.

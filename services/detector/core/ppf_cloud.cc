@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <random>
 #include <stdexcept>
 #include <string>
 
@@ -189,6 +190,83 @@ float CloudDiameter(const std::vector<Eigen::Vector3f>& points) {
     }
   }
   return std::sqrt(best);
+}
+
+std::vector<SphereFit> FindSpheres(const geometry::PointCloud& cloud, double radius_m,
+                                   const SphereSearchOptions& options) {
+  if (!(radius_m > 0.0) || !std::isfinite(radius_m)) {
+    throw std::invalid_argument("FindSpheres: radius_m must be positive and finite");
+  }
+  if (!(options.distance_threshold_m > 0.0) || !(options.normal_threshold_rad > 0.0) ||
+      options.max_iterations < 1 || options.max_spheres < 1 || options.min_inliers < 1) {
+    throw std::invalid_argument("FindSpheres: a threshold or count is out of range");
+  }
+  CheckCloudChannels(cloud, "FindSpheres cloud");
+  if (!cloud.has_normals()) throw std::invalid_argument("FindSpheres: the cloud has no normals");
+  std::vector<std::size_t> points;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (cloud.points[i].allFinite() && cloud.normals[i].allFinite() &&
+        cloud.normals[i].squaredNorm() > 0.25f) {
+      points.push_back(i);
+    }
+  }
+  const double cos_normal = std::cos(options.normal_threshold_rad);
+  const auto supports = [&](const Eigen::Vector3d& c, std::size_t i) {
+    const Eigen::Vector3d d = cloud.points[i].cast<double>() - c;
+    const double r = d.norm();
+    if (std::abs(r - radius_m) > options.distance_threshold_m || r <= 0.0) return false;
+    return cloud.normals[i].cast<double>().normalized().dot(d / r) >= cos_normal;
+  };
+  std::mt19937 rng(options.seed);
+  std::vector<SphereFit> out;
+  while (static_cast<int>(out.size()) < options.max_spheres &&
+         points.size() >= options.min_inliers) {
+    std::uniform_int_distribution<std::size_t> pick(0, points.size() - 1);
+    constexpr std::size_t kScoreSamples = 4000;
+    std::vector<std::size_t> subset;
+    if (points.size() <= kScoreSamples) {
+      subset = points;
+    } else {
+      for (std::size_t k = 0; k < kScoreSamples; ++k) subset.push_back(points[pick(rng)]);
+    }
+    Eigen::Vector3d best = Eigen::Vector3d::Zero();
+    std::size_t best_count = 0;
+    for (int it = 0; it < options.max_iterations; ++it) {
+      const std::size_t i = points[pick(rng)];
+      const Eigen::Vector3d c =
+          cloud.points[i].cast<double>() - radius_m * cloud.normals[i].cast<double>().normalized();
+      std::size_t count = 0;
+      for (std::size_t j : subset) count += supports(c, j) ? 1 : 0;
+      if (count > best_count) {
+        best_count = count;
+        best = c;
+      }
+    }
+    if (best_count == 0) break;
+    // Centre refit with the radius fixed: each inlier votes for the centre at radius_m
+    // behind it along its direction from the current centre.
+    std::size_t inliers = 0;
+    for (int refit = 0; refit < 5; ++refit) {
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+      inliers = 0;
+      for (std::size_t j : points) {
+        if (!supports(best, j)) continue;
+        const Eigen::Vector3d p = cloud.points[j].cast<double>();
+        sum += p - radius_m * (p - best).normalized();
+        ++inliers;
+      }
+      if (inliers == 0) break;
+      best = sum / static_cast<double>(inliers);
+    }
+    if (inliers < options.min_inliers) break;
+    out.push_back({best, inliers});
+    std::vector<std::size_t> rest;
+    for (std::size_t j : points) {
+      if (!supports(best, j)) rest.push_back(j);
+    }
+    points = std::move(rest);
+  }
+  return out;
 }
 
 }  // namespace picking::detector

@@ -2,6 +2,9 @@
 
 #include <Eigen/Core>
 
+#include <cstdint>
+#include <vector>
+
 #include "libs/geometry/point_cloud.h"
 
 namespace picking::detector {
@@ -45,5 +48,34 @@ geometry::PointCloud EstimatePcaNormals(const geometry::PointCloud& cloud,
 /// Largest distance between two points of `points`, metres (exact, O(n^2)); 0 when fewer
 /// than two points.
 float CloudDiameter(const std::vector<Eigen::Vector3f>& points);
+
+/// Options of FindSpheres.
+struct SphereSearchOptions {
+  /// A point supports a sphere when it lies within this distance of its surface, metres.
+  double distance_threshold_m = 0.002;
+  /// ... and its normal is within this angle of the sphere's outward normal, radians.
+  double normal_threshold_rad = 0.35;
+  int max_iterations = 300;  ///< RANSAC hypotheses per sphere (one point and its normal each).
+  int max_spheres = 3;       ///< Spheres returned at most (>= 1).
+  /// A sphere needs at least this many supporting points (>= 1).
+  std::size_t min_inliers = 50;
+  std::uint32_t seed = 7;
+};
+
+/// A sphere of known radius found in a cloud.
+struct SphereFit {
+  Eigen::Vector3d p_Centre = Eigen::Vector3d::Zero();  ///< In the cloud's frame, metres.
+  std::size_t inliers = 0;
+};
+
+/// Spheres of radius `radius_m` in `cloud` (points in metres with unit normals pointing out of
+/// the surfaces, e.g. toward the sensor), most supported first: RANSAC over one point and its
+/// normal (centre = p - radius_m n), support counted over up to 4000 sampled points,
+/// least-squares refit of the centre on the inliers with the radius fixed; the next sphere is
+/// searched among the points no earlier sphere supports. A sphere's pose is its centre, so
+/// this replaces a pose search for a ball. Deterministic for a given seed. Throws
+/// std::invalid_argument for a non-positive radius, a cloud without normals or bad options.
+std::vector<SphereFit> FindSpheres(const geometry::PointCloud& cloud, double radius_m,
+                                   const SphereSearchOptions& options = {});
 
 }  // namespace picking::detector

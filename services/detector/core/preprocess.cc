@@ -15,6 +15,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <unordered_map>
+#include <unordered_set>
 
 namespace picking::detector {
 namespace {
@@ -273,7 +274,8 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
   box.Validate();
   if (!(options.search_height_m > 0.0) || !(options.max_tilt_rad > 0.0) ||
       !(options.distance_threshold_m > 0.0) || !(options.margin_m >= 0.0) ||
-      options.max_iterations < 1) {
+      options.max_iterations < 1 || options.max_planes < 1 || !(options.min_step_m > 0.0) ||
+      !(options.normal_threshold_rad > 0.0)) {
     throw std::invalid_argument("RemoveBoxFloor: a distance, angle or count is out of range");
   }
   const Eigen::Isometry3d X_BoxBase = box.X_BaseBox.inverse();
@@ -281,27 +283,57 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
   const double cos_tilt = std::cos(options.max_tilt_rad);
   const bool normals = cloud.has_normals();
   // Candidates in the Box frame.
-  std::vector<Eigen::Vector3d> candidates;
+  // Candidates in the Box frame, with their normals (zero without normals).
+  struct Candidate {
+    Eigen::Vector3d p;
+    Eigen::Vector3d n;
+  };
+  std::vector<Candidate> candidates;
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     if (!cloud.points[i].allFinite()) continue;
     const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
     if (p.z() > bottom_z + options.search_height_m) continue;
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
     if (normals) {
-      const Eigen::Vector3f& n = cloud.normals[i];
-      if (!n.allFinite() || (X_BoxBase.linear() * n.cast<double>()).z() < cos_tilt) continue;
+      if (!cloud.normals[i].allFinite()) continue;
+      n = X_BoxBase.linear() * cloud.normals[i].cast<double>();
+      if (n.z() < cos_tilt) continue;
     }
-    candidates.push_back(p);
+    candidates.push_back({p, n});
   }
   PlaneRemovalResult result;
-  if (candidates.size() < std::max<std::size_t>(3, options.min_inliers)) {
-    result.cloud = cloud;
-    return result;
-  }
-  // RANSAC for the best-supported plane; when enough candidates lie clearly below it, it was
-  // the top of a flat item and the search repeats among those.
+  result.cloud = cloud;
+  if (candidates.size() < std::max<std::size_t>(3, options.min_inliers)) return result;
+
+  // Up to max_planes planes (normal near the box's +z, n.z > 0), each by RANSAC over the
+  // candidates the earlier ones left, refitted by least squares on its inliers.
   std::mt19937 rng(options.seed);
   const double threshold = options.distance_threshold_m;
-  const auto fit = [&](const std::vector<Eigen::Vector3d>& points, Eigen::Vector4d* plane) {
+  struct Plane {
+    Eigen::Vector4d coefficients = Eigen::Vector4d::Zero();  // n.p + d = 0, Box frame
+    Eigen::Vector2d centroid_xy = Eigen::Vector2d::Zero();   // of its inliers, Box frame
+    bool floor = true;
+    std::unordered_set<std::int64_t> cells;  // footprint: grid cells holding its inliers
+  };
+  // Footprint cells of kCell metres over the Box xy plane.
+  constexpr double kCell = 0.02;
+  const auto cell_of = [&](const Eigen::Vector3d& p) {
+    const auto x = static_cast<std::int64_t>(std::floor(p.x() / kCell));
+    const auto y = static_cast<std::int64_t>(std::floor(p.y() / kCell));
+    return (x << 32) ^ (y & 0xFFFFFFFF);
+  };
+  const auto height = [](const Eigen::Vector4d& plane, const Eigen::Vector2d& xy) {
+    return -(plane[0] * xy.x() + plane[1] * xy.y() + plane[3]) / plane[2];
+  };
+  // Inliers lie within the distance threshold and, with normals, have their normal within
+  // normal_threshold_rad of the plane's: a plane grazing two parallel surfaces (an item's top
+  // and the floor beyond it) at a slant collects no inliers from either.
+  const double cos_normal = std::cos(options.normal_threshold_rad);
+  const auto inlier = [&](const Eigen::Vector4d& plane, const Candidate& c) {
+    return std::abs(plane.head<3>().dot(c.p) + plane[3]) <= threshold &&
+           (!normals || plane.head<3>().dot(c.n) >= cos_normal);
+  };
+  const auto fit = [&](const std::vector<Candidate>& points, Plane* plane) {
     std::uniform_int_distribution<std::size_t> pick(0, points.size() - 1);
     constexpr std::size_t kScoreSamples = 3000;
     std::vector<std::size_t> subset;
@@ -311,76 +343,112 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
     Eigen::Vector4d best = Eigen::Vector4d::Zero();
     std::size_t best_count = 0;
     for (int it = 0; it < options.max_iterations; ++it) {
-      const Eigen::Vector3d& a = points[pick(rng)];
-      Eigen::Vector3d n = (points[pick(rng)] - a).cross(points[pick(rng)] - a);
+      const Eigen::Vector3d& a = points[pick(rng)].p;
+      Eigen::Vector3d n = (points[pick(rng)].p - a).cross(points[pick(rng)].p - a);
       if (n.norm() < 1e-12) continue;
       n.normalize();
       if (n.z() < 0.0) n = -n;
       if (n.z() < cos_tilt) continue;
-      const double d = -n.dot(a);
+      Eigen::Vector4d hypothesis;
+      hypothesis << n, -n.dot(a);
       std::size_t count = 0;
-      for (std::size_t i : subset) count += std::abs(n.dot(points[i]) + d) <= threshold ? 1 : 0;
+      for (std::size_t i : subset) count += inlier(hypothesis, points[i]) ? 1 : 0;
       if (count > best_count) {
         best_count = count;
-        best << n, d;
+        best = hypothesis;
       }
     }
     if (best_count == 0) return std::size_t{0};
-    // Least-squares refit on the inliers.
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    // Least-squares refits on the inliers (twice: the refitted plane gathers its inliers
+    // anew).
     std::size_t num = 0;
-    for (const auto& p : points) {
-      if (std::abs(best.head<3>().dot(p) + best[3]) <= threshold) {
-        mean += p;
-        ++num;
+    for (int refit = 0; refit < 2; ++refit) {
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      num = 0;
+      for (const auto& c : points) {
+        if (inlier(best, c)) {
+          mean += c.p;
+          ++num;
+        }
       }
-    }
-    mean /= static_cast<double>(num);
-    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-    for (const auto& p : points) {
-      if (std::abs(best.head<3>().dot(p) + best[3]) <= threshold) {
-        cov += (p - mean) * (p - mean).transpose();
+      if (num < 3) return std::size_t{0};
+      mean /= static_cast<double>(num);
+      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+      for (const auto& c : points) {
+        if (inlier(best, c)) cov += (c.p - mean) * (c.p - mean).transpose();
       }
+      Eigen::Vector3d n = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+      if (n.z() < 0.0) n = -n;
+      if (n.z() < cos_tilt) break;
+      best << n, -n.dot(mean);
+      plane->centroid_xy = mean.head<2>();
     }
-    Eigen::Vector3d n = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
-    if (n.z() < 0.0) n = -n;
-    if (n.z() >= cos_tilt) best << n, -n.dot(mean);
-    *plane = best;
+    plane->coefficients = best;
     return num;
   };
-  Eigen::Vector4d best = Eigen::Vector4d::Zero();
-  bool found = false;
-  for (int round = 0; round < 4 && candidates.size() >= options.min_inliers; ++round) {
-    Eigen::Vector4d plane = Eigen::Vector4d::Zero();
+  std::vector<Plane> planes;
+  while (static_cast<int>(planes.size()) < options.max_planes &&
+         candidates.size() >= options.min_inliers) {
+    Plane plane;
     if (fit(candidates, &plane) < options.min_inliers) break;
-    // Height of the plane above the box's bottom at the box's centre (x = y = 0).
-    const double centre_height = -plane[3] / plane[2] - bottom_z;
-    if (centre_height <= options.max_centre_height_m) {
-      best = plane;
-      found = true;
+    std::vector<Candidate> rest;
+    for (const auto& c : candidates) {
+      if (!inlier(plane.coefficients, c)) {
+        rest.push_back(c);
+      } else {
+        plane.cells.insert(cell_of(c.p));
+      }
     }
-    std::vector<Eigen::Vector3d> below;
-    for (const auto& p : candidates) {
-      if (plane.head<3>().dot(p) + plane[3] < -2.0 * threshold) below.push_back(p);
+    candidates = std::move(rest);
+    planes.push_back(std::move(plane));
+  }
+  // The floor is the lowest surface: a plane that lies more than min_step_m above another
+  // one both where its own inliers are and where the other's are is the top of an item
+  // standing on that one. A plane passing higher than max_centre_height_m at the box's centre
+  // is an item's top face over a hidden floor.
+  for (Plane& plane : planes) {
+    if (height(plane.coefficients, Eigen::Vector2d::Zero()) - bottom_z >
+        options.max_centre_height_m) {
+      plane.floor = false;
     }
-    candidates = std::move(below);
+    for (const Plane& other : planes) {
+      if (&other == &plane) continue;
+      const auto above = [&](const Eigen::Vector2d& xy) {
+        return height(plane.coefficients, xy) - height(other.coefficients, xy) > options.min_step_m;
+      };
+      if (above(plane.centroid_xy) && above(other.centroid_xy)) plane.floor = false;
+    }
   }
-  if (!found) {
-    result.cloud = cloud;
-    return result;
+  std::vector<const Plane*> floors;
+  for (const Plane& plane : planes) {
+    if (plane.floor) floors.push_back(&plane);
   }
-  // Remove everything below the plane or within the margin above it.
+  if (floors.empty()) return result;
+  // A point is floor when it lies below the lowest floor plane at its place or less than
+  // margin_m above it, or likewise for a floor plane whose footprint holds the point (a
+  // higher part of the board, e.g. a lip).
   std::vector<bool> keep(cloud.size(), true);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     if (!cloud.points[i].allFinite()) continue;
     const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
-    if (best.head<3>().dot(p) + best[3] < options.margin_m) {
+    const std::int64_t cell = cell_of(p);
+    double lowest = std::numeric_limits<double>::infinity();
+    bool floor = false;
+    for (const Plane* plane : floors) {
+      const double h = p.z() - height(plane->coefficients, p.head<2>());
+      lowest = std::min(lowest, h);
+      if (h * plane->coefficients[2] < options.margin_m && plane->cells.count(cell) > 0) {
+        floor = true;
+      }
+    }
+    if (floor || lowest * floors.front()->coefficients[2] < options.margin_m) {
       keep[i] = false;
       ++result.num_inliers;
     }
   }
   result.cloud = Filter(cloud, keep, options.keep_organized);
-  // The plane in the cloud's frame.
+  // The floor plane with the most support (the first found), in the cloud's frame.
+  const Eigen::Vector4d& best = floors.front()->coefficients;
   const Eigen::Vector3d n_Base = box.X_BaseBox.linear() * best.head<3>();
   const Eigen::Vector3d p_Base = box.X_BaseBox * (-best[3] * best.head<3>());
   result.plane << n_Base, -n_Base.dot(p_Base);

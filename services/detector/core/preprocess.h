@@ -106,14 +106,22 @@ struct FloorRemovalOptions {
   /// The floor plane's normal is within this angle of the box's +z axis, radians; points
   /// with normals further from +z are not floor candidates.
   double max_tilt_rad = 0.3;
-  /// The floor plane passes at most this high above the box's bottom face at the box's
-  /// centre (a higher plane is an item's top face over a hidden floor), metres.
+  /// A floor plane passes at most this high above the box's bottom face at the box's centre
+  /// (a higher plane is an item's top face over a hidden floor), metres.
   double max_centre_height_m = 0.03;
   double distance_threshold_m = 0.004;  ///< RANSAC inlier distance, metres.
-  /// Points below the floor plane or less than this above it are removed, metres.
-  double margin_m = 0.006;
-  int max_iterations = 300;
-  /// A plane needs this many supporting candidates to be the floor.
+  /// With normals, inliers also have their normal within this angle of the plane's, radians.
+  double normal_threshold_rad = 0.05;
+  /// Points below their floor plane or less than this above it are removed, metres: items
+  /// at least about twice as thick survive.
+  double margin_m = 0.005;
+  int max_iterations = 300;  ///< RANSAC hypotheses per plane.
+  /// At most this many planes are extracted from the candidates, one after the other.
+  int max_planes = 4;
+  /// A plane lying more than this above another one, both at its own inliers and at the
+  /// other's, is the top of an item standing on the other, not floor, metres.
+  double min_step_m = 0.006;
+  /// A plane needs this many supporting candidates.
   std::size_t min_inliers = 500;
   std::uint32_t seed = 42;
   bool keep_organized = true;
@@ -121,15 +129,18 @@ struct FloorRemovalOptions {
 };
 
 /// Removes the floor of a box region (a shelf bin's board, the tote's bottom) as measured in
-/// the cloud: RANSAC over the candidate points near the box's bottom face (upward normals
-/// when the cloud has normals) for a plane whose normal is near the box's +z, least-squares
-/// refit; while at least min_inliers candidates lie below that plane (it was the top of a flat
-/// item), the search repeats among them. The lowest such plane that passes low enough at the
-/// box's centre is the floor (items thinner than the floor's rise can be mistaken for it); every
-/// point below the plane or within margin_m above it is removed. Unlike RemoveBoxWalls this follows
-/// a floor that is tilted or higher than the box's bottom. `plane` of the result is n.p + d = 0 in
-/// the cloud's frame with n toward the box's +z. Throws as ValidateCloud, std::invalid_argument on
-/// bad options or box.
+/// the cloud, and only the floor: candidates are the points near the box's bottom face (with
+/// upward normals when the cloud has normals); up to max_planes planes with normals near the
+/// box's +z are extracted from them one after the other (RANSAC, least-squares refit, the
+/// inliers leave the candidates). A plane is floor unless it passes higher than
+/// max_centre_height_m at the box's centre or lies more than min_step_m above another plane
+/// (at both planes' inliers: it is the top of a flat item standing on that one). Every point
+/// below the lowest floor plane at its place or within margin_m above it is removed, and
+/// likewise for a floor plane with inliers in the point's 2 cm cell of the box's xy grid (a
+/// higher part of the board), so a flat item on a tilted or uneven board stays when its top is
+/// seen above floor that is visible elsewhere. `plane` of the result is the best-supported floor
+/// plane, n.p + d = 0 in the cloud's frame with n toward the box's +z. Throws as ValidateCloud,
+/// std::invalid_argument on bad options or box.
 PlaneRemovalResult RemoveBoxFloor(const geometry::PointCloud& cloud, const OrientedBox& box,
                                   const FloorRemovalOptions& options = {});
 

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <numeric>
 #include <random>
@@ -278,6 +279,83 @@ TEST(PpfMatchTest, DuplicateSkippingAndThreads) {
     }
     EXPECT_LT(worst, 0.02);
   }
+}
+
+// With segments, every segment contributes its own best poses: the target box next to a
+// larger, denser box still gets a hypothesis at its pose although the large box's poses
+// collect more votes, and the hypotheses come in rounds over the segments.
+TEST(PpfMatchTest, SegmentsEachContributeTheirBestPoses) {
+  const geometry::PointCloud box = BoxSurface(0.12f, 0.07f, 0.04f, 0.008f);
+  const float diameter = std::sqrt(0.12f * 0.12f + 0.07f * 0.07f + 0.04f * 0.04f) + 1e-3f;
+  const PpfTable table(box, diameter, 0.008f);
+  std::mt19937 rng(31);
+  const Eigen::Isometry3d X_target = testing::RandomPose(&rng, 0.05);
+  geometry::PointCloud scene = testing::Transformed(box, X_target);
+  std::vector<std::int32_t> segments(scene.size(), 7);
+  // The neighbour: a larger box 0.2 m away, sampled three times as densely.
+  const geometry::PointCloud big = testing::Transformed(
+      BoxSurface(0.2f, 0.15f, 0.1f, 0.004f),
+      Eigen::Isometry3d(Eigen::Translation3d(0.2, 0.0, 0.0)) * testing::RandomPose(&rng, 0.0));
+  scene.points.insert(scene.points.end(), big.points.begin(), big.points.end());
+  scene.normals.insert(scene.normals.end(), big.normals.begin(), big.normals.end());
+  scene.width = static_cast<std::uint32_t>(scene.size());
+  segments.resize(scene.size(), -1);
+  const KdTree tree(scene.points);
+  PpfMatchOptions options;
+  options.reference_step = 2;
+  options.max_hypotheses = 4;
+  options.segments = segments;
+  options.hypotheses_per_segment = 2;
+  const PpfMatchResult result = MatchPpf(table, scene, tree, options);
+  // Two per segment at most (fewer when a segment's clusters merge as symmetric).
+  ASSERT_GE(result.hypotheses.size(), 2u);
+  ASSERT_LE(result.hypotheses.size(), 4u);
+  EXPECT_FALSE(result.timed_out);
+  EXPECT_EQ(result.voted_reference_points, result.reference_points);
+  const auto fits_target = [&](const PpfHypothesis& h) {
+    const Eigen::Isometry3d X_rel = X_target.inverse() * h.X_SceneModel;
+    double worst = 0.0;
+    for (const auto& p : box.points) {
+      float d2 = 0.0f;
+      table.model_tree().Nearest(X_rel.cast<float>() * p, &d2);
+      worst = std::max(worst, std::sqrt(static_cast<double>(d2)));
+    }
+    return worst < 0.02;
+  };
+  // One of the first round's two hypotheses (one per segment) is the target's pose.
+  EXPECT_TRUE(fits_target(result.hypotheses[0]) || fits_target(result.hypotheses[1]));
+  EXPECT_NE((result.hypotheses[0].X_SceneModel.translation() -
+             result.hypotheses[1].X_SceneModel.translation())
+                .norm(),
+            0.0);
+  // Labels must cover the scene; at least one hypothesis per segment.
+  PpfMatchOptions bad = options;
+  bad.segments.pop_back();
+  EXPECT_THROW(MatchPpf(table, scene, tree, bad), std::invalid_argument);
+  bad = options;
+  bad.hypotheses_per_segment = 0;
+  EXPECT_THROW(MatchPpf(table, scene, tree, bad), std::invalid_argument);
+}
+
+// A deadline that has passed stops the voting before any reference point: no hypothesis,
+// and the result says so; without a deadline every reference point votes.
+TEST(PpfMatchTest, DeadlineStopsTheVoting) {
+  const geometry::PointCloud box = BoxSurface(0.12f, 0.07f, 0.04f, 0.01f);
+  const float diameter = std::sqrt(0.12f * 0.12f + 0.07f * 0.07f + 0.04f * 0.04f) + 1e-3f;
+  const PpfTable table(box, diameter, 0.01f);
+  const KdTree tree(box.points);
+  PpfMatchOptions options;
+  options.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  const PpfMatchResult stopped = MatchPpf(table, box, tree, options);
+  EXPECT_TRUE(stopped.timed_out);
+  EXPECT_EQ(stopped.voted_reference_points, 0);
+  EXPECT_GT(stopped.reference_points, 0);
+  EXPECT_TRUE(stopped.hypotheses.empty());
+  options.deadline = std::chrono::steady_clock::time_point::max();
+  const PpfMatchResult full = MatchPpf(table, box, tree, options);
+  EXPECT_FALSE(full.timed_out);
+  EXPECT_EQ(full.voted_reference_points, full.reference_points);
+  EXPECT_FALSE(full.hypotheses.empty());
 }
 
 // Planar pairs with a weight in (0, 1) need a table that stores them and still find the box.

@@ -184,6 +184,77 @@ TEST(PreprocessTest, BoxFloorFollowsATiltedBoardBelowFlatItems) {
   EXPECT_THROW(RemoveBoxFloor(cloud, bin, bad), std::invalid_argument);
 }
 
+// A shelf bin as the scanner sees it after the floor band was cut away: the board rises by
+// 5 degrees from the box's bottom at the front toward the back and is visible only where it
+// is more than 1 cm high; a 3.3 cm flat item covers the low front part (its top is the larger
+// upward plane) and a 1.2 cm thin item lies on the visible board. Normals carry about a
+// degree of noise. Both items stay whole and only board points go.
+TEST(PreprocessTest, BoxFloorKeepsFlatItemsOverAHiddenFrontBoard) {
+  OrientedBox bin;
+  bin.X_BaseBox =
+      Eigen::Translation3d(0.9, -0.3, 1.1) * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitZ());
+  bin.size_m = Eigen::Vector3d(0.44, 0.27, 0.23);
+  const double tilt = 5.0 * M_PI / 180.0;
+  const double bottom = -0.115;
+  const auto floor_z = [&](double x) { return bottom + std::tan(tilt) * (x + 0.21); };
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 0.0003);
+  std::normal_distribution<double> tilt_noise(0.0, 0.015);
+  geometry::PointCloud cloud;
+  std::size_t num_items = 0;
+  const auto add = [&](const Eigen::Vector3d& p_Box, const Eigen::Vector3d& n_Box, bool item) {
+    const Eigen::Vector3d n =
+        (n_Box + Eigen::Vector3d(tilt_noise(rng), tilt_noise(rng), 0.0)).normalized();
+    cloud.points.push_back(
+        (bin.X_BaseBox * (p_Box + Eigen::Vector3d(0.0, 0.0, noise(rng)))).cast<float>());
+    cloud.normals.push_back((bin.X_BaseBox.linear() * n).cast<float>());
+    num_items += item ? 1 : 0;
+  };
+  const Eigen::Vector3d up(-std::sin(tilt), 0.0, std::cos(tilt));
+  for (double x = -0.2; x <= 0.2; x += 0.002) {
+    for (double y = -0.125; y <= 0.125; y += 0.002) {
+      const bool flat = x < -0.05 && std::abs(y) < 0.1;
+      const bool thin = x > 0.09 && x < 0.15 && y > 0.0 && y < 0.08;
+      if (flat) {
+        add({x, y, bottom + 0.033}, Eigen::Vector3d::UnitZ(), true);
+      } else if (thin) {
+        add({x, y, floor_z(0.15) + 0.012}, Eigen::Vector3d::UnitZ(), true);
+      } else if (floor_z(x) > bottom + 0.01) {
+        add({x, y, floor_z(x)}, up, false);
+      }
+    }
+  }
+  // The flat item's side toward the back, from where it meets the board.
+  for (double y = -0.1; y <= 0.1; y += 0.002) {
+    for (double z = floor_z(-0.05) + 0.006; z <= bottom + 0.032; z += 0.002) {
+      add({-0.05, y, z}, Eigen::Vector3d::UnitX(), true);
+    }
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  const PlaneRemovalResult r = RemoveBoxFloor(cloud, bin);
+  ASSERT_TRUE(r.removed);
+  EXPECT_EQ(r.cloud.size(), num_items);
+  EXPECT_EQ(r.num_inliers, cloud.size() - num_items);
+  const Eigen::Vector3d n_Base = bin.X_BaseBox.linear() * up;
+  EXPECT_GT(r.plane.head<3>().dot(n_Base), std::cos(1.0 * M_PI / 180.0));
+  // Organised input stays organised, removed points become NaN.
+  FloorRemovalOptions organised;
+  organised.keep_organized = true;
+  geometry::PointCloud grid = cloud;
+  grid.width = static_cast<std::uint32_t>(cloud.size());
+  grid.height = 1;
+  const PlaneRemovalResult o = RemoveBoxFloor(grid, bin, organised);
+  std::size_t finite = 0;
+  for (const auto& p : o.cloud.points) finite += p.allFinite() ? 1 : 0;
+  EXPECT_EQ(finite, num_items);
+  FloorRemovalOptions bad;
+  bad.max_planes = 0;
+  EXPECT_THROW(RemoveBoxFloor(cloud, bin, bad), std::invalid_argument);
+  bad = FloorRemovalOptions{};
+  bad.normal_threshold_rad = 0.0;
+  EXPECT_THROW(RemoveBoxFloor(cloud, bin, bad), std::invalid_argument);
+}
+
 TEST(PreprocessTest, VoxelDownsampleAveragesPerVoxel) {
   geometry::PointCloud c = Unorganised({{0.001f, 0.001f, 0.001f},
                                         {0.003f, 0.003f, 0.003f},
