@@ -48,8 +48,9 @@ struct ScanOptions {
   DecoderOptions decode;
   /// Refine the integer correspondences to sub-pixel projector coordinates before
   /// triangulating (SubpixelRefiner): the depth error drops from the projector column step
-  /// (~1.5 mm at 1 m) to a fraction of a millimetre, for 7-9 ms more per view with the
-  /// default `refinement` (columns only; 14-17 ms with rows too; 2 threads, 1280 x 1024).
+  /// (~1.5 mm at 1 m) to a fraction of a millimetre, for 6-7 ms more per view with the
+  /// default `refinement` (columns only; 14-17 ms with rows too; 2 threads, 1280 x 1024,
+  /// quiet machine).
   bool subpixel = true;
   /// Pixels the refiner cannot refine (a camera coarser than the projector sees codes jump
   /// by more than one column between neighbours) keep their integer correspondence rather
