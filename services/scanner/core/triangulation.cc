@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstddef>
+#include <cstdint>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -85,9 +87,10 @@ struct IntersectConstants {
 };
 
 // Intersects n camera rays (x, y, 1) (ray_xy: x, y interleaved) with their projector rays
-// (e: unit direction and -direction . centre, four floats per pixel; read only where valid)
-// in the least-squares sense and writes each point (x, y, z interleaved; NaN unless kept) and
-// its status. Branch-free, so that the compiler vectorises it.
+// (e: unit direction and -direction . centre, four floats per pixel; whatever finite values
+// invalid pixels hold are computed with and discarded) in the least-squares sense and writes
+// each point (x, y, z interleaved; NaN unless kept) and its status. Branch-free, so that the
+// compiler vectorises it.
 PICKING_TRIANGULATION_CLONES void IntersectRow(int n, const float* __restrict ray_xy,
                                                const float* __restrict e,
                                                const std::uint8_t* __restrict valid,
