@@ -224,6 +224,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     return out;
   }
   PpfDetectorOptions ppf = ppf_;
+  if (scene.sampled.size() <= search_.dense_reference_max_points) ppf.match.reference_step = 1;
   if (search_.per_segment_hypotheses) {
     const float diameter = model->object->diameter_m();
     std::vector<std::int32_t> labels =

@@ -128,6 +128,10 @@ struct PpfSearchOptions {
   /// Clusters whose bounding-box diagonal is below this fraction of the model's diameter
   /// cannot hold a visible part of it worth a pose: their reference points join the rest.
   float min_segment_extent_rel = 0.2f;
+  /// Scenes with at most this many PPF-sampled points (a large model's coarse sampling) use
+  /// every sampled point as a reference point (PpfMatchOptions::reference_step 1): their
+  /// voting costs little next to the refinement of the hypotheses.
+  std::size_t dense_reference_max_points = 2000;
   /// With a time budget (EstimatorInput::budget_end), voting stops after this fraction of
   /// the remaining budget, leaving the rest to refinement and verification; in (0, 1].
   float voting_budget_fraction = 0.5f;
