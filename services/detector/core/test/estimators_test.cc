@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <random>
 
@@ -92,6 +93,35 @@ TEST(IntensitiesFromColorsTest, UsesTheLuma) {
   ASSERT_EQ(cloud.intensities.size(), 2u);
   EXPECT_NEAR(cloud.intensities[0], 1.0f, 1e-5f);
   EXPECT_NEAR(cloud.intensities[1], 0.299f, 1e-5f);
+}
+
+// Two blocks of points 5 cm apart and a lone point: two clusters, the larger first, with
+// their extents; points near a block get its label, points far from both get -1.
+TEST(SceneContextTest, ClusterLabelsNameTheNearestCluster) {
+  geometry::PointCloud cloud;
+  for (int i = 0; i < 20; ++i) {
+    for (int j = 0; j < 20; ++j) {
+      cloud.points.emplace_back(0.002f * i, 0.002f * j, 0.5f);  // 3.8 cm square
+      if (i < 10) cloud.points.emplace_back(0.1f + 0.002f * i, 0.002f * j, 0.5f);
+    }
+  }
+  cloud.points.emplace_back(0.3f, 0.3f, 0.5f);
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  SceneContextOptions options;
+  options.remove_dominant_plane = false;
+  SceneContext context(cloud, Eigen::Isometry3d::Identity(), std::nullopt, options);
+  const SceneContext::Clusters& clusters = context.SceneClusters();
+  ASSERT_EQ(clusters.clusters.size(), 2u);
+  EXPECT_EQ(clusters.clusters[0].size(), 400u);
+  EXPECT_EQ(clusters.clusters[1].size(), 200u);
+  ASSERT_EQ(clusters.extent_m.size(), 2u);
+  EXPECT_NEAR(clusters.extent_m[0], std::sqrt(2.0) * 0.038, 1e-4);
+  EXPECT_NEAR(clusters.extent_m[1], std::hypot(0.018, 0.038), 1e-4);
+  const std::vector<std::int32_t> labels = context.ClusterLabels(
+      {Eigen::Vector3f(0.01f, 0.01f, 0.503f), Eigen::Vector3f(0.11f, 0.02f, 0.5f),
+       Eigen::Vector3f(0.3f, 0.3f, 0.5f), Eigen::Vector3f(0.06f, 0.0f, 0.5f)},
+      0.005f);
+  EXPECT_EQ(labels, (std::vector<std::int32_t>{0, 1, -1, -1}));
 }
 
 // The PCL milk scene: the milk model's true pose in the scene is the identity; the sensor is
