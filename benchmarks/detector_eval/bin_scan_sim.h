@@ -28,6 +28,10 @@ struct BinScanOptions {
   double standoff_m = 0.55;
   /// Camera height above the middle of the bin's opening, metres.
   double height_above_centre_m = 0.1;
+  /// Camera offset sideways from the bin's middle (along the shelf's y: positive to the
+  /// left seen from the robot), metres; it still looks at the same point. The paper scans a
+  /// bin from three such positions.
+  double lateral_offset_m = 0.0;
   /// The camera looks at the middle of the bin floor, this far above the floor, metres.
   double aim_above_floor_m = 0.03;
   /// Noise seed of the rendered captures.
