@@ -180,6 +180,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   double sum_sq = 0.0;
   const bool appearance = sub.has_intensities() && !impl.intensities.empty();
   std::vector<float> albedo, intensity;
+  std::vector<Eigen::Vector3f> p_SensorMatched;  // scene points of the albedo samples
   for (const Projected& pr : front) {
     const Eigen::Vector3f& p = sub.points[pr.index];
     if (p.z() > zbuf[static_cast<std::size_t>(pr.v) * cam.width() + pr.u] + self_tolerance)
@@ -201,6 +202,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
                                       ? impl.n_SensorPoints[j]
                                       : sub.normals[pr.index];
         albedo.push_back(sub.intensities[pr.index]);
+        p_SensorMatched.push_back(q);
         intensity.push_back(ShadingCompensatedIntensity(
             impl.intensities[j], q, n, Eigen::Vector3f::Zero(), options.appearance.min_cos));
       }
@@ -224,8 +226,47 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     result.conflict_fraction =
         static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
   }
+  result.X_BaseItem_appearance = X_BaseItem;
   if (appearance) {
     result.appearance = CorrelateAppearance(albedo, intensity, options.appearance);
+    if (options.symmetries.size() > 1 && !p_SensorMatched.empty()) {
+      // The albedo a turned model shows at each matched scene point: its point nearest to
+      // the scene point, in the item frame.
+      std::vector<Eigen::Vector3f> p_ItemModel;
+      std::vector<float> albedo_model;
+      for (std::size_t i = 0; i < model.size(); i += stride) {
+        if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
+        p_ItemModel.push_back(model.points[i]);
+        albedo_model.push_back(model.intensities[i]);
+      }
+      const KdTree model_tree(p_ItemModel);
+      const float lookup_sq =
+          static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
+                             std::max(options.distance_tolerance_m, 2.0 * spacing));
+      std::vector<float> turned_albedo, turned_intensity;
+      for (std::size_t s = 1; s < options.symmetries.size(); ++s) {
+        const Eigen::Isometry3d X_BaseTurned = X_BaseItem * options.symmetries[s];
+        const Eigen::Isometry3f X_ItemSensor =
+            (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
+        turned_albedo.clear();
+        turned_intensity.clear();
+        for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
+          const std::int32_t i =
+              model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
+          if (i == KdTree::kNone) continue;
+          turned_albedo.push_back(albedo_model[i]);
+          turned_intensity.push_back(intensity[k]);
+        }
+        const AppearanceScore a =
+            CorrelateAppearance(turned_albedo, turned_intensity, options.appearance);
+        if (a.defined &&
+            (!result.appearance.defined || a.correlation > result.appearance.correlation)) {
+          result.appearance = a;
+          result.appearance_symmetry = static_cast<int>(s);
+          result.X_BaseItem_appearance = X_BaseTurned;
+        }
+      }
+    }
     if (result.appearance.defined &&
         result.appearance.correlation < options.min_appearance_correlation) {
       result.appearance_contradicts = true;

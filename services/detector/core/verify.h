@@ -65,13 +65,17 @@ struct VerifyOptions {
   /// intensity (VerifyResult::appearance). A correlation below min_appearance_correlation
   /// (with evidence) means the printing contradicts the pose (another item of the same
   /// shape, or a wrong turn of a symmetric one): the score is then multiplied by
-  /// appearance_contradiction_scale (in [0, 1]). The default 1 only reports it: Verify does
-  /// not know the model's symmetries, so a box or cylinder pose from range templates, right
-  /// up to a symmetric turn, would be taken for a contradiction (DetectPpf resolves the
-  /// turns and rejects contradicted hypotheses itself).
+  /// appearance_contradiction_scale (in [0, 1]). The default 1 only reports it: without
+  /// `symmetries` a box or cylinder pose that is right up to a symmetric turn (e.g. from
+  /// range templates) would be taken for a contradiction (DetectPpf resolves the turns and
+  /// rejects contradicted hypotheses itself).
   AppearanceOptions appearance;
   double min_appearance_correlation = 0.2;
   double appearance_contradiction_scale = 1.0;
+  /// The model's symmetry rotations R_II' (ObjectModel::symmetries(); identity first; empty:
+  /// the identity only). The appearance is that of the best turn X_BaseItem * R, reported in
+  /// VerifyResult::X_BaseItem_appearance.
+  std::vector<Eigen::Isometry3d> symmetries;
 };
 
 struct VerifyResult {
@@ -87,6 +91,10 @@ struct VerifyResult {
   /// Model albedo against scene intensity over the supported points (not defined without
   /// albedo, scene intensities or texture contrast).
   AppearanceScore appearance;
+  /// X_BaseItem turned by the symmetry whose albedo explains the scene best (X_BaseItem
+  /// itself without symmetries or evidence), and that symmetry's index.
+  Eigen::Isometry3d X_BaseItem_appearance = Eigen::Isometry3d::Identity();
+  int appearance_symmetry = 0;
   /// True when the appearance has evidence and its correlation is below
   /// min_appearance_correlation (the score is then scaled by appearance_contradiction_scale).
   bool appearance_contradicts = false;

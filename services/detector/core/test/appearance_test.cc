@@ -371,6 +371,22 @@ TEST(VerifyAppearanceTest, ReportsTheCorrelationAndScalesAContradictedScore) {
   EXPECT_FALSE(plain.appearance.defined);
   EXPECT_NEAR(plain.score, truth.score, 0.05);
 
+  // Turned by a box flip, the printing contradicts; told the symmetries, Verify finds the
+  // turn back.
+  const ObjectModel box = Model(mesh, ModelSymmetry::kBox);
+  const Eigen::Isometry3d X_flipped = X_true * box.symmetries()[2];
+  const VerifyResult flipped = Verify(verification, model, X_flipped);
+  ASSERT_TRUE(flipped.appearance.defined);
+  VerifyOptions symmetric;
+  symmetric.symmetries = box.symmetries();
+  const VerifyResult turned = Verify(verification, model, X_flipped, symmetric);
+  ASSERT_TRUE(turned.appearance.defined);
+  EXPECT_GT(turned.appearance.correlation, 0.7);
+  EXPECT_LT(flipped.appearance.correlation, turned.appearance.correlation - 0.3);
+  EXPECT_EQ(turned.appearance_symmetry, 2);
+  EXPECT_LT(RotationErrorRad(turned.X_BaseItem_appearance, X_true), 1e-6);
+  EXPECT_NEAR(turned.score, flipped.score, 1e-9);  // the geometry is the same
+
   geometry::PointCloud broken = model;
   broken.intensities.pop_back();
   EXPECT_THROW(Verify(verification, broken, X_true), std::invalid_argument);
