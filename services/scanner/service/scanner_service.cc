@@ -45,6 +45,10 @@ struct ScanDefaults {
   // threshold only removes good points (bin_E at 1 m in simulation: 72.9 % of the bin's
   // visible surface covered with 1, 53.6 % with 5, median depth error 0.075 mm either way).
   int min_bit_contrast = 1;
+  // Sub-pixel refinement of the projector rows as well as the columns. With the projector
+  // beside the camera depth comes from the column; the rows add ~0.01 mm of median depth
+  // accuracy (bin_E at 1 m: 0.085 -> 0.075 mm) for twice the refinement time.
+  bool refine_rows = false;
   double max_residual_m = 0.001;
   double reference_distance_m = 1.0;  // Where max_residual_m is converted to projector px.
   double min_depth_m = 0.1;
@@ -458,6 +462,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
                                 : d.min_contrast;
     o.decode.min_bit_contrast =
         dec.min_bit_contrast() ? static_cast<int>(dec.min_bit_contrast()) : d.min_bit_contrast;
+    o.refinement.refine_rows = d.refine_rows;
     const double residual_m = dec.max_triangulation_residual_m() > 0
                                   ? dec.max_triangulation_residual_m()
                                   : d.max_residual_m;
@@ -899,7 +904,7 @@ std::vector<std::string> ScannerSettingsHelp() {
       "sensor.nominal_dir=FOLDER of the nominal (simulated) sensor (default "
       "<data>/scanner/sim_sensor)",
       "decode.min_contrast=20, decode.min_bit_contrast=1, decode.max_residual_m=0.001, "
-      "decode.reference_distance_m=1",
+      "decode.reference_distance_m=1, decode.refine_rows=false (sub-pixel rows too)",
       "scan.min_depth_m=0.1, scan.max_depth_m=3, scan.normals_step=2",
       "camera.exposure_us=8000, camera.frame_timeout_s=2 (wait for a frame beyond its exposure)",
       "camera.trigger=hardware|software|free_run (default: hardware with a projector, free_run "
@@ -942,6 +947,7 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   d.min_contrast = static_cast<int>(config.GetInt("decode.min_contrast", d.min_contrast));
   d.min_bit_contrast =
       static_cast<int>(config.GetInt("decode.min_bit_contrast", d.min_bit_contrast));
+  d.refine_rows = config.GetBool("decode.refine_rows", d.refine_rows);
   d.max_residual_m = config.GetDouble("decode.max_residual_m", d.max_residual_m);
   d.reference_distance_m = config.GetDouble("decode.reference_distance_m", d.reference_distance_m);
   d.min_depth_m = config.GetDouble("scan.min_depth_m", d.min_depth_m);
