@@ -1,5 +1,6 @@
 #include "benchmarks/detector_eval/bin_detection.h"
 
+#include <algorithm>
 #include <chrono>
 #include <stdexcept>
 
@@ -23,6 +24,39 @@ geometry::PointCloud Region(const BinScan& scan, const BinDetectionOptions& opti
 }
 
 }  // namespace
+
+BinScan MergeViews(const std::vector<BinScan>& views) {
+  if (views.empty()) throw std::invalid_argument("MergeViews: no view");
+  BinScan merged = views.front();
+  merged.cloud = geometry::PointCloud();
+  merged.render_s = 0.0;
+  merged.process_s = 0.0;
+  merged.valid_fraction = 0.0;
+  const bool normals = std::all_of(views.begin(), views.end(),
+                                   [](const BinScan& v) { return v.cloud.has_normals(); });
+  const bool intensities = std::all_of(views.begin(), views.end(),
+                                       [](const BinScan& v) { return v.cloud.has_intensities(); });
+  const bool colors = std::all_of(views.begin(), views.end(),
+                                  [](const BinScan& v) { return v.cloud.has_colors(); });
+  for (const BinScan& v : views) {
+    if (v.bin != merged.bin) {
+      throw std::invalid_argument("MergeViews: views of " + merged.bin + " and " + v.bin);
+    }
+    for (std::size_t i = 0; i < v.cloud.size(); ++i) {
+      if (!v.cloud.points[i].allFinite()) continue;
+      merged.cloud.points.push_back(v.cloud.points[i]);
+      if (normals) merged.cloud.normals.push_back(v.cloud.normals[i]);
+      if (intensities) merged.cloud.intensities.push_back(v.cloud.intensities[i]);
+      if (colors) merged.cloud.colors.push_back(v.cloud.colors[i]);
+    }
+    merged.render_s += v.render_s;
+    merged.process_s += v.process_s;
+    merged.valid_fraction += v.valid_fraction / static_cast<double>(views.size());
+  }
+  merged.cloud.width = static_cast<std::uint32_t>(merged.cloud.points.size());
+  merged.cloud.height = 1;
+  return merged;
+}
 
 detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLibrary>& library,
                                   const BinScan& scan, const std::string& item,

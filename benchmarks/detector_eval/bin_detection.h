@@ -3,6 +3,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "benchmarks/detector_eval/bin_scan_sim.h"
 #include "services/detector/core/detection.h"
@@ -30,6 +31,14 @@ struct BinDetectionOptions {
   /// The estimators' options (PPF per-segment hypotheses, sphere fits, ...).
   detector::EstimatorOptions estimators;
 };
+
+/// One scan of the bin made of several views (the paper scans each bin from three angles):
+/// the finite points of every view's cloud, with their channels, in one unorganised cloud in
+/// the base frame; the sensor pose and intrinsics, bin box and items are the first view's,
+/// the timings the sums. The detector then has no organised image (no SIFT, intrinsics not
+/// fitted: the first view's are used for verification and range templates). Throws
+/// std::invalid_argument when `views` is empty or the views disagree on the bin.
+BinScan MergeViews(const std::vector<BinScan>& views);
 
 /// One full detection call and what it saw.
 struct BinDetectionResult {

@@ -11,10 +11,13 @@
 // Usage: detector_eval [--layouts=1,2,3] [--seed=N] [--per_method=true|false]
 //                      [--bins=A,B,...] [--markdown=FILE] [--budget_scale=F]
 //                      [--ppf_segments=true|false] [--sphere_fit=true|false]
+//                      [--views=1|3] [--view_offset_m=0.15]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
-// the sphere fit of ball models (detector::PpfSearchOptions) for comparisons.
+// the sphere fit of ball models (detector::PpfSearchOptions) for comparisons. --views=3 scans
+// each bin from three camera positions, the middle one and view_offset_m to either side (all
+// aimed at the bin floor's middle), and detects in the merged cloud (MergeViews).
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
@@ -51,6 +54,8 @@ struct Args {
   bool per_method = true;
   std::string markdown;
   BinDetectionOptions detection;
+  int views = 1;
+  double view_offset_m = 0.15;
 };
 
 bool ParseBool(const std::string& key, const std::string& v) {
@@ -77,6 +82,11 @@ Args Parse(int argc, char** argv) {
       args.per_method = *v == "true" || *v == "1";
     } else if (auto v = value("--markdown")) {
       args.markdown = *v;
+    } else if (auto v = value("--views")) {
+      args.views = std::stoi(*v);
+      if (args.views != 1 && args.views != 3) throw std::invalid_argument("--views must be 1 or 3");
+    } else if (auto v = value("--view_offset_m")) {
+      args.view_offset_m = std::stod(*v);
     } else if (auto v = value("--budget_scale")) {
       args.detection.budget_scale = std::stod(*v);
       if (!(args.detection.budget_scale > 0.0)) {
@@ -209,7 +219,15 @@ int Run(const Args& args) {
           std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {
         continue;
       }
-      const BinScan scan = scanner.Scan(entry.bin, BinScanOptions{});
+      std::vector<BinScan> views = {scanner.Scan(entry.bin, BinScanOptions{})};
+      if (args.views == 3) {
+        for (double offset : {-args.view_offset_m, args.view_offset_m}) {
+          BinScanOptions side;
+          side.lateral_offset_m = offset;
+          views.push_back(scanner.Scan(entry.bin, side));
+        }
+      }
+      const BinScan scan = views.size() == 1 ? std::move(views.front()) : MergeViews(views);
       scan_s += scan.render_s + scan.process_s;
       ++scans;
       const auto model_start = std::chrono::steady_clock::now();
@@ -292,8 +310,9 @@ int Run(const Args& args) {
     }
     summary << " |\n";
   }
-  summary << "\nScans: " << scans << ", mean " << std::setprecision(3)
-          << (scans > 0 ? scan_s / scans : 0.0) << " s to render and process one.\n";
+  summary << "\nScans: " << scans << " (" << args.views << " view" << (args.views > 1 ? "s" : "")
+          << " each), mean " << std::setprecision(3) << (scans > 0 ? scan_s / scans : 0.0)
+          << " s to render and process one.\n";
   std::cout << summary.str() << "\n" << rows.str();
   if (!args.markdown.empty()) {
     std::ofstream out(args.markdown);
