@@ -11,13 +11,17 @@
 // Usage: detector_eval [--layouts=1,2,3] [--seed=N] [--per_method=true|false]
 //                      [--bins=A,B,...] [--markdown=FILE] [--budget_scale=F]
 //                      [--ppf_segments=true|false] [--sphere_fit=true|false]
-//                      [--views=1|3] [--view_offset_m=0.15]
+//                      [--views=1|3] [--view_offset_m=0.15] [--side_height_m=0.25]
+//                      [--appearance=true|false|rank]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
 // the sphere fit of ball models (detector::PpfSearchOptions) for comparisons. --views=3 scans
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
-// aimed at the bin floor's middle), and detects in the merged cloud (MergeViews).
+// aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
+// front items, the middle view 0.1 m),
+// and detects in the merged cloud (MergeViews). --appearance=false ranks and accepts poses
+// without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
@@ -56,6 +60,7 @@ struct Args {
   BinDetectionOptions detection;
   int views = 1;
   double view_offset_m = 0.15;
+  double side_height_m = 0.25;
 };
 
 bool ParseBool(const std::string& key, const std::string& v) {
@@ -87,6 +92,11 @@ Args Parse(int argc, char** argv) {
       if (args.views != 1 && args.views != 3) throw std::invalid_argument("--views must be 1 or 3");
     } else if (auto v = value("--view_offset_m")) {
       args.view_offset_m = std::stod(*v);
+    } else if (auto v = value("--side_height_m")) {
+      args.side_height_m = std::stod(*v);
+      if (!(std::abs(args.side_height_m) < 0.5)) {
+        throw std::invalid_argument("--side_height_m must be within 0.5 m of the bin's middle");
+      }
     } else if (auto v = value("--budget_scale")) {
       args.detection.budget_scale = std::stod(*v);
       if (!(args.detection.budget_scale > 0.0)) {
@@ -94,6 +104,16 @@ Args Parse(int argc, char** argv) {
       }
     } else if (auto v = value("--ppf_segments")) {
       args.detection.estimators.ppf_search.per_segment_hypotheses = ParseBool("--ppf_segments", *v);
+    } else if (auto v = value("--appearance")) {
+      // false: the chain neither ranks by nor penalises the printed texture's appearance;
+      // rank: it ranks candidates by it but does not penalise a contradiction.
+      auto& refine = args.detection.estimators.refine;
+      if (*v == "rank") {
+        refine.verify.appearance_contradiction_scale = 1.0;
+      } else if (!ParseBool("--appearance", *v)) {
+        refine.verify.appearance_contradiction_scale = 1.0;
+        refine.appearance_rank_weight = 0.0;
+      }
     } else if (auto v = value("--sphere_fit")) {
       args.detection.estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
     } else {
@@ -224,6 +244,7 @@ int Run(const Args& args) {
         for (double offset : {-args.view_offset_m, args.view_offset_m}) {
           BinScanOptions side;
           side.lateral_offset_m = offset;
+          side.height_above_centre_m = args.side_height_m;
           views.push_back(scanner.Scan(entry.bin, side));
         }
       }

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
@@ -50,6 +51,9 @@ struct Detection {
   double fitness = 0.0;
   /// RMS distance of those partners, metres.
   double inlier_rmse_m = 0.0;
+  /// Correlation of the model's printed texture (albedo) with the scan's intensities at the
+  /// pose, [-1, 1] (appearance.h); NaN when there is no evidence (no texture, too few points).
+  double appearance = std::numeric_limits<double>::quiet_NaN();
   DetectionTimings timings;
 };
 

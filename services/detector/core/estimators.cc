@@ -27,9 +27,13 @@ void CheckInput(const EstimatorInput& input, const SceneContext& context, const 
   }
 }
 
-void SortByScore(std::vector<Detection>* detections) {
+// Best first by score, with the appearance (where there is evidence) as a bonus.
+void SortByScore(std::vector<Detection>* detections, double appearance_weight) {
+  const auto rank = [appearance_weight](const Detection& d) {
+    return d.score + (std::isfinite(d.appearance) ? appearance_weight * d.appearance : 0.0);
+  };
   std::stable_sort(detections->begin(), detections->end(),
-                   [](const Detection& a, const Detection& b) { return a.score > b.score; });
+                   [&rank](const Detection& a, const Detection& b) { return rank(a) > rank(b); });
 }
 
 }  // namespace
@@ -170,7 +174,14 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
 
   const auto verify_start = Clock::now();
   if (const VerificationScene* verification = context.Verification()) {
-    d.score = Verify(*verification, object.icp_cloud(), d.X_BaseItem, options.verify).score;
+    VerifyOptions verify = options.verify;
+    verify.symmetries = object.symmetries();
+    const VerifyResult v = Verify(*verification, object.icp_cloud(), d.X_BaseItem, verify);
+    d.score = v.score;
+    if (v.appearance.defined) {
+      d.appearance = v.appearance.correlation;
+      d.X_BaseItem = v.X_BaseItem_appearance;
+    }
   } else {
     d.score = d.fitness;
   }
@@ -219,7 +230,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       d.timings.estimate_s = estimate_s;
       out.push_back(std::move(d));
     }
-    SortByScore(&out);
+    SortByScore(&out, refine_.appearance_rank_weight);
     for (auto& d : out) d.timings.total_s = SecondsSince(start);
     return out;
   }
@@ -243,6 +254,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     const auto remaining = std::max(Clock::duration::zero(), input.budget_end - now);
     ppf.match.deadline = now + std::chrono::duration_cast<Clock::duration>(
                                    remaining * search_.voting_budget_fraction);
+    ppf.refine_deadline = input.budget_end;
   }
   context_->CheckDeadline();
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
@@ -258,7 +270,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   }
-  SortByScore(&out);
+  SortByScore(&out, refine_.appearance_rank_weight);
   for (auto& d : out) d.timings.total_s = SecondsSince(start);
   return out;
 }
@@ -346,7 +358,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
     d.timings.estimate_s = estimate_s;
     out.push_back(std::move(d));
   }
-  SortByScore(&out);
+  SortByScore(&out, refine_.appearance_rank_weight);
   for (auto& d : out) d.timings.total_s = SecondsSince(start);
   return out;
 }

@@ -108,13 +108,25 @@ struct RefineVerifyOptions {
   /// correspondence distance is icp_distance_rel times the model's sampling distance.
   IcpOptions icp;
   float icp_distance_rel = 1.0f;
-  /// Verification of the refined pose (verify.h); its score is Detection.score.
-  VerifyOptions verify;
+  /// Verification of the refined pose (verify.h); its score is Detection.score. The
+  /// model's symmetry turns are added, so that the appearance picks the turn whose printing
+  /// matches the scan (the pose then becomes that turn), and a pose whose appearance
+  /// contradicts the scan (correlation below min_appearance_correlation) has its score
+  /// halved: a same-size neighbour with other printing falls below the acceptance score.
+  VerifyOptions verify = [] {
+    VerifyOptions o;
+    o.appearance_contradiction_scale = 0.5;
+    return o;
+  }();
+  /// Candidates of one method are ranked by score + appearance_rank_weight * appearance
+  /// (where defined): between two poses of similar support the one whose printing matches.
+  double appearance_rank_weight = 0.5;
 };
 
 /// Refines `X_BaseItem` with ICP (when `refine`) and scores it with Verify (or with the ICP
-/// fitness when the context has no camera). Fills every Detection field but the timings of
-/// the estimation stage. Throws as RunIcp / Verify.
+/// fitness when the context has no camera), turning a box or cylinder pose to the symmetric
+/// turn whose appearance fits best. Fills every Detection field but the timings of the
+/// estimation stage. Throws as RunIcp / Verify.
 Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Method method,
                           const Eigen::Isometry3d& X_BaseItem, bool refine,
                           const RefineVerifyOptions& options = {});

@@ -354,6 +354,8 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   const std::size_t count = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
   for (std::size_t h = 0; h < count; ++h) {
+    if (h > 0 && std::chrono::steady_clock::now() > options.refine_deadline) break;
+    ++result.refined_hypotheses;
     const PpfHypothesis& hyp = result.match.hypotheses[h];
     PpfDetection d;
     d.votes = hyp.votes;

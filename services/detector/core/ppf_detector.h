@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <chrono>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -118,6 +119,10 @@ struct PpfDetectorOptions {
   int min_visible_points = 30;
   /// Hypotheses (by votes) refined by ICP and verified.
   int hypotheses_to_verify = 6;
+  /// No further hypothesis is refined after this time (the best-voted one always is): a
+  /// caller's time budget, as PpfMatchOptions::deadline is for the voting.
+  std::chrono::steady_clock::time_point refine_deadline =
+      std::chrono::steady_clock::time_point::max();
   /// Appearance: when the model has albedo and the scene intensities, each refined
   /// hypothesis is also tried turned by the model's symmetries (a box's 180 degree flips, a
   /// cylinder's turns) and the turn whose albedo best explains the scene's intensities is
@@ -156,6 +161,9 @@ struct PpfDetectionResult {
   PpfMatchResult match;
   double match_s = 0.0;
   double refine_s = 0.0;
+  /// Hypotheses refined and verified (fewer than hypotheses_to_verify when the match had
+  /// fewer or the refine_deadline passed).
+  int refined_hypotheses = 0;
 };
 
 /// Scene support of a model pose: the fraction of the model's ICP points that face the

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -53,6 +55,24 @@ TEST_F(MilkSceneTest, RecoversPoseOfMovedModel) {
         << "trial " << trial;
     EXPECT_GT(best.support, 0.8) << "trial " << trial;
   }
+}
+
+// A refine deadline that has passed stops after the best-voted hypothesis, which alone
+// still finds the milk at its true pose.
+TEST_F(MilkSceneTest, RefineDeadlineKeepsOnlyTheBestVotedHypothesis) {
+  const ObjectModel model(*milk_, ObjectModelOptions{});
+  const PpfScene scene = PreparePpfScene(*scene_, model);
+  const PpfDetectionResult all = DetectPpf(model, scene);
+  EXPECT_EQ(all.refined_hypotheses, std::min<int>(PpfDetectorOptions{}.hypotheses_to_verify,
+                                                  static_cast<int>(all.match.hypotheses.size())));
+  PpfDetectorOptions options;
+  options.refine_deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  const PpfDetectionResult first = DetectPpf(model, scene, options);
+  EXPECT_EQ(first.refined_hypotheses, 1);
+  ASSERT_FALSE(first.detections.empty());
+  EXPECT_LT(testing::TranslationError(first.detections.front().X_SceneModel,
+                                      Eigen::Isometry3d::Identity()),
+            0.005);
 }
 
 TEST_F(MilkSceneTest, ObjectNotInSceneIsNotDetected) {
