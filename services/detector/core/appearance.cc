@@ -89,7 +89,7 @@ geometry::PointCloud SampleTexturedMeshSurface(const world::TriangleMesh& mesh, 
                                 std::to_string(mesh.vertex_albedo.size()) + " entries for " +
                                 std::to_string(mesh.vertices.size()) + " vertices");
   }
-  // The same draws as SampleMeshSurface, so both give the same points.
+  // SampleMeshSurface (templates.h) is this sampling without the albedo channel.
   std::vector<double> cumulative;
   double total = 0.0;
   for (std::size_t k = 0; k < mesh.triangles.size(); ++k) {

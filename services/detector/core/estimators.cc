@@ -36,6 +36,14 @@ void SortByScore(std::vector<Detection>* detections, double appearance_weight) {
                    [&rank](const Detection& a, const Detection& b) { return rank(a) > rank(b); });
 }
 
+// An estimator's candidates, best first, each with the estimator's whole time since `start`.
+std::vector<Detection> Finish(std::vector<Detection> out, double appearance_weight,
+                              Clock::time_point start) {
+  SortByScore(&out, appearance_weight);
+  for (auto& d : out) d.timings.total_s = SecondsSince(start);
+  return out;
+}
+
 }  // namespace
 
 // --- SceneContext ---------------------------------------------------------------------------
@@ -230,9 +238,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       d.timings.estimate_s = estimate_s;
       out.push_back(std::move(d));
     }
-    SortByScore(&out, refine_.appearance_rank_weight);
-    for (auto& d : out) d.timings.total_s = SecondsSince(start);
-    return out;
+    return Finish(std::move(out), refine_.appearance_rank_weight, start);
   }
   PpfDetectorOptions ppf = ppf_;
   if (scene.sampled.size() <= search_.dense_reference_max_points) ppf.match.reference_step = 1;
@@ -270,9 +276,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   }
-  SortByScore(&out, refine_.appearance_rank_weight);
-  for (auto& d : out) d.timings.total_s = SecondsSince(start);
-  return out;
+  return Finish(std::move(out), refine_.appearance_rank_weight, start);
 }
 
 // --- SIFT -----------------------------------------------------------------------------------
@@ -358,9 +362,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
     d.timings.estimate_s = estimate_s;
     out.push_back(std::move(d));
   }
-  SortByScore(&out, refine_.appearance_rank_weight);
-  for (auto& d : out) d.timings.total_s = SecondsSince(start);
-  return out;
+  return Finish(std::move(out), refine_.appearance_rank_weight, start);
 }
 
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(

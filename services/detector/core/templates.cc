@@ -11,6 +11,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "services/detector/core/appearance.h"
 #include "services/detector/core/icp.h"
 #include "services/detector/core/kdtree.h"
 #include "services/detector/core/preprocess.h"
@@ -142,50 +143,9 @@ std::vector<Eigen::Vector3d> FibonacciSphere(int n) {
 
 PointCloud SampleMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
                              std::uint32_t seed) {
-  if (mesh.empty()) throw std::invalid_argument("SampleMeshSurface: mesh has no triangles");
-  if (!(spacing_m > 0.0)) throw std::invalid_argument("SampleMeshSurface: spacing_m must be > 0");
-  std::vector<double> cumulative;
-  double total = 0.0;
-  for (std::size_t k = 0; k < mesh.triangles.size(); ++k) {
-    const auto& tri = mesh.triangles[k];
-    for (std::uint32_t idx : tri)
-      if (idx >= mesh.vertices.size())
-        throw std::invalid_argument("SampleMeshSurface: triangle " + std::to_string(k) +
-                                    " has vertex index " + std::to_string(idx) + " out of range");
-    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
-    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
-    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
-    total += 0.5 * (b - a).cross(c - a).norm();
-    cumulative.push_back(total);
-  }
-  if (!(total > 0.0)) throw std::invalid_argument("SampleMeshSurface: mesh has zero area");
-  const std::size_t count = static_cast<std::size_t>(std::ceil(total / (spacing_m * spacing_m)));
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  PointCloud out;
-  out.points.reserve(count);
-  out.normals.reserve(count);
-  for (std::size_t i = 0; i < count; ++i) {
-    const double pick = uniform(rng) * total;
-    const std::size_t k = std::min<std::size_t>(
-        std::lower_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
-        cumulative.size() - 1);
-    const auto& tri = mesh.triangles[k];
-    const Eigen::Vector3d a = mesh.vertices[tri[0]].cast<double>();
-    const Eigen::Vector3d b = mesh.vertices[tri[1]].cast<double>();
-    const Eigen::Vector3d c = mesh.vertices[tri[2]].cast<double>();
-    double s = uniform(rng), t = uniform(rng);
-    if (s + t > 1.0) {
-      s = 1.0 - s;
-      t = 1.0 - t;
-    }
-    const Eigen::Vector3d n = (b - a).cross(c - a);
-    if (n.norm() < 1e-15) continue;
-    out.points.push_back((a + s * (b - a) + t * (c - a)).cast<float>());
-    out.normals.push_back(n.normalized().cast<float>());
-  }
-  out.width = static_cast<std::uint32_t>(out.points.size());
-  out.height = 1;
+  // The textured sampling draws the same points; only its albedo channel is dropped.
+  PointCloud out = SampleTexturedMeshSurface(mesh, spacing_m, seed);
+  out.intensities.clear();
   return out;
 }
 
