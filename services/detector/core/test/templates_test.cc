@@ -94,6 +94,19 @@ double AddS(const geometry::PointCloud& model, const Eigen::Isometry3d& X_true,
   return sum / model.size();
 }
 
+// A random orientation of `model` placed in view of the sensor, its lowest point 5 mm above
+// the floor (z = 0).
+Eigen::Isometry3d RandomPoseAboveFloor(const geometry::PointCloud& model, std::mt19937& rng) {
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  X_BaseItem.linear() = RandomRotation(rng);
+  std::uniform_real_distribution<double> xy(-0.06, 0.06);
+  double min_z = std::numeric_limits<double>::infinity();
+  for (const auto& p : model.points)
+    min_z = std::min(min_z, (X_BaseItem.linear() * p.cast<double>()).z());
+  X_BaseItem.translation() = Eigen::Vector3d(0.05 + xy(rng), -0.2 + xy(rng), 0.005 - min_z);
+  return X_BaseItem;
+}
+
 struct Recovery {
   double add_s_m;
   double translation_error_m;
@@ -107,14 +120,7 @@ Recovery DetectInScene(const geometry::PointCloud& model, double render_spacing_
   options.num_views = num_views;
   const RangeTemplateSet templates(model, options);
   std::mt19937 rng(seed);
-  // Random orientation; the lowest point 5 mm above the floor, in view of the sensor.
-  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
-  X_BaseItem.linear() = RandomRotation(rng);
-  std::uniform_real_distribution<double> xy(-0.06, 0.06);
-  double min_z = std::numeric_limits<double>::infinity();
-  for (const auto& p : model.points)
-    min_z = std::min(min_z, (X_BaseItem.linear() * p.cast<double>()).z());
-  X_BaseItem.translation() = Eigen::Vector3d(0.05 + xy(rng), -0.2 + xy(rng), 0.005 - min_z);
+  const Eigen::Isometry3d X_BaseItem = RandomPoseAboveFloor(model, rng);
   const Scene scene = RenderScene(model, render_spacing_m, X_BaseItem, seed);
 
   PlaneRemovalOptions plane;
@@ -248,13 +254,7 @@ TEST(RangeTemplateMatchTest, SkipsImplausibleClustersAndStopsAtTheDeadline) {
   const auto model = SampleMeshSurface(BoxMesh({0.1f, 0.06f, 0.03f}), 0.001, 5);
   const RangeTemplateSet templates(model, TemplateOptions{});
   std::mt19937 rng(11);
-  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
-  X_BaseItem.linear() = RandomRotation(rng);
-  std::uniform_real_distribution<double> xy(-0.06, 0.06);
-  double min_z = std::numeric_limits<double>::infinity();
-  for (const auto& p : model.points)
-    min_z = std::min(min_z, (X_BaseItem.linear() * p.cast<double>()).z());
-  X_BaseItem.translation() = Eigen::Vector3d(0.05 + xy(rng), -0.2 + xy(rng), 0.005 - min_z);
+  const Eigen::Isometry3d X_BaseItem = RandomPoseAboveFloor(model, rng);
   const Scene scene = RenderScene(model, 0.001, X_BaseItem, 11);
   PlaneRemovalOptions plane;
   plane.distance_threshold_m = 0.004;

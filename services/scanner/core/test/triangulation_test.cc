@@ -48,6 +48,16 @@ SyntheticPlane TruePlane() {
   return plane;
 }
 
+// The correspondences of the noise-free TruePlane() seen by `rig`.
+CorrespondenceMap DecodeTruePlane(const ScannerRig& rig) {
+  const PatternSequence patterns;
+  SyntheticScene scene;
+  scene.planes.push_back(TruePlane());
+  const SyntheticCapture capture =
+      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
+  return GrayCodeDecoder(patterns).Decode(capture.views());
+}
+
 TEST(TriangulationTest, RecoversAPlaneAtOneMetreWithRealisticNoise) {
   const ScannerRig rig = MakeExampleRig(1280, 1024);
   const PatternSequence patterns;
@@ -98,12 +108,7 @@ TEST(TriangulationTest, RecoversAPlaneAtOneMetreWithRealisticNoise) {
 // where the distortion moves pixels by several pixels.
 TEST(TriangulationTest, PointsReprojectOntoTheirProjectorPixel) {
   const ScannerRig rig = MakeExampleRig(640, 512);
-  const PatternSequence patterns;
-  SyntheticScene scene;
-  scene.planes.push_back(TruePlane());
-  const SyntheticCapture capture =
-      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
-  const CorrespondenceMap map = GrayCodeDecoder(patterns).Decode(capture.views());
+  const CorrespondenceMap map = DecodeTruePlane(rig);
   const Triangulator triangulator(rig.camera, rig.projector, rig.X_CameraProjector);
   const TriangulationResult result = triangulator.Run(map);
   const Eigen::Isometry3d X_ProjectorCamera = rig.X_CameraProjector.inverse();
@@ -133,12 +138,7 @@ TEST(TriangulationTest, PointsReprojectOntoTheirProjectorPixel) {
 // Sub-pixel columns with integer rows reproject onto their sub-pixel column.
 TEST(TriangulationTest, IntegerSubpixelMapsMatchTheIntegerMap) {
   const ScannerRig rig = MakeExampleRig(640, 512);
-  const PatternSequence patterns;
-  SyntheticScene scene;
-  scene.planes.push_back(TruePlane());
-  const SyntheticCapture capture =
-      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
-  const CorrespondenceMap map = GrayCodeDecoder(patterns).Decode(capture.views());
+  const CorrespondenceMap map = DecodeTruePlane(rig);
   CorrespondenceMap whole = map;
   whole.column_subpixel.assign(map.valid.size(), std::nanf(""));
   whole.row_subpixel.assign(map.valid.size(), std::nanf(""));
@@ -197,12 +197,7 @@ TEST(TriangulationTest, IntegerSubpixelMapsMatchTheIntegerMap) {
 // Points with correspondences inconsistent with the geometry are rejected by the residual.
 TEST(TriangulationTest, RejectsInconsistentCorrespondences) {
   const ScannerRig rig = MakeExampleRig(320, 256);
-  const PatternSequence patterns;
-  SyntheticScene scene;
-  scene.planes.push_back(TruePlane());
-  const SyntheticCapture capture =
-      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
-  CorrespondenceMap map = GrayCodeDecoder(patterns).Decode(capture.views());
+  CorrespondenceMap map = DecodeTruePlane(rig);
   TriangulationOptions options;
   options.remove_isolated = false;
   const Triangulator triangulator(rig.camera, rig.projector, rig.X_CameraProjector, options);
@@ -226,12 +221,7 @@ TEST(TriangulationTest, RejectsInconsistentCorrespondences) {
 
 TEST(TriangulationTest, RemovesIsolatedPoints) {
   const ScannerRig rig = MakeExampleRig(320, 256);
-  const PatternSequence patterns;
-  SyntheticScene scene;
-  scene.planes.push_back(TruePlane());
-  const SyntheticCapture capture =
-      RenderSyntheticCapture(rig, patterns, scene, SyntheticCaptureOptions{});
-  CorrespondenceMap map = GrayCodeDecoder(patterns).Decode(capture.views());
+  CorrespondenceMap map = DecodeTruePlane(rig);
   // Keep a solid block and one lone pixel.
   const std::size_t lone = 40 * 320 + 40;
   for (int y = 0; y < 256; ++y) {
