@@ -144,12 +144,15 @@ geometry::PointCloud SampleTexturedMeshSurface(const world::TriangleMesh& mesh, 
   return out;
 }
 
-void ColorsToAlbedo(geometry::PointCloud* cloud) {
-  if (cloud == nullptr || !cloud->has_colors()) return;
+float ColorLuma(const std::array<std::uint8_t, 3>& rgb) {
+  return (0.299f * rgb[0] + 0.587f * rgb[1] + 0.114f * rgb[2]) / 255.0f;
+}
+
+void IntensitiesFromColors(geometry::PointCloud* cloud) {
+  if (cloud->has_intensities() || !cloud->has_colors()) return;
   cloud->intensities.resize(cloud->colors.size());
   for (std::size_t i = 0; i < cloud->colors.size(); ++i) {
-    const auto& c = cloud->colors[i];
-    cloud->intensities[i] = (0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f;
+    cloud->intensities[i] = ColorLuma(cloud->colors[i]);
   }
 }
 

@@ -2,6 +2,7 @@
 
 #include <Eigen/Core>
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -64,8 +65,12 @@ AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
 geometry::PointCloud SampleTexturedMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
                                                std::uint32_t seed = 1);
 
-/// The luma (0.299 R + 0.587 G + 0.114 B) / 255 of every colour of `cloud` as its
-/// intensities (an albedo in [0, 1] for a coloured scan). Does nothing without colours.
-void ColorsToAlbedo(geometry::PointCloud* cloud);
+/// The luma (0.299 R + 0.587 G + 0.114 B) / 255 of an RGB colour, in [0, 1]: the intensity a
+/// monochrome sensor sees of it, and the albedo of a coloured scan's point.
+float ColorLuma(const std::array<std::uint8_t, 3>& rgb);
+
+/// Fills `cloud.intensities` with the colour luma (0-1) when it has colours and no
+/// intensities.
+void IntensitiesFromColors(geometry::PointCloud* cloud);
 
 }  // namespace picking::detector

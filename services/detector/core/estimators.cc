@@ -505,13 +505,4 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
   return FitDistortedIntrinsics(samples, width, height, fu, fv, max_rms_px);
 }
 
-void IntensitiesFromColors(geometry::PointCloud* cloud) {
-  if (cloud->has_intensities() || !cloud->has_colors()) return;
-  cloud->intensities.resize(cloud->colors.size());
-  for (std::size_t i = 0; i < cloud->colors.size(); ++i) {
-    const auto& c = cloud->colors[i];
-    cloud->intensities[i] = (0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f;
-  }
-}
-
 }  // namespace picking::detector

@@ -253,8 +253,4 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
                                                     const Eigen::Isometry3d& X_BaseSensor,
                                                     double max_rms_px = 1.0);
 
-/// Fills `cloud.intensities` with the colour luma (0-1) when it has colours and no
-/// intensities.
-void IntensitiesFromColors(geometry::PointCloud* cloud);
-
 }  // namespace picking::detector

@@ -124,11 +124,6 @@ ModelSpec ParseModel(const std::string& item, const Json& node, const std::strin
   return spec;
 }
 
-// Luma of an RGB colour in [0, 255].
-float Luma(const std::array<std::uint8_t, 3>& c) {
-  return 0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2];
-}
-
 geometry::PointCloud ShapeCloud(const ModelSpec& spec, const ModelLibraryOptions& options) {
   const std::string catalogue_path =
       options.catalogue_path.empty() ? apc::DefaultCataloguePath() : options.catalogue_path;
@@ -284,7 +279,7 @@ geometry::PointCloud ModelSourceCloud(const ModelSpec& spec, const ModelLibraryO
   cloud.width = static_cast<std::uint32_t>(cloud.size());
   cloud.height = 1;
   cloud.intensities.clear();
-  ColorsToAlbedo(&cloud);
+  IntensitiesFromColors(&cloud);  // The scan's colour is its albedo.
   if (spec.frame == ScanFrame::kItem) {
     const std::string cache_dir =
         (fs::path(options.cache_dir.empty() ? DefaultDetectorCacheDir() : options.cache_dir) /
@@ -368,7 +363,7 @@ std::vector<SiftView> RenderSiftViews(const geometry::PointCloud& model, int num
     for (std::size_t k = 0; k < depth.size(); ++k) {
       if (owner[k] < 0) continue;
       const float grey =
-          colours ? Luma(model.colors[owner[k]]) : 255.0f * model.intensities[owner[k]];
+          255.0f * (colours ? ColorLuma(model.colors[owner[k]]) : model.intensities[owner[k]]);
       view.image.pixels[k] = static_cast<std::uint8_t>(
           std::clamp(std::isfinite(grey) ? std::lround(grey) : 128L, 0L, 255L));
       view.p_ItemPixel[k] = model.points[owner[k]];

@@ -102,7 +102,7 @@ PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& m
   }
   geometry::PointCloud valid = RemoveInvalidPoints(scene);
   if (valid.empty()) throw std::invalid_argument("PreparePpfScene: no finite scene point");
-  if (!valid.has_intensities()) ColorsToAlbedo(&valid);
+  IntensitiesFromColors(&valid);
   valid.colors.clear();
   if (!options.use_input_normals) valid.normals.clear();
   PpfScene out;

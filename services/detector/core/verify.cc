@@ -42,8 +42,7 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
     if (scene.has_intensities()) {
       impl_->intensities.push_back(scene.intensities[i]);
     } else if (scene.has_colors()) {
-      const auto& c = scene.colors[i];
-      impl_->intensities.push_back((0.299f * c[0] + 0.587f * c[1] + 0.114f * c[2]) / 255.0f);
+      impl_->intensities.push_back(ColorLuma(scene.colors[i]));
     }
     if (p.z() <= 0.0f) continue;
     const auto uv = camera_.Project(p.cast<double>());
