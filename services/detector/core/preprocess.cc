@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -71,6 +72,37 @@ std::vector<int> FiniteIndices(const PointCloud& cloud) {
   for (std::size_t i = 0; i < cloud.size(); ++i)
     if (Finite(cloud.points[i])) indices.push_back(static_cast<int>(i));
   return indices;
+}
+
+// Least-squares plane through the points `for_each_point` visits (it calls its argument with
+// each point as an Eigen::Vector3d, the same points on both of its calls): the centroid and
+// the eigenvector of the smallest scatter, turned to point along `toward`; nullopt for fewer
+// than three points.
+struct LeastSquaresPlane {
+  Eigen::Vector4d coefficients = Eigen::Vector4d::Zero();  // n.p + d = 0, |n| = 1
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  std::size_t count = 0;  // Points fitted.
+};
+template <typename ForEachPoint>
+std::optional<LeastSquaresPlane> FitLeastSquaresPlane(const ForEachPoint& for_each_point,
+                                                      const Eigen::Vector3d& toward) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  std::size_t count = 0;
+  for_each_point([&](const Eigen::Vector3d& p) {
+    mean += p;
+    ++count;
+  });
+  if (count < 3) return std::nullopt;
+  mean /= static_cast<double>(count);
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for_each_point([&](const Eigen::Vector3d& p) { cov += (p - mean) * (p - mean).transpose(); });
+  Eigen::Vector3d n = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+  if (n.dot(toward) < 0.0) n = -n;
+  LeastSquaresPlane out;
+  out.coefficients << n, -n.dot(mean);
+  out.centroid = mean;
+  out.count = count;
+  return out;
 }
 
 }  // namespace
@@ -234,20 +266,13 @@ PlaneRemovalResult RemoveDominantPlane(const PointCloud& cloud,
     return in;
   };
   std::vector<int> inliers = inliers_of(best_plane);
-  if (inliers.size() >= 3) {
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (int i : inliers) mean += cloud.points[i].cast<double>();
-    mean /= static_cast<double>(inliers.size());
-    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-    for (int i : inliers) {
-      const Eigen::Vector3d q = cloud.points[i].cast<double>() - mean;
-      cov += q * q.transpose();
-    }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
-    Eigen::Vector3d n = eig.eigenvectors().col(0);
-    if (n.dot(best_plane.head<3>()) < 0.0) n = -n;
-    Eigen::Vector4d refined;
-    refined << n, -n.dot(mean);
+  const auto refit = FitLeastSquaresPlane(
+      [&](const auto& visit) {
+        for (int i : inliers) visit(cloud.points[i].cast<double>());
+      },
+      best_plane.head<3>());
+  if (refit) {
+    const Eigen::Vector4d refined = refit->coefficients;
     std::vector<int> refined_inliers = inliers_of(refined);
     if (refined_inliers.size() >= inliers.size()) {
       best_plane = refined;
@@ -363,25 +388,18 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
     // anew).
     std::size_t num = 0;
     for (int refit = 0; refit < 2; ++refit) {
-      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-      num = 0;
-      for (const auto& c : points) {
-        if (inlier(best, c)) {
-          mean += c.p;
-          ++num;
-        }
-      }
-      if (num < 3) return std::size_t{0};
-      mean /= static_cast<double>(num);
-      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-      for (const auto& c : points) {
-        if (inlier(best, c)) cov += (c.p - mean) * (c.p - mean).transpose();
-      }
-      Eigen::Vector3d n = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
-      if (n.z() < 0.0) n = -n;
-      if (n.z() < cos_tilt) break;
-      best << n, -n.dot(mean);
-      plane->centroid_xy = mean.head<2>();
+      const auto fitted = FitLeastSquaresPlane(
+          [&](const auto& visit) {
+            for (const auto& c : points) {
+              if (inlier(best, c)) visit(c.p);
+            }
+          },
+          Eigen::Vector3d::UnitZ());
+      if (!fitted) return std::size_t{0};
+      num = fitted->count;
+      if (fitted->coefficients.z() < cos_tilt) break;
+      best = fitted->coefficients;
+      plane->centroid_xy = fitted->centroid.head<2>();
     }
     plane->coefficients = best;
     return num;
