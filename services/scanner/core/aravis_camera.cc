@@ -2,6 +2,7 @@
 
 #include <arv.h>
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace picking::scanner {
@@ -130,6 +131,15 @@ void AravisCamera::Configure(const CameraSettings& settings) {
                        settings.hardware_trigger_line + "'");
       break;
   }
+  if (ARV_IS_GV_STREAM(impl_->stream)) {
+    // Aravis gives a GigE frame up (buffer status TIMEOUT) when no packet of it has come for
+    // the frame retention, 100 ms by default: a camera process or link stalled that long on
+    // a loaded host is not a lost frame yet. Half the frame timeout leaves the other half for
+    // the transfer, so an incomplete frame is reported before Capture stops waiting for it.
+    const double retention_us = std::min(settings.frame_timeout_s * 0.5e6, 60e6);
+    g_object_set(G_OBJECT(impl_->stream), "frame-retention",
+                 static_cast<guint>(std::max(retention_us, 1.0)), nullptr);
+  }
   impl_->settings = settings;
   impl_->configured = true;
 }
@@ -168,8 +178,11 @@ std::vector<Frame> AravisCamera::Capture(int count) {
   std::string failure;
   bool timed_out = false;
   bool incomplete = false;
-  for (int i = 0; i < count && failure.empty(); ++i) {
-    if (impl_->settings.trigger_mode == TriggerMode::kSoftware) {
+  const bool software = impl_->settings.trigger_mode == TriggerMode::kSoftware;
+  std::vector<std::uint64_t> received_ids;  // Every frame popped, the incomplete ones too.
+  int retries_left = impl_->settings.dropped_frame_retries;
+  for (int i = 0; i < count && failure.empty();) {
+    if (software) {
       arv_camera_software_trigger(camera, &error);
       if (error != nullptr) {
         failure = impl_->Name() + ": software trigger failed: " + error->message;
@@ -189,13 +202,26 @@ std::vector<Frame> AravisCamera::Capture(int count) {
       break;
     }
     const ArvBufferStatus status = arv_buffer_get_status(buffer);
+    received_ids.push_back(arv_buffer_get_frame_id(buffer));
     if (status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT ||
         status == ARV_BUFFER_STATUS_ABORTED) {
+      arv_stream_push_buffer(stream, buffer);
+      // The scene of a software-triggered frame is still there: take it again. A frame lost
+      // after its hardware trigger is gone with its pattern.
+      if (software && retries_left > 0) {
+        --retries_left;
+        continue;
+      }
       incomplete = true;
-      failure = impl_->Name() + ": dropped frame: frame " + std::to_string(i) + " of " +
-                std::to_string(count) + " arrived incomplete (buffer status " +
-                std::to_string(static_cast<int>(status)) + ")";
-    } else if (status != ARV_BUFFER_STATUS_SUCCESS) {
+      failure =
+          impl_->Name() + ": dropped frame: frame " + std::to_string(i) + " of " +
+          std::to_string(count) + " arrived incomplete (buffer status " +
+          std::to_string(static_cast<int>(status)) + ")" +
+          (software ? " after " + std::to_string(impl_->settings.dropped_frame_retries) + " retries"
+                    : "");
+      break;
+    }
+    if (status != ARV_BUFFER_STATUS_SUCCESS) {
       failure = impl_->Name() + ": frame " + std::to_string(i) + " has buffer status " +
                 std::to_string(static_cast<int>(status));
     } else {
@@ -210,9 +236,11 @@ std::vector<Frame> AravisCamera::Capture(int count) {
         Frame frame;
         frame.image = GrayImage(w, h);
         std::copy(data, data + static_cast<std::size_t>(w) * h, frame.image.pixels.begin());
-        frame.frame_id = arv_buffer_get_frame_id(buffer);
+        frame.frame_id = received_ids.back();
         frame.timestamp_s = static_cast<double>(arv_buffer_get_timestamp(buffer)) * 1e-9;
         frames.push_back(std::move(frame));
+        ++i;
+        retries_left = impl_->settings.dropped_frame_retries;
       }
     }
     arv_stream_push_buffer(stream, buffer);
@@ -221,7 +249,7 @@ std::vector<Frame> AravisCamera::Capture(int count) {
   if (timed_out) throw CameraTimeoutError(failure);
   if (incomplete) throw DroppedFrameError(failure);
   if (!failure.empty()) throw CameraError(failure);
-  CheckConsecutiveFrameIds(frames);
+  CheckConsecutiveFrameIds(received_ids);
   return frames;
 }
 

@@ -30,8 +30,10 @@ class AravisCamera final : public CameraBackend {
   void Arm(int count) override;
   /// Arms unless armed for `count` frames, takes `count` frames (sending a software trigger
   /// before each in kSoftware mode; each waits up to frame_timeout_s plus the exposure), and
-  /// stops the acquisition again, also after a failure. An incomplete frame (missing packets)
-  /// is a DroppedFrameError.
+  /// stops the acquisition again, also after a failure. A frame that arrives incomplete
+  /// (packets still missing after resend requests) is triggered again in kSoftware mode, up to
+  /// the settings' dropped_frame_retries times; otherwise, and with a hardware trigger, it is
+  /// a DroppedFrameError.
   std::vector<Frame> Capture(int count) override;
   std::uint32_t width() const override;
   std::uint32_t height() const override;

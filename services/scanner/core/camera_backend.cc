@@ -13,6 +13,10 @@ void ValidateCameraSettings(const CameraSettings& settings) {
     throw std::invalid_argument("CameraSettings.frame_timeout_s must be > 0, got " +
                                 std::to_string(settings.frame_timeout_s));
   }
+  if (settings.dropped_frame_retries < 0) {
+    throw std::invalid_argument("CameraSettings.dropped_frame_retries must be >= 0, got " +
+                                std::to_string(settings.dropped_frame_retries));
+  }
   if (settings.trigger_mode == TriggerMode::kHardware && settings.hardware_trigger_line.empty()) {
     throw std::invalid_argument(
         "CameraSettings.hardware_trigger_line must name a line for TriggerMode::kHardware");
@@ -26,17 +30,24 @@ void CameraBackend::Arm(int count) {
   }
 }
 
-void CheckConsecutiveFrameIds(const std::vector<Frame>& frames) {
-  for (std::size_t i = 1; i < frames.size(); ++i) {
-    const std::uint64_t expected = frames[i - 1].frame_id + 1;
-    const bool wrapped16 = frames[i - 1].frame_id == 0xFFFF && frames[i].frame_id == 1;
-    if (frames[i].frame_id != expected && !wrapped16) {
+void CheckConsecutiveFrameIds(const std::vector<std::uint64_t>& ids) {
+  for (std::size_t i = 1; i < ids.size(); ++i) {
+    const std::uint64_t expected = ids[i - 1] + 1;
+    const bool wrapped16 = ids[i - 1] == 0xFFFF && ids[i] == 1;
+    if (ids[i] != expected && !wrapped16) {
       std::ostringstream message;
-      message << "dropped frame: frame " << i << " of the capture has id " << frames[i].frame_id
-              << ", expected " << expected << " (previous id " << frames[i - 1].frame_id << ")";
+      message << "dropped frame: frame " << i << " of the capture has id " << ids[i]
+              << ", expected " << expected << " (previous id " << ids[i - 1] << ")";
       throw DroppedFrameError(message.str());
     }
   }
+}
+
+void CheckConsecutiveFrameIds(const std::vector<Frame>& frames) {
+  std::vector<std::uint64_t> ids;
+  ids.reserve(frames.size());
+  for (const Frame& frame : frames) ids.push_back(frame.frame_id);
+  CheckConsecutiveFrameIds(ids);
 }
 
 }  // namespace picking::scanner

@@ -47,6 +47,10 @@ struct CameraSettings {
   TriggerMode trigger_mode = TriggerMode::kHardware;
   std::string hardware_trigger_line = "Line0";  ///< GenICam TriggerSource for kHardware.
   double frame_timeout_s = 1.0;                 ///< Longest wait for one frame, seconds, > 0.
+  /// kSoftware only: how many times a frame that arrives incomplete is triggered again
+  /// before the capture fails (>= 0). A hardware-triggered frame cannot be taken again: the
+  /// projector has moved on to the next pattern.
+  int dropped_frame_retries = 2;
 };
 
 /// Any failure of a camera (not found, refused a setting, stream error).
@@ -86,10 +90,12 @@ class CameraBackend {
   /// device refuses to start.
   virtual void Arm(int count);
 
-  /// Captures `count` > 0 consecutive frames as 8-bit images. Throws CameraTimeoutError
-  /// when a frame does not arrive in time, DroppedFrameError when frame ids are not
-  /// consecutive or a frame arrived incomplete, CameraError for any other device or stream
-  /// failure. After a failure the camera is disarmed and can capture again.
+  /// Captures `count` > 0 frames, one per trigger in order, as 8-bit images. Throws
+  /// CameraTimeoutError when a frame does not arrive in time, DroppedFrameError when the
+  /// camera's frame ids show a lost frame or a frame arrived incomplete (and was not taken
+  /// again), CameraError for any other device or stream failure. The backend checks the ids:
+  /// a frame taken again after an incomplete one leaves a gap in the returned frames' ids.
+  /// After a failure the camera is disarmed and can capture again.
   virtual std::vector<Frame> Capture(int count) = 0;
 
   /// Image size in pixels of the frames `Capture` returns.
@@ -104,5 +110,8 @@ void ValidateCameraSettings(const CameraSettings& settings);
 /// consecutive (each id is the previous one plus 1). A 16-bit counter that wraps from 65535
 /// to 1 (GigE Vision 1.x block ids, which skip 0) counts as consecutive.
 void CheckConsecutiveFrameIds(const std::vector<Frame>& frames);
+/// The same check on the ids of every frame a capture received, in order (a camera that
+/// takes a frame again lists the incomplete one too).
+void CheckConsecutiveFrameIds(const std::vector<std::uint64_t>& frame_ids);
 
 }  // namespace picking::scanner

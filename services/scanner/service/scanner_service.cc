@@ -56,6 +56,7 @@ struct ScanDefaults {
   int normals_step = 2;
   double exposure_us = 8000.0;
   double frame_timeout_s = 2.0;
+  int dropped_frame_retries = 2;  // Software trigger: takes of a frame that came incomplete.
   // How frames are started: by the projector's trigger output (hardware), by the scanner
   // (software), or by the camera's own clock (free run).
   TriggerMode trigger_mode = TriggerMode::kHardware;
@@ -433,6 +434,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     CameraSettings settings;
     settings.exposure_us = exposure_s > 0 ? exposure_s * 1e6 : options_.scan.exposure_us;
     settings.frame_timeout_s = options_.scan.frame_timeout_s;
+    settings.dropped_frame_retries = options_.scan.dropped_frame_retries;
     settings.trigger_mode = options_.scan.trigger_mode;
     settings.hardware_trigger_line = options_.scan.trigger_line;
     try {
@@ -907,6 +909,7 @@ std::vector<std::string> ScannerSettingsHelp() {
       "decode.reference_distance_m=1, decode.refine_rows=false (sub-pixel rows too)",
       "scan.min_depth_m=0.1, scan.max_depth_m=3, scan.normals_step=2",
       "camera.exposure_us=8000, camera.frame_timeout_s=2 (wait for a frame beyond its exposure)",
+      "camera.dropped_frame_retries=2 (software trigger: take an incomplete frame again)",
       "camera.trigger=hardware|software|free_run (default: hardware with a projector, free_run "
       "with projector=none), camera.trigger_line=Line0 (GenICam line of the projector's "
       "trigger output)",
@@ -955,6 +958,12 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   d.normals_step = static_cast<int>(config.GetInt("scan.normals_step", d.normals_step));
   d.exposure_us = config.GetDouble("camera.exposure_us", d.exposure_us);
   d.frame_timeout_s = config.GetDouble("camera.frame_timeout_s", d.frame_timeout_s);
+  d.dropped_frame_retries =
+      static_cast<int>(config.GetInt("camera.dropped_frame_retries", d.dropped_frame_retries));
+  if (d.dropped_frame_retries < 0) {
+    throw std::invalid_argument("setting 'camera.dropped_frame_retries' must be >= 0, got " +
+                                std::to_string(d.dropped_frame_retries));
+  }
   const std::string trigger =
       config.GetString("camera.trigger", projector_kind == "none" ? "free_run" : "hardware");
   if (trigger == "hardware") {

@@ -103,7 +103,10 @@ TEST(CameraBackendTest, DroppedFramesAreDetected) {
   } catch (const DroppedFrameError& e) {
     EXPECT_NE(std::string(e.what()).find("11"), std::string::npos) << e.what();
   }
-  EXPECT_NO_THROW(CheckConsecutiveFrameIds({}));
+  EXPECT_NO_THROW(CheckConsecutiveFrameIds(std::vector<Frame>{}));
+  // The id list form: a frame taken again after an incomplete one keeps the count going.
+  EXPECT_NO_THROW(CheckConsecutiveFrameIds(std::vector<std::uint64_t>{4, 5, 6}));
+  EXPECT_THROW(CheckConsecutiveFrameIds(std::vector<std::uint64_t>{4, 6}), DroppedFrameError);
 }
 
 // GigE Vision 1.x block ids are 16 bit and skip 0: 65535 is followed by 1.
