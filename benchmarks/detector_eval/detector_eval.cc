@@ -11,6 +11,7 @@
 // Usage: detector_eval [--layouts=1,2,3] [--seed=N] [--per_method=true|false]
 //                      [--bins=A,B,...] [--markdown=FILE] [--budget_scale=F]
 //                      [--ppf_segments=true|false] [--sphere_fit=true|false]
+//                      [--floor_band=true|false]
 //                      [--views=1|3] [--view_offset_m=0.15] [--side_height_m=0.25]
 //                      [--appearance=true|false|rank]
 //
@@ -114,6 +115,9 @@ Args Parse(int argc, char** argv) {
         refine.verify.appearance_contradiction_scale = 1.0;
         refine.appearance_rank_weight = 0.0;
       }
+    } else if (auto v = value("--floor_band")) {
+      // false: the wall margin spares the bin's bottom face; only the measured floor goes.
+      if (!ParseBool("--floor_band", *v)) args.detection.wall_faces &= ~detector::kFaceMinZ;
     } else if (auto v = value("--sphere_fit")) {
       args.detection.estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
     } else {

@@ -76,12 +76,15 @@ struct ObjectConfig {
   Thresholds thresholds;
   /// Per-method overrides of `thresholds`.
   std::map<Method, Thresholds> method_thresholds;
-  /// Time budget of one detection call for this item, seconds (>= 0; 0: none). No fallback
-  /// method is started once it is spent, and methods with a long search (range templates)
-  /// stop it at the budget and report what they found so far: "nothing found" within the
+  /// Time budget of one detection call for this item, seconds (>= 0; 0: none), counted from
+  /// the start of the work on the item (in the detector service, for a call's first item,
+  /// from when its cloud has arrived: the shared pre-processing is part of it). No fallback
+  /// method is started once it is spent, and the methods stop their searches, refinements
+  /// and verifications at it and report what they found so far: "nothing found" within the
   /// budget instead of a call of many seconds. The preferred method always runs. The default
-  /// is the goal of one second per item (benchmarks/RESULTS.md, simulated shelf bins).
-  double time_budget_s = 1.0;
+  /// keeps a call under the goal of one second per item (benchmarks/RESULTS.md, simulated
+  /// shelf bins) with room for the refinement and verification under way when it ends.
+  double time_budget_s = 0.85;
 
   /// preferred followed by fallbacks.
   std::vector<Method> Order() const;

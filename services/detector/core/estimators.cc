@@ -266,6 +266,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
+    if (!out.empty() && Clock::now() > input.budget_end) break;  // The best come first.
     // DetectPpf has refined the pose with ICP already.
     Detection d =
         RefineAndVerify(*model, *context_, Method::kPpf, hypothesis.X_SceneModel, false, refine_);
@@ -346,6 +347,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   const double preprocess_s = SecondsSince(preprocess_start);
   if (clusters.clusters.empty()) return {};
   context_->CheckDeadline();
+  if (Clock::now() > input.budget_end) return {};  // No time left to match a cluster.
   const auto estimate_start = Clock::now();
   TemplateMatchOptions match = match_;
   match.deadline = std::min(match.deadline, input.budget_end);
@@ -356,6 +358,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   std::vector<Detection> out;
   for (const TemplateMatch& m : matches) {
     context_->CheckDeadline();
+    if (!out.empty() && Clock::now() > input.budget_end) break;
     Detection d =
         RefineAndVerify(*model, *context_, Method::kRangeTemplates, m.X_BaseItem, true, refine_);
     d.timings.preprocess_s = preprocess_s;

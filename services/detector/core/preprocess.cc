@@ -421,9 +421,12 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
     planes.push_back(std::move(plane));
   }
   // The floor is the lowest surface: a plane that lies more than min_step_m above another
-  // one both where its own inliers are and where the other's are is the top of an item
-  // standing on that one. A plane passing higher than max_centre_height_m at the box's centre
-  // is an item's top face over a hidden floor.
+  // one where its own inliers are, and does not pass below it where the other's inliers are,
+  // is the top of an item standing on that one. (Where it would pass below the other one the
+  // two are parts of a bent board. The item's top need not lie high above the other plane at
+  // the other's inliers: a level item on a tilted board crosses the board's plane there.) A
+  // plane passing higher than max_centre_height_m at the box's centre is an item's top face
+  // over a hidden floor.
   for (Plane& plane : planes) {
     if (height(plane.coefficients, Eigen::Vector2d::Zero()) - bottom_z >
         options.max_centre_height_m) {
@@ -431,10 +434,13 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
     }
     for (const Plane& other : planes) {
       if (&other == &plane) continue;
-      const auto above = [&](const Eigen::Vector2d& xy) {
-        return height(plane.coefficients, xy) - height(other.coefficients, xy) > options.min_step_m;
+      const auto rise = [&](const Eigen::Vector2d& xy) {
+        return height(plane.coefficients, xy) - height(other.coefficients, xy);
       };
-      if (above(plane.centroid_xy) && above(other.centroid_xy)) plane.floor = false;
+      if (rise(plane.centroid_xy) > options.min_step_m &&
+          rise(other.centroid_xy) > -options.min_step_m) {
+        plane.floor = false;
+      }
     }
   }
   std::vector<const Plane*> floors;

@@ -118,8 +118,8 @@ struct FloorRemovalOptions {
   int max_iterations = 300;  ///< RANSAC hypotheses per plane.
   /// At most this many planes are extracted from the candidates, one after the other.
   int max_planes = 4;
-  /// A plane lying more than this above another one, both at its own inliers and at the
-  /// other's, is the top of an item standing on the other, not floor, metres.
+  /// A plane lying more than this above another one at its own inliers, and not this much
+  /// below it at the other's, is the top of an item standing on the other, not floor, metres.
   double min_step_m = 0.006;
   /// A plane needs this many supporting candidates.
   std::size_t min_inliers = 500;
@@ -133,8 +133,9 @@ struct FloorRemovalOptions {
 /// upward normals when the cloud has normals); up to max_planes planes with normals near the
 /// box's +z are extracted from them one after the other (RANSAC, least-squares refit, the
 /// inliers leave the candidates). A plane is floor unless it passes higher than
-/// max_centre_height_m at the box's centre or lies more than min_step_m above another plane
-/// (at both planes' inliers: it is the top of a flat item standing on that one). Every point
+/// max_centre_height_m at the box's centre or is the top of a flat item standing on another
+/// plane: more than min_step_m above it at its own inliers and not below it (by min_step_m) at
+/// the other's, which also holds for a level item on a tilted board. Every point
 /// below the lowest floor plane at its place or within margin_m above it is removed, and
 /// likewise for a floor plane with inliers in the point's 2 cm cell of the box's xy grid (a
 /// higher part of the board), so a flat item on a tilted or uneven board stays when its top is

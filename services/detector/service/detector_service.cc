@@ -167,6 +167,9 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       ValidateParams(params);
       ReceivedScene received = ReadCloud(reader, settings_);
       response->set_points_received(received.points_received);
+      // An item's time budget covers its share of the work on the received cloud: the first
+      // item's includes the shared pre-processing.
+      Clock::time_point budget_start = Clock::now();
 
       geometry::PointCloud scene = std::move(received.cloud);
       if (params.has_region()) scene = CropToRegion(scene, params.region());
@@ -187,7 +190,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         pb::ItemResult* result = response->add_results();
         result->set_item(query.item());
         try {
-          DetectItem(query, scene, context, shared_preprocess_s, result);
+          DetectItem(query, scene, context, shared_preprocess_s, budget_start, result);
         } catch (const TimeoutError&) {
           throw;
         } catch (...) {
@@ -196,6 +199,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           result->mutable_status()->set_message(status.error_message());
         }
         if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+        budget_start = Clock::now();
       }
       context->CheckDeadline();
       return grpc::Status::OK;
@@ -311,7 +315,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
 
   void DetectItem(const pb::ItemQuery& query, const geometry::PointCloud& scene,
                   const std::shared_ptr<SceneContext>& context, double shared_preprocess_s,
-                  pb::ItemResult* result) const {
+                  Clock::time_point budget_start, pb::ItemResult* result) const {
     const auto model = library_->Get(query.item());  // NotFoundError: this item only.
     ObjectConfig config = model->config;
     config.item = query.item();
@@ -353,6 +357,10 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     input.scene = &scene;
     input.X_BaseSensor = context->X_BaseSensor();
     input.camera = context->camera();
+    if (config.time_budget_s > 0.0) {
+      input.budget_end = budget_start + std::chrono::duration_cast<Clock::duration>(
+                                            std::chrono::duration<double>(config.time_budget_s));
+    }
     const ChainResult chain_result = chain.Run(input);
     context->CheckDeadline();  // An estimator stopped by the deadline is not "not found".
 

@@ -166,6 +166,13 @@ TEST(DetectionChainTest, NoFallbackIsStartedOnceTheTimeBudgetIsSpent) {
   ASSERT_TRUE(whole.detection.has_value());
   EXPECT_EQ(templates->calls, 1);
   EXPECT_EQ(ppf->budget_end, std::chrono::steady_clock::time_point::max());
+
+  // A budget the caller started earlier (its pre-processing counts) is kept.
+  c.time_budget_s = 10.0;
+  EstimatorInput early{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
+  early.budget_end = std::chrono::steady_clock::now() + std::chrono::milliseconds(5);
+  DetectionChain(DetectorConfig(c), {ppf, templates}).Run(early);
+  EXPECT_EQ(ppf->budget_end, early.budget_end);
 }
 
 TEST(DetectionChainTest, RejectsBadConstruction) {

@@ -232,6 +232,20 @@ TEST_F(MilkEstimatorTest, ChainRunsThePreferredMethodAndAcceptsTheMilk) {
   EXPECT_TRUE(result.attempts[0].accepted);
 }
 
+// A budget spent before the estimators start (by the call's pre-processing) ends their
+// searches at once: PPF verifies at most its best hypothesis, range templates match nothing.
+TEST_F(MilkEstimatorTest, ASpentBudgetStopsTheSearches) {
+  auto context = Context();
+  PpfEstimator ppf(*library_, context);
+  const std::vector<Detection> all = ppf.Estimate(Input("milk"));
+  ASSERT_GT(all.size(), 1u);
+  EstimatorInput spent = Input("milk");
+  spent.budget_end = std::chrono::steady_clock::now();
+  EXPECT_LE(ppf.Estimate(spent).size(), 1u);
+  RangeTemplateEstimator templates(*library_, context);
+  EXPECT_TRUE(templates.Estimate(spent).empty());
+}
+
 TEST_F(MilkEstimatorTest, DeadlineAndForeignScenesStopTheEstimators) {
   auto context = Context();
   context->set_deadline(std::chrono::steady_clock::now() - std::chrono::seconds(1));

@@ -255,6 +255,39 @@ TEST(PreprocessTest, BoxFloorKeepsFlatItemsOverAHiddenFrontBoard) {
   EXPECT_THROW(RemoveBoxFloor(cloud, bin, bad), std::invalid_argument);
 }
 
+// A level mailer, 1 cm thick, covers the low back of a board tilted by 5 degrees and rests on
+// it where the board is highest under it. Its top plane crosses the board's plane a few
+// millimetres above where the board is seen: it is still an item's top, not a second floor.
+TEST(PreprocessTest, BoxFloorKeepsALevelFlatItemOnATiltedBoard) {
+  OrientedBox bin;
+  bin.X_BaseBox = Eigen::Translation3d(1.0, 0.3, 0.85) * Eigen::Isometry3d::Identity();
+  bin.size_m = Eigen::Vector3d(0.44, 0.27, 0.27);
+  const double tilt = 5.0 * M_PI / 180.0;
+  const double bottom = -0.135;
+  const auto floor_z = [&](double x) { return bottom + 0.01 + std::tan(tilt) * x; };
+  const double item_end = 0.05;  // The item covers x < item_end.
+  const double item_top = floor_z(item_end) + 0.01;
+  std::mt19937 rng(17);
+  std::normal_distribution<double> noise(0.0, 0.0003);
+  geometry::PointCloud cloud;
+  std::size_t num_items = 0;
+  const Eigen::Vector3d up(-std::sin(tilt), 0.0, std::cos(tilt));
+  for (double x = -0.21; x <= 0.21; x += 0.002) {
+    for (double y = -0.125; y <= 0.125; y += 0.002) {
+      const bool item = x < item_end;
+      const Eigen::Vector3d p(x, y, (item ? item_top : floor_z(x)) + noise(rng));
+      cloud.points.push_back((bin.X_BaseBox * p).cast<float>());
+      cloud.normals.push_back((item ? Eigen::Vector3d::UnitZ() : up).cast<float>());
+      num_items += item ? 1 : 0;
+    }
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  const PlaneRemovalResult r = RemoveBoxFloor(cloud, bin);
+  ASSERT_TRUE(r.removed);
+  EXPECT_EQ(r.cloud.size(), num_items);
+  EXPECT_GT(r.plane.head<3>().dot(up), std::cos(1.0 * M_PI / 180.0));
+}
+
 TEST(PreprocessTest, VoxelDownsampleAveragesPerVoxel) {
   geometry::PointCloud c = Unorganised({{0.001f, 0.001f, 0.001f},
                                         {0.003f, 0.003f, 0.003f},
