@@ -52,6 +52,9 @@ pb::Method ToProto(const std::string& method_name) {
 // Settings of the service that are not the model library's.
 struct ServiceSettings {
   std::uint64_t max_points = 5'000'000;
+  // Multiplies every item's time budget: a detector sharing its cores with other work keeps
+  // the search a quiet machine would make, at the cost of slower calls.
+  double time_budget_scale = 1.0;
   PinholeCamera default_camera{640, 480, 525.0, 525.0, 319.5, 239.5};  // Unorganised clouds.
 };
 
@@ -338,6 +341,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     // A method asked for by name runs to the end of its search (the call's deadline still
     // applies); the item's time budget limits its configured chain only.
     if (query.method() != pb::METHOD_UNSPECIFIED) config.time_budget_s = 0.0;
+    config.time_budget_s *= settings_.time_budget_scale;
     if (query.min_score() > 0.0) {
       config.thresholds.min_score = query.min_score();
       for (auto& [method, thresholds] : config.method_thresholds) {
@@ -415,6 +419,10 @@ runtime::ServiceSet BuildDetectorServices(const runtime::Config& config) {
                                 std::to_string(pc::kMaxStreamPoints) + "]");
   }
   settings.max_points = static_cast<std::uint64_t>(max_points);
+  settings.time_budget_scale = config.GetDouble("time_budget_scale", 1.0);
+  if (!(settings.time_budget_scale > 0.0) || !std::isfinite(settings.time_budget_scale)) {
+    throw std::invalid_argument("setting 'time_budget_scale' must be positive and finite");
+  }
   try {
     settings.default_camera =
         PinholeCamera(static_cast<int>(config.GetInt("camera.width", 640)),
