@@ -179,7 +179,10 @@ std::vector<Frame> AravisCamera::Capture(int count) {
   bool timed_out = false;
   bool incomplete = false;
   const bool software = impl_->settings.trigger_mode == TriggerMode::kSoftware;
-  std::vector<std::uint64_t> received_ids;  // Every frame popped, the incomplete ones too.
+  // Ids of the whole frames, in runs between frames taken again: an incomplete frame may not
+  // know its id (its leader packet lost), and the frame taken after it is the one triggered,
+  // so the ids are checked within each run.
+  std::vector<std::vector<std::uint64_t>> runs(1);
   int retries_left = impl_->settings.dropped_frame_retries;
   for (int i = 0; i < count && failure.empty();) {
     if (software) {
@@ -202,7 +205,6 @@ std::vector<Frame> AravisCamera::Capture(int count) {
       break;
     }
     const ArvBufferStatus status = arv_buffer_get_status(buffer);
-    received_ids.push_back(arv_buffer_get_frame_id(buffer));
     if (status == ARV_BUFFER_STATUS_MISSING_PACKETS || status == ARV_BUFFER_STATUS_TIMEOUT ||
         status == ARV_BUFFER_STATUS_ABORTED) {
       arv_stream_push_buffer(stream, buffer);
@@ -210,6 +212,7 @@ std::vector<Frame> AravisCamera::Capture(int count) {
       // after its hardware trigger is gone with its pattern.
       if (software && retries_left > 0) {
         --retries_left;
+        if (!runs.back().empty()) runs.emplace_back();
         continue;
       }
       incomplete = true;
@@ -236,7 +239,8 @@ std::vector<Frame> AravisCamera::Capture(int count) {
         Frame frame;
         frame.image = GrayImage(w, h);
         std::copy(data, data + static_cast<std::size_t>(w) * h, frame.image.pixels.begin());
-        frame.frame_id = received_ids.back();
+        frame.frame_id = arv_buffer_get_frame_id(buffer);
+        runs.back().push_back(frame.frame_id);
         frame.timestamp_s = static_cast<double>(arv_buffer_get_timestamp(buffer)) * 1e-9;
         frames.push_back(std::move(frame));
         ++i;
@@ -249,7 +253,7 @@ std::vector<Frame> AravisCamera::Capture(int count) {
   if (timed_out) throw CameraTimeoutError(failure);
   if (incomplete) throw DroppedFrameError(failure);
   if (!failure.empty()) throw CameraError(failure);
-  CheckConsecutiveFrameIds(received_ids);
+  for (const auto& run : runs) CheckConsecutiveFrameIds(run);
   return frames;
 }
 

@@ -110,8 +110,7 @@ void ValidateCameraSettings(const CameraSettings& settings);
 /// consecutive (each id is the previous one plus 1). A 16-bit counter that wraps from 65535
 /// to 1 (GigE Vision 1.x block ids, which skip 0) counts as consecutive.
 void CheckConsecutiveFrameIds(const std::vector<Frame>& frames);
-/// The same check on the ids of every frame a capture received, in order (a camera that
-/// takes a frame again lists the incomplete one too).
+/// The same check on frame ids received one after the other.
 void CheckConsecutiveFrameIds(const std::vector<std::uint64_t>& frame_ids);
 
 }  // namespace picking::scanner
