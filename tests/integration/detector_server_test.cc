@@ -844,6 +844,50 @@ TEST_F(DetectorBinScanTest, FindsTheTissueBoxInBinA) {
   ExpectFound(common::CONTAINER_BIN_A, "kleenex_tissue_box", /*cylinder=*/false);
 }
 
+// The tissue box's print: Detect reports how well it fits, and Verify, given the true pose
+// turned by half a turn about the box's short axis (the same shape), reports the turn whose
+// print fits: the true one.
+TEST_F(DetectorBinScanTest, VerifyReportsTheTurnOfTheTissueBoxWhosePrintFits) {
+  const std::vector<common::PointCloudChunk> chunks = ScanBin(common::CONTAINER_BIN_A);
+  ASSERT_FALSE(chunks.empty());
+  const std::vector<Transform> truth = TruePoses(common::CONTAINER_BIN_A, "kleenex_tissue_box");
+  ASSERT_EQ(truth.size(), 1u);
+  const auto verify = [&](const Transform& X, pb::VerifyResponse* response) {
+    auto stub = pb::DetectorService::NewStub(detector_->Channel());
+    grpc::ClientContext ctx;
+    auto writer = stub->Verify(&ctx, response);
+    pb::VerifyRequest request;
+    request.mutable_params()->set_item("kleenex_tissue_box");
+    *request.mutable_params()->mutable_x_frame_item() = ToPose(X);
+    writer->Write(request);
+    for (const auto& chunk : chunks) {
+      pb::VerifyRequest c;
+      *c.mutable_cloud() = chunk;
+      if (!writer->Write(c)) break;
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  };
+  pb::VerifyResponse at_truth;
+  ASSERT_TRUE(verify(truth[0], &at_truth).ok());
+  ASSERT_TRUE(at_truth.has_appearance());
+  EXPECT_GT(at_truth.appearance(), 0.5);
+  EXPECT_GT(at_truth.score(), 0.5);
+  EXPECT_LT(RotationErrorRad(FromPose(at_truth.x_frame_item_appearance()), truth[0]),
+            2.0 * kPi / 180.0);
+
+  Transform turned = truth[0];  // Half a turn about the item's z axis.
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 2; ++c) turned.R[r][c] = -truth[0].R[r][c];
+  }
+  pb::VerifyResponse at_turned;
+  ASSERT_TRUE(verify(turned, &at_turned).ok());
+  ASSERT_TRUE(at_turned.has_appearance());
+  EXPECT_GT(at_turned.appearance(), 0.5);  // Of the fitting turn (sampled a little apart).
+  EXPECT_LT(RotationErrorRad(FromPose(at_turned.x_frame_item_appearance()), truth[0]),
+            2.0 * kPi / 180.0);
+}
+
 TEST_F(DetectorBinScanTest, FindsThePaperTowelsInBinD) {
   ExpectFound(common::CONTAINER_BIN_D, "kleenex_paper_towels", /*cylinder=*/true);
 }

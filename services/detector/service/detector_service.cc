@@ -137,6 +137,7 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
+  if (std::isfinite(d.appearance)) out->set_appearance(d.appearance);
   auto* t = out->mutable_timings();
   t->set_preprocess_s(shared_preprocess_s + d.timings.preprocess_s);
   t->set_match_s(d.timings.estimate_s);
@@ -232,8 +233,15 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       const PinholeCamera camera =
           CameraFor(received.cloud, *X_BaseSensor).value_or(settings_.default_camera);
       const VerificationScene scene(received.cloud, *X_BaseSensor, camera);
-      const VerifyResult r = detector::Verify(scene, model->object->icp_cloud(), X_BaseItem);
+      // As Detect verifies its candidates: the symmetric turn whose print fits is reported and
+      // a contradicting print lowers the score.
+      VerifyOptions options = RefineVerifyOptions().verify;
+      options.symmetries = model->object->symmetries();
+      const VerifyResult r =
+          detector::Verify(scene, model->object->icp_cloud(), X_BaseItem, options);
       response->set_score(r.score);
+      if (r.appearance.defined) response->set_appearance(r.appearance.correlation);
+      *response->mutable_x_frame_item_appearance() = pc::PoseToProto(r.X_BaseItem_appearance);
       response->set_visible_model_points(
           static_cast<std::uint32_t>(r.num_visible - r.num_occluded));
       response->set_supported_model_points(static_cast<std::uint32_t>(r.num_supported));
