@@ -137,7 +137,8 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
-  if (std::isfinite(d.appearance)) out->set_appearance(d.appearance);
+  out->set_has_appearance(std::isfinite(d.appearance));
+  if (out->has_appearance()) out->set_appearance(d.appearance);
   auto* t = out->mutable_timings();
   t->set_preprocess_s(shared_preprocess_s + d.timings.preprocess_s);
   t->set_match_s(d.timings.estimate_s);
@@ -240,6 +241,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       const VerifyResult r =
           detector::Verify(scene, model->object->icp_cloud(), X_BaseItem, options);
       response->set_score(r.score);
+      response->set_has_appearance(r.appearance.defined);
       if (r.appearance.defined) response->set_appearance(r.appearance.correlation);
       *response->mutable_x_frame_item_appearance() = pc::PoseToProto(r.X_BaseItem_appearance);
       response->set_visible_model_points(
