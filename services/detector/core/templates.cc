@@ -275,7 +275,8 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const TemplateMatchOptions& options) {
   if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
       !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
-      options.max_cluster_points < 10 || !(options.min_cluster_extent_rel >= 0.0) ||
+      options.max_cluster_points < 10 || options.max_target_points < 10 ||
+      !(options.min_cluster_extent_rel >= 0.0) ||
       !(options.max_cluster_extent_rel >= options.min_cluster_extent_rel))
     throw std::invalid_argument("TemplateMatchOptions: a count or threshold is out of range");
   const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
@@ -317,6 +318,18 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
     if (extent_m < options.min_cluster_extent_rel * templates.diameter_m() ||
         extent_m > options.max_cluster_extent_rel * templates.diameter_m())
       continue;
+    Eigen::Vector3f closest = cluster.points.front();
+    for (const auto& p : cluster.points)
+      if (p.norm() < closest.norm()) closest = p;
+    if (cluster.points.size() > static_cast<std::size_t>(options.max_target_points)) {
+      const std::size_t step =
+          (cluster.points.size() + options.max_target_points - 1) / options.max_target_points;
+      std::vector<Eigen::Vector3f> thinned;
+      for (std::size_t i = 0; i < cluster.points.size(); i += step) {
+        thinned.push_back(cluster.points[i]);
+      }
+      cluster.points = std::move(thinned);
+    }
     cluster.width = static_cast<std::uint32_t>(cluster.points.size());
     NormalOptions normal_options;  // viewpoint: the sensor origin
     cluster = EstimateNormals(cluster, normal_options);
@@ -330,9 +343,6 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
     if (target.size() < 10) continue;
     const KdTree tree(target.points);
 
-    Eigen::Vector3f closest = cluster.points.front();
-    for (const auto& p : cluster.points)
-      if (p.norm() < closest.norm()) closest = p;
     std::vector<Eigen::Vector3f> samples;
     const std::size_t stride =
         (cluster.size() + options.max_cluster_points - 1) / options.max_cluster_points;

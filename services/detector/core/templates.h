@@ -108,6 +108,10 @@ struct TemplateMatchOptions {
   double max_cost_m = 0.003;
   /// Scene samples per cluster used in the cost.
   int max_cluster_points = 400;
+  /// A cluster's points are thinned (evenly, by stride) to at most this many before its
+  /// normals and k-d tree are built for the ICP stages: a merged multi-view scan puts 100k+
+  /// points on one cluster, whose normals alone would take longer than the time budget; >= 10.
+  int max_target_points = 15000;
   /// Only clusters of a plausible size for the item are matched: the diagonal of the
   /// cluster's bounding box must lie within [min_cluster_extent_rel, max_cluster_extent_rel]
   /// times the item's diameter. A smaller cluster shows too little of the item to fix a pose;
