@@ -264,9 +264,15 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
   }
   context_->CheckDeadline();
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
+  const auto verify_start = Clock::now();
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
-    if (!out.empty() && Clock::now() > input.budget_end) break;  // The best come first.
+    // The best come first; the next is verified when the mean time so far leaves room for it.
+    const auto now = Clock::now();
+    if (!out.empty() &&
+        now + (now - verify_start) / static_cast<int>(out.size()) > input.budget_end) {
+      break;
+    }
     // DetectPpf has refined the pose with ICP already.
     Detection d =
         RefineAndVerify(*model, *context_, Method::kPpf, hypothesis.X_SceneModel, false, refine_);

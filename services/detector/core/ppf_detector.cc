@@ -353,8 +353,15 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   std::vector<PpfDetection> verified;
   const std::size_t count = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
+  // A hypothesis is refined only when it can be done before the deadline, judged by the
+  // mean time of those before it (the first always is).
+  const auto refine_start = std::chrono::steady_clock::now();
   for (std::size_t h = 0; h < count; ++h) {
-    if (h > 0 && std::chrono::steady_clock::now() > options.refine_deadline) break;
+    const auto now = std::chrono::steady_clock::now();
+    if (h > 0 &&
+        now + (now - refine_start) / static_cast<std::int64_t>(h) > options.refine_deadline) {
+      break;
+    }
     ++result.refined_hypotheses;
     const PpfHypothesis& hyp = result.match.hypotheses[h];
     PpfDetection d;
