@@ -217,9 +217,38 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
   if (options.min_inliers < 3 || options.ransac_iterations < 1 ||
       !(options.inlier_threshold_m > 0.0) || !(options.reprojection_threshold_px > 0.0))
     throw std::invalid_argument("SiftPoseOptions: a count or threshold is out of range");
+  // Features are sought only around the scan's finite points (the whole image when it has
+  // none: the pose then comes from EPnP): a scene cropped to a bin keeps its organisation
+  // with NaN elsewhere, and the rest of the image would cost most of the detection time.
+  int u0 = image.width, v0 = image.height, u1 = -1, v1 = -1;
+  for (int v = 0; v < image.height; ++v) {
+    for (int u = 0; u < image.width; ++u) {
+      if (!scene.points[static_cast<std::size_t>(v) * image.width + u].allFinite()) continue;
+      u0 = std::min(u0, u);
+      u1 = std::max(u1, u);
+      v0 = std::min(v0, v);
+      v1 = std::max(v1, v);
+    }
+  }
+  if (u1 < u0 || v1 < v0) {
+    u0 = v0 = 0;
+    u1 = image.width - 1;
+    v1 = image.height - 1;
+  }
   std::vector<cv::KeyPoint> scene_keypoints;
   cv::Mat scene_descriptors;
-  Detect(image, model.options().max_features, &scene_keypoints, &scene_descriptors);
+  {
+    constexpr int kPad = 16;  // Room for the descriptor windows of features on the edge.
+    const cv::Rect roi(std::max(0, u0 - kPad), std::max(0, v0 - kPad),
+                       std::min(image.width, u1 + kPad + 1) - std::max(0, u0 - kPad),
+                       std::min(image.height, v1 + kPad + 1) - std::max(0, v0 - kPad));
+    auto sift = cv::SIFT::create(model.options().max_features);
+    sift->detectAndCompute(ToMat(image)(roi), cv::noArray(), scene_keypoints, scene_descriptors);
+    for (cv::KeyPoint& k : scene_keypoints) {
+      k.pt.x += static_cast<float>(roi.x);
+      k.pt.y += static_cast<float>(roi.y);
+    }
+  }
 
   SiftPoseResult best;
   const auto& views = model.impl().views;
