@@ -84,7 +84,7 @@ struct ObjectConfig {
   /// budget instead of a call of many seconds. The preferred method always runs. The default
   /// keeps a call under the goal of one second per item (benchmarks/RESULTS.md, simulated
   /// shelf bins) with room for the refinement and verification under way when it ends.
-  double time_budget_s = 0.85;
+  double time_budget_s = 0.8;
 
   /// preferred followed by fallbacks.
   std::vector<Method> Order() const;
