@@ -120,11 +120,7 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   input.scene = &region;
   input.X_BaseSensor = scan.X_BaseCamera;
   input.camera = camera;
-  // As the detector service does: the budget covers the pre-processing too.
-  if (config.time_budget_s > 0.0) {
-    input.budget_end = start + std::chrono::duration_cast<Clock::duration>(
-                                   std::chrono::duration<double>(config.time_budget_s));
-  }
+  input.budget_start = start;  // As the detector service does: the pre-processing counts.
   result.chain = chain.Run(input);
   result.total_s = std::chrono::duration<double>(Clock::now() - start).count();
   return result;

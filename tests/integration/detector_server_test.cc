@@ -294,6 +294,26 @@ TEST(DetectorServerTest, RejectsANonPositiveTimeBudgetScale) {
 
 // --- Detection on the real scene ------------------------------------------------------------
 
+// A Verify call: the params for `item` at X_BaseItem, then the cloud chunks.
+grpc::Status StreamVerify(pb::DetectorService::Stub& stub, const std::string& item,
+                          const Transform& X_BaseItem,
+                          const std::vector<common::PointCloudChunk>& chunks,
+                          pb::VerifyResponse* response) {
+  grpc::ClientContext ctx;
+  auto writer = stub.Verify(&ctx, response);
+  pb::VerifyRequest request;
+  request.mutable_params()->set_item(item);
+  *request.mutable_params()->mutable_x_frame_item() = ToPose(X_BaseItem);
+  writer->Write(request);
+  for (const auto& chunk : chunks) {
+    pb::VerifyRequest c;
+    *c.mutable_cloud() = chunk;
+    if (!writer->Write(c)) break;
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
 class DetectorSceneTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -349,20 +369,7 @@ class DetectorSceneTest : public ::testing::Test {
   }
 
   static grpc::Status Verify(const Transform& X_BaseItem, pb::VerifyResponse* response) {
-    auto stub = Stub();
-    grpc::ClientContext ctx;
-    auto writer = stub->Verify(&ctx, response);
-    pb::VerifyRequest request;
-    request.mutable_params()->set_item("milk");
-    *request.mutable_params()->mutable_x_frame_item() = ToPose(X_BaseItem);
-    writer->Write(request);
-    for (const auto& chunk : *chunks_) {
-      pb::VerifyRequest c;
-      *c.mutable_cloud() = chunk;
-      if (!writer->Write(c)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return StreamVerify(*Stub(), "milk", X_BaseItem, *chunks_, response);
   }
 
   static pb::DetectParams Query(std::initializer_list<std::string> items, pb::Method method) {
@@ -852,21 +859,9 @@ TEST_F(DetectorBinScanTest, VerifyReportsTheTurnOfTheTissueBoxWhosePrintFits) {
   ASSERT_FALSE(chunks.empty());
   const std::vector<Transform> truth = TruePoses(common::CONTAINER_BIN_A, "kleenex_tissue_box");
   ASSERT_EQ(truth.size(), 1u);
+  auto stub = pb::DetectorService::NewStub(detector_->Channel());
   const auto verify = [&](const Transform& X, pb::VerifyResponse* response) {
-    auto stub = pb::DetectorService::NewStub(detector_->Channel());
-    grpc::ClientContext ctx;
-    auto writer = stub->Verify(&ctx, response);
-    pb::VerifyRequest request;
-    request.mutable_params()->set_item("kleenex_tissue_box");
-    *request.mutable_params()->mutable_x_frame_item() = ToPose(X);
-    writer->Write(request);
-    for (const auto& chunk : chunks) {
-      pb::VerifyRequest c;
-      *c.mutable_cloud() = chunk;
-      if (!writer->Write(c)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return StreamVerify(*stub, "kleenex_tissue_box", X, chunks, response);
   };
   pb::VerifyResponse at_truth;
   ASSERT_TRUE(verify(truth[0], &at_truth).ok());

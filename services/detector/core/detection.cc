@@ -252,7 +252,8 @@ ChainResult DetectionChain::Run(const EstimatorInput& input) const {
   if (object.time_budget_s > 0.0) {
     const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
         std::chrono::duration<double>(object.time_budget_s));
-    budgeted.budget_end = std::min(input.budget_end, std::chrono::steady_clock::now() + budget);
+    const auto start = input.budget_start.value_or(std::chrono::steady_clock::now());
+    budgeted.budget_end = std::min(input.budget_end, start + budget);
   }
   ChainResult result;
   bool first = true;

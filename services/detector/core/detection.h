@@ -141,6 +141,9 @@ struct EstimatorInput {
   /// End of the call's time budget (set by DetectionChain::Run from the item's
   /// time_budget_s): an estimator with a long search stops it here and returns what it found.
   std::chrono::steady_clock::time_point budget_end = std::chrono::steady_clock::time_point::max();
+  /// When the work on the item began (e.g. before a shared pre-processing): DetectionChain::Run
+  /// counts the item's time_budget_s from here; unset, from the start of Run.
+  std::optional<std::chrono::steady_clock::time_point> budget_start;
 };
 
 /// A pose estimation strategy (PPF, SIFT, range templates, or a fake in tests).

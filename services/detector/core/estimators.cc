@@ -268,9 +268,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
     // The best come first; the next is verified when the mean time so far leaves room for it.
-    const auto now = Clock::now();
-    if (!out.empty() &&
-        now + (now - verify_start) / static_cast<int>(out.size()) > input.budget_end) {
+    if (!TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end)) {
       break;
     }
     // DetectPpf has refined the pose with ICP already.

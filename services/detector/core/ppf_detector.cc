@@ -357,9 +357,7 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   // mean time of those before it (the first always is).
   const auto refine_start = std::chrono::steady_clock::now();
   for (std::size_t h = 0; h < count; ++h) {
-    const auto now = std::chrono::steady_clock::now();
-    if (h > 0 &&
-        now + (now - refine_start) / static_cast<std::int64_t>(h) > options.refine_deadline) {
+    if (!TimeForAnother(refine_start, static_cast<std::int64_t>(h), options.refine_deadline)) {
       break;
     }
     ++result.refined_hypotheses;

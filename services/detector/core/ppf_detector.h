@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
+#include <cstdint>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -56,6 +57,16 @@ class ViewRangeGrid final {
 /// the scene frame S, metres, with their search trees. `fine` keeps the scene's intensities
 /// (voxel-averaged; the luma of its colours when it has colours only) for the appearance
 /// check.
+/// Whether one more step of a loop that began at `start` and has done `done` (> 0) steps fits
+/// before `deadline`, judged by the mean time of the steps so far. With done == 0 it does
+/// (the first step always runs).
+inline bool TimeForAnother(std::chrono::steady_clock::time_point start, std::int64_t done,
+                           std::chrono::steady_clock::time_point deadline) {
+  if (done <= 0) return true;
+  const auto now = std::chrono::steady_clock::now();
+  return now + (now - start) / done <= deadline;
+}
+
 struct PpfScene {
   geometry::PointCloud fine;
   geometry::PointCloud sampled;

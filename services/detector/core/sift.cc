@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <random>
 #include <stdexcept>
 
@@ -33,10 +34,17 @@ cv::Mat ToMat(const GrayImage& image) {
                  const_cast<std::uint8_t*>(image.pixels.data()));
 }
 
+// SIFT keypoints (in image coordinates) and descriptors of `image`, or of its `roi` only.
 void Detect(const GrayImage& image, int max_features, std::vector<cv::KeyPoint>* keypoints,
-            cv::Mat* descriptors) {
+            cv::Mat* descriptors, const std::optional<cv::Rect>& roi = std::nullopt) {
   auto sift = cv::SIFT::create(max_features);
-  sift->detectAndCompute(ToMat(image), cv::noArray(), *keypoints, *descriptors);
+  const cv::Mat full = ToMat(image);
+  sift->detectAndCompute(roi ? full(*roi) : full, cv::noArray(), *keypoints, *descriptors);
+  if (!roi) return;
+  for (cv::KeyPoint& k : *keypoints) {
+    k.pt.x += static_cast<float>(roi->x);
+    k.pt.y += static_cast<float>(roi->y);
+  }
 }
 
 // Ratio-test matches from `query` rows to `train` rows: (query index, train index, distance).
@@ -235,20 +243,13 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
     u1 = image.width - 1;
     v1 = image.height - 1;
   }
+  constexpr int kPad = 16;  // Room for the descriptor windows of features on the edge.
+  const cv::Rect roi(std::max(0, u0 - kPad), std::max(0, v0 - kPad),
+                     std::min(image.width, u1 + kPad + 1) - std::max(0, u0 - kPad),
+                     std::min(image.height, v1 + kPad + 1) - std::max(0, v0 - kPad));
   std::vector<cv::KeyPoint> scene_keypoints;
   cv::Mat scene_descriptors;
-  {
-    constexpr int kPad = 16;  // Room for the descriptor windows of features on the edge.
-    const cv::Rect roi(std::max(0, u0 - kPad), std::max(0, v0 - kPad),
-                       std::min(image.width, u1 + kPad + 1) - std::max(0, u0 - kPad),
-                       std::min(image.height, v1 + kPad + 1) - std::max(0, v0 - kPad));
-    auto sift = cv::SIFT::create(model.options().max_features);
-    sift->detectAndCompute(ToMat(image)(roi), cv::noArray(), scene_keypoints, scene_descriptors);
-    for (cv::KeyPoint& k : scene_keypoints) {
-      k.pt.x += static_cast<float>(roi.x);
-      k.pt.y += static_cast<float>(roi.y);
-    }
-  }
+  Detect(image, model.options().max_features, &scene_keypoints, &scene_descriptors, roi);
 
   SiftPoseResult best;
   const auto& views = model.impl().views;

@@ -371,10 +371,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     input.scene = &scene;
     input.X_BaseSensor = context->X_BaseSensor();
     input.camera = context->camera();
-    if (config.time_budget_s > 0.0) {
-      input.budget_end = budget_start + std::chrono::duration_cast<Clock::duration>(
-                                            std::chrono::duration<double>(config.time_budget_s));
-    }
+    input.budget_start = budget_start;
     const ChainResult chain_result = chain.Run(input);
     context->CheckDeadline();  // An estimator stopped by the deadline is not "not found".
 
