@@ -4,6 +4,7 @@
 #include <chrono>
 #include <stdexcept>
 
+#include "services/detector/core/appearance.h"
 #include "services/detector/core/estimators.h"
 #include "services/detector/core/preprocess.h"
 
@@ -38,15 +39,32 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
                                        [](const BinScan& v) { return v.cloud.has_intensities(); });
   const bool colors = std::all_of(views.begin(), views.end(),
                                   [](const BinScan& v) { return v.cloud.has_colors(); });
+  const Eigen::Vector3f reference = merged.X_BaseCamera.translation().cast<float>();
+  const detector::AppearanceOptions appearance;
   for (const BinScan& v : views) {
     if (v.bin != merged.bin) {
       throw std::invalid_argument("MergeViews: views of " + merged.bin + " and " + v.bin);
     }
+    const Eigen::Vector3f viewpoint = v.X_BaseCamera.translation().cast<float>();
     for (std::size_t i = 0; i < v.cloud.size(); ++i) {
       if (!v.cloud.points[i].allFinite()) continue;
-      merged.cloud.points.push_back(v.cloud.points[i]);
+      const Eigen::Vector3f& p = v.cloud.points[i];
+      merged.cloud.points.push_back(p);
       if (normals) merged.cloud.normals.push_back(v.cloud.normals[i]);
-      if (intensities) merged.cloud.intensities.push_back(v.cloud.intensities[i]);
+      if (intensities) {
+        float intensity = v.cloud.intensities[i];
+        if (normals && &v != &views.front()) {
+          // The detector divides the shading seen from the first view's sensor out of every
+          // intensity (ShadingCompensatedIntensity); this view was lit and seen from another
+          // place, so its intensity is re-expressed as the first view would have measured it.
+          const Eigen::Vector3f& n = v.cloud.normals[i];
+          intensity =
+              detector::ShadingCompensatedIntensity(intensity, p, n, viewpoint,
+                                                    appearance.min_cos) /
+              detector::ShadingCompensatedIntensity(1.0f, p, n, reference, appearance.min_cos);
+        }
+        merged.cloud.intensities.push_back(intensity);
+      }
       if (colors) merged.cloud.colors.push_back(v.cloud.colors[i]);
     }
     merged.render_s += v.render_s;

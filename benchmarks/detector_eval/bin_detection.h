@@ -35,9 +35,12 @@ struct BinDetectionOptions {
 /// One scan of the bin made of several views (the paper scans each bin from three angles):
 /// the finite points of every view's cloud, with their channels, in one unorganised cloud in
 /// the base frame; the sensor pose and intrinsics, bin box and items are the first view's,
-/// the timings the sums. The detector then has no organised image (no SIFT, intrinsics not
-/// fitted: the first view's are used for verification and range templates). Throws
-/// std::invalid_argument when `views` is empty or the views disagree on the bin.
+/// the timings the sums. The detector takes a cloud's intensities as lit and seen from its
+/// one sensor pose (ShadingCompensatedIntensity), so the other views' intensities are
+/// re-expressed as the first view's sensor would have measured the same surface. The detector then
+/// has no organised image (no SIFT, intrinsics not fitted: the first view's are used for
+/// verification and range templates). Throws std::invalid_argument when `views` is empty or the
+/// views disagree on the bin.
 BinScan MergeViews(const std::vector<BinScan>& views);
 
 /// One full detection call and what it saw.

@@ -109,11 +109,15 @@ Args Parse(int argc, char** argv) {
       // false: the chain neither ranks by nor penalises the printed texture's appearance;
       // rank: it ranks candidates by it but does not penalise a contradiction.
       auto& refine = args.detection.estimators.refine;
+      auto& ppf = args.detection.estimators.ppf;
       if (*v == "rank") {
         refine.verify.appearance_contradiction_scale = 1.0;
+        ppf.min_appearance_correlation = -1.0f;
       } else if (!ParseBool("--appearance", *v)) {
         refine.verify.appearance_contradiction_scale = 1.0;
         refine.appearance_rank_weight = 0.0;
+        ppf.min_appearance_correlation = -1.0f;
+        ppf.appearance_weight = 0.0f;
       }
     } else if (auto v = value("--floor_band")) {
       // false: the wall margin spares the bin's bottom face; only the measured floor goes.

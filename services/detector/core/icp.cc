@@ -42,6 +42,10 @@ void Validate(const geometry::PointCloud& source, const geometry::PointCloud& ta
   if (o.min_correspondences < 6) fail("min_correspondences must be >= 6");
   if (!(o.max_step_rotation_rad > 0.0)) fail("max_step_rotation_rad must be positive");
   if (o.coarse_stride < 1) fail("coarse_stride must be >= 1");
+  if (!(o.max_view_angle_rad > 0.0f && o.max_view_angle_rad <= M_PI)) {
+    fail("max_view_angle_rad must be in (0, pi]");
+  }
+  if (o.viewpoint && !o.viewpoint->allFinite()) fail("viewpoint must be finite");
 }
 
 }  // namespace
@@ -64,11 +68,17 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
   // new pose bounds the search (the poses of successive iterations are close), which prunes
   // most of the tree without changing the answer.
   std::vector<std::int32_t> last(source.size(), KdTree::kNone);
-  auto correspond = [&](const Eigen::Isometry3d& X_ts, std::size_t stride) {
+  const bool cull = use_normals && options.viewpoint.has_value();
+  const float view_cos = std::cos(options.max_view_angle_rad);
+  auto correspond = [&](const Eigen::Isometry3d& X_ts, std::size_t stride, bool facing_only) {
     pairs.clear();
     const Eigen::Isometry3f Xf = X_ts.cast<float>();
     for (std::size_t i = 0; i < source.size(); i += stride) {
       const Eigen::Vector3f p = Xf * source.points[i];
+      if (facing_only) {
+        const Eigen::Vector3f ray = *options.viewpoint - p;
+        if ((Xf.linear() * source.normals[i]).dot(ray) < view_cos * ray.norm()) continue;
+      }
       float bound = max_d2;
       if (last[i] != KdTree::kNone) {
         bound = std::min(bound, (target.points[last[i]] - p).squaredNorm() * 1.0001f + 1e-12f);
@@ -89,7 +99,7 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
   }
   for (int it = 0; it < options.max_iterations; ++it) {
     if (stride > 1 && 2 * it >= options.max_iterations) stride = 1;
-    correspond(X, stride);
+    correspond(X, stride, cull);
     if (static_cast<int>(pairs.size()) < options.min_correspondences) break;
     if (options.trim_fraction < 1.0f) {
       const std::size_t keep = std::max<std::size_t>(
@@ -154,7 +164,7 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     }
   }
 
-  correspond(X, 1);
+  correspond(X, 1, false);
   result.X_TargetSource = X;
   result.correspondences = static_cast<int>(pairs.size());
   result.fitness = static_cast<double>(pairs.size()) / static_cast<double>(source.size());

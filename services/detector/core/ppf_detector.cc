@@ -349,6 +349,9 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   IcpOptions fine = options.icp;
   fine.max_correspondence_distance_m = options.icp_distance_rel * step;
   fine.loss_scale_m = options.icp_loss_scale_rel * step;
+  // Only the model's side facing the sensor can have partners in the scene.
+  coarse.viewpoint = scene.viewpoint;
+  fine.viewpoint = scene.viewpoint;
 
   std::vector<PpfDetection> verified;
   const std::size_t count = std::min(result.match.hypotheses.size(),

@@ -63,6 +63,44 @@ TEST_F(IcpMilkTest, ConvergesFromSmallPerturbations) {
   }
 }
 
+// The scene's sensor is at its origin: matching only the model points that face it gives the
+// same pose, and the figures still count every model point.
+TEST_F(IcpMilkTest, MatchingOnlyTheSideFacingTheSensorConvergesAlike) {
+  std::mt19937 rng(7);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : model_->icp_cloud().points) centroid += p.cast<double>();
+  centroid /= static_cast<double>(model_->icp_cloud().size());
+  for (int trial = 0; trial < 3; ++trial) {
+    const Eigen::Isometry3d start = Eigen::Translation3d(centroid) *
+                                    testing::Perturbation(&rng, 4.0 * kDeg, 0.006) *
+                                    Eigen::Translation3d(-centroid);
+    IcpOptions options;
+    options.max_correspondence_distance_m = 0.02f;
+    options.loss_scale_m = 0.005f;
+    options.max_iterations = 60;
+    const IcpResult all =
+        RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree, start, options);
+    options.viewpoint = Eigen::Vector3f::Zero();
+    options.max_view_angle_rad = static_cast<float>(M_PI / 2.0);
+    const IcpResult facing =
+        RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree, start, options);
+    const Eigen::Isometry3d identity = Eigen::Isometry3d::Identity();
+    EXPECT_LT(testing::TranslationError(facing.X_TargetSource, identity), 0.002) << trial;
+    EXPECT_LT(testing::RotationErrorRad(facing.X_TargetSource, identity), 1.0 * kDeg) << trial;
+    EXPECT_NEAR(facing.fitness, all.fitness, 0.02) << trial;
+  }
+  // Seen from behind the model, no point faces the sensor: nothing is matched, the pose stays.
+  IcpOptions behind;
+  behind.viewpoint = Eigen::Vector3f(0.0f, 0.0f, 3.0f);
+  behind.max_view_angle_rad = static_cast<float>(M_PI / 2.0);
+  const Eigen::Isometry3d start =
+      Eigen::Translation3d(0.003, 0.0, 0.0) * Eigen::Isometry3d::Identity();
+  const IcpResult none =
+      RunIcp(model_->icp_cloud(), scene_->fine, scene_->fine_tree, start, behind);
+  EXPECT_EQ(none.iterations, 0);
+  EXPECT_TRUE(none.X_TargetSource.isApprox(start));
+}
+
 TEST_F(IcpMilkTest, TrimmingAndRejectionLimitCorrespondences) {
   IcpOptions options;
   options.trim_fraction = 1.0f;
@@ -92,6 +130,16 @@ TEST_F(IcpMilkTest, RejectsBadInput) {
   bad.trim_fraction = 0.0f;
   EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad),
                std::invalid_argument);
+  IcpOptions no_view;
+  no_view.max_view_angle_rad = 0.0f;
+  EXPECT_THROW(
+      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), no_view),
+      std::invalid_argument);
+  IcpOptions nan_viewpoint;
+  nan_viewpoint.viewpoint = Eigen::Vector3f::Constant(std::nanf(""));
+  EXPECT_THROW(
+      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), nan_viewpoint),
+      std::invalid_argument);
   const KdTree other(model_->icp_cloud().points);
   EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, other, Eigen::Isometry3d::Identity()),
                std::invalid_argument);
