@@ -231,6 +231,7 @@ struct EstimatorOptions {
     o.hypotheses_to_verify = 12;
     o.min_support = 0.4f;
     o.max_conflict_fraction = 1.0f;
+    o.min_appearance_correlation = 0.0f;
     return o;
   }();
   PpfSearchOptions ppf_search;

@@ -308,6 +308,9 @@ SymmetricAppearance MatchSymmetricAppearance(const ObjectModel& model, const Ppf
 
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
                              const PpfDetectorOptions& options) {
+  if (options.coarse_icp_stride < 1) {
+    throw std::invalid_argument("PpfDetectorOptions: coarse_icp_stride must be >= 1");
+  }
   if (options.hypotheses_to_verify < 1) {
     throw std::invalid_argument("PpfDetectorOptions: hypotheses_to_verify must be >= 1");
   }
@@ -353,6 +356,17 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   coarse.viewpoint = scene.viewpoint;
   fine.viewpoint = scene.viewpoint;
 
+  geometry::PointCloud coarse_model;
+  const geometry::PointCloud& icp_model = model.icp_cloud();
+  if (options.coarse_icp_iterations > 0) {
+    const auto stride = static_cast<std::size_t>(options.coarse_icp_stride);
+    for (std::size_t i = 0; i < icp_model.size(); i += stride) {
+      coarse_model.points.push_back(icp_model.points[i]);
+      coarse_model.normals.push_back(icp_model.normals[i]);
+    }
+    coarse_model.width = static_cast<std::uint32_t>(coarse_model.points.size());
+    coarse_model.height = 1;
+  }
   std::vector<PpfDetection> verified;
   const std::size_t count = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
@@ -369,7 +383,7 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     d.votes = hyp.votes;
     Eigen::Isometry3d X = hyp.X_SceneModel;
     if (options.coarse_icp_iterations > 0) {
-      const IcpResult c = RunIcp(model.icp_cloud(), scene.fine, scene.fine_tree, X, coarse);
+      const IcpResult c = RunIcp(coarse_model, scene.fine, scene.fine_tree, X, coarse);
       if (c.correspondences >= coarse.min_correspondences) X = c.X_TargetSource;
     }
     d.icp = RunIcp(model.icp_cloud(), scene.fine, scene.fine_tree, X, fine);

@@ -104,6 +104,9 @@ struct PpfDetectorOptions {
   /// pull in hypotheses whose rotation is off by up to one angle step.
   float coarse_icp_distance_rel = 2.5f;
   int coarse_icp_iterations = 10;
+  /// The coarse pass matches every coarse_icp_stride-th model point (>= 1): it only pulls
+  /// the pose in, which a quarter of the model's points does as well as all of them.
+  int coarse_icp_stride = 4;
   /// Verification: a visible model point is supported when a scene point lies within
   /// support_distance_rel (of the sampling distance) and its normal within
   /// support_normal_angle_rad.
