@@ -106,6 +106,9 @@ TEST_F(MilkSceneTest, TooFewVisiblePointsAreNotADetection) {
   PpfDetectorOptions options;
   options.min_visible_fraction = -0.1f;
   EXPECT_THROW(DetectPpf(model, PreparePpfScene(*scene_, model), options), std::invalid_argument);
+  PpfDetectorOptions no_stride;
+  no_stride.coarse_icp_stride = 0;
+  EXPECT_THROW(DetectPpf(model, PreparePpfScene(*scene_, model), no_stride), std::invalid_argument);
 }
 
 // A pose that puts the model in front of the measured surface (in space the sensor saw
