@@ -294,6 +294,20 @@ TEST(DetectorServerTest, RejectsANonPositiveTimeBudgetScale) {
 
 // --- Detection on the real scene ------------------------------------------------------------
 
+// The cloud chunks after a call's first message (Detect and Verify alike), then the end of
+// the call and its status.
+template <typename Request, typename Writer>
+grpc::Status WriteChunksAndFinish(Writer& writer,
+                                  const std::vector<common::PointCloudChunk>& chunks) {
+  for (const auto& chunk : chunks) {
+    Request request;
+    *request.mutable_cloud() = chunk;
+    if (!writer.Write(request)) break;
+  }
+  writer.WritesDone();
+  return writer.Finish();
+}
+
 // A Verify call: the params for `item` at X_BaseItem, then the cloud chunks.
 grpc::Status StreamVerify(pb::DetectorService::Stub& stub, const std::string& item,
                           const Transform& X_BaseItem,
@@ -305,13 +319,7 @@ grpc::Status StreamVerify(pb::DetectorService::Stub& stub, const std::string& it
   request.mutable_params()->set_item(item);
   *request.mutable_params()->mutable_x_frame_item() = ToPose(X_BaseItem);
   writer->Write(request);
-  for (const auto& chunk : chunks) {
-    pb::VerifyRequest c;
-    *c.mutable_cloud() = chunk;
-    if (!writer->Write(c)) break;
-  }
-  writer->WritesDone();
-  return writer->Finish();
+  return WriteChunksAndFinish<pb::VerifyRequest>(*writer, chunks);
 }
 
 class DetectorSceneTest : public ::testing::Test {
@@ -359,13 +367,7 @@ class DetectorSceneTest : public ::testing::Test {
       *request.mutable_params() = params;
       writer->Write(request);
     }
-    for (const auto& chunk : chunks) {
-      pb::DetectRequest request;
-      *request.mutable_cloud() = chunk;
-      if (!writer->Write(request)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return WriteChunksAndFinish<pb::DetectRequest>(*writer, chunks);
   }
 
   static grpc::Status Verify(const Transform& X_BaseItem, pb::VerifyResponse* response) {
@@ -768,13 +770,7 @@ class DetectorBinScanTest : public ::testing::Test {
     pb::DetectRequest first;
     *first.mutable_params() = params;
     writer->Write(first);
-    for (const auto& chunk : chunks) {
-      pb::DetectRequest request;
-      *request.mutable_cloud() = chunk;
-      if (!writer->Write(request)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return WriteChunksAndFinish<pb::DetectRequest>(*writer, chunks);
   }
 
   static double Diameter(const std::string& item) {
