@@ -279,13 +279,17 @@ ChainResult DetectionChain::Run(const EstimatorInput& input) const {
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     attempt.num_candidates = candidates.size();
     const Thresholds& thresholds = object.ThresholdsFor(method);
-    // Best accepted candidate by score; if none is accepted, the best by score for the record.
-    const Detection* best = nullptr;
+    // Estimators return their candidates best first (score with the appearance as a bonus:
+    // SortByScore), so the first accepted one is taken; if none is accepted, the first is
+    // kept for the record. Picking by score alone here would undo the appearance's ranking
+    // and report a neighbour of the same shape whose printing does not match.
+    const Detection* best = candidates.empty() ? nullptr : &candidates.front();
     const Detection* best_accepted = nullptr;
     for (const Detection& d : candidates) {
-      if (best == nullptr || d.score > best->score) best = &d;
-      if (thresholds.Accepts(d) && (best_accepted == nullptr || d.score > best_accepted->score))
+      if (thresholds.Accepts(d)) {
         best_accepted = &d;
+        break;
+      }
     }
     if (best_accepted != nullptr) {
       attempt.accepted = true;

@@ -174,7 +174,8 @@ struct ChainResult {
 };
 
 /// Runs an item's methods in its configured order until one returns a detection that passes
-/// that method's thresholds, or the item's time budget is spent (no further method started).
+/// that method's thresholds (the first such candidate in the estimator's ranking), or the
+/// item's time budget is spent (no further method started).
 class DetectionChain final {
  public:
   /// Throws std::invalid_argument on a null estimator or two estimators for one method.

@@ -81,14 +81,14 @@ TEST(DetectionChainTest, FallsBackWhenBelowThresholdThrowingOrMissing) {
   auto sift = std::make_shared<FakeEstimator>(Method::kSift, std::vector<Detection>{}, true);
   auto templates = std::make_shared<FakeEstimator>(
       Method::kRangeTemplates,
-      std::vector<Detection>{MakeDetection(0.55, 3.0), MakeDetection(0.8, 4.0),
-                             MakeDetection(0.9, 5.0, /*rmse=*/0.5)});
+      std::vector<Detection>{MakeDetection(0.9, 5.0, /*rmse=*/0.5), MakeDetection(0.8, 4.0),
+                             MakeDetection(0.55, 3.0)});
   ObjectConfig c = Config(Method::kPpf, {Method::kSift, Method::kRangeTemplates}, 0.5);
   DetectionChain chain(DetectorConfig(c), {ppf, sift, templates});
   geometry::PointCloud scene;
   const ChainResult r = chain.Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
   ASSERT_TRUE(r.detection.has_value());
-  // The 0.9 candidate fails max_inlier_rmse_m; the best accepted one is 0.8.
+  // The 0.9 candidate fails max_inlier_rmse_m; the next one, 0.8, is accepted.
   EXPECT_DOUBLE_EQ(r.detection->X_BaseItem.translation().x(), 4.0);
   EXPECT_EQ(r.detection->method, "range_templates");
   ASSERT_EQ(r.attempts.size(), 3u);
@@ -97,6 +97,19 @@ TEST(DetectionChainTest, FallsBackWhenBelowThresholdThrowingOrMissing) {
   EXPECT_DOUBLE_EQ(r.attempts[0].best->score, 0.3);
   EXPECT_EQ(r.attempts[1].error, "fake failure");
   EXPECT_TRUE(r.attempts[2].accepted);
+}
+
+TEST(DetectionChainTest, TakesTheEstimatorsRankingNotTheBareScore) {
+  // An estimator ranks by score and appearance: its first candidate (a pose whose printing
+  // matches) comes before a higher-scoring one (a neighbour of the same shape).
+  auto ppf = std::make_shared<FakeEstimator>(
+      Method::kPpf, std::vector<Detection>{MakeDetection(0.7, 1.0), MakeDetection(0.8, 2.0)});
+  DetectionChain chain(DetectorConfig(Config(Method::kPpf, {}, 0.5)), {ppf});
+  geometry::PointCloud scene;
+  const ChainResult r = chain.Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  ASSERT_TRUE(r.detection.has_value());
+  EXPECT_DOUBLE_EQ(r.detection->X_BaseItem.translation().x(), 1.0);
+  EXPECT_DOUBLE_EQ(r.detection->score, 0.7);
 }
 
 TEST(DetectionChainTest, NothingAcceptedAndUnavailableMethodRecorded) {
