@@ -1,6 +1,6 @@
 #include "services/detector/core/icp.h"
 
-#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
@@ -46,6 +46,9 @@ void Validate(const geometry::PointCloud& source, const geometry::PointCloud& ta
     fail("max_view_angle_rad must be in (0, pi]");
   }
   if (o.viewpoint && !o.viewpoint->allFinite()) fail("viewpoint must be finite");
+  if (!(o.min_constraint_ratio >= 0.0 && o.min_constraint_ratio < 1.0)) {
+    fail("min_constraint_ratio must be in [0, 1)");
+  }
 }
 
 }  // namespace
@@ -113,6 +116,16 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
         pairs.resize(keep);
       }
     }
+    // Rotations are taken about the pairs' centroid and scaled by their spread, so that the
+    // six directions are comparable and the system's eigenvalues say how well each is held.
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const Pair& pr : pairs) centroid += X * source.points[pr.source].cast<double>();
+    centroid /= static_cast<double>(pairs.size());
+    double spread_sq = 0.0;
+    for (const Pair& pr : pairs) {
+      spread_sq += (X * source.points[pr.source].cast<double>() - centroid).squaredNorm();
+    }
+    const double spread = std::max(1e-6, std::sqrt(spread_sq / static_cast<double>(pairs.size())));
     Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
     for (const Pair& pr : pairs) {
@@ -129,14 +142,27 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
         w = ar < k ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
       }
       Eigen::Matrix<double, 6, 1> J;
-      J.head<3>() = p.cross(n);
+      J.head<3>() = (p - centroid).cross(n) / spread;
       J.tail<3>() = n;
       A.noalias() += w * J * J.transpose();
       b.noalias() -= w * r * J;
     }
-    // A little damping keeps degenerate directions (a plane slides freely) at rest.
-    A.diagonal().array() += 1e-9 * std::max(1.0, A.trace());
-    Eigen::Matrix<double, 6, 1> x = A.ldlt().solve(b);
+    // Directions the pairs hardly constrain (a box whose ends are hidden slides along its
+    // top face) are left where the start put them: along them the update is noise in the
+    // normals amplified by a near-zero eigenvalue, and the iterations would drift.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen(A);
+    const Eigen::Matrix<double, 6, 1>& lambda = eigen.eigenvalues();  // ascending
+    const double floor = std::max(options.min_constraint_ratio * lambda[5], 1e-12 * lambda[5]);
+    Eigen::Matrix<double, 6, 1> y = Eigen::Matrix<double, 6, 1>::Zero();
+    for (int e = 0; e < 6; ++e) {
+      if (!(lambda[e] > floor)) continue;
+      const auto v = eigen.eigenvectors().col(e);
+      y += v * (v.dot(b) / lambda[e]);
+    }
+    // Back to a rotation about the origin: p + w x (p - c) + t' = p + w x p + (t' - w x c).
+    Eigen::Matrix<double, 6, 1> x;
+    x.head<3>() = y.head<3>() / spread;
+    x.tail<3>() = y.tail<3>() - x.head<3>().cross(centroid);
     if (!x.allFinite()) break;
     // Trust region: a poorly constrained system (faces sliding along each other) must not
     // jump beyond the correspondence distance or by more than max_step_rotation_rad.

@@ -48,6 +48,12 @@ struct IcpOptions {
   /// saw. The final figures (fitness, RMSE) count every source point as without it.
   std::optional<Eigen::Vector3f> viewpoint;
   float max_view_angle_rad = 2.1f;  ///< About 120 degrees; in (0, pi].
+  /// Degenerate directions: an update is not taken along a direction (of rotation about the
+  /// pairs' centroid, scaled by their spread, and translation) whose eigenvalue in the
+  /// normal equations is below this fraction of the largest, i.e. that the pairs hardly
+  /// constrain (a plane sliding along itself). The pose keeps its start there. In [0, 1);
+  /// 0: every direction is solved for.
+  double min_constraint_ratio = 3e-5;
 };
 
 /// Quality figures of a registration.

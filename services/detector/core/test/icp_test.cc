@@ -118,6 +118,49 @@ TEST_F(IcpMilkTest, TrimmingAndRejectionLimitCorrespondences) {
   EXPECT_TRUE(none.X_TargetSource.isApprox(far));
 }
 
+// A flat box seen from the front and above: its top and front faces, and none of its ends.
+// Nothing holds the box along its length, so the pose keeps its start there, while the
+// held directions converge; solving for every direction lets the noise of the scan's normals
+// push the box along.
+TEST(IcpDegenerateTest, AnUnconstrainedDirectionKeepsItsStart) {
+  const double hx = 0.103, hy = 0.068, hz = 0.0165, step = 0.004;
+  const auto faces = [&](double x_end) {
+    geometry::PointCloud c;
+    for (double x = -x_end; x <= x_end; x += step) {
+      for (double y = -hy; y <= hy; y += step) {
+        c.points.emplace_back(x, y, hz);
+        c.normals.emplace_back(0, 0, 1);
+      }
+      for (double z = -hz; z <= hz; z += step) {
+        c.points.emplace_back(x, -hy, z);
+        c.normals.emplace_back(0, -1, 0);
+      }
+    }
+    c.width = static_cast<std::uint32_t>(c.points.size());
+    c.height = 1;
+    return c;
+  };
+  const geometry::PointCloud model = faces(hx);
+  // The scan loses a few millimetres at each end, and its normals are noisy.
+  geometry::PointCloud scan = faces(hx - 0.007);
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.0f, 0.003f);
+  for (auto& n : scan.normals) n = (n + Eigen::Vector3f(noise(rng), noise(rng), 0.0f)).normalized();
+  const KdTree tree(scan.points);
+  Eigen::Isometry3d start = Eigen::Isometry3d::Identity();
+  start.translation() = Eigen::Vector3d(0.004, 0.003, 0.003);
+  IcpOptions options;
+  options.max_correspondence_distance_m = 0.01f;
+  const IcpResult held = RunIcp(model, scan, tree, start, options);
+  EXPECT_NEAR(held.X_TargetSource.translation().x(), 0.004, 2e-4);
+  EXPECT_NEAR(held.X_TargetSource.translation().y(), 0.0, 5e-4);
+  EXPECT_NEAR(held.X_TargetSource.translation().z(), 0.0, 5e-4);
+  EXPECT_LT(Eigen::AngleAxisd(held.X_TargetSource.linear()).angle(), 0.2 * kDeg);
+  options.min_constraint_ratio = 0.0;
+  const IcpResult free = RunIcp(model, scan, tree, start, options);
+  EXPECT_GT(std::abs(free.X_TargetSource.translation().x() - 0.004), 5e-4);
+}
+
 TEST_F(IcpMilkTest, RejectsBadInput) {
   const KdTree& tree = scene_->fine_tree;
   EXPECT_THROW(RunIcp(geometry::PointCloud{}, scene_->fine, tree, Eigen::Isometry3d::Identity()),
@@ -139,6 +182,11 @@ TEST_F(IcpMilkTest, RejectsBadInput) {
   nan_viewpoint.viewpoint = Eigen::Vector3f::Constant(std::nanf(""));
   EXPECT_THROW(
       RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), nan_viewpoint),
+      std::invalid_argument);
+  IcpOptions bad_ratio;
+  bad_ratio.min_constraint_ratio = 1.0;
+  EXPECT_THROW(
+      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad_ratio),
       std::invalid_argument);
   const KdTree other(model_->icp_cloud().points);
   EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, other, Eigen::Isometry3d::Identity()),
