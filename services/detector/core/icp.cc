@@ -152,10 +152,11 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     // normals amplified by a near-zero eigenvalue, and the iterations would drift.
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen(A);
     const Eigen::Matrix<double, 6, 1>& lambda = eigen.eigenvalues();  // ascending
-    const double floor = std::max(options.min_constraint_ratio * lambda[5], 1e-12 * lambda[5]);
+    const double min_eigenvalue =
+        std::max(options.min_constraint_ratio * lambda[5], 1e-12 * lambda[5]);
     Eigen::Matrix<double, 6, 1> y = Eigen::Matrix<double, 6, 1>::Zero();
     for (int e = 0; e < 6; ++e) {
-      if (!(lambda[e] > floor)) continue;
+      if (!(lambda[e] > min_eigenvalue)) continue;
       const auto v = eigen.eigenvectors().col(e);
       y += v * (v.dot(b) / lambda[e]);
     }
