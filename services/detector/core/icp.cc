@@ -96,6 +96,8 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
     }
   };
 
+  std::vector<Eigen::Vector3d> posed;
+  posed.reserve(source.size());
   std::size_t stride = static_cast<std::size_t>(options.coarse_stride);
   if (source.size() / stride < 20 * static_cast<std::size_t>(options.min_correspondences)) {
     stride = 1;
@@ -116,20 +118,22 @@ IcpResult RunIcp(const geometry::PointCloud& source, const geometry::PointCloud&
         pairs.resize(keep);
       }
     }
+    // Each paired source point at the current pose, once for the three passes below.
+    posed.clear();
+    for (const Pair& pr : pairs) posed.push_back(X * source.points[pr.source].cast<double>());
     // Rotations are taken about the pairs' centroid and scaled by their spread, so that the
     // six directions are comparable and the system's eigenvalues say how well each is held.
     Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-    for (const Pair& pr : pairs) centroid += X * source.points[pr.source].cast<double>();
+    for (const Eigen::Vector3d& p : posed) centroid += p;
     centroid /= static_cast<double>(pairs.size());
     double spread_sq = 0.0;
-    for (const Pair& pr : pairs) {
-      spread_sq += (X * source.points[pr.source].cast<double>() - centroid).squaredNorm();
-    }
+    for (const Eigen::Vector3d& p : posed) spread_sq += (p - centroid).squaredNorm();
     const double spread = std::max(1e-6, std::sqrt(spread_sq / static_cast<double>(pairs.size())));
     Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
-    for (const Pair& pr : pairs) {
-      const Eigen::Vector3d p = X * source.points[pr.source].cast<double>();
+    for (std::size_t k_pair = 0; k_pair < pairs.size(); ++k_pair) {
+      const Pair& pr = pairs[k_pair];
+      const Eigen::Vector3d& p = posed[k_pair];
       const Eigen::Vector3d n = target.normals[pr.target].cast<double>();
       const double r = pr.residual;
       double w = 1.0;

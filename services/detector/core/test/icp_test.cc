@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <random>
+#include <vector>
 
 #include "services/detector/core/model.h"
 #include "services/detector/core/ppf_detector.h"
@@ -169,25 +170,18 @@ TEST_F(IcpMilkTest, RejectsBadInput) {
   no_normals.normals.clear();
   EXPECT_THROW(RunIcp(model_->icp_cloud(), no_normals, tree, Eigen::Isometry3d::Identity()),
                std::invalid_argument);
-  IcpOptions bad;
-  bad.trim_fraction = 0.0f;
-  EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad),
-               std::invalid_argument);
-  IcpOptions no_view;
-  no_view.max_view_angle_rad = 0.0f;
-  EXPECT_THROW(
-      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), no_view),
-      std::invalid_argument);
-  IcpOptions nan_viewpoint;
-  nan_viewpoint.viewpoint = Eigen::Vector3f::Constant(std::nanf(""));
-  EXPECT_THROW(
-      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), nan_viewpoint),
-      std::invalid_argument);
-  IcpOptions bad_ratio;
-  bad_ratio.min_constraint_ratio = 1.0;
-  EXPECT_THROW(
-      RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad_ratio),
-      std::invalid_argument);
+  // Each option out of its range on its own.
+  std::vector<IcpOptions> bad(4);
+  bad[0].trim_fraction = 0.0f;
+  bad[1].max_view_angle_rad = 0.0f;
+  bad[2].viewpoint = Eigen::Vector3f::Constant(std::nanf(""));
+  bad[3].min_constraint_ratio = 1.0;
+  for (std::size_t k = 0; k < bad.size(); ++k) {
+    EXPECT_THROW(
+        RunIcp(model_->icp_cloud(), scene_->fine, tree, Eigen::Isometry3d::Identity(), bad[k]),
+        std::invalid_argument)
+        << k;
+  }
   const KdTree other(model_->icp_cloud().points);
   EXPECT_THROW(RunIcp(model_->icp_cloud(), scene_->fine, other, Eigen::Isometry3d::Identity()),
                std::invalid_argument);
