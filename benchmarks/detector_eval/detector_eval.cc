@@ -142,6 +142,7 @@ struct Outcome {
   double total_s = 0.0;
   std::string method;  // Accepting method.
   double score = 0.0;
+  double appearance = std::numeric_limits<double>::quiet_NaN();
   std::string error;
   std::string
       attempts;  // Methods tried and their durations, e.g. "ppf 0.41s range_templates 0.6s".
@@ -163,6 +164,7 @@ Outcome Judge(const BinDetectionResult& r, const detector::LoadedModel& model,
   o.detected = true;
   o.method = r.chain.detection->method;
   o.score = r.chain.detection->score;
+  o.appearance = r.chain.detection->appearance;
   o.add_m = std::numeric_limits<double>::infinity();
   for (const TrueItem& t : truth) {
     if (t.name != item) continue;
@@ -295,7 +297,7 @@ int Run(const Args& args) {
            << (args.per_method ? Cell(by_method["range_templates"]) : "-") << " |\n";
       std::cout << "layout " << layout << " " << entry.bin << " " << entry.item << ": "
                 << Cell(chain) << (chain.detected ? " by " + chain.method : "") << " score "
-                << std::setprecision(3) << chain.score << ", rot "
+                << std::setprecision(3) << chain.score << " print " << chain.appearance << ", rot "
                 << chain.rotation_rad * 180.0 / M_PI << " deg, " << scan.items.size() << " items, "
                 << chain_result.points_in_region << " region points, intrinsics "
                 << (chain_result.intrinsics_fitted ? "fitted" : "NOT fitted") << ", scan "
@@ -308,8 +310,9 @@ int Run(const Args& args) {
         const detector::SceneAgreement agreement =
             TruePoseAgreement(library, scan, entry.item, t.X_BaseItem);
         std::cout << "; true pose score " << truth.score << " fitness " << truth.fitness
-                  << " ppf support " << agreement.support << " conflicts "
-                  << agreement.conflict_fraction;
+                  << " print " << truth.appearance << " ppf support " << agreement.support
+                  << " conflicts " << agreement.conflict_fraction << " visible "
+                  << agreement.visible_points << " occluded " << agreement.occluded_points;
       }
       if (args.per_method) {
         for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);

@@ -214,9 +214,8 @@ AppearanceSamples CollectAppearanceSamples(const ObjectModel& model, const PpfSc
     const std::int32_t j = scene.fine_tree.Nearest(p, &d2, d2_max);
     if (j == KdTree::kNone || scene.fine.normals[j].dot(n) < min_cos) continue;
     out.p_S.push_back(scene.fine.points[j]);
-    out.intensity.push_back(ShadingCompensatedIntensity(scene.fine.intensities[j],
-                                                        scene.fine.points[j], scene.fine.normals[j],
-                                                        scene.viewpoint, options.min_cos));
+    out.intensity.push_back(ShadingCompensatedIntensity(
+        scene.fine.intensities[j], scene.fine.points[j], n, scene.viewpoint, options.min_cos));
   }
   return out;
 }

@@ -209,7 +209,8 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
 /// Appearance of a model pose: over the model's ICP points that face the viewpoint and have
 /// a scene point within `distance_m` (normals within `normal_angle_rad`), the correlation of
 /// the model's albedo at the scene point's position with the scene point's shading-
-/// compensated intensity (ShadingCompensatedIntensity, scene normal, scene viewpoint). Not
+/// compensated intensity (ShadingCompensatedIntensity with the posed model's normal, which
+/// is exact where a grazing face's scan normals are noisy, and the scene viewpoint). Not
 /// defined when the model has no albedo or the scene no intensities.
 AppearanceScore MeasureAppearance(const ObjectModel& model, const PpfScene& scene,
                                   const Eigen::Isometry3d& X_SceneModel, float distance_m,

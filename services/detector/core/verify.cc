@@ -197,9 +197,9 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
       sum_sq += d_sq;
       if (appearance) {
         const Eigen::Vector3f& q = impl.p_SensorPoints[j];
-        const Eigen::Vector3f n = !impl.n_SensorPoints.empty() && impl.n_SensorPoints[j].allFinite()
-                                      ? impl.n_SensorPoints[j]
-                                      : sub.normals[pr.index];
+        // The posed model's normal: the hypothesis's exact surface, where the scan's normals
+        // are noisy (a grazing face's 1 / cos amplifies their noise).
+        const Eigen::Vector3f& n = sub.normals[pr.index];
         albedo.push_back(sub.intensities[pr.index]);
         p_SensorMatched.push_back(q);
         intensity.push_back(ShadingCompensatedIntensity(
