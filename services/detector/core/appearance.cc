@@ -21,6 +21,10 @@ void AppearanceOptions::Validate() const {
     throw std::invalid_argument("AppearanceOptions: min_intensity_rel_stddev must be >= 0, got " +
                                 std::to_string(min_intensity_rel_stddev));
   }
+  if (!(min_sample_cos >= 0.0f && min_sample_cos < 1.0f)) {
+    throw std::invalid_argument("AppearanceOptions: min_sample_cos must be in [0, 1), got " +
+                                std::to_string(min_sample_cos));
+  }
   if (min_points < 3) {
     throw std::invalid_argument("AppearanceOptions: min_points must be >= 3, got " +
                                 std::to_string(min_points));

@@ -16,6 +16,12 @@ struct AppearanceOptions {
   /// Incidence cosines below this are clamped to it in the shading compensation (grazing
   /// surfaces, noisy normals), in (0, 1].
   float min_cos = 0.25f;
+  /// Surface seen at a grazing angle, incidence cosine (with the posed model's normal) below
+  /// this, is not compared at all, in [0, 1): there a small error in depth along the ray
+  /// slides a measured point far along the surface (at a cosine of 0.2 a depth error of
+  /// 5 mm moves it 5 mm along the surface and 1 mm off it), so the print it shows belongs
+  /// elsewhere. A face seen that flat tells only its plane.
+  float min_sample_cos = 0.25f;
   /// The model's texture over the compared points must have at least this standard deviation
   /// of albedo (reflectance units); below it the texture is uniform there and says nothing.
   float min_albedo_stddev = 0.04f;

@@ -206,8 +206,9 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
                                 const Eigen::Isometry3d& X_SceneModel, float distance_m,
                                 float normal_angle_rad, float conflict_distance_m);
 
-/// Appearance of a model pose: over the model's ICP points that face the viewpoint and have
-/// a scene point within `distance_m` (normals within `normal_angle_rad`), the correlation of
+/// Appearance of a model pose: over the model's ICP points that face the viewpoint, are not
+/// seen at a grazing angle (AppearanceOptions::min_sample_cos) and have a scene point within
+/// `distance_m` (normals within `normal_angle_rad`), the correlation of
 /// the model's albedo at the scene point's position with the scene point's shading-
 /// compensated intensity (ShadingCompensatedIntensity with the posed model's normal, which
 /// is exact where a grazing face's scan normals are noisy, and the scene viewpoint). Not

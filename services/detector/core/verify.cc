@@ -200,6 +200,10 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
         // The posed model's normal: the hypothesis's exact surface, where the scan's normals
         // are noisy (a grazing face's 1 / cos amplifies their noise).
         const Eigen::Vector3f& n = sub.normals[pr.index];
+        if (options.appearance.min_sample_cos > 0.0f &&
+            std::abs(n.dot(q)) < options.appearance.min_sample_cos * q.norm()) {
+          continue;
+        }
         albedo.push_back(sub.intensities[pr.index]);
         p_SensorMatched.push_back(q);
         intensity.push_back(ShadingCompensatedIntensity(

@@ -61,7 +61,8 @@ struct VerifyOptions {
   /// Fewer unoccluded visible points than this gives score 0.
   int min_visible_points = 20;
   /// Appearance: when the model has albedo (its `intensities`) and the scene intensities,
-  /// the supported points' albedo is correlated with the scene's shading-compensated
+  /// the supported points' albedo (but where the sensor grazes the surface,
+  /// AppearanceOptions::min_sample_cos) is correlated with the scene's shading-compensated
   /// intensity (VerifyResult::appearance). A correlation below min_appearance_correlation
   /// (with evidence) means the printing contradicts the pose (another item of the same
   /// shape, or a wrong turn of a symmetric one): the score is then multiplied by

@@ -241,6 +241,69 @@ TEST(GrazingAppearanceTest, TheShadingOfAGrazingFaceIsTakenFromThePose) {
   EXPECT_GT(truth.correlation, 0.9);
 }
 
+// A box with one face seen head-on and one at 78 degrees (incidence cosine about 0.2), whose
+// points a depth error of 8 mm along the rays has slid about 8 mm along that face, as
+// structured light does where it grazes a surface. The slid face shows its print in the
+// wrong place; AppearanceOptions::min_sample_cos leaves it out of the comparison.
+TEST(GrazingAppearanceTest, AFaceSeenAtAGrazingAngleIsNotCompared) {
+  const world::TriangleMesh mesh = Mesh(Item(11, 0.20, 0.12, 0.06), world::ShapeKind::kBox);
+  const ObjectModel model = Model(mesh, ModelSymmetry::kBox);
+  const Eigen::Isometry3d X_SensorItem =
+      Eigen::Translation3d(0.0, 0.0, 0.6) * Turn(M_PI - 12.0 * M_PI / 180.0, {1.0, 0.0, 0.0});
+  const geometry::PointCloud surface = SampleTexturedMeshSurface(mesh, 0.0012, 23);
+  geometry::PointCloud scan;
+  const Eigen::Isometry3f X = X_SensorItem.cast<float>();
+  int grazing = 0;
+  for (std::size_t i = 0; i < surface.size(); ++i) {
+    Eigen::Vector3f p = X * surface.points[i];
+    const Eigen::Vector3f n = X.linear() * surface.normals[i];
+    const float cos_incidence = -n.dot(p) / p.norm();
+    if (cos_incidence <= 0.05f) continue;
+    const float intensity = surface.intensities[i] * cos_incidence * 0.36f / p.squaredNorm();
+    if (cos_incidence < 0.25f) {
+      p += 0.008f * p.normalized();
+      ++grazing;
+    }
+    scan.points.push_back(p);
+    scan.normals.push_back(n);
+    scan.intensities.push_back(intensity);
+  }
+  scan.width = static_cast<std::uint32_t>(scan.points.size());
+  scan.height = 1;
+  ASSERT_GT(grazing, static_cast<int>(scan.size() / 5));
+  PpfSceneOptions scene_options;
+  scene_options.use_input_normals = true;
+  const PpfScene scene = PreparePpfScene(scan, model, scene_options);
+  const float distance = 0.5f * model.sampling_distance_m();
+  const AppearanceScore kept = MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f);
+  AppearanceOptions every_sample;
+  every_sample.min_sample_cos = 0.0f;
+  const AppearanceScore all =
+      MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f, every_sample);
+  ASSERT_TRUE(kept.defined);
+  ASSERT_TRUE(all.defined);
+  EXPECT_LT(kept.points, all.points);
+  EXPECT_GT(kept.correlation, 0.9);
+  EXPECT_LT(all.correlation, kept.correlation - 0.1);
+
+  // Verify leaves out the grazing face's samples that its z-buffer keeps.
+  const PinholeCamera camera(640, 480, 600.0, 600.0, 319.5, 239.5);
+  const VerificationScene verification(scan, Eigen::Isometry3d::Identity(), camera);
+  const VerifyResult verified = Verify(verification, model.icp_cloud(), X_SensorItem);
+  VerifyOptions every;
+  every.appearance.min_sample_cos = 0.0f;
+  const VerifyResult verified_all = Verify(verification, model.icp_cloud(), X_SensorItem, every);
+  ASSERT_TRUE(verified.appearance.defined);
+  ASSERT_TRUE(verified_all.appearance.defined);
+  EXPECT_LT(verified.appearance.points, verified_all.appearance.points);
+  EXPECT_GT(verified.appearance.correlation, 0.8);
+
+  AppearanceOptions bad;
+  bad.min_sample_cos = 1.0f;
+  EXPECT_THROW(MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f, bad),
+               std::invalid_argument);
+}
+
 TEST_F(AppearanceTest, UniformTextureAndMissingIntensitiesAreNoEvidence) {
   const ObjectModel plain = Model(
       Mesh(target_, world::ShapeKind::kBox, world::TextureKind::kUniform), ModelSymmetry::kBox);
