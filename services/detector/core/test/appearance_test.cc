@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <random>
 
@@ -75,6 +76,30 @@ geometry::PointCloud ShadedScan(const world::TriangleMesh& mesh,
   out.width = static_cast<std::uint32_t>(out.points.size());
   out.height = 1;
   return out;
+}
+
+// The surface of `mesh` at X_SensorItem that faces a sensor at the origin, with its true
+// normals and the intensity albedo * cos(incidence) * (0.6 m / range)^2; `distort` then
+// may move each point and turn its normal, given the incidence cosine.
+geometry::PointCloud LitSurface(
+    const world::TriangleMesh& mesh, const Eigen::Isometry3d& X_SensorItem, std::uint32_t seed,
+    const std::function<void(float, Eigen::Vector3f*, Eigen::Vector3f*)>& distort) {
+  const geometry::PointCloud surface = SampleTexturedMeshSurface(mesh, 0.0012, seed);
+  geometry::PointCloud scan;
+  const Eigen::Isometry3f X = X_SensorItem.cast<float>();
+  for (std::size_t i = 0; i < surface.size(); ++i) {
+    Eigen::Vector3f p = X * surface.points[i];
+    Eigen::Vector3f n = X.linear() * surface.normals[i];
+    const float cos_incidence = -n.dot(p) / p.norm();
+    if (cos_incidence <= 0.05f) continue;
+    scan.intensities.push_back(surface.intensities[i] * cos_incidence * 0.36f / p.squaredNorm());
+    distort(cos_incidence, &p, &n);
+    scan.points.push_back(p);
+    scan.normals.push_back(n);
+  }
+  scan.width = static_cast<std::uint32_t>(scan.points.size());
+  scan.height = 1;
+  return scan;
 }
 
 double RotationErrorRad(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
@@ -212,25 +237,16 @@ TEST(GrazingAppearanceTest, TheShadingOfAGrazingFaceIsTakenFromThePose) {
   const ObjectModel model = Model(mesh, ModelSymmetry::kBox);
   const Eigen::Isometry3d X_SensorItem =
       Eigen::Translation3d(0.0, 0.0, 0.6) * Turn(M_PI - 70.0 * M_PI / 180.0, {1.0, 0.0, 0.0});
-  const geometry::PointCloud surface = SampleTexturedMeshSurface(mesh, 0.0012, 21);
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> tilt(-0.26f, 0.26f);  // +-15 degrees
-  geometry::PointCloud scan;
-  const Eigen::Isometry3f X = X_SensorItem.cast<float>();
-  for (std::size_t i = 0; i < surface.size(); ++i) {
-    const Eigen::Vector3f p = X * surface.points[i];
-    const Eigen::Vector3f n = X.linear() * surface.normals[i];
-    const float cos_incidence = -n.dot(p) / p.norm();
-    if (cos_incidence <= 0.05f) continue;
-    scan.points.push_back(p);
-    scan.intensities.push_back(surface.intensities[i] * cos_incidence * 0.36f / p.squaredNorm());
-    const Eigen::Matrix3f noise = (Eigen::AngleAxisf(tilt(rng), Eigen::Vector3f::UnitX()) *
-                                   Eigen::AngleAxisf(tilt(rng), Eigen::Vector3f::UnitY()))
-                                      .toRotationMatrix();
-    scan.normals.push_back(noise * n);
-  }
-  scan.width = static_cast<std::uint32_t>(scan.points.size());
-  scan.height = 1;
+  const geometry::PointCloud scan =
+      LitSurface(mesh, X_SensorItem, 21, [&](float, Eigen::Vector3f*, Eigen::Vector3f* n) {
+        const float about_x = tilt(rng);
+        const float about_y = tilt(rng);
+        *n = (Eigen::AngleAxisf(about_x, Eigen::Vector3f::UnitX()) *
+              Eigen::AngleAxisf(about_y, Eigen::Vector3f::UnitY())) *
+             *n;
+      });
   PpfSceneOptions options;
   options.use_input_normals = true;
   const PpfScene scene = PreparePpfScene(scan, model, options);
@@ -250,26 +266,13 @@ TEST(GrazingAppearanceTest, AFaceSeenAtAGrazingAngleIsNotCompared) {
   const ObjectModel model = Model(mesh, ModelSymmetry::kBox);
   const Eigen::Isometry3d X_SensorItem =
       Eigen::Translation3d(0.0, 0.0, 0.6) * Turn(M_PI - 12.0 * M_PI / 180.0, {1.0, 0.0, 0.0});
-  const geometry::PointCloud surface = SampleTexturedMeshSurface(mesh, 0.0012, 23);
-  geometry::PointCloud scan;
-  const Eigen::Isometry3f X = X_SensorItem.cast<float>();
   int grazing = 0;
-  for (std::size_t i = 0; i < surface.size(); ++i) {
-    Eigen::Vector3f p = X * surface.points[i];
-    const Eigen::Vector3f n = X.linear() * surface.normals[i];
-    const float cos_incidence = -n.dot(p) / p.norm();
-    if (cos_incidence <= 0.05f) continue;
-    const float intensity = surface.intensities[i] * cos_incidence * 0.36f / p.squaredNorm();
-    if (cos_incidence < 0.25f) {
-      p += 0.008f * p.normalized();
-      ++grazing;
-    }
-    scan.points.push_back(p);
-    scan.normals.push_back(n);
-    scan.intensities.push_back(intensity);
-  }
-  scan.width = static_cast<std::uint32_t>(scan.points.size());
-  scan.height = 1;
+  const geometry::PointCloud scan = LitSurface(
+      mesh, X_SensorItem, 23, [&](float cos_incidence, Eigen::Vector3f* p, Eigen::Vector3f*) {
+        if (cos_incidence >= 0.25f) return;
+        *p += 0.008f * p->normalized();
+        ++grazing;
+      });
   ASSERT_GT(grazing, static_cast<int>(scan.size() / 5));
   PpfSceneOptions scene_options;
   scene_options.use_input_normals = true;
