@@ -31,14 +31,43 @@ void AppearanceOptions::Validate() const {
   }
 }
 
+namespace {
+
+// |cos| of the angle between `n` and the ray from `p` to the viewpoint, and the squared
+// range; cos is 1 at the viewpoint itself (no direction to judge).
+struct Incidence {
+  float cos = 1.0f;
+  float range_sq = 0.0f;
+};
+
+Incidence IncidenceAt(const Eigen::Vector3f& p, const Eigen::Vector3f& n,
+                      const Eigen::Vector3f& viewpoint) {
+  const Eigen::Vector3f ray = viewpoint - p;
+  Incidence out;
+  out.range_sq = ray.squaredNorm();
+  if (out.range_sq > 0.0f) out.cos = std::abs(n.dot(ray)) / std::sqrt(out.range_sq);
+  return out;
+}
+
+float Compensate(float intensity, const Incidence& incidence, float min_cos) {
+  if (!(incidence.range_sq > 0.0f)) return intensity;
+  return intensity * incidence.range_sq / std::max(incidence.cos, min_cos);
+}
+
+}  // namespace
+
 float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
                                   const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                   float min_cos) {
-  const Eigen::Vector3f ray = viewpoint - p;
-  const float range_sq = ray.squaredNorm();
-  if (!(range_sq > 0.0f)) return intensity;
-  const float cos_incidence = std::abs(n.dot(ray)) / std::sqrt(range_sq);
-  return intensity * range_sq / std::max(cos_incidence, min_cos);
+  return Compensate(intensity, IncidenceAt(p, n, viewpoint), min_cos);
+}
+
+std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
+                                      const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
+                                      const AppearanceOptions& options) {
+  const Incidence incidence = IncidenceAt(p, n, viewpoint);
+  if (incidence.cos < options.min_sample_cos) return std::nullopt;
+  return Compensate(intensity, incidence, options.min_cos);
 }
 
 AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -55,6 +56,14 @@ struct AppearanceScore {
 float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
                                   const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                   float min_cos);
+
+/// One sample of the appearance comparison: the shading-compensated intensity
+/// (ShadingCompensatedIntensity with options.min_cos), or nothing where the sensor grazes
+/// the surface (incidence cosine below options.min_sample_cos), whose print is not compared.
+/// `n` is the unit normal the shading is taken from (a pose's own surface normal).
+std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
+                                      const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
+                                      const AppearanceOptions& options);
 
 /// Pearson correlation of `albedo` and `intensity` (equal lengths, compensated intensities;
 /// pairs with a NaN are left out) with the evidence checks of `options`. Throws

@@ -213,13 +213,11 @@ AppearanceSamples CollectAppearanceSamples(const ObjectModel& model, const PpfSc
     float d2 = 0.0f;
     const std::int32_t j = scene.fine_tree.Nearest(p, &d2, d2_max);
     if (j == KdTree::kNone || scene.fine.normals[j].dot(n) < min_cos) continue;
-    if (options.min_sample_cos > 0.0f) {
-      const Eigen::Vector3f ray = scene.viewpoint - scene.fine.points[j];
-      if (std::abs(n.dot(ray)) < options.min_sample_cos * ray.norm()) continue;
-    }
+    const std::optional<float> sample = AppearanceSample(
+        scene.fine.intensities[j], scene.fine.points[j], n, scene.viewpoint, options);
+    if (!sample) continue;
     out.p_S.push_back(scene.fine.points[j]);
-    out.intensity.push_back(ShadingCompensatedIntensity(
-        scene.fine.intensities[j], scene.fine.points[j], n, scene.viewpoint, options.min_cos));
+    out.intensity.push_back(*sample);
   }
   return out;
 }

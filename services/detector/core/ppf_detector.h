@@ -210,7 +210,7 @@ SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
 /// seen at a grazing angle (AppearanceOptions::min_sample_cos) and have a scene point within
 /// `distance_m` (normals within `normal_angle_rad`), the correlation of
 /// the model's albedo at the scene point's position with the scene point's shading-
-/// compensated intensity (ShadingCompensatedIntensity with the posed model's normal, which
+/// compensated intensity (AppearanceSample with the posed model's normal, which
 /// is exact where a grazing face's scan normals are noisy, and the scene viewpoint). Not
 /// defined when the model has no albedo or the scene no intensities.
 AppearanceScore MeasureAppearance(const ObjectModel& model, const PpfScene& scene,

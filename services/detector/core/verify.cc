@@ -199,15 +199,13 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
         const Eigen::Vector3f& q = impl.p_SensorPoints[j];
         // The posed model's normal: the hypothesis's exact surface, where the scan's normals
         // are noisy (a grazing face's 1 / cos amplifies their noise).
-        const Eigen::Vector3f& n = sub.normals[pr.index];
-        if (options.appearance.min_sample_cos > 0.0f &&
-            std::abs(n.dot(q)) < options.appearance.min_sample_cos * q.norm()) {
-          continue;
-        }
+        const std::optional<float> sample =
+            AppearanceSample(impl.intensities[j], q, sub.normals[pr.index], Eigen::Vector3f::Zero(),
+                             options.appearance);
+        if (!sample) continue;
         albedo.push_back(sub.intensities[pr.index]);
         p_SensorMatched.push_back(q);
-        intensity.push_back(ShadingCompensatedIntensity(
-            impl.intensities[j], q, n, Eigen::Vector3f::Zero(), options.appearance.min_cos));
+        intensity.push_back(*sample);
       }
       continue;
     }
