@@ -264,6 +264,9 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
   }
   context_->CheckDeadline();
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
+  // The verification scene is built once per scene, on first use: outside the per-pose
+  // time that decides how many poses fit the budget.
+  context_->Verification();
   const auto verify_start = Clock::now();
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();

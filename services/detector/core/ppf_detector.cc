@@ -1,11 +1,18 @@
 #include "services/detector/core/ppf_detector.h"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
+#include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
+#include <thread>
 
 namespace picking::detector {
 namespace {
@@ -307,6 +314,134 @@ SymmetricAppearance MatchSymmetricAppearance(const ObjectModel& model, const Ppf
   return out;
 }
 
+void AppearanceSearchOptions::Validate() const {
+  if (levels < 0) throw std::invalid_argument("AppearanceSearchOptions: levels must be >= 0");
+  if (!(start_step_m > 0.0) || !std::isfinite(start_step_m)) {
+    throw std::invalid_argument("AppearanceSearchOptions: start_step_m must be positive");
+  }
+  if (max_samples < 30) {
+    throw std::invalid_argument("AppearanceSearchOptions: max_samples must be >= 30");
+  }
+  if (max_moves_per_level < 1) {
+    throw std::invalid_argument("AppearanceSearchOptions: max_moves_per_level must be >= 1");
+  }
+}
+
+AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& scene,
+                                    const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                    float normal_angle_rad, const AppearanceOptions& options,
+                                    const AppearanceSearchOptions& search) {
+  options.Validate();
+  search.Validate();
+  AppearancePose out;
+  out.X_SceneModel = X_SceneModel;
+  if (search.levels == 0) {
+    out.appearance =
+        MeasureAppearance(model, scene, X_SceneModel, distance_m, normal_angle_rad, options);
+    return out;
+  }
+  const AppearanceSamples all =
+      CollectAppearanceSamples(model, scene, X_SceneModel, distance_m, normal_angle_rad, options);
+  if (all.p_S.empty()) return out;
+  const float lookup_m = AppearanceLookupDistance(model, distance_m);
+  out.appearance = ScoreAppearanceSamples(model, all, X_SceneModel, lookup_m, options);
+  if (!out.appearance.defined) return out;
+
+  // An even subset: the search's many evaluations need the shape of the correlation, not
+  // its last digit.
+  AppearanceSamples subset;
+  const std::size_t stride = (all.p_S.size() + static_cast<std::size_t>(search.max_samples) - 1) /
+                             static_cast<std::size_t>(search.max_samples);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (std::size_t k = 0; k < all.p_S.size(); k += stride) {
+    subset.p_S.push_back(all.p_S[k]);
+    subset.intensity.push_back(all.intensity[k]);
+    centroid += all.p_S[k].cast<double>();
+  }
+  centroid /= static_cast<double>(subset.p_S.size());
+  // Moves along and about the samples' principal axes: for a face, two slide in it and one
+  // leaves it, so the search's steps do not zig-zag across a tilted plane.
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3f& p : subset.p_S) {
+    const Eigen::Vector3d d = p.cast<double>() - centroid;
+    covariance += d * d.transpose();
+  }
+  covariance /= static_cast<double>(subset.p_S.size());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> pca(covariance);
+  const Eigen::Matrix3d axes = pca.eigenvectors();
+  const double radius = std::max(1e-3, std::sqrt(covariance.trace()));
+
+  // The objective: the print's correlation, less the samples' mean truncated point-to-plane
+  // distance to the model surface (squared, over tau squared). The print alone is blind to
+  // a move off the surface, which the look-up's tolerance lets pass; the geometric term
+  // keeps the surface where ICP put it and leaves free what the shape leaves free.
+  const float tau = std::max(1e-4f, 0.5f * distance_m);
+  const float tau_sq = tau * tau;
+  const geometry::PointCloud& fine_model = model.fine_cloud();
+  const float lookup_sq = lookup_m * lookup_m;
+  std::vector<float> albedo, intensity;
+  const auto score = [&](const Eigen::Isometry3d& X) {
+    const Eigen::Isometry3f X_ModelScene = X.inverse().cast<float>();
+    albedo.clear();
+    intensity.clear();
+    double off_surface = 0.0;
+    for (std::size_t k = 0; k < subset.p_S.size(); ++k) {
+      const Eigen::Vector3f q = X_ModelScene * subset.p_S[k];
+      const std::int32_t i = model.fine_tree().Nearest(q, nullptr, lookup_sq);
+      if (i == KdTree::kNone) {
+        off_surface += 1.0;
+        continue;
+      }
+      const float r = fine_model.normals[i].dot(q - fine_model.points[i]);
+      off_surface += std::min(r * r, tau_sq) / tau_sq;
+      albedo.push_back(fine_model.intensities[i]);
+      intensity.push_back(subset.intensity[k]);
+    }
+    const AppearanceScore a = CorrelateAppearance(albedo, intensity, options);
+    if (!a.defined) return -3.0;
+    return a.correlation - off_surface / static_cast<double>(subset.p_S.size());
+  };
+  Eigen::Isometry3d X_best = X_SceneModel;
+  double best = score(X_best);
+  if (best < -2.0) return out;
+  double step = search.start_step_m;
+  for (int level = 0; level < search.levels; ++level, step *= 0.5) {
+    for (int move = 0; move < search.max_moves_per_level; ++move) {
+      Eigen::Isometry3d X_move = X_best;
+      double move_score = best;
+      for (int axis = 0; axis < 6; ++axis) {
+        for (double sign : {-1.0, 1.0}) {
+          Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+          if (axis < 3) {
+            delta.translation() = sign * step * axes.col(axis);
+          } else {
+            // Turn about the samples' centroid: S <- c + R (S - c).
+            const Eigen::Matrix3d R =
+                Eigen::AngleAxisd(sign * step / radius, axes.col(axis - 3)).toRotationMatrix();
+            delta.linear() = R;
+            delta.translation() = centroid - R * centroid;
+          }
+          const Eigen::Isometry3d X = delta * X_best;
+          const double s = score(X);
+          if (s > move_score + 1e-4) {
+            move_score = s;
+            X_move = X;
+          }
+        }
+      }
+      if (!(move_score > best)) break;
+      best = move_score;
+      X_best = X_move;
+    }
+  }
+  const AppearanceScore final_score = ScoreAppearanceSamples(model, all, X_best, lookup_m, options);
+  if (final_score.defined && final_score.correlation > out.appearance.correlation) {
+    out.appearance = final_score;
+    out.X_SceneModel = X_best;
+  }
+  return out;
+}
+
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
                              const PpfDetectorOptions& options) {
   if (options.coarse_icp_stride < 1) {
@@ -331,6 +466,7 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     throw std::invalid_argument("DetectPpf: the prepared scene is empty");
   }
   options.appearance.Validate();
+  options.appearance_search.Validate();
   if (!(options.appearance_weight >= 0.0f) || !std::isfinite(options.appearance_weight)) {
     throw std::invalid_argument("PpfDetectorOptions: appearance_weight must be >= 0");
   }
@@ -368,17 +504,21 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     coarse_model.width = static_cast<std::uint32_t>(coarse_model.points.size());
     coarse_model.height = 1;
   }
+  const float support_m = options.support_distance_rel * step;
+  const auto agreement = [&](const Eigen::Isometry3d& X) {
+    return MeasureAgreement(model, scene, X, support_m, options.support_normal_angle_rad,
+                            options.conflict_distance_rel * step);
+  };
+  const auto rank_of = [&options](const SceneAgreement& a, const AppearanceScore& appearance) {
+    return a.support - a.conflict_fraction +
+           options.appearance_weight * (appearance.defined ? appearance.correlation : 0.0);
+  };
   std::vector<PpfDetection> verified;
   const std::size_t count = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
   // A hypothesis is refined only when it can be done before the deadline, judged by the
   // mean time of those before it (the first always is).
-  const auto refine_start = std::chrono::steady_clock::now();
-  for (std::size_t h = 0; h < count; ++h) {
-    if (!TimeForAnother(refine_start, static_cast<std::int64_t>(h), options.refine_deadline)) {
-      break;
-    }
-    ++result.refined_hypotheses;
+  const auto refine_one = [&](std::size_t h) {
     const PpfHypothesis& hyp = result.match.hypotheses[h];
     PpfDetection d;
     d.votes = hyp.votes;
@@ -390,20 +530,74 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     d.icp = RunIcp(model.icp_cloud(), scene.fine, scene.fine_tree, X, fine);
     d.X_SceneModel = d.icp.correspondences >= fine.min_correspondences ? d.icp.X_TargetSource : X;
     if (model.has_albedo() && scene.fine.has_intensities()) {
-      const SymmetricAppearance sa = MatchSymmetricAppearance(
-          model, scene, d.X_SceneModel, options.support_distance_rel * step,
-          options.support_normal_angle_rad, options.appearance);
+      const SymmetricAppearance sa =
+          MatchSymmetricAppearance(model, scene, d.X_SceneModel, support_m,
+                                   options.support_normal_angle_rad, options.appearance);
       d.X_SceneModel = sa.X_SceneModel;
       d.symmetry = sa.symmetry;
       d.appearance = sa.appearance;
     }
-    const SceneAgreement a =
-        MeasureAgreement(model, scene, d.X_SceneModel, options.support_distance_rel * step,
-                         options.support_normal_angle_rad, options.conflict_distance_rel * step);
+    if (options.appearance_search.levels > 0 && d.appearance.defined) {
+      // Kept only when it ranks higher: the print may not buy a worse fit of the shape.
+      const AppearancePose ap = SearchAppearancePose(model, scene, d.X_SceneModel, support_m,
+                                                     options.support_normal_angle_rad,
+                                                     options.appearance, options.appearance_search);
+      if (ap.appearance.correlation > d.appearance.correlation) {
+        const SceneAgreement before = agreement(d.X_SceneModel);
+        const SceneAgreement after = agreement(ap.X_SceneModel);
+        if (rank_of(after, ap.appearance) > rank_of(before, d.appearance)) {
+          d.X_SceneModel = ap.X_SceneModel;
+          d.appearance = ap.appearance;
+        }
+      }
+    }
+    const SceneAgreement a = agreement(d.X_SceneModel);
     d.support = a.support;
     d.conflict_fraction = a.conflict_fraction;
     d.visible_points = a.visible_points;
-    verified.push_back(d);
+    return d;
+  };
+  // Hypotheses are refined in parallel, each taken only while the mean time of those done
+  // so far still fits before the deadline (the first always is); the results keep the
+  // hypotheses' order, so that without a deadline the outcome does not depend on threads.
+  const int threads = std::clamp(options.match.num_threads > 0
+                                     ? options.match.num_threads
+                                     : static_cast<int>(std::thread::hardware_concurrency()),
+                                 1, std::max(1, static_cast<int>(count)));
+  std::vector<std::optional<PpfDetection>> refined(count);
+  std::atomic<std::size_t> next{0};
+  std::atomic<std::int64_t> done{0};
+  std::atomic<std::int64_t> busy_ns{0};
+  std::mutex error_mutex;
+  std::exception_ptr error;
+  const auto worker = [&]() {
+    try {
+      for (std::size_t h = next++; h < count; h = next++) {
+        const auto now = std::chrono::steady_clock::now();
+        const std::int64_t n = done.load();
+        const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
+        if (h > 0 && now + mean > options.refine_deadline) return;
+        refined[h] = refine_one(h);
+        busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
+                       std::chrono::steady_clock::now() - now)
+                       .count();
+        ++done;
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+      next = count;  // the others stop too
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
+  for (std::optional<PpfDetection>& d : refined) {
+    if (!d) continue;
+    ++result.refined_hypotheses;
+    verified.push_back(std::move(*d));
   }
   const auto rank = [&options](const PpfDetection& d) {
     return d.support - d.conflict_fraction +

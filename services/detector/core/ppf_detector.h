@@ -92,6 +92,23 @@ struct PpfSceneOptions {
 PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& model,
                          const PpfSceneOptions& options = {});
 
+/// Options of SearchAppearancePose.
+struct AppearanceSearchOptions {
+  /// Step halvings of the search (>= 0; 0: no search) ...
+  int levels = 4;
+  /// ... starting at this translation step, metres (> 0); rotation steps move the samples'
+  /// mean radius about their centroid as far.
+  double start_step_m = 0.004;
+  /// The search compares at most this many of the samples (evenly spaced, >= 30); the
+  /// result is scored on all of them.
+  int max_samples = 400;
+  /// Moves (>= 1) tried per level before the step is halved.
+  int max_moves_per_level = 8;
+
+  /// Throws std::invalid_argument naming the bad field.
+  void Validate() const;
+};
+
 /// Options of DetectPpf.
 struct PpfDetectorOptions {
   PpfMatchOptions match;
@@ -147,6 +164,11 @@ struct PpfDetectorOptions {
   /// ... and rejected when the appearance has evidence and its correlation is below this: the
   /// shape fits, the printing does not (a neighbour of the same size).
   float min_appearance_correlation = 0.2f;
+  /// After the symmetric turns, each hypothesis with appearance evidence is moved to the
+  /// nearby pose whose print best explains the scene (SearchAppearancePose), and keeps it
+  /// when that ranks higher: point-to-plane ICP leaves a box face's slide along itself and a
+  /// flat item's turn in its plane to where the hypothesis started. levels = 0: off.
+  AppearanceSearchOptions appearance_search;
 };
 
 /// A verified pose of the model in the scene.
@@ -233,6 +255,24 @@ SymmetricAppearance MatchSymmetricAppearance(const ObjectModel& model, const Ppf
                                              const Eigen::Isometry3d& X_SceneModel,
                                              float distance_m, float normal_angle_rad,
                                              const AppearanceOptions& options = {});
+
+/// The pose near X_SceneModel whose model print best explains the scene: the scene points
+/// matched at X_SceneModel (as in MeasureAppearance) stay fixed while the model moves under
+/// them, by a compass search over the six directions of rotation (about the points'
+/// centroid) and of translation, keeping a move only when it raises the correlation. Where
+/// the shape leaves a direction free (a box's face sliding along itself, a flat item's
+/// in-plane turn, which point-to-plane ICP cannot fix) the print decides it. The objective
+/// subtracts the points' mean truncated squared point-to-plane distance to the model
+/// (over (distance_m / 2)^2), so that the surface stays where it was. Returns the start
+/// pose with its score when there is no appearance evidence or search.levels is 0.
+struct AppearancePose {
+  Eigen::Isometry3d X_SceneModel = Eigen::Isometry3d::Identity();
+  AppearanceScore appearance;
+};
+AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& scene,
+                                    const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                    float normal_angle_rad, const AppearanceOptions& options = {},
+                                    const AppearanceSearchOptions& search = {});
 
 /// PPF voting, pose clustering, ICP refinement and verification of the best hypotheses.
 PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,

@@ -362,6 +362,71 @@ TEST(SymmetricAppearanceCylinderTest, FindsTheTurnAboutTheAxis) {
   EXPECT_LT(RotationErrorRad(m.X_SceneModel, X_true), 6.0 * M_PI / 180.0);
 }
 
+// A flat box face-on to the sensor, started 5 mm along its long side and 3 degrees about
+// its face normal from the truth: the geometry cannot tell (the face slides along itself),
+// the print can.
+class AppearanceSearchTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    mesh_ = Mesh(Item(26, 0.20, 0.12, 0.03), world::ShapeKind::kBox);
+    X_true_ = Eigen::Translation3d(0.01, 0.02, 0.55) * Turn(M_PI - 0.35, {1.0, 0.2, 0.0});
+    scene_ = ShadedScan(mesh_, X_true_, 6);
+  }
+
+  world::TriangleMesh mesh_;
+  Eigen::Isometry3d X_true_;
+  geometry::PointCloud scene_;
+};
+
+TEST_F(AppearanceSearchTest, ThePrintSlidesAFaceBackAlongItself) {
+  const ObjectModel model = Model(mesh_, ModelSymmetry::kNone);
+  const PpfScene scene = PreparePpfScene(scene_, model);
+  const float distance = 0.5f * model.sampling_distance_m();
+  const Eigen::Isometry3d start = X_true_ * Eigen::Translation3d(0.005, 0.0, 0.0) *
+                                  Turn(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ());
+  const AppearanceScore at_start = MeasureAppearance(model, scene, start, distance, 0.5f);
+  const AppearancePose found = SearchAppearancePose(model, scene, start, distance, 0.5f);
+  ASSERT_TRUE(found.appearance.defined);
+  EXPECT_GT(found.appearance.correlation, at_start.correlation + 0.1);
+  EXPECT_GT(found.appearance.correlation, 0.9);
+  // Within the model's albedo resolution (its fine voxel, 1 % of the diameter: 2.3 mm).
+  EXPECT_LT((found.X_SceneModel.translation() - X_true_.translation()).norm(), 0.002);
+  EXPECT_LT(RotationErrorRad(found.X_SceneModel, X_true_), 0.8 * M_PI / 180.0);
+  // The face stays in its plane: the geometric term holds what the print is blind to.
+  const Eigen::Vector3d face_normal = X_true_.linear().col(2);
+  EXPECT_LT(std::abs(face_normal.dot(found.X_SceneModel.translation() - X_true_.translation())),
+            0.0005);
+}
+
+TEST_F(AppearanceSearchTest, TheTruePoseStaysAndNoSearchIsTheStart) {
+  const ObjectModel model = Model(mesh_, ModelSymmetry::kNone);
+  const PpfScene scene = PreparePpfScene(scene_, model);
+  const float distance = 0.5f * model.sampling_distance_m();
+  const AppearancePose stay = SearchAppearancePose(model, scene, X_true_, distance, 0.5f);
+  EXPECT_LT((stay.X_SceneModel.translation() - X_true_.translation()).norm(), 0.0015);
+  EXPECT_LT(RotationErrorRad(stay.X_SceneModel, X_true_), 0.5 * M_PI / 180.0);
+
+  const Eigen::Isometry3d start = X_true_ * Eigen::Translation3d(0.005, 0.0, 0.0);
+  AppearanceSearchOptions off;
+  off.levels = 0;
+  const AppearancePose same = SearchAppearancePose(model, scene, start, distance, 0.5f, {}, off);
+  EXPECT_TRUE(same.X_SceneModel.isApprox(start));
+  EXPECT_NEAR(same.appearance.correlation,
+              MeasureAppearance(model, scene, start, distance, 0.5f).correlation, 1e-12);
+
+  for (const auto& bad : std::vector<std::function<void(AppearanceSearchOptions*)>>{
+           [](AppearanceSearchOptions* o) { o->levels = -1; },
+           [](AppearanceSearchOptions* o) { o->start_step_m = 0.0; },
+           [](AppearanceSearchOptions* o) { o->start_step_m = std::nan(""); },
+           [](AppearanceSearchOptions* o) { o->max_samples = 10; },
+           [](AppearanceSearchOptions* o) { o->max_moves_per_level = 0; }}) {
+    AppearanceSearchOptions options;
+    bad(&options);
+    EXPECT_THROW(SearchAppearancePose(model, scene, start, distance, 0.5f, {}, options),
+                 std::invalid_argument);
+  }
+}
+
 TEST(ModelAlbedoTest, EdgesAreMaskedButAThinBooksCoversAreNot) {
   // A book 1 cm thick: the covers are closer than the edge radius, but face away.
   const ObjectModel book =

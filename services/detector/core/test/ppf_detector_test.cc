@@ -75,6 +75,25 @@ TEST_F(MilkSceneTest, RefineDeadlineKeepsOnlyTheBestVotedHypothesis) {
             0.005);
 }
 
+// Hypotheses are refined in parallel; without a deadline the result is that of one thread.
+TEST_F(MilkSceneTest, RefiningOnManyThreadsGivesTheResultOfOne) {
+  const ObjectModel model(*milk_, ObjectModelOptions{});
+  const PpfScene scene = PreparePpfScene(*scene_, model);
+  PpfDetectorOptions one;
+  one.match.num_threads = 1;
+  PpfDetectorOptions three = one;
+  three.match.num_threads = 3;
+  const PpfDetectionResult a = DetectPpf(model, scene, one);
+  const PpfDetectionResult b = DetectPpf(model, scene, three);
+  EXPECT_EQ(a.refined_hypotheses, b.refined_hypotheses);
+  ASSERT_EQ(a.detections.size(), b.detections.size());
+  for (std::size_t i = 0; i < a.detections.size(); ++i) {
+    EXPECT_TRUE(a.detections[i].X_SceneModel.isApprox(b.detections[i].X_SceneModel, 1e-12));
+    EXPECT_EQ(a.detections[i].support, b.detections[i].support);
+    EXPECT_EQ(a.detections[i].votes, b.detections[i].votes);
+  }
+}
+
 TEST_F(MilkSceneTest, ObjectNotInSceneIsNotDetected) {
   const geometry::PointCloud bunny = LoadPcd(PointCloudPath("bun0.pcd"));
   // bun0 has 397 points: normals need a wider neighbourhood than the default.
