@@ -13,7 +13,8 @@
 //                      [--ppf_segments=true|false] [--sphere_fit=true|false]
 //                      [--floor_band=true|false]
 //                      [--views=1|3] [--view_offset_m=0.15] [--side_height_m=0.25]
-//                      [--appearance=true|false|rank]
+//                      [--appearance=true|false|rank] [--appearance_search=true|false]
+//                      [--cache_dir=DIR]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
@@ -23,13 +24,19 @@
 // front items, the middle view 0.1 m),
 // and detects in the merged cloud (MergeViews). --appearance=false ranks and accepts poses
 // without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.
+// --appearance_search=false leaves out PPF's print-guided pose search (SearchAppearancePose).
+// Models are built from the current code into --cache_dir, by default a new temporary folder
+// removed at the end: a cache left by other code would measure that code's models.
 #include <algorithm>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <map>
+#include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -60,6 +67,7 @@ struct Args {
   std::string markdown;
   BinDetectionOptions detection;
   int views = 1;
+  std::string cache_dir;  // empty: a fresh temporary folder
   double view_offset_m = 0.15;
   double side_height_m = 0.25;
 };
@@ -119,6 +127,12 @@ Args Parse(int argc, char** argv) {
         ppf.min_appearance_correlation = -1.0f;
         ppf.appearance_weight = 0.0f;
       }
+    } else if (auto v = value("--appearance_search")) {
+      if (!ParseBool("--appearance_search", *v)) {
+        args.detection.estimators.ppf.appearance_search.levels = 0;
+      }
+    } else if (auto v = value("--cache_dir")) {
+      args.cache_dir = *v;
     } else if (auto v = value("--floor_band")) {
       // false: the wall margin spares the bin's bottom face; only the measured floor goes.
       if (!ParseBool("--floor_band", *v)) args.detection.wall_faces &= ~detector::kFaceMinZ;
@@ -219,10 +233,40 @@ std::string Cell(const Outcome& o) {
   return s.str();
 }
 
+// A new folder under the system's temporary directory, removed with its contents.
+class TemporaryFolder {
+ public:
+  TemporaryFolder() {
+    std::string pattern =
+        (std::filesystem::temp_directory_path() / "detector_eval_models_XXXXXX").string();
+    if (mkdtemp(pattern.data()) == nullptr) {
+      throw std::runtime_error("cannot create a temporary model cache folder: " + pattern);
+    }
+    path_ = pattern;
+  }
+  ~TemporaryFolder() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+  }
+  TemporaryFolder(const TemporaryFolder&) = delete;
+  TemporaryFolder& operator=(const TemporaryFolder&) = delete;
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
 int Run(const Args& args) {
   const std::string data_dir = apc::DefaultDataDir();
   SimulatedBinScanner scanner(data_dir);
   detector::ModelLibraryOptions library_options;
+  std::optional<TemporaryFolder> fresh_cache;
+  if (args.cache_dir.empty()) {
+    fresh_cache.emplace();
+    library_options.cache_dir = fresh_cache->path();
+  } else {
+    library_options.cache_dir = args.cache_dir;
+  }
   library_options.catalogue_path = data_dir + "/apc2016/items/item_data.csv";
   auto library = std::make_shared<const detector::ModelLibrary>(
       detector::ModelManifest::LoadFile(data_dir + "/detector/models.json", data_dir),
