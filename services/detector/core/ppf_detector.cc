@@ -380,6 +380,8 @@ AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& sc
   const geometry::PointCloud& fine_model = model.fine_cloud();
   const float lookup_sq = lookup_m * lookup_m;
   std::vector<float> albedo, intensity;
+  // Objectives lie in [-2, 1]; a pose whose samples give no evidence is worse than any.
+  constexpr double kNoEvidence = -std::numeric_limits<double>::infinity();
   const auto score = [&](const Eigen::Isometry3d& X) {
     const Eigen::Isometry3f X_ModelScene = X.inverse().cast<float>();
     albedo.clear();
@@ -398,12 +400,12 @@ AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& sc
       intensity.push_back(subset.intensity[k]);
     }
     const AppearanceScore a = CorrelateAppearance(albedo, intensity, options);
-    if (!a.defined) return -3.0;
+    if (!a.defined) return kNoEvidence;
     return a.correlation - off_surface / static_cast<double>(subset.p_S.size());
   };
   Eigen::Isometry3d X_best = X_SceneModel;
   double best = score(X_best);
-  if (best < -2.0) return out;
+  if (best == kNoEvidence) return out;
   double step = search.start_step_m;
   for (int level = 0; level < search.levels; ++level, step *= 0.5) {
     for (int move = 0; move < search.max_moves_per_level; ++move) {
