@@ -229,21 +229,37 @@ AppearanceSamples CollectAppearanceSamples(const ObjectModel& model, const PpfSc
   return out;
 }
 
-// Correlation of the samples with the albedo of the model posed at X_SceneModel.
+// Correlation of the samples with the albedo of the model posed at X_SceneModel. With
+// `off_surface`, also their mean truncated squared point-to-plane distance to the model
+// surface, min(r^2, tau^2) / tau^2 (1 for a sample with no model point within lookup_m).
 AppearanceScore ScoreAppearanceSamples(const ObjectModel& model, const AppearanceSamples& samples,
                                        const Eigen::Isometry3d& X_SceneModel, float lookup_m,
-                                       const AppearanceOptions& options) {
+                                       const AppearanceOptions& options, float tau_m = 0.0f,
+                                       double* off_surface = nullptr) {
   const Eigen::Isometry3f X_ModelScene = X_SceneModel.inverse().cast<float>();
   const float d2_max = lookup_m * lookup_m;
+  const float tau_sq = tau_m * tau_m;
+  const geometry::PointCloud& fine = model.fine_cloud();
   std::vector<float> albedo, intensity;
   albedo.reserve(samples.p_S.size());
   intensity.reserve(samples.p_S.size());
+  double off = 0.0;
   for (std::size_t k = 0; k < samples.p_S.size(); ++k) {
-    const std::int32_t i =
-        model.fine_tree().Nearest(X_ModelScene * samples.p_S[k], nullptr, d2_max);
-    if (i == KdTree::kNone) continue;
-    albedo.push_back(model.fine_cloud().intensities[i]);
+    const Eigen::Vector3f q = X_ModelScene * samples.p_S[k];
+    const std::int32_t i = model.fine_tree().Nearest(q, nullptr, d2_max);
+    if (i == KdTree::kNone) {
+      off += 1.0;
+      continue;
+    }
+    if (off_surface != nullptr) {
+      const float r = fine.normals[i].dot(q - fine.points[i]);
+      off += std::min(r * r, tau_sq) / tau_sq;
+    }
+    albedo.push_back(fine.intensities[i]);
     intensity.push_back(samples.intensity[k]);
+  }
+  if (off_surface != nullptr) {
+    *off_surface = samples.p_S.empty() ? 0.0 : off / static_cast<double>(samples.p_S.size());
   }
   return CorrelateAppearance(albedo, intensity, options);
 }
@@ -376,32 +392,13 @@ AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& sc
   // a move off the surface, which the look-up's tolerance lets pass; the geometric term
   // keeps the surface where ICP put it and leaves free what the shape leaves free.
   const float tau = std::max(1e-4f, 0.5f * distance_m);
-  const float tau_sq = tau * tau;
-  const geometry::PointCloud& fine_model = model.fine_cloud();
-  const float lookup_sq = lookup_m * lookup_m;
-  std::vector<float> albedo, intensity;
   // Objectives lie in [-2, 1]; a pose whose samples give no evidence is worse than any.
   constexpr double kNoEvidence = -std::numeric_limits<double>::infinity();
   const auto score = [&](const Eigen::Isometry3d& X) {
-    const Eigen::Isometry3f X_ModelScene = X.inverse().cast<float>();
-    albedo.clear();
-    intensity.clear();
     double off_surface = 0.0;
-    for (std::size_t k = 0; k < subset.p_S.size(); ++k) {
-      const Eigen::Vector3f q = X_ModelScene * subset.p_S[k];
-      const std::int32_t i = model.fine_tree().Nearest(q, nullptr, lookup_sq);
-      if (i == KdTree::kNone) {
-        off_surface += 1.0;
-        continue;
-      }
-      const float r = fine_model.normals[i].dot(q - fine_model.points[i]);
-      off_surface += std::min(r * r, tau_sq) / tau_sq;
-      albedo.push_back(fine_model.intensities[i]);
-      intensity.push_back(subset.intensity[k]);
-    }
-    const AppearanceScore a = CorrelateAppearance(albedo, intensity, options);
-    if (!a.defined) return kNoEvidence;
-    return a.correlation - off_surface / static_cast<double>(subset.p_S.size());
+    const AppearanceScore a =
+        ScoreAppearanceSamples(model, subset, X, lookup_m, options, tau, &off_surface);
+    return a.defined ? a.correlation - off_surface : kNoEvidence;
   };
   Eigen::Isometry3d X_best = X_SceneModel;
   double best = score(X_best);
@@ -511,15 +508,15 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     return MeasureAgreement(model, scene, X, support_m, options.support_normal_angle_rad,
                             options.conflict_distance_rel * step);
   };
-  const auto rank_of = [&options](const SceneAgreement& a, const AppearanceScore& appearance) {
-    return a.support - a.conflict_fraction +
+  // Hypotheses rank by support - conflicts + appearance_weight * print (0 without evidence).
+  const auto rank_of = [&options](double support, double conflict_fraction,
+                                  const AppearanceScore& appearance) {
+    return support - conflict_fraction +
            options.appearance_weight * (appearance.defined ? appearance.correlation : 0.0);
   };
   std::vector<PpfDetection> verified;
   const std::size_t count = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
-  // A hypothesis is refined only when it can be done before the deadline, judged by the
-  // mean time of those before it (the first always is).
   const auto refine_one = [&](std::size_t h) {
     const PpfHypothesis& hyp = result.match.hypotheses[h];
     PpfDetection d;
@@ -539,6 +536,8 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
       d.symmetry = sa.symmetry;
       d.appearance = sa.appearance;
     }
+    // The agreement of the pose kept: measured once, also when the search compared two.
+    std::optional<SceneAgreement> kept;
     if (options.appearance_search.levels > 0 && d.appearance.defined) {
       // Kept only when it ranks higher: the print may not buy a worse fit of the shape.
       const AppearancePose ap = SearchAppearancePose(model, scene, d.X_SceneModel, support_m,
@@ -547,13 +546,17 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
       if (ap.appearance.correlation > d.appearance.correlation) {
         const SceneAgreement before = agreement(d.X_SceneModel);
         const SceneAgreement after = agreement(ap.X_SceneModel);
-        if (rank_of(after, ap.appearance) > rank_of(before, d.appearance)) {
+        if (rank_of(after.support, after.conflict_fraction, ap.appearance) >
+            rank_of(before.support, before.conflict_fraction, d.appearance)) {
           d.X_SceneModel = ap.X_SceneModel;
           d.appearance = ap.appearance;
+          kept = after;
+        } else {
+          kept = before;
         }
       }
     }
-    const SceneAgreement a = agreement(d.X_SceneModel);
+    const SceneAgreement a = kept ? *kept : agreement(d.X_SceneModel);
     d.support = a.support;
     d.conflict_fraction = a.conflict_fraction;
     d.visible_points = a.visible_points;
@@ -601,9 +604,8 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     ++result.refined_hypotheses;
     verified.push_back(std::move(*d));
   }
-  const auto rank = [&options](const PpfDetection& d) {
-    return d.support - d.conflict_fraction +
-           options.appearance_weight * (d.appearance.defined ? d.appearance.correlation : 0.0);
+  const auto rank = [&rank_of](const PpfDetection& d) {
+    return rank_of(d.support, d.conflict_fraction, d.appearance);
   };
   std::stable_sort(
       verified.begin(), verified.end(),
