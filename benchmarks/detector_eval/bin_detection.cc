@@ -52,16 +52,15 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
       merged.cloud.points.push_back(p);
       if (normals) merged.cloud.normals.push_back(v.cloud.normals[i]);
       if (intensities) {
-        float intensity = v.cloud.intensities[i];
-        if (normals && &v != &views.front()) {
-          // The detector divides the shading seen from the first view's sensor out of every
-          // intensity (ShadingCompensatedIntensity); this view was lit and seen from another
-          // place, so its intensity is re-expressed as the first view would have measured it.
-          const Eigen::Vector3f& n = v.cloud.normals[i];
+        // The detector divides the shading seen from the first view's sensor out of every
+        // intensity; each view's is re-expressed as that sensor would have measured it, and
+        // dropped (NaN) where its own view grazed the surface (ExpressIntensityInView).
+        float intensity = std::numeric_limits<float>::quiet_NaN();
+        if (normals) {
           intensity =
-              detector::ShadingCompensatedIntensity(intensity, p, n, viewpoint,
-                                                    appearance.min_cos) /
-              detector::ShadingCompensatedIntensity(1.0f, p, n, reference, appearance.min_cos);
+              detector::ExpressIntensityInView(v.cloud.intensities[i], p, v.cloud.normals[i],
+                                               viewpoint, reference, appearance)
+                  .value_or(intensity);
         }
         merged.cloud.intensities.push_back(intensity);
       }
@@ -83,7 +82,7 @@ detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLib
   const geometry::PointCloud region = Region(scan, options);
   detector::SceneContext context(region, scan.X_BaseCamera, scan.camera);
   return detector::RefineAndVerify(*library->Get(item), context, detector::Method::kPpf, X_BaseItem,
-                                   /*refine=*/false);
+                                   /*refine=*/false, options.estimators.refine);
 }
 
 detector::SceneAgreement TruePoseAgreement(

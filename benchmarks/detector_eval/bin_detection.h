@@ -37,7 +37,9 @@ struct BinDetectionOptions {
 /// the base frame; the sensor pose and intrinsics, bin box and items are the first view's,
 /// the timings the sums. The detector takes a cloud's intensities as lit and seen from its
 /// one sensor pose (ShadingCompensatedIntensity), so the other views' intensities are
-/// re-expressed as the first view's sensor would have measured the same surface. The detector then
+/// re-expressed as the first view's sensor would have measured the same surface, and NaN
+/// where their own view grazed it (detector::ExpressIntensityInView; detect with
+/// AppearanceOptions::screened_per_view). The detector then
 /// has no organised image (no SIFT, intrinsics not fitted: the first view's are used for
 /// verification and range templates). Throws std::invalid_argument when `views` is empty or the
 /// views disagree on the bin.

@@ -127,6 +127,13 @@ Args Parse(int argc, char** argv) {
         ppf.min_appearance_correlation = -1.0f;
         ppf.appearance_weight = 0.0f;
       }
+    } else if (auto v = value("--min_print")) {
+      // Verification: a print correlating below this contradicts the pose (halves its score).
+      args.detection.estimators.refine.verify.min_appearance_correlation = std::stod(*v);
+    } else if (auto v = value("--patch_contrast")) {
+      const bool on = ParseBool("--patch_contrast", *v);
+      args.detection.estimators.ppf.appearance.patch_contrast = on;
+      args.detection.estimators.refine.verify.appearance.patch_contrast = on;
     } else if (auto v = value("--appearance_search")) {
       if (!ParseBool("--appearance_search", *v)) {
         args.detection.estimators.ppf.appearance_search.levels = 0;
@@ -303,6 +310,12 @@ int Run(const Args& args) {
         }
       }
       const BinScan scan = views.size() == 1 ? std::move(views.front()) : MergeViews(views);
+      BinDetectionOptions detection = args.detection;
+      if (views.size() > 1) {
+        // MergeViews screened each view's print by its own angle (NaN where it grazed).
+        detection.estimators.ppf.appearance.screened_per_view = true;
+        detection.estimators.refine.verify.appearance.screened_per_view = true;
+      }
       scan_s += scan.render_s + scan.process_s;
       ++scans;
       const auto model_start = std::chrono::steady_clock::now();
@@ -310,7 +323,7 @@ int Run(const Args& args) {
       const double model_s =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - model_start).count();
       const BinDetectionResult chain_result =
-          DetectInBin(library, scan, entry.item, std::nullopt, args.detection);
+          DetectInBin(library, scan, entry.item, std::nullopt, detection);
       const Outcome chain = Judge(chain_result, *model, scan.items, entry.item);
       chain_total.Add(chain);
       per_item[entry.item].Add(chain);
@@ -323,7 +336,7 @@ int Run(const Args& args) {
                                  (m == detector::Method::kSift && model->sift) ||
                                  (m == detector::Method::kRangeTemplates && model->templates);
           if (has_model) {
-            o = Judge(DetectInBin(library, scan, entry.item, m, args.detection), *model, scan.items,
+            o = Judge(DetectInBin(library, scan, entry.item, m, detection), *model, scan.items,
                       entry.item);
             per_method_total[detector::ToString(m)].Add(o);
             per_item_method[entry.item][detector::ToString(m)].Add(o);
@@ -350,9 +363,10 @@ int Run(const Args& args) {
       if (!chain.error.empty()) std::cout << ", error: " << chain.error;
       for (const TrueItem& t : scan.items) {
         if (t.name != entry.item) continue;
-        const detector::Detection truth = ScoreTruePose(library, scan, entry.item, t.X_BaseItem);
+        const detector::Detection truth =
+            ScoreTruePose(library, scan, entry.item, t.X_BaseItem, detection);
         const detector::SceneAgreement agreement =
-            TruePoseAgreement(library, scan, entry.item, t.X_BaseItem);
+            TruePoseAgreement(library, scan, entry.item, t.X_BaseItem, detection);
         std::cout << "; true pose score " << truth.score << " fitness " << truth.fitness
                   << " print " << truth.appearance << " ppf support " << agreement.support
                   << " conflicts " << agreement.conflict_fraction << " visible "

@@ -58,6 +58,20 @@ TEST(MergeViewsTest, KeepsEveryFinitePointWithItsChannelsInOneUnorganisedCloud) 
   EXPECT_EQ(merged.bin, "bin_C");
 }
 
+TEST(MergeViewsTest, DropsTheIntensitiesAViewSawAtAGrazingAngle) {
+  // The second view's sensor sees the points (normals along z) about 84 degrees off their
+  // normal: its intensities there are NaN, its points and normals are kept.
+  BinScan grazing = View(0.0f, 1.0);
+  grazing.X_BaseCamera.translation() = Eigen::Vector3d(5.0, 0.0, 0.5);
+  const BinScan merged = MergeViews({View(0.0f, 1.0), grazing});
+  ASSERT_EQ(merged.cloud.size(), 6u);
+  for (std::size_t i = 0; i < 3; ++i) EXPECT_TRUE(std::isfinite(merged.cloud.intensities[i]));
+  for (std::size_t i = 3; i < 6; ++i) {
+    EXPECT_TRUE(std::isnan(merged.cloud.intensities[i])) << i;
+    EXPECT_TRUE(merged.cloud.normals[i].allFinite());
+  }
+}
+
 TEST(MergeViewsTest, RefusesNoViewAndViewsOfDifferentBins) {
   EXPECT_THROW(MergeViews({}), std::invalid_argument);
   BinScan other = View(0.0f, 1.0);

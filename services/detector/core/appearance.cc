@@ -1,6 +1,7 @@
 #include "services/detector/core/appearance.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 #include <stdexcept>
@@ -24,6 +25,10 @@ void AppearanceOptions::Validate() const {
   if (!(min_sample_cos >= 0.0f && min_sample_cos < 1.0f)) {
     throw std::invalid_argument("AppearanceOptions: min_sample_cos must be in [0, 1), got " +
                                 std::to_string(min_sample_cos));
+  }
+  if (min_patch_points < 2) {
+    throw std::invalid_argument("AppearanceOptions: min_patch_points must be >= 2, got " +
+                                std::to_string(min_patch_points));
   }
   if (min_points < 3) {
     throw std::invalid_argument("AppearanceOptions: min_points must be >= 3, got " +
@@ -65,19 +70,120 @@ float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
 std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
                                       const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                       const AppearanceOptions& options) {
+  if (!std::isfinite(intensity)) return std::nullopt;
   const Incidence incidence = IncidenceAt(p, n, viewpoint);
-  if (incidence.cos < options.min_sample_cos) return std::nullopt;
+  if (!options.screened_per_view && incidence.cos < options.min_sample_cos) return std::nullopt;
   return Compensate(intensity, incidence, options.min_cos);
 }
 
+std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector3f& p,
+                                            const Eigen::Vector3f& n,
+                                            const Eigen::Vector3f& viewpoint,
+                                            const Eigen::Vector3f& reference,
+                                            const AppearanceOptions& options) {
+  if (!std::isfinite(intensity) || !n.allFinite()) return std::nullopt;
+  const Incidence own = IncidenceAt(p, n, viewpoint);
+  if (own.cos < options.min_sample_cos) return std::nullopt;
+  return Compensate(intensity, own, options.min_cos) /
+         Compensate(1.0f, IncidenceAt(p, n, reference), options.min_cos);
+}
+
+std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model) {
+  if (!n_Model.allFinite()) return 255;
+  // Direction (sx, sy, sz) in {-1, 0, 1}^3 \ 0: compare n against each normalised one.
+  std::uint8_t best = 255;
+  float best_dot = -2.0f;
+  std::uint8_t label = 0;
+  for (int x = -1; x <= 1; ++x) {
+    for (int y = -1; y <= 1; ++y) {
+      for (int z = -1; z <= 1; ++z) {
+        if (x == 0 && y == 0 && z == 0) continue;
+        const Eigen::Vector3f d = Eigen::Vector3f(x, y, z).normalized();
+        const float dot = n_Model.dot(d);
+        if (dot > best_dot) {
+          best_dot = dot;
+          best = label;
+        }
+        ++label;
+      }
+    }
+  }
+  return best;
+}
+
+namespace {
+
+// CorrelateAppearance pooled over surface patches (see its comment).
+AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
+                                        const std::vector<float>& intensity,
+                                        const std::vector<std::uint8_t>& patches,
+                                        const AppearanceOptions& options) {
+  struct Patch {
+    int n = 0;
+    double sa = 0.0, si = 0.0, saa = 0.0;
+  };
+  std::array<Patch, 256> patch{};
+  const auto usable = [&](std::size_t k) {
+    return std::isfinite(albedo[k]) && std::isfinite(intensity[k]) && patches[k] != 255;
+  };
+  for (std::size_t k = 0; k < albedo.size(); ++k) {
+    if (!usable(k)) continue;
+    Patch& p = patch[patches[k]];
+    ++p.n;
+    p.sa += albedo[k];
+    p.si += intensity[k];
+    p.saa += static_cast<double>(albedo[k]) * albedo[k];
+  }
+  std::array<bool, 256> kept{};
+  for (std::size_t g = 0; g < patch.size(); ++g) {
+    const Patch& p = patch[g];
+    if (p.n < options.min_patch_points || p.n == 0) continue;
+    const double mean_a = p.sa / p.n;
+    const double var_a = std::max(0.0, p.saa / p.n - mean_a * mean_a);
+    kept[g] = std::sqrt(var_a) >= options.min_albedo_stddev && mean_a > 0.0 && p.si > 0.0;
+  }
+  AppearanceScore out;
+  double sxx = 0.0, syy = 0.0, sxy = 0.0, saa = 0.0, sx4 = 0.0;
+  for (std::size_t k = 0; k < albedo.size(); ++k) {
+    if (!usable(k) || !kept[patches[k]]) continue;
+    const Patch& p = patch[patches[k]];
+    const double mean_a = p.sa / p.n, mean_i = p.si / p.n;
+    const double x = albedo[k] / mean_a - 1.0, y = intensity[k] / mean_i - 1.0;
+    sxx += x * x;
+    sx4 += x * x * x * x;
+    syy += y * y;
+    sxy += x * y;
+    saa += (albedo[k] - mean_a) * (albedo[k] - mean_a);
+    ++out.points;
+  }
+  if (out.points < options.min_points) return out;
+  const double n = static_cast<double>(out.points);
+  out.albedo_stddev = std::sqrt(saa / n);
+  if (sx4 > 0.0) out.contrast_points = sxx * sxx / sx4;
+  if (std::sqrt(syy / n) < options.min_intensity_rel_stddev) return out;
+  out.defined = true;
+  out.correlation = std::clamp(sxy / std::sqrt(sxx * syy), -1.0, 1.0);
+  return out;
+}
+
+}  // namespace
+
 AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
                                     const std::vector<float>& intensity,
-                                    const AppearanceOptions& options) {
+                                    const AppearanceOptions& options,
+                                    const std::vector<std::uint8_t>* patches) {
   options.Validate();
   if (albedo.size() != intensity.size()) {
     throw std::invalid_argument("CorrelateAppearance: " + std::to_string(albedo.size()) +
                                 " albedo values for " + std::to_string(intensity.size()) +
                                 " intensities");
+  }
+  if (patches != nullptr && patches->size() != albedo.size()) {
+    throw std::invalid_argument("CorrelateAppearance: " + std::to_string(patches->size()) +
+                                " patch labels for " + std::to_string(albedo.size()) + " pairs");
+  }
+  if (patches != nullptr && options.patch_contrast) {
+    return CorrelatePatchContrasts(albedo, intensity, *patches, options);
   }
   AppearanceScore out;
   const auto usable = [&](std::size_t k) {
@@ -94,15 +200,17 @@ AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
   }
   ma /= n;
   mi /= n;
-  double saa = 0.0, sii = 0.0, sai = 0.0;
+  double saa = 0.0, sii = 0.0, sai = 0.0, sa4 = 0.0;
   for (std::size_t k = 0; k < albedo.size(); ++k) {
     if (!usable(k)) continue;
     const double a = albedo[k] - ma, i = intensity[k] - mi;
     saa += a * a;
+    sa4 += a * a * a * a;
     sii += i * i;
     sai += a * i;
   }
   out.albedo_stddev = std::sqrt(saa / n);
+  if (sa4 > 0.0) out.contrast_points = saa * saa / sa4;
   const double intensity_stddev = std::sqrt(sii / n);
   if (out.albedo_stddev < options.min_albedo_stddev) return out;
   if (!(mi > 0.0) || intensity_stddev < options.min_intensity_rel_stddev * mi) return out;

@@ -23,6 +23,13 @@ struct AppearanceOptions {
   /// 5 mm moves it 5 mm along the surface and 1 mm off it), so the print it shows belongs
   /// elsewhere. A face seen that flat tells only its plane.
   float min_sample_cos = 0.25f;
+  /// The scene merges several views (ExpressIntensityInView): its intensities are as the
+  /// one sensor the detector is given would have measured them, and NaN where the view that
+  /// measured a point saw it at a grazing angle. The angle to that sensor then says nothing
+  /// about how well a point's print was read (a floor-lying item's top, grazed by a low
+  /// front view, is seen well from a higher side view), so min_sample_cos is not applied
+  /// to it: the per-view screening stands in for it.
+  bool screened_per_view = false;
   /// The model's texture over the compared points must have at least this standard deviation
   /// of albedo (reflectance units); below it the texture is uniform there and says nothing.
   float min_albedo_stddev = 0.04f;
@@ -31,6 +38,12 @@ struct AppearanceOptions {
   float min_intensity_rel_stddev = 0.02f;
   /// Fewer compared points than this give no evidence.
   int min_points = 30;
+  /// With surface patch labels (CorrelateAppearance), each patch is compared on its own
+  /// contrasts, and patches with fewer points than this are left out.
+  int min_patch_points = 10;
+  /// Compare patch contrasts when patch labels are given (CorrelateAppearance); false: one
+  /// Pearson correlation over all pairs, as without labels.
+  bool patch_contrast = true;
 
   /// Throws std::invalid_argument naming the bad field.
   void Validate() const;
@@ -47,6 +60,12 @@ struct AppearanceScore {
   double correlation = 0.0;
   int points = 0;              ///< Compared point pairs (finite ones).
   double albedo_stddev = 0.0;  ///< Of the model albedo over the compared points.
+  /// How many of the compared points carry the print: the participation ratio
+  /// (sum x^2)^2 / sum x^4 of the albedo contrasts x (deviations from the mean, relative to
+  /// their patch's mean with patch labels). Half the points on a dark block of a light face
+  /// give about half the points; a face that is plain but for a thin printed border gives
+  /// about the border's points, and a correlation over so few says little.
+  double contrast_points = 0.0;
 };
 
 /// The scene intensity with the projector's shading divided out: the structured-light
@@ -57,20 +76,50 @@ float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
                                   const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                   float min_cos);
 
+/// A view's intensity at `p` (unit normal `n`, its own sensor at `viewpoint`) re-expressed
+/// as a sensor at `reference` would have measured it, so that views merged into one cloud
+/// share the shading the detector divides out (ShadingCompensatedIntensity at `reference`);
+/// nothing where this view grazes the surface (incidence cosine below
+/// options.min_sample_cos): the merged cloud then holds NaN there and its print comes
+/// from the other views (AppearanceOptions::screened_per_view).
+std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector3f& p,
+                                            const Eigen::Vector3f& n,
+                                            const Eigen::Vector3f& viewpoint,
+                                            const Eigen::Vector3f& reference,
+                                            const AppearanceOptions& options);
+
 /// One sample of the appearance comparison: the shading-compensated intensity
-/// (ShadingCompensatedIntensity with options.min_cos), or nothing where the sensor grazes
-/// the surface (incidence cosine below options.min_sample_cos), whose print is not compared.
+/// (ShadingCompensatedIntensity with options.min_cos), or nothing where the intensity is
+/// not finite or the sensor grazes the surface (incidence cosine below
+/// options.min_sample_cos, unless options.screened_per_view), whose print is not compared.
 /// `n` is the unit normal the shading is taken from (a pose's own surface normal).
 std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
                                       const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                       const AppearanceOptions& options);
 
+/// Label of the model surface patch a point with unit model-frame normal `n_Model` lies on:
+/// the nearest of the 26 directions of a cube's faces, edges and corners (at most about
+/// 27 degrees away), so that a box's faces are one patch each and a curved surface is cut
+/// into patches of similar orientation. 255 for a non-finite normal.
+std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model);
+
 /// Pearson correlation of `albedo` and `intensity` (equal lengths, compensated intensities;
-/// pairs with a NaN are left out) with the evidence checks of `options`. Throws
-/// std::invalid_argument for different lengths or invalid options.
+/// pairs with a NaN are left out) with the evidence checks of `options`.
+///
+/// With `patches` (SurfacePatch labels, same length) and options.patch_contrast, the
+/// correlation is pooled over patches instead: within each patch, albedo and intensity are
+/// taken relative to the patch's means (a / mean_a - 1 against i / mean_i - 1), and patches
+/// whose albedo is uniform (stddev below min_albedo_stddev) or that have fewer than
+/// min_patch_points pairs are left out. The shading compensation assumes the light at the
+/// sensor, while a structured-light projector sits a baseline beside it, so each face keeps
+/// a brightness factor of its own; relative to its own mean it cancels. And a uniform face
+/// (a plain top) shows only shading residue: left in, it dilutes the print the other faces
+/// show, and a true pose can read as contradicted.
+/// Throws std::invalid_argument for different lengths or invalid options.
 AppearanceScore CorrelateAppearance(const std::vector<float>& albedo,
                                     const std::vector<float>& intensity,
-                                    const AppearanceOptions& options = {});
+                                    const AppearanceOptions& options = {},
+                                    const std::vector<std::uint8_t>* patches = nullptr);
 
 /// Points with outward face normals sampled uniformly over the mesh surface, exactly the
 /// points of SampleMeshSurface (templates.h) for the same spacing and seed, with the mesh's

@@ -1,5 +1,7 @@
 #include "services/detector/core/model.h"
 
+#include "services/detector/core/appearance.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -376,6 +378,11 @@ void ObjectModel::Finish() {
         static_cast<float>(std::sqrt(std::max(0.0, sum_sq / n - (sum / n) * (sum / n))));
   }
   fine_tree_ = KdTree(fine_.points);
+  fine_patches_.clear();
+  fine_patches_.reserve(fine_.size());
+  for (std::size_t i = 0; i < fine_.size(); ++i) {
+    fine_patches_.push_back(fine_.has_normals() ? SurfacePatch(fine_.normals[i]) : 255);
+  }
   symmetries_ = SymmetryRotations(options_.symmetry, options_.cylinder_symmetry_steps);
 }
 

@@ -120,6 +120,9 @@ class ObjectModel final {
   float albedo_stddev() const { return albedo_stddev_; }
   /// Search tree over fine_cloud().points (albedo look-ups at model-frame positions).
   const KdTree& fine_tree() const { return fine_tree_; }
+  /// SurfacePatch (appearance.h) of each fine_cloud() normal: the faces the appearance
+  /// comparison takes apart.
+  const std::vector<std::uint8_t>& fine_patches() const { return fine_patches_; }
   /// SymmetryRotations(options().symmetry, options().cylinder_symmetry_steps).
   const std::vector<Eigen::Isometry3d>& symmetries() const { return symmetries_; }
 
@@ -138,6 +141,7 @@ class ObjectModel final {
   PpfTable table_;
   float albedo_stddev_ = 0.0f;
   KdTree fine_tree_;
+  std::vector<std::uint8_t> fine_patches_;
   std::vector<Eigen::Isometry3d> symmetries_;
 };
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -102,6 +103,7 @@ geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel
     Eigen::Vector3d n_sum = Eigen::Vector3d::Zero();
     Eigen::Vector3d c_sum = Eigen::Vector3d::Zero();
     double i_sum = 0.0;
+    int i_count = 0;
     while (e < keyed.size() && keyed[e].first == keyed[b].first) {
       const std::uint32_t i = keyed[e].second;
       p_sum += cloud.points[i].cast<double>();
@@ -109,7 +111,10 @@ geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel
       if (cloud.has_colors()) {
         c_sum += Eigen::Vector3d(cloud.colors[i][0], cloud.colors[i][1], cloud.colors[i][2]);
       }
-      if (cloud.has_intensities()) i_sum += cloud.intensities[i];
+      if (cloud.has_intensities() && std::isfinite(cloud.intensities[i])) {
+        i_sum += cloud.intensities[i];
+        ++i_count;
+      }
       ++e;
     }
     const double count = static_cast<double>(e - b);
@@ -128,7 +133,11 @@ geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel
                             static_cast<std::uint8_t>(std::lround(c.y())),
                             static_cast<std::uint8_t>(std::lround(c.z()))});
     }
-    if (cloud.has_intensities()) out.intensities.push_back(static_cast<float>(i_sum / count));
+    if (cloud.has_intensities()) {
+      // NaN intensities (not measurable there) are left out; none measured stays NaN.
+      out.intensities.push_back(i_count > 0 ? static_cast<float>(i_sum / i_count)
+                                            : std::numeric_limits<float>::quiet_NaN());
+    }
     b = e;
   }
   FinishUnorganized(&out);

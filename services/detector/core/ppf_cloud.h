@@ -33,7 +33,8 @@ void CheckCloudChannels(const geometry::PointCloud& cloud, const char* what);
 geometry::PointCloud RemoveInvalidPoints(const geometry::PointCloud& cloud);
 
 /// One point per occupied voxel of edge `voxel_m` (metres, > 0): the centroid of the voxel's
-/// points and, when the cloud has normals, their normalised mean. Voxels are ordered by their
+/// points and, when the cloud has normals, their normalised mean (intensities: the mean of
+/// the finite ones, NaN when none is). Voxels are ordered by their
 /// integer coordinates, so the result is deterministic. Non-finite points are ignored.
 /// Throws std::invalid_argument when voxel_m <= 0 or the cloud spans more than 2^20 voxels
 /// along an axis.

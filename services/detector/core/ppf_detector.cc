@@ -241,8 +241,10 @@ AppearanceScore ScoreAppearanceSamples(const ObjectModel& model, const Appearanc
   const float tau_sq = tau_m * tau_m;
   const geometry::PointCloud& fine = model.fine_cloud();
   std::vector<float> albedo, intensity;
+  std::vector<std::uint8_t> patches;
   albedo.reserve(samples.p_S.size());
   intensity.reserve(samples.p_S.size());
+  patches.reserve(samples.p_S.size());
   double off = 0.0;
   for (std::size_t k = 0; k < samples.p_S.size(); ++k) {
     const Eigen::Vector3f q = X_ModelScene * samples.p_S[k];
@@ -257,11 +259,12 @@ AppearanceScore ScoreAppearanceSamples(const ObjectModel& model, const Appearanc
     }
     albedo.push_back(fine.intensities[i]);
     intensity.push_back(samples.intensity[k]);
+    patches.push_back(model.fine_patches()[i]);
   }
   if (off_surface != nullptr) {
     *off_surface = samples.p_S.empty() ? 0.0 : off / static_cast<double>(samples.p_S.size());
   }
-  return CorrelateAppearance(albedo, intensity, options);
+  return CorrelateAppearance(albedo, intensity, options, &patches);
 }
 
 float AppearanceLookupDistance(const ObjectModel& model, float distance_m) {

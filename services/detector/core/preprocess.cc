@@ -491,6 +491,7 @@ PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_size_m, const Cl
     double intensity = 0.0;
     int count = 0;
     int normal_count = 0;
+    int intensity_count = 0;
     std::size_t first = 0;
   };
   const auto key_of = [&](const Eigen::Vector3f& p) {
@@ -516,7 +517,10 @@ PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_size_m, const Cl
     }
     if (cloud.has_colors())
       a.rgb += Eigen::Vector3d(cloud.colors[i][0], cloud.colors[i][1], cloud.colors[i][2]);
-    if (cloud.has_intensities()) a.intensity += cloud.intensities[i];
+    if (cloud.has_intensities() && std::isfinite(cloud.intensities[i])) {
+      a.intensity += cloud.intensities[i];
+      ++a.intensity_count;
+    }
   }
   // Output in order of first occurrence so the result is deterministic.
   std::vector<const Accumulator*> ordered;
@@ -538,8 +542,11 @@ PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_size_m, const Cl
       out.colors.push_back({static_cast<std::uint8_t>(c[0]), static_cast<std::uint8_t>(c[1]),
                             static_cast<std::uint8_t>(c[2])});
     }
-    if (cloud.has_intensities())
-      out.intensities.push_back(static_cast<float>(a->intensity / a->count));
+    if (cloud.has_intensities()) {
+      // NaN intensities (not measurable there) are left out; none measured stays NaN.
+      out.intensities.push_back(
+          a->intensity_count > 0 ? static_cast<float>(a->intensity / a->intensity_count) : kNaN);
+    }
   }
   out.width = static_cast<std::uint32_t>(out.points.size());
   out.height = 1;

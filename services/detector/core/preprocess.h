@@ -146,7 +146,8 @@ PlaneRemovalResult RemoveBoxFloor(const geometry::PointCloud& cloud, const Orien
                                   const FloorRemovalOptions& options = {});
 
 /// Voxel-grid down-sampling: one point per occupied voxel at the mean of its points (normals
-/// averaged and re-normalised, intensities and colours averaged). The result is unorganised.
+/// averaged and re-normalised, colours averaged, intensities averaged over the finite ones
+/// and NaN where none is). The result is unorganised.
 /// Throws std::invalid_argument on leaf_size_m <= 0 or an invalid cloud.
 geometry::PointCloud VoxelDownsample(const geometry::PointCloud& cloud, double leaf_size_m,
                                      const CloudLimits& limits = {});

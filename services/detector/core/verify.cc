@@ -133,11 +133,13 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   const Eigen::Isometry3f X_SensorItem =
       (scene.X_BaseSensor().inverse() * X_BaseItem).cast<float>();
   geometry::PointCloud sub;
+  std::vector<std::uint8_t> sub_patches;  // SurfacePatch of each model normal
   for (std::size_t i = 0; i < model.size(); i += stride) {
     if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
     sub.points.push_back(X_SensorItem * model.points[i]);
     sub.normals.push_back(X_SensorItem.linear() * model.normals[i]);
     if (model.has_intensities()) sub.intensities.push_back(model.intensities[i]);
+    sub_patches.push_back(SurfacePatch(model.normals[i]));
   }
   sub.width = static_cast<std::uint32_t>(sub.points.size());
   VerifyResult result;
@@ -179,6 +181,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   double sum_sq = 0.0;
   const bool appearance = sub.has_intensities() && !impl.intensities.empty();
   std::vector<float> albedo, intensity;
+  std::vector<std::uint8_t> patches;
   std::vector<Eigen::Vector3f> p_SensorMatched;  // scene points of the albedo samples
   for (const Projected& pr : front) {
     const Eigen::Vector3f& p = sub.points[pr.index];
@@ -204,6 +207,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
                              options.appearance);
         if (!sample) continue;
         albedo.push_back(sub.intensities[pr.index]);
+        patches.push_back(sub_patches[pr.index]);
         p_SensorMatched.push_back(q);
         intensity.push_back(*sample);
       }
@@ -229,37 +233,42 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   }
   result.X_BaseItem_appearance = X_BaseItem;
   if (appearance) {
-    result.appearance = CorrelateAppearance(albedo, intensity, options.appearance);
+    result.appearance = CorrelateAppearance(albedo, intensity, options.appearance, &patches);
     if (options.symmetries.size() > 1 && !p_SensorMatched.empty()) {
       // The albedo a turned model shows at each matched scene point: its point nearest to
       // the scene point, in the item frame.
       std::vector<Eigen::Vector3f> p_ItemModel;
       std::vector<float> albedo_model;
+      std::vector<std::uint8_t> patch_model;
       for (std::size_t i = 0; i < model.size(); i += stride) {
         if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
         p_ItemModel.push_back(model.points[i]);
         albedo_model.push_back(model.intensities[i]);
+        patch_model.push_back(SurfacePatch(model.normals[i]));
       }
       const KdTree model_tree(p_ItemModel);
       const float lookup_sq =
           static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
                              std::max(options.distance_tolerance_m, 2.0 * spacing));
       std::vector<float> turned_albedo, turned_intensity;
+      std::vector<std::uint8_t> turned_patches;
       for (std::size_t s = 1; s < options.symmetries.size(); ++s) {
         const Eigen::Isometry3d X_BaseTurned = X_BaseItem * options.symmetries[s];
         const Eigen::Isometry3f X_ItemSensor =
             (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
         turned_albedo.clear();
         turned_intensity.clear();
+        turned_patches.clear();
         for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
           const std::int32_t i =
               model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
           if (i == KdTree::kNone) continue;
           turned_albedo.push_back(albedo_model[i]);
           turned_intensity.push_back(intensity[k]);
+          turned_patches.push_back(patch_model[i]);
         }
-        const AppearanceScore a =
-            CorrelateAppearance(turned_albedo, turned_intensity, options.appearance);
+        const AppearanceScore a = CorrelateAppearance(turned_albedo, turned_intensity,
+                                                      options.appearance, &turned_patches);
         if (a.defined &&
             (!result.appearance.defined || a.correlation > result.appearance.correlation)) {
           result.appearance = a;

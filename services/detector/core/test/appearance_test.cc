@@ -176,6 +176,99 @@ TEST(CorrelateAppearanceTest, RejectsMismatchedLengthsAndBadOptions) {
   EXPECT_THROW(CorrelateAppearance({}, {}, options), std::invalid_argument);
 }
 
+TEST(SurfacePatchTest, BoxFacesArePatchesOfTheirOwnAndNearNormalsShareOne) {
+  std::vector<std::uint8_t> faces;
+  for (int axis = 0; axis < 3; ++axis) {
+    for (float sign : {1.0f, -1.0f}) {
+      faces.push_back(SurfacePatch(sign * Eigen::Vector3f::Unit(axis)));
+    }
+  }
+  for (std::size_t a = 0; a < faces.size(); ++a) {
+    EXPECT_NE(faces[a], 255);
+    for (std::size_t b = a + 1; b < faces.size(); ++b) EXPECT_NE(faces[a], faces[b]);
+  }
+  const Eigen::Vector3f tilted =
+      Eigen::AngleAxisf(0.2f, Eigen::Vector3f::UnitX()) * Eigen::Vector3f::UnitZ();
+  EXPECT_EQ(SurfacePatch(tilted), SurfacePatch(Eigen::Vector3f::UnitZ()));
+  EXPECT_EQ(SurfacePatch(Eigen::Vector3f::Constant(std::nanf(""))), 255);
+}
+
+// Two printed faces that the light reaches differently (each face's intensity is its albedo
+// times a factor of its own, as when the projector sits beside the camera) and a plain face
+// whose intensity varies only with shading residue. One correlation over all of them mixes
+// the faces' brightness levels into the print and lets the plain face dilute it; patch
+// contrasts compare each face with itself and leave the plain one out.
+TEST(PatchContrastTest, FaceBrightnessFactorsCancelAndPlainFacesAreLeftOut) {
+  const std::uint8_t front = SurfacePatch(Eigen::Vector3f::UnitX());
+  const std::uint8_t side = SurfacePatch(Eigen::Vector3f::UnitY());
+  const std::uint8_t top = SurfacePatch(Eigen::Vector3f::UnitZ());
+  std::mt19937 rng(3);
+  std::normal_distribution<float> residue(0.0f, 0.1f);
+  std::vector<float> albedo, intensity;
+  std::vector<std::uint8_t> patches;
+  for (int i = 0; i < 60; ++i) {
+    const float a = i % 3 == 0 ? 0.2f : 0.8f;
+    albedo.insert(albedo.end(), {a, a, 0.7f});
+    // The side face is lit a third as strongly as the front: its light parts read darker
+    // than the front's dark ones.
+    intensity.insert(intensity.end(), {a, 0.15f * a, 0.7f * (1.0f + residue(rng))});
+    patches.insert(patches.end(), {front, side, top});
+  }
+  AppearanceOptions pooled;
+  pooled.patch_contrast = false;
+  const AppearanceScore one = CorrelateAppearance(albedo, intensity, pooled, &patches);
+  const AppearanceScore per_patch = CorrelateAppearance(albedo, intensity, {}, &patches);
+  ASSERT_TRUE(one.defined);
+  ASSERT_TRUE(per_patch.defined);
+  EXPECT_LT(one.correlation, 0.7);
+  EXPECT_NEAR(per_patch.correlation, 1.0, 1e-6);
+  EXPECT_EQ(per_patch.points, 120);  // the plain top is not compared
+  // A third of each printed face is dark: about 80 of the 120 points carry the print.
+  EXPECT_GT(per_patch.contrast_points, 60.0);
+  EXPECT_LT(per_patch.contrast_points, 120.0);
+
+  // Without patches the same call is the plain correlation; a plain face alone is no
+  // evidence; labels must match the pairs.
+  EXPECT_DOUBLE_EQ(CorrelateAppearance(albedo, intensity).correlation, one.correlation);
+  const std::vector<float> top_albedo(60, 0.7f), top_intensity(60, 0.5f);
+  const std::vector<std::uint8_t> top_patches(60, top);
+  EXPECT_FALSE(CorrelateAppearance(top_albedo, top_intensity, {}, &top_patches).defined);
+  const std::vector<std::uint8_t> short_labels(3, front);
+  EXPECT_THROW(CorrelateAppearance(albedo, intensity, {}, &short_labels), std::invalid_argument);
+  AppearanceOptions bad;
+  bad.min_patch_points = 1;
+  EXPECT_THROW(CorrelateAppearance(albedo, intensity, bad, &patches), std::invalid_argument);
+}
+
+// A point of a floor-lying face seen from a low view at a grazing angle and from a higher
+// side view: the side view's intensity, re-expressed for the low view's sensor, divides back
+// to the side view's own compensated value there; the low view's is left out.
+TEST(ExpressIntensityInViewTest, ReExpressesForTheReferenceSensorAndDropsGrazingViews) {
+  const Eigen::Vector3f p(0.0f, 0.0f, 0.0f), n = Eigen::Vector3f::UnitZ();
+  const Eigen::Vector3f low(-1.0f, 0.0f, 0.15f);  // cos about 0.15
+  const Eigen::Vector3f high(-0.6f, 0.3f, 0.5f);  // cos about 0.6
+  const AppearanceOptions options;
+  const std::optional<float> side = ExpressIntensityInView(0.3f, p, n, high, low, options);
+  ASSERT_TRUE(side.has_value());
+  EXPECT_NEAR(ShadingCompensatedIntensity(*side, p, n, low, options.min_cos),
+              ShadingCompensatedIntensity(0.3f, p, n, high, options.min_cos), 1e-6);
+  EXPECT_FALSE(ExpressIntensityInView(0.3f, p, n, low, low, options).has_value());
+  EXPECT_FALSE(ExpressIntensityInView(std::nanf(""), p, n, high, low, options).has_value());
+  EXPECT_FALSE(
+      ExpressIntensityInView(0.3f, p, Eigen::Vector3f::Constant(std::nanf("")), high, low, options)
+          .has_value());
+
+  // The detector side: a sample at the low sensor's grazing angle is compared only when the
+  // cloud was screened per view, and a NaN intensity never is.
+  AppearanceOptions screened;
+  screened.screened_per_view = true;
+  EXPECT_FALSE(AppearanceSample(*side, p, n, low, options).has_value());
+  ASSERT_TRUE(AppearanceSample(*side, p, n, low, screened).has_value());
+  EXPECT_NEAR(*AppearanceSample(*side, p, n, low, screened),
+              ShadingCompensatedIntensity(0.3f, p, n, high, options.min_cos), 1e-6);
+  EXPECT_FALSE(AppearanceSample(std::nanf(""), p, n, high, screened).has_value());
+}
+
 TEST(ShadingCompensatedIntensityTest, DividesOutIncidenceAndRange) {
   const Eigen::Vector3f viewpoint = Eigen::Vector3f::Zero();
   // The same albedo seen head-on at 0.5 m and at 60 degrees incidence at 1 m.
@@ -278,8 +371,13 @@ TEST(GrazingAppearanceTest, AFaceSeenAtAGrazingAngleIsNotCompared) {
   scene_options.use_input_normals = true;
   const PpfScene scene = PreparePpfScene(scan, model, scene_options);
   const float distance = 0.5f * model.sampling_distance_m();
-  const AppearanceScore kept = MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f);
-  AppearanceOptions every_sample;
+  // One correlation over both faces (per-patch contrasts would take the slid face apart
+  // and soften its effect; see PatchContrastTest).
+  AppearanceOptions pooled;
+  pooled.patch_contrast = false;
+  const AppearanceScore kept =
+      MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f, pooled);
+  AppearanceOptions every_sample = pooled;
   every_sample.min_sample_cos = 0.0f;
   const AppearanceScore all =
       MeasureAppearance(model, scene, X_SensorItem, distance, 0.5f, every_sample);
@@ -292,8 +390,11 @@ TEST(GrazingAppearanceTest, AFaceSeenAtAGrazingAngleIsNotCompared) {
   // Verify leaves out the grazing face's samples that its z-buffer keeps.
   const PinholeCamera camera(640, 480, 600.0, 600.0, 319.5, 239.5);
   const VerificationScene verification(scan, Eigen::Isometry3d::Identity(), camera);
-  const VerifyResult verified = Verify(verification, model.icp_cloud(), X_SensorItem);
-  VerifyOptions every;
+  VerifyOptions verify_pooled;
+  verify_pooled.appearance = pooled;
+  const VerifyResult verified =
+      Verify(verification, model.icp_cloud(), X_SensorItem, verify_pooled);
+  VerifyOptions every = verify_pooled;
   every.appearance.min_sample_cos = 0.0f;
   const VerifyResult verified_all = Verify(verification, model.icp_cloud(), X_SensorItem, every);
   ASSERT_TRUE(verified.appearance.defined);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -33,6 +34,18 @@ void AddVisibleSphere(const Eigen::Vector3d& centre, double radius,
 // Two balls of the searched radius, a larger ball and a table: both balls are found, the
 // better-supported one first, with their centres to a fraction of a millimetre; what the larger
 // ball and the table offer (a ring of the larger ball) comes after them, with far less support.
+TEST(VoxelAverageTest, AveragesFiniteIntensitiesOnly) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  geometry::PointCloud cloud;
+  cloud.points = {{0.001f, 0.001f, 0.001f}, {0.002f, 0.002f, 0.002f}, {0.011f, 0.001f, 0.001f}};
+  cloud.intensities = {nan, 0.6f, nan};
+  cloud.width = 3;
+  const geometry::PointCloud out = VoxelAverage(cloud, 0.01f);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_FLOAT_EQ(out.intensities[0], 0.6f);
+  EXPECT_TRUE(std::isnan(out.intensities[1]));
+}
+
 TEST(FindSpheresTest, FindsBallsOfTheRadiusAmongOtherSurfaces) {
   const double radius = 0.037;
   const Eigen::Vector3d viewpoint(0.0, 0.0, 0.6);

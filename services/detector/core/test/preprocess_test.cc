@@ -300,6 +300,14 @@ TEST(PreprocessTest, VoxelDownsampleAveragesPerVoxel) {
   EXPECT_FLOAT_EQ(out.intensities[0], 0.3f);
   EXPECT_FLOAT_EQ(out.intensities[1], 1.0f);
   EXPECT_THROW(VoxelDownsample(c, 0.0), std::invalid_argument);
+
+  // A NaN intensity (not measurable there) is left out of its voxel's mean; a voxel with
+  // no finite one stays NaN.
+  c.intensities = {kNaN, 0.4f, kNaN, 0.0f};
+  const geometry::PointCloud partly = VoxelDownsample(c, 0.01);
+  ASSERT_EQ(partly.size(), 2u);
+  EXPECT_FLOAT_EQ(partly.intensities[0], 0.4f);
+  EXPECT_TRUE(std::isnan(partly.intensities[1]));
 }
 
 TEST(PreprocessTest, NormalsOfASphereFaceTheViewpointOrOutward) {
