@@ -14,7 +14,8 @@
 //                      [--floor_band=true|false]
 //                      [--views=1|3] [--view_offset_m=0.15] [--side_height_m=0.25]
 //                      [--appearance=true|false|rank] [--appearance_search=true|false]
-//                      [--cache_dir=DIR]
+//                      [--patch_contrast=true|false] [--min_print=F]
+//                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
@@ -22,9 +23,14 @@
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
-// and detects in the merged cloud (MergeViews). --appearance=false ranks and accepts poses
+// and detects in the merged cloud (MergeViews; its print screened per view, so the detector
+// runs with AppearanceOptions::screened_per_view). --appearance=false ranks and accepts poses
 // without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.
-// --appearance_search=false leaves out PPF's print-guided pose search (SearchAppearancePose).
+// --appearance_search=false leaves out PPF's print-guided pose search (SearchAppearancePose);
+// --search_step_m and --search_levels set its first step and number of step halvings.
+// --patch_contrast=false compares the print as one correlation over all faces instead of
+// per surface patch (AppearanceOptions::patch_contrast); --min_print sets the correlation
+// below which verification takes a print as contradicting the pose (halving its score).
 // Models are built from the current code into --cache_dir, by default a new temporary folder
 // removed at the end: a cache left by other code would measure that code's models.
 #include <algorithm>
@@ -127,6 +133,10 @@ Args Parse(int argc, char** argv) {
         ppf.min_appearance_correlation = -1.0f;
         ppf.appearance_weight = 0.0f;
       }
+    } else if (auto v = value("--search_step_m")) {
+      args.detection.estimators.ppf.appearance_search.start_step_m = std::stod(*v);
+    } else if (auto v = value("--search_levels")) {
+      args.detection.estimators.ppf.appearance_search.levels = std::stoi(*v);
     } else if (auto v = value("--min_print")) {
       // Verification: a print correlating below this contradicts the pose (halves its score).
       args.detection.estimators.refine.verify.min_appearance_correlation = std::stod(*v);
