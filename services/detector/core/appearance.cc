@@ -90,23 +90,22 @@ std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector
 
 std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model) {
   if (!n_Model.allFinite()) return 255;
-  // Direction (sx, sy, sz) in {-1, 0, 1}^3 \ 0: compare n against each normalised one.
-  std::uint8_t best = 255;
-  float best_dot = -2.0f;
-  std::uint8_t label = 0;
-  for (int x = -1; x <= 1; ++x) {
-    for (int y = -1; y <= 1; ++y) {
-      for (int z = -1; z <= 1; ++z) {
-        if (x == 0 && y == 0 && z == 0) continue;
-        const Eigen::Vector3f d = Eigen::Vector3f(x, y, z).normalized();
-        const float dot = n_Model.dot(d);
-        if (dot > best_dot) {
-          best_dot = dot;
-          best = label;
+  // The 26 directions (x, y, z) in {-1, 0, 1}^3 \ 0, normalised, in a fixed order.
+  static const std::array<Eigen::Vector3f, 26> kDirections = [] {
+    std::array<Eigen::Vector3f, 26> d;
+    std::size_t k = 0;
+    for (int x = -1; x <= 1; ++x) {
+      for (int y = -1; y <= 1; ++y) {
+        for (int z = -1; z <= 1; ++z) {
+          if (x != 0 || y != 0 || z != 0) d[k++] = Eigen::Vector3f(x, y, z).normalized();
         }
-        ++label;
       }
     }
+    return d;
+  }();
+  std::uint8_t best = 0;
+  for (std::uint8_t k = 1; k < kDirections.size(); ++k) {
+    if (n_Model.dot(kDirections[k]) > n_Model.dot(kDirections[best])) best = k;
   }
   return best;
 }
@@ -137,7 +136,7 @@ AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
   std::array<bool, 256> kept{};
   for (std::size_t g = 0; g < patch.size(); ++g) {
     const Patch& p = patch[g];
-    if (p.n < options.min_patch_points || p.n == 0) continue;
+    if (p.n < options.min_patch_points) continue;
     const double mean_a = p.sa / p.n;
     const double var_a = std::max(0.0, p.saa / p.n - mean_a * mean_a);
     kept[g] = std::sqrt(var_a) >= options.min_albedo_stddev && mean_a > 0.0 && p.si > 0.0;
@@ -160,6 +159,8 @@ AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
   const double n = static_cast<double>(out.points);
   out.albedo_stddev = std::sqrt(saa / n);
   if (sx4 > 0.0) out.contrast_points = sxx * sxx / sx4;
+  // With min_albedo_stddev 0 a kept patch may be uniform: no contrast, no evidence.
+  if (!(sxx > 0.0) || !(syy > 0.0)) return out;
   if (std::sqrt(syy / n) < options.min_intensity_rel_stddev) return out;
   out.defined = true;
   out.correlation = std::clamp(sxy / std::sqrt(sxx * syy), -1.0, 1.0);

@@ -235,6 +235,9 @@ TEST(PatchContrastTest, FaceBrightnessFactorsCancelAndPlainFacesAreLeftOut) {
   EXPECT_FALSE(CorrelateAppearance(top_albedo, top_intensity, {}, &top_patches).defined);
   const std::vector<std::uint8_t> short_labels(3, front);
   EXPECT_THROW(CorrelateAppearance(albedo, intensity, {}, &short_labels), std::invalid_argument);
+  AppearanceOptions any_patch;
+  any_patch.min_albedo_stddev = 0.0f;
+  EXPECT_FALSE(CorrelateAppearance(top_albedo, top_intensity, any_patch, &top_patches).defined);
   AppearanceOptions bad;
   bad.min_patch_points = 1;
   EXPECT_THROW(CorrelateAppearance(albedo, intensity, bad, &patches), std::invalid_argument);
