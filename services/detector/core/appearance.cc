@@ -88,11 +88,16 @@ std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector
          Compensate(1.0f, IncidenceAt(p, n, reference), options.min_cos);
 }
 
+namespace {
+// SurfacePatch's labels: 0 to kSurfacePatches - 1.
+constexpr std::size_t kSurfacePatches = 26;
+}  // namespace
+
 std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model) {
   if (!n_Model.allFinite()) return 255;
   // The 26 directions (x, y, z) in {-1, 0, 1}^3 \ 0, normalised, in a fixed order.
-  static const std::array<Eigen::Vector3f, 26> kDirections = [] {
-    std::array<Eigen::Vector3f, 26> d;
+  static const std::array<Eigen::Vector3f, kSurfacePatches> kDirections = [] {
+    std::array<Eigen::Vector3f, kSurfacePatches> d;
     std::size_t k = 0;
     for (int x = -1; x <= 1; ++x) {
       for (int y = -1; y <= 1; ++y) {
@@ -121,9 +126,10 @@ AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
     int n = 0;
     double sa = 0.0, si = 0.0, saa = 0.0;
   };
-  std::array<Patch, 256> patch{};
+  // Other labels (255: no normal) are left out.
+  std::array<Patch, kSurfacePatches> patch{};
   const auto usable = [&](std::size_t k) {
-    return std::isfinite(albedo[k]) && std::isfinite(intensity[k]) && patches[k] != 255;
+    return std::isfinite(albedo[k]) && std::isfinite(intensity[k]) && patches[k] < kSurfacePatches;
   };
   for (std::size_t k = 0; k < albedo.size(); ++k) {
     if (!usable(k)) continue;
@@ -133,7 +139,7 @@ AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
     p.si += intensity[k];
     p.saa += static_cast<double>(albedo[k]) * albedo[k];
   }
-  std::array<bool, 256> kept{};
+  std::array<bool, kSurfacePatches> kept{};
   for (std::size_t g = 0; g < patch.size(); ++g) {
     const Patch& p = patch[g];
     if (p.n < options.min_patch_points) continue;

@@ -106,7 +106,8 @@ std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model);
 /// Pearson correlation of `albedo` and `intensity` (equal lengths, compensated intensities;
 /// pairs with a NaN are left out) with the evidence checks of `options`.
 ///
-/// With `patches` (SurfacePatch labels, same length) and options.patch_contrast, the
+/// With `patches` (SurfacePatch labels, same length; pairs with another label are left
+/// out) and options.patch_contrast, the
 /// correlation is pooled over patches instead: within each patch, albedo and intensity are
 /// taken relative to the patch's means (a / mean_a - 1 against i / mean_i - 1), and patches
 /// whose albedo is uniform (stddev below min_albedo_stddev) or that have fewer than

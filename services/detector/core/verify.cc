@@ -236,15 +236,13 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     result.appearance = CorrelateAppearance(albedo, intensity, options.appearance, &patches);
     if (options.symmetries.size() > 1 && !p_SensorMatched.empty()) {
       // The albedo a turned model shows at each matched scene point: its point nearest to
-      // the scene point, in the item frame.
+      // the scene point, in the item frame. The points are those of `sub` (same stride and
+      // filter), so their albedo and patch are sub's.
       std::vector<Eigen::Vector3f> p_ItemModel;
-      std::vector<float> albedo_model;
-      std::vector<std::uint8_t> patch_model;
+      p_ItemModel.reserve(sub.size());
       for (std::size_t i = 0; i < model.size(); i += stride) {
         if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
         p_ItemModel.push_back(model.points[i]);
-        albedo_model.push_back(model.intensities[i]);
-        patch_model.push_back(SurfacePatch(model.normals[i]));
       }
       const KdTree model_tree(p_ItemModel);
       const float lookup_sq =
@@ -263,9 +261,9 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
           const std::int32_t i =
               model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
           if (i == KdTree::kNone) continue;
-          turned_albedo.push_back(albedo_model[i]);
+          turned_albedo.push_back(sub.intensities[i]);
           turned_intensity.push_back(intensity[k]);
-          turned_patches.push_back(patch_model[i]);
+          turned_patches.push_back(sub_patches[i]);
         }
         const AppearanceScore a = CorrelateAppearance(turned_albedo, turned_intensity,
                                                       options.appearance, &turned_patches);
