@@ -39,7 +39,6 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
                                        [](const BinScan& v) { return v.cloud.has_intensities(); });
   const bool colors = std::all_of(views.begin(), views.end(),
                                   [](const BinScan& v) { return v.cloud.has_colors(); });
-  const Eigen::Vector3f reference = merged.X_BaseCamera.translation().cast<float>();
   const detector::AppearanceOptions appearance;
   for (const BinScan& v : views) {
     if (v.bin != merged.bin) {
@@ -52,19 +51,22 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
       merged.cloud.points.push_back(p);
       if (normals) merged.cloud.normals.push_back(v.cloud.normals[i]);
       if (intensities) {
-        // The detector divides the shading seen from the first view's sensor out of every
-        // intensity; each view's is re-expressed as that sensor would have measured it, and
-        // dropped (NaN) where its own view grazed the surface (ExpressIntensityInView).
+        // Each view's shading divided out by its own sensor's position, and NaN where that
+        // view grazed the surface (CompensatedViewIntensity; detect with screened_per_view).
         float intensity = std::numeric_limits<float>::quiet_NaN();
         if (normals) {
-          intensity =
-              detector::ExpressIntensityInView(v.cloud.intensities[i], p, v.cloud.normals[i],
-                                               viewpoint, reference, appearance)
-                  .value_or(intensity);
+          intensity = detector::CompensatedViewIntensity(v.cloud.intensities[i], p,
+                                                         v.cloud.normals[i], viewpoint, appearance)
+                          .value_or(intensity);
         }
         merged.cloud.intensities.push_back(intensity);
       }
       if (colors) merged.cloud.colors.push_back(v.cloud.colors[i]);
+    }
+    if (&v != &views.front()) {
+      merged.other_sensors.push_back(detector::SensorView{v.X_BaseCamera, v.camera});
+      merged.other_sensors.insert(merged.other_sensors.end(), v.other_sensors.begin(),
+                                  v.other_sensors.end());
     }
     merged.render_s += v.render_s;
     merged.process_s += v.process_s;
@@ -80,7 +82,10 @@ detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLib
                                   const Eigen::Isometry3d& X_BaseItem,
                                   const BinDetectionOptions& options) {
   const geometry::PointCloud region = Region(scan, options);
-  detector::SceneContext context(region, scan.X_BaseCamera, scan.camera);
+  detector::SceneContextOptions context_options;
+  context_options.remove_dominant_plane = !options.remove_floor;
+  if (options.multi_sensor_verification) context_options.other_sensors = scan.other_sensors;
+  detector::SceneContext context(region, scan.X_BaseCamera, scan.camera, context_options);
   return detector::RefineAndVerify(*library->Get(item), context, detector::Method::kPpf, X_BaseItem,
                                    /*refine=*/false, options.estimators.refine);
 }
@@ -116,6 +121,7 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
 
   detector::SceneContextOptions context_options;
   context_options.remove_dominant_plane = !options.remove_floor;
+  if (options.multi_sensor_verification) context_options.other_sensors = scan.other_sensors;
   auto context =
       std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera, camera, context_options);
   detector::ObjectConfig config = library->ConfigFor(item);

@@ -28,6 +28,9 @@ struct BinDetectionOptions {
   /// machine loaded by other work, a factor of the load keeps the budget's share of the
   /// search as on a quiet one.
   double budget_scale = 1.0;
+  /// A scan merged from several views is verified from every view's sensor
+  /// (SceneContextOptions::other_sensors), not from the first one's alone.
+  bool multi_sensor_verification = true;
   /// The estimators' options (PPF per-segment hypotheses, sphere fits, ...).
   detector::EstimatorOptions estimators;
 };
@@ -35,14 +38,13 @@ struct BinDetectionOptions {
 /// One scan of the bin made of several views (the paper scans each bin from three angles):
 /// the finite points of every view's cloud, with their channels, in one unorganised cloud in
 /// the base frame; the sensor pose and intrinsics, bin box and items are the first view's,
-/// the timings the sums. The detector takes a cloud's intensities as lit and seen from its
-/// one sensor pose (ShadingCompensatedIntensity), so the other views' intensities are
-/// re-expressed as the first view's sensor would have measured the same surface, and NaN
-/// where their own view grazed it (detector::ExpressIntensityInView; detect with
-/// AppearanceOptions::screened_per_view). The detector then
-/// has no organised image (no SIFT, intrinsics not fitted: the first view's are used for
-/// verification and range templates). Throws std::invalid_argument when `views` is empty or the
-/// views disagree on the bin.
+/// the other views' sensors in `other_sensors` (verification judges visibility from all of
+/// them), the timings the sums. Each view's intensities have its own shading divided out,
+/// and are NaN where that view grazed the surface (detector::CompensatedViewIntensity;
+/// detect with AppearanceOptions::screened_per_view). The detector then has no organised
+/// image (no SIFT, intrinsics not fitted: the first view's are used for verification and
+/// range templates). Throws std::invalid_argument when `views` is empty or the views
+/// disagree on the bin.
 BinScan MergeViews(const std::vector<BinScan>& views);
 
 /// One full detection call and what it saw.

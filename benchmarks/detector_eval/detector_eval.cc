@@ -11,7 +11,7 @@
 // Usage: detector_eval [--layouts=1,2,3] [--seed=N] [--per_method=true|false]
 //                      [--bins=A,B,...] [--markdown=FILE] [--budget_scale=F]
 //                      [--ppf_segments=true|false] [--sphere_fit=true|false]
-//                      [--floor_band=true|false]
+//                      [--floor_band=true|false] [--multi_sensor=true|false]
 //                      [--views=1|3] [--view_offset_m=0.15] [--side_height_m=0.25]
 //                      [--appearance=true|false|rank] [--appearance_search=true|false]
 //                      [--patch_contrast=true|false] [--min_print=F]
@@ -150,6 +150,8 @@ Args Parse(int argc, char** argv) {
       }
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
+    } else if (auto v = value("--multi_sensor")) {
+      args.detection.multi_sensor_verification = ParseBool("--multi_sensor", *v);
     } else if (auto v = value("--floor_band")) {
       // false: the wall margin spares the bin's bottom face; only the measured floor goes.
       if (!ParseBool("--floor_band", *v)) args.detection.wall_faces &= ~detector::kFaceMinZ;

@@ -34,23 +34,23 @@ TEST(MergeViewsTest, KeepsEveryFinitePointWithItsChannelsInOneUnorganisedCloud) 
   ASSERT_EQ(merged.cloud.normals.size(), 9u);
   ASSERT_EQ(merged.cloud.intensities.size(), 9u);
   EXPECT_FLOAT_EQ(merged.cloud.points[3].x(), 0.5f);
-  // The first view's intensities as measured; the others re-expressed so that dividing out
-  // the shading seen from the first view's sensor gives what their own sensor's would.
-  EXPECT_FLOAT_EQ(merged.cloud.intensities[0], 0.1f);
+  // Every view's intensities compensated for its own shading (all points face their
+  // sensors at least as steeply as min_sample_cos).
   const detector::AppearanceOptions appearance;
   const Eigen::Vector3f n = Eigen::Vector3f::UnitZ();
-  for (std::size_t i = 3; i < 9; ++i) {
-    const float own_x = i < 6 ? 0.5f : -0.5f;
+  for (std::size_t i = 0; i < 9; ++i) {
+    const float own_x = i < 3 ? 0.0f : (i < 6 ? 0.5f : -0.5f);
     const float measured = 0.1f * static_cast<float>(i % 3 + 1);
-    EXPECT_FLOAT_EQ(
-        detector::ShadingCompensatedIntensity(merged.cloud.intensities[i], merged.cloud.points[i],
-                                              n, Eigen::Vector3f::Zero(), appearance.min_cos),
-        detector::ShadingCompensatedIntensity(measured, merged.cloud.points[i], n,
-                                              Eigen::Vector3f(own_x, 0.0f, 0.0f),
-                                              appearance.min_cos))
+    EXPECT_FLOAT_EQ(merged.cloud.intensities[i],
+                    detector::ShadingCompensatedIntensity(measured, merged.cloud.points[i], n,
+                                                          Eigen::Vector3f(own_x, 0.0f, 0.0f),
+                                                          appearance.min_cos))
         << i;
   }
-  EXPECT_LT(merged.cloud.intensities[3], 0.1f);  // seen more obliquely from the first view
+  // The other views' sensors, for verification from every view.
+  ASSERT_EQ(merged.other_sensors.size(), 2u);
+  EXPECT_DOUBLE_EQ(merged.other_sensors[0].X_BaseSensor.translation().x(), 0.5);
+  EXPECT_DOUBLE_EQ(merged.other_sensors[1].X_BaseSensor.translation().x(), -0.5);
   // The first view's sensor; timings summed.
   EXPECT_DOUBLE_EQ(merged.X_BaseCamera.translation().x(), 0.0);
   EXPECT_DOUBLE_EQ(merged.render_s, 6.0);

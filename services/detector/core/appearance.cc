@@ -71,21 +71,20 @@ std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
                                       const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                       const AppearanceOptions& options) {
   if (!std::isfinite(intensity)) return std::nullopt;
+  if (options.screened_per_view) return intensity;
   const Incidence incidence = IncidenceAt(p, n, viewpoint);
-  if (!options.screened_per_view && incidence.cos < options.min_sample_cos) return std::nullopt;
+  if (incidence.cos < options.min_sample_cos) return std::nullopt;
   return Compensate(intensity, incidence, options.min_cos);
 }
 
-std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector3f& p,
-                                            const Eigen::Vector3f& n,
-                                            const Eigen::Vector3f& viewpoint,
-                                            const Eigen::Vector3f& reference,
-                                            const AppearanceOptions& options) {
+std::optional<float> CompensatedViewIntensity(float intensity, const Eigen::Vector3f& p,
+                                              const Eigen::Vector3f& n,
+                                              const Eigen::Vector3f& viewpoint,
+                                              const AppearanceOptions& options) {
   if (!std::isfinite(intensity) || !n.allFinite()) return std::nullopt;
   const Incidence own = IncidenceAt(p, n, viewpoint);
   if (own.cos < options.min_sample_cos) return std::nullopt;
-  return Compensate(intensity, own, options.min_cos) /
-         Compensate(1.0f, IncidenceAt(p, n, reference), options.min_cos);
+  return Compensate(intensity, own, options.min_cos);
 }
 
 namespace {
@@ -146,6 +145,23 @@ AppearanceScore CorrelatePatchContrasts(const std::vector<float>& albedo,
     const double mean_a = p.sa / p.n;
     const double var_a = std::max(0.0, p.saa / p.n - mean_a * mean_a);
     kept[g] = std::sqrt(var_a) >= options.min_albedo_stddev && mean_a > 0.0 && p.si > 0.0;
+  }
+  // A patch's print is carried by the points whose albedo differs from its mean: the
+  // participation ratio (sum x^2)^2 / sum x^4 of its relative contrasts counts them. A few
+  // dark points on a plain face (a corner of a block, a border's remnant) are left out: a
+  // millimetre's misregistration flips what they say.
+  std::array<double, kSurfacePatches> px2{}, px4{};
+  for (std::size_t k = 0; k < albedo.size(); ++k) {
+    if (!usable(k) || !kept[patches[k]]) continue;
+    const Patch& p = patch[patches[k]];
+    const double x = albedo[k] / (p.sa / p.n) - 1.0;
+    px2[patches[k]] += x * x;
+    px4[patches[k]] += x * x * x * x;
+  }
+  for (std::size_t g = 0; g < patch.size(); ++g) {
+    if (kept[g] && !(px4[g] > 0.0 && px2[g] * px2[g] / px4[g] >= options.min_patch_points)) {
+      kept[g] = false;
+    }
   }
   AppearanceScore out;
   double sxx = 0.0, syy = 0.0, sxy = 0.0, saa = 0.0, sx4 = 0.0;

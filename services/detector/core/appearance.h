@@ -23,12 +23,12 @@ struct AppearanceOptions {
   /// 5 mm moves it 5 mm along the surface and 1 mm off it), so the print it shows belongs
   /// elsewhere. A face seen that flat tells only its plane.
   float min_sample_cos = 0.25f;
-  /// The scene merges several views (ExpressIntensityInView): its intensities are as the
-  /// one sensor the detector is given would have measured them, and NaN where the view that
-  /// measured a point saw it at a grazing angle. The angle to that sensor then says nothing
-  /// about how well a point's print was read (a floor-lying item's top, grazed by a low
-  /// front view, is seen well from a higher side view), so min_sample_cos is not applied
-  /// to it: the per-view screening stands in for it.
+  /// The scene merges several views (CompensatedViewIntensity): each point's intensity is
+  /// already shading-compensated for the view that measured it, and NaN where that view saw
+  /// it at a grazing angle. Samples are then taken as they are: the angle to the one sensor
+  /// the detector is given says nothing about how well a point's print was read (a
+  /// floor-lying item's top, grazed by a low front view, is seen well from a higher side
+  /// view), and the shading was that view's, not this sensor's.
   bool screened_per_view = false;
   /// The model's texture over the compared points must have at least this standard deviation
   /// of albedo (reflectance units); below it the texture is uniform there and says nothing.
@@ -39,7 +39,8 @@ struct AppearanceOptions {
   /// Fewer compared points than this give no evidence.
   int min_points = 30;
   /// With surface patch labels (CorrelateAppearance), each patch is compared on its own
-  /// contrasts, and patches with fewer points than this are left out.
+  /// contrasts, and patches with fewer points than this, or with fewer carrying its
+  /// contrast (participation ratio of the relative albedo contrasts), are left out.
   int min_patch_points = 10;
   /// Compare patch contrasts when patch labels are given (CorrelateAppearance); false: one
   /// Pearson correlation over all pairs, as without labels.
@@ -76,22 +77,22 @@ float ShadingCompensatedIntensity(float intensity, const Eigen::Vector3f& p,
                                   const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
                                   float min_cos);
 
-/// A view's intensity at `p` (unit normal `n`, its own sensor at `viewpoint`) re-expressed
-/// as a sensor at `reference` would have measured it, so that views merged into one cloud
-/// share the shading the detector divides out (ShadingCompensatedIntensity at `reference`);
-/// nothing where this view grazes the surface (incidence cosine below
-/// options.min_sample_cos): the merged cloud then holds NaN there and its print comes
-/// from the other views (AppearanceOptions::screened_per_view).
-std::optional<float> ExpressIntensityInView(float intensity, const Eigen::Vector3f& p,
-                                            const Eigen::Vector3f& n,
-                                            const Eigen::Vector3f& viewpoint,
-                                            const Eigen::Vector3f& reference,
-                                            const AppearanceOptions& options);
+/// A view's intensity at `p` (unit normal `n`, its own sensor at `viewpoint`) with that
+/// view's shading divided out (ShadingCompensatedIntensity with options.min_cos), for a
+/// cloud merged from several views; nothing where the intensity or normal is not finite or
+/// the view grazes the surface (incidence cosine below options.min_sample_cos): the merged
+/// cloud then holds NaN there and its print comes from the other views
+/// (AppearanceOptions::screened_per_view).
+std::optional<float> CompensatedViewIntensity(float intensity, const Eigen::Vector3f& p,
+                                              const Eigen::Vector3f& n,
+                                              const Eigen::Vector3f& viewpoint,
+                                              const AppearanceOptions& options);
 
 /// One sample of the appearance comparison: the shading-compensated intensity
 /// (ShadingCompensatedIntensity with options.min_cos), or nothing where the intensity is
 /// not finite or the sensor grazes the surface (incidence cosine below
-/// options.min_sample_cos, unless options.screened_per_view), whose print is not compared.
+/// options.min_sample_cos), whose print is not compared. With options.screened_per_view the
+/// intensity is already compensated and screened: taken as it is (nothing if not finite).
 /// `n` is the unit normal the shading is taken from (a pose's own surface normal).
 std::optional<float> AppearanceSample(float intensity, const Eigen::Vector3f& p,
                                       const Eigen::Vector3f& n, const Eigen::Vector3f& viewpoint,
@@ -111,7 +112,9 @@ std::uint8_t SurfacePatch(const Eigen::Vector3f& n_Model);
 /// correlation is pooled over patches instead: within each patch, albedo and intensity are
 /// taken relative to the patch's means (a / mean_a - 1 against i / mean_i - 1), and patches
 /// whose albedo is uniform (stddev below min_albedo_stddev) or that have fewer than
-/// min_patch_points pairs are left out. The shading compensation assumes the light at the
+/// min_patch_points pairs, or fewer than min_patch_points carrying the contrast (the
+/// participation ratio (sum x^2)^2 / sum x^4 of the relative albedo contrasts x), are left
+/// out. The shading compensation assumes the light at the
 /// sensor, while a structured-light projector sits a baseline beside it, so each face keeps
 /// a brightness factor of its own; relative to its own mean it cancels. And a uniform face
 /// (a plain top) shows only shading residue: left in, it dilutes the print the other faces

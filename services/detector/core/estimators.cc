@@ -28,18 +28,23 @@ void CheckInput(const EstimatorInput& input, const SceneContext& context, const 
 }
 
 // Best first by score, with the appearance (where there is evidence) as a bonus.
-void SortByScore(std::vector<Detection>* detections, double appearance_weight) {
-  const auto rank = [appearance_weight](const Detection& d) {
-    return d.score + (std::isfinite(d.appearance) ? appearance_weight * d.appearance : 0.0);
+// Score plus the appearance as a bonus; a pose whose print gives no evidence either way ranks
+// as one at the contradiction threshold: below a pose the print confirms, above one it
+// contradicts.
+void SortByScore(std::vector<Detection>* detections, const RefineVerifyOptions& options) {
+  const double weight = options.appearance_rank_weight;
+  const double neutral = options.verify.min_appearance_correlation;
+  const auto rank = [weight, neutral](const Detection& d) {
+    return d.score + weight * (std::isfinite(d.appearance) ? d.appearance : neutral);
   };
   std::stable_sort(detections->begin(), detections->end(),
                    [&rank](const Detection& a, const Detection& b) { return rank(a) > rank(b); });
 }
 
 // An estimator's candidates, best first, each with the estimator's whole time since `start`.
-std::vector<Detection> Finish(std::vector<Detection> out, double appearance_weight,
+std::vector<Detection> Finish(std::vector<Detection> out, const RefineVerifyOptions& options,
                               Clock::time_point start) {
-  SortByScore(&out, appearance_weight);
+  SortByScore(&out, options);
   for (auto& d : out) d.timings.total_s = SecondsSince(start);
   return out;
 }
@@ -85,7 +90,9 @@ const VerificationScene* SceneContext::Verification() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (!verification_built_) {
     if (camera_) {
-      verification_ = std::make_unique<VerificationScene>(*scene_, X_BaseSensor_, *camera_);
+      std::vector<SensorView> sensors = {SensorView{X_BaseSensor_, *camera_}};
+      sensors.insert(sensors.end(), options_.other_sensors.begin(), options_.other_sensors.end());
+      verification_ = std::make_unique<VerificationScene>(*scene_, std::move(sensors));
     }
     verification_built_ = true;
   }
@@ -238,7 +245,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       d.timings.estimate_s = estimate_s;
       out.push_back(std::move(d));
     }
-    return Finish(std::move(out), refine_.appearance_rank_weight, start);
+    return Finish(std::move(out), refine_, start);
   }
   PpfDetectorOptions ppf = ppf_;
   if (scene.sampled.size() <= search_.dense_reference_max_points) ppf.match.reference_step = 1;
@@ -284,7 +291,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   }
-  return Finish(std::move(out), refine_.appearance_rank_weight, start);
+  return Finish(std::move(out), refine_, start);
 }
 
 // --- SIFT -----------------------------------------------------------------------------------
@@ -372,7 +379,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
     d.timings.estimate_s = estimate_s;
     out.push_back(std::move(d));
   }
-  return Finish(std::move(out), refine_.appearance_rank_weight, start);
+  return Finish(std::move(out), refine_, start);
 }
 
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(

@@ -40,6 +40,10 @@ struct SceneContextOptions {
   }();
   /// Range templates: at most this many clusters (the largest) are matched.
   int max_clusters = 16;
+  /// The scene merges the scans of these sensor positions besides the main one (whose
+  /// intrinsics are the context's `camera`): verification then judges a model point's
+  /// visibility from every sensor (VerificationScene).
+  std::vector<SensorView> other_sensors;
 };
 
 /// One scene as every estimator of one request sees it (points in the base frame B), with
@@ -118,8 +122,10 @@ struct RefineVerifyOptions {
     o.appearance_contradiction_scale = 0.5;
     return o;
   }();
-  /// Candidates of one method are ranked by score + appearance_rank_weight * appearance
-  /// (where defined): between two poses of similar support the one whose printing matches.
+  /// Candidates of one method are ranked by score + appearance_rank_weight * appearance:
+  /// between two poses of similar support the one whose printing matches. A pose without
+  /// print evidence ranks with verify.min_appearance_correlation, as neither confirmed nor
+  /// contradicted.
   double appearance_rank_weight = 0.5;
 };
 

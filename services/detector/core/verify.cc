@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <future>
 #include <limits>
 #include <stdexcept>
 
@@ -10,7 +13,11 @@
 namespace picking::detector {
 
 struct VerificationScene::Impl {
-  std::vector<float> depth;  // row-major, NaN where nothing was measured
+  // Per sensor: row-major depth image, NaN where nothing was measured.
+  std::vector<std::vector<float>> depth;
+  // Per sensor: X_Sensor0Sensor, the sensor's pose in the reference sensor's frame.
+  std::vector<Eigen::Isometry3f> X_ReferenceSensor;
+  // Scene points in the reference sensor's frame.
   std::vector<Eigen::Vector3f> p_SensorPoints;
   std::vector<Eigen::Vector3f> n_SensorPoints;  // empty when the scene has no normals
   std::vector<float> intensities;               // empty when the scene has none
@@ -19,58 +26,94 @@ struct VerificationScene::Impl {
 
 namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+// Albedo differences above this fraction of the brighter side make a print edge.
+constexpr float kAlbedoEdgeContrast = 0.2f;
 }  // namespace
 
 VerificationScene::VerificationScene(const geometry::PointCloud& scene,
                                      const Eigen::Isometry3d& X_BaseSensor,
                                      const PinholeCamera& camera)
-    : camera_(camera), X_BaseSensor_(X_BaseSensor), impl_(std::make_unique<Impl>()) {
+    : VerificationScene(scene, std::vector<SensorView>{SensorView{X_BaseSensor, camera}}) {}
+
+VerificationScene::VerificationScene(const geometry::PointCloud& scene,
+                                     std::vector<SensorView> sensors)
+    : sensors_(std::move(sensors)), impl_(std::make_unique<Impl>()) {
+  if (sensors_.empty()) throw std::invalid_argument("VerificationScene: no sensor");
   if (!scene.normals.empty() && scene.normals.size() != scene.size())
     throw std::invalid_argument("VerificationScene: normals size differs from points size");
   if (!scene.intensities.empty() && scene.intensities.size() != scene.size())
     throw std::invalid_argument("VerificationScene: intensities size differs from points size");
   if (!scene.colors.empty() && scene.colors.size() != scene.size())
     throw std::invalid_argument("VerificationScene: colors size differs from points size");
-  const Eigen::Isometry3f X_SensorBase = X_BaseSensor.inverse().cast<float>();
-  impl_->depth.assign(static_cast<std::size_t>(camera_.width()) * camera_.height(), kNaN);
+  for (const SensorView& s : sensors_) {
+    if (!s.X_BaseSensor.matrix().allFinite())
+      throw std::invalid_argument("VerificationScene: a sensor pose is not finite");
+  }
+  const Eigen::Isometry3f X_SensorBase = sensors_.front().X_BaseSensor.inverse().cast<float>();
   const bool normals = scene.has_normals();
   for (std::size_t i = 0; i < scene.size(); ++i) {
     if (!scene.points[i].allFinite()) continue;
-    const Eigen::Vector3f p = X_SensorBase * scene.points[i];
-    impl_->p_SensorPoints.push_back(p);
+    impl_->p_SensorPoints.push_back(X_SensorBase * scene.points[i]);
     if (normals) impl_->n_SensorPoints.push_back(X_SensorBase.linear() * scene.normals[i]);
     if (scene.has_intensities()) {
       impl_->intensities.push_back(scene.intensities[i]);
     } else if (scene.has_colors()) {
       impl_->intensities.push_back(ColorLuma(scene.colors[i]));
     }
-    if (p.z() <= 0.0f) continue;
-    const auto uv = camera_.Project(p.cast<double>());
-    if (!uv) continue;
-    const int u = static_cast<int>(std::lround(uv->x()));
-    const int v = static_cast<int>(std::lround(uv->y()));
-    if (u < 0 || v < 0 || u >= camera_.width() || v >= camera_.height()) continue;
-    float& d = impl_->depth[static_cast<std::size_t>(v) * camera_.width() + u];
-    if (!(d <= p.z())) d = p.z();
   }
   if (impl_->p_SensorPoints.empty())
     throw std::invalid_argument("VerificationScene: scene has no finite point");
+  // Each sensor's depth image is the merged scene's nearest point per pixel: where a sensor
+  // did not measure a surface another one did, the merged points still stand in front of
+  // whatever that sensor could not see, so its free space is not overstated. The images and
+  // the search tree are independent: built concurrently.
+  const std::size_t count = sensors_.size();
+  impl_->depth.resize(count);
+  impl_->X_ReferenceSensor.resize(count);
+  const auto build_depth = [this](std::size_t k) {
+    const SensorView& s = sensors_[k];
+    const Eigen::Isometry3f X_ReferenceSensor =
+        (sensors_.front().X_BaseSensor.inverse() * s.X_BaseSensor).cast<float>();
+    const Eigen::Isometry3f X_SensorReference = X_ReferenceSensor.inverse();
+    std::vector<float> depth(static_cast<std::size_t>(s.camera.width()) * s.camera.height(), kNaN);
+    for (const Eigen::Vector3f& p_Reference : impl_->p_SensorPoints) {
+      const Eigen::Vector3f p = X_SensorReference * p_Reference;
+      if (p.z() <= 0.0f) continue;
+      const auto uv = s.camera.Project(p.cast<double>());
+      if (!uv) continue;
+      const int u = static_cast<int>(std::lround(uv->x()));
+      const int v = static_cast<int>(std::lround(uv->y()));
+      if (u < 0 || v < 0 || u >= s.camera.width() || v >= s.camera.height()) continue;
+      float& d = depth[static_cast<std::size_t>(v) * s.camera.width() + u];
+      if (!(d <= p.z())) d = p.z();
+    }
+    impl_->depth[k] = std::move(depth);
+    impl_->X_ReferenceSensor[k] = X_ReferenceSensor;
+  };
+  std::vector<std::future<void>> images;
+  for (std::size_t k = 0; k < count; ++k) {
+    images.push_back(std::async(std::launch::async, build_depth, k));
+  }
   impl_->tree = KdTree(impl_->p_SensorPoints);
+  for (auto& f : images) f.get();
 }
 
 VerificationScene::~VerificationScene() = default;
 
-float VerificationScene::DepthAt(int u, int v) const {
-  if (u < 0 || v < 0 || u >= camera_.width() || v >= camera_.height()) return kNaN;
-  const float d = impl_->depth[static_cast<std::size_t>(v) * camera_.width() + u];
+float VerificationScene::DepthAt(int u, int v, std::size_t sensor) const {
+  if (sensor >= sensors_.size()) return kNaN;
+  const PinholeCamera& camera = sensors_[sensor].camera;
+  const std::vector<float>& depth = impl_->depth[sensor];
+  if (u < 0 || v < 0 || u >= camera.width() || v >= camera.height()) return kNaN;
+  const float d = depth[static_cast<std::size_t>(v) * camera.width() + u];
   if (std::isfinite(d)) return d;
   // A single missing pixel (sparser clouds): nearest of the 8 neighbours.
   float best = kNaN;
   for (int dv = -1; dv <= 1; ++dv) {
     for (int du = -1; du <= 1; ++du) {
       const int uu = u + du, vv = v + dv;
-      if (uu < 0 || vv < 0 || uu >= camera_.width() || vv >= camera_.height()) continue;
-      const float n = impl_->depth[static_cast<std::size_t>(vv) * camera_.width() + uu];
+      if (uu < 0 || vv < 0 || uu >= camera.width() || vv >= camera.height()) continue;
+      const float n = depth[static_cast<std::size_t>(vv) * camera.width() + uu];
       if (std::isfinite(n) && !(best <= n)) best = n;
     }
   }
@@ -124,7 +167,6 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   if (!(options.appearance_contradiction_scale >= 0.0 &&
         options.appearance_contradiction_scale <= 1.0))
     throw std::invalid_argument("Verify: appearance_contradiction_scale must be in [0, 1]");
-  const PinholeCamera& cam = scene.camera();
   const VerificationScene::Impl& impl = *scene.impl_;
 
   // Deterministic subsample, in the sensor frame.
@@ -147,34 +189,71 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   if (sub.empty()) return result;
   const double spacing = std::max(MeanPointSpacing(sub), 1e-4);
 
-  // Back-face culling and a splat z-buffer of the model itself.
+  // Per sensor: back-face culling and a splat z-buffer of the model itself give the points
+  // the sensor would see; what it measured along their rays says whether they are hidden by
+  // other surfaces (in front of them) or lie in free space (the sensor saw beyond them).
+  const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
+  enum : std::uint8_t { kVisible = 1, kHidden = 2, kClear = 4, kSeenThrough = 8, kReference = 16 };
+  std::vector<std::uint8_t> state(sub.size(), 0);
   struct Projected {
     std::size_t index;
-    int u, v;
+    int u, v, r;
+    float z;
   };
   std::vector<Projected> front;
-  std::vector<float> zbuf(static_cast<std::size_t>(cam.width()) * cam.height(),
-                          std::numeric_limits<float>::infinity());
-  for (std::size_t i = 0; i < sub.size(); ++i) {
-    const Eigen::Vector3f& p = sub.points[i];
-    if (p.z() <= 1e-3f || sub.normals[i].dot(p) >= 0.0f) continue;
-    const auto uv = cam.Project(p.cast<double>());
-    if (!uv) continue;
-    const int u = static_cast<int>(std::lround(uv->x()));
-    const int v = static_cast<int>(std::lround(uv->y()));
-    if (u < 0 || v < 0 || u >= cam.width() || v >= cam.height()) continue;
-    front.push_back({i, u, v});
-    const int r = std::min(8, static_cast<int>(0.75 * cam.fx() * spacing / p.z()));
-    for (int dv = -r; dv <= r; ++dv) {
-      for (int du = -r; du <= r; ++du) {
-        const int uu = u + du, vv = v + dv;
-        if (uu < 0 || vv < 0 || uu >= cam.width() || vv >= cam.height()) continue;
-        float& z = zbuf[static_cast<std::size_t>(vv) * cam.width() + uu];
-        z = std::min(z, p.z());
+  std::vector<float> zbuf;
+  for (std::size_t k = 0; k < scene.sensors().size(); ++k) {
+    const PinholeCamera& cam = scene.sensors()[k].camera;
+    const Eigen::Isometry3f X_SensorReference = impl.X_ReferenceSensor[k].inverse();
+    front.clear();
+    int u0 = cam.width(), v0 = cam.height(), u1 = -1, v1 = -1;
+    for (std::size_t i = 0; i < sub.size(); ++i) {
+      const Eigen::Vector3f p = X_SensorReference * sub.points[i];
+      if (p.z() <= 1e-3f || (X_SensorReference.linear() * sub.normals[i]).dot(p) >= 0.0f) continue;
+      const auto uv = cam.Project(p.cast<double>());
+      if (!uv) continue;
+      const int u = static_cast<int>(std::lround(uv->x()));
+      const int v = static_cast<int>(std::lround(uv->y()));
+      if (u < 0 || v < 0 || u >= cam.width() || v >= cam.height()) continue;
+      const int r = std::min(8, static_cast<int>(0.75 * cam.fx() * spacing / p.z()));
+      front.push_back({i, u, v, r, p.z()});
+      u0 = std::min(u0, u - r);
+      v0 = std::min(v0, v - r);
+      u1 = std::max(u1, u + r);
+      v1 = std::max(v1, v + r);
+    }
+    if (front.empty()) continue;
+    // The z-buffer covers the model's footprint only.
+    const int zw = u1 - u0 + 1, zh = v1 - v0 + 1;
+    zbuf.assign(static_cast<std::size_t>(zw) * zh, std::numeric_limits<float>::infinity());
+    for (const Projected& pr : front) {
+      for (int dv = -pr.r; dv <= pr.r; ++dv) {
+        for (int du = -pr.r; du <= pr.r; ++du) {
+          float& z = zbuf[static_cast<std::size_t>(pr.v + dv - v0) * zw + (pr.u + du - u0)];
+          z = std::min(z, pr.z);
+        }
+      }
+    }
+    for (const Projected& pr : front) {
+      if (pr.z > zbuf[static_cast<std::size_t>(pr.v - v0) * zw + (pr.u - u0)] + self_tolerance)
+        continue;
+      std::uint8_t& st = state[pr.index];
+      st |= kVisible;
+      if (k == 0) st |= kReference;
+      const float measured = scene.DepthAt(pr.u, pr.v, k);
+      if (!std::isfinite(measured)) continue;
+      if (measured < pr.z - options.occlusion_margin_m) {
+        st |= kHidden;
+      } else if (measured > pr.z + options.conflict_margin_m) {
+        // Free space only from the reference sensor: another sensor's depth image is the
+        // merged scene seen from there, so behind a surface that sensor did not measure it
+        // holds what the others saw beyond it, which is not free space seen through.
+        if (k == 0) st |= kSeenThrough;
+      } else {
+        st |= kClear;
       }
     }
   }
-  const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
   const float distance_sq =
       static_cast<float>(options.distance_tolerance_m * options.distance_tolerance_m);
   const float cos_normal = static_cast<float>(std::cos(options.normal_tolerance_rad));
@@ -183,17 +262,17 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   std::vector<float> albedo, intensity;
   std::vector<std::uint8_t> patches;
   std::vector<Eigen::Vector3f> p_SensorMatched;  // scene points of the albedo samples
-  for (const Projected& pr : front) {
-    const Eigen::Vector3f& p = sub.points[pr.index];
-    if (p.z() > zbuf[static_cast<std::size_t>(pr.v) * cam.width() + pr.u] + self_tolerance)
-      continue;
+  for (std::size_t i = 0; i < sub.size(); ++i) {
+    const std::uint8_t st = state[i];
+    if (!(st & kVisible)) continue;
+    const Eigen::Vector3f& p = sub.points[i];
     ++result.num_visible;
     float d_sq = 0.0f;
     const std::int32_t j = impl.tree.Nearest(p, &d_sq, distance_sq);
     bool supported = j != KdTree::kNone;
     if (supported && !impl.n_SensorPoints.empty()) {
       const Eigen::Vector3f& n = impl.n_SensorPoints[j];
-      if (n.allFinite()) supported = std::abs(n.dot(sub.normals[pr.index])) >= cos_normal;
+      if (n.allFinite()) supported = std::abs(n.dot(sub.normals[i])) >= cos_normal;
     }
     if (supported) {
       ++result.num_supported;
@@ -202,23 +281,26 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
         const Eigen::Vector3f& q = impl.p_SensorPoints[j];
         // The posed model's normal: the hypothesis's exact surface, where the scan's normals
         // are noisy (a grazing face's 1 / cos amplifies their noise).
-        const std::optional<float> sample =
-            AppearanceSample(impl.intensities[j], q, sub.normals[pr.index], Eigen::Vector3f::Zero(),
-                             options.appearance);
+        const std::optional<float> sample = AppearanceSample(
+            impl.intensities[j], q, sub.normals[i], Eigen::Vector3f::Zero(), options.appearance);
         if (!sample) continue;
-        albedo.push_back(sub.intensities[pr.index]);
-        patches.push_back(sub_patches[pr.index]);
         p_SensorMatched.push_back(q);
         intensity.push_back(*sample);
       }
       continue;
     }
-    const float measured = scene.DepthAt(pr.u, pr.v);
-    if (!std::isfinite(measured)) continue;
-    if (measured < p.z() - options.occlusion_margin_m) {
-      ++result.num_occluded;
-    } else if (measured > p.z() + options.conflict_margin_m) {
+    // Unsupported. Seen only by other sensors than the reference, and none of them measured
+    // anything along its ray: the scene is a region cut out of those sensors' scans (a bin
+    // without its walls and floor), so their empty pixels there say nothing; not counted.
+    // The reference sensor's empty pixels still count against the pose, as with one sensor.
+    // The reference sensor seeing through the point outweighs the others; it is hidden only
+    // when no sensor that measured a depth there had a clear line to it.
+    if (!(st & (kReference | kHidden | kClear | kSeenThrough))) {
+      --result.num_visible;
+    } else if (st & kSeenThrough) {
       ++result.num_conflicts;
+    } else if ((st & kHidden) && !(st & kClear)) {
+      ++result.num_occluded;
     }
   }
   const std::size_t considered = result.num_visible - result.num_occluded;
@@ -233,46 +315,72 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   }
   result.X_BaseItem_appearance = X_BaseItem;
   if (appearance) {
-    result.appearance = CorrelateAppearance(albedo, intensity, options.appearance, &patches);
-    if (options.symmetries.size() > 1 && !p_SensorMatched.empty()) {
-      // The albedo a turned model shows at each matched scene point: its point nearest to
-      // the scene point, in the item frame. The points are those of `sub` (same stride and
-      // filter), so their albedo and patch are sub's.
-      std::vector<Eigen::Vector3f> p_ItemModel;
-      p_ItemModel.reserve(sub.size());
-      for (std::size_t i = 0; i < model.size(); i += stride) {
-        if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
-        p_ItemModel.push_back(model.points[i]);
+    // The albedo the pose (or a symmetric turn of it) shows at each matched scene point: that
+    // of the model point nearest the scene point, in the item frame. Not the albedo of the
+    // model point that found the match: a print's dark parts are measured worst (at a grazing
+    // angle they may not be decoded at all), so along their edges the model point on the
+    // dark side is matched by a bright scene point beside it. The points are those of `sub`
+    // (same stride and filter), so their albedo and patch are sub's.
+    std::vector<Eigen::Vector3f> p_ItemModel;
+    p_ItemModel.reserve(sub.size());
+    for (std::size_t i = 0; i < model.size(); i += stride) {
+      if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
+      p_ItemModel.push_back(model.points[i]);
+    }
+    const KdTree model_tree(p_ItemModel);
+    const float lookup_sq =
+        static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
+                           std::max(options.distance_tolerance_m, 2.0 * spacing));
+    // Where the albedo changes within a sampling step, which side a scene point belongs to
+    // is down to millimetres of registration: such model points give no sample (worked out
+    // on first look-up).
+    std::vector<std::int8_t> albedo_edge(p_ItemModel.size(), -1);
+    const float edge_radius = static_cast<float>(1.5 * spacing);
+    std::vector<std::int32_t> neighbours;
+    const auto on_albedo_edge = [&](std::int32_t i) {
+      std::int8_t& flag = albedo_edge[static_cast<std::size_t>(i)];
+      if (flag < 0) {
+        model_tree.RadiusSearch(p_ItemModel[i], edge_radius, &neighbours);
+        float lo = sub.intensities[i], hi = lo;
+        for (std::int32_t j : neighbours) {
+          const float a = sub.intensities[j];
+          if (!std::isfinite(a)) continue;
+          lo = std::min(lo, a);
+          hi = std::max(hi, a);
+        }
+        flag = hi - lo > kAlbedoEdgeContrast * hi ? 1 : 0;
       }
-      const KdTree model_tree(p_ItemModel);
-      const float lookup_sq =
-          static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
-                             std::max(options.distance_tolerance_m, 2.0 * spacing));
-      std::vector<float> turned_albedo, turned_intensity;
-      std::vector<std::uint8_t> turned_patches;
-      for (std::size_t s = 1; s < options.symmetries.size(); ++s) {
-        const Eigen::Isometry3d X_BaseTurned = X_BaseItem * options.symmetries[s];
-        const Eigen::Isometry3f X_ItemSensor =
-            (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
-        turned_albedo.clear();
-        turned_intensity.clear();
-        turned_patches.clear();
-        for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
-          const std::int32_t i =
-              model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
-          if (i == KdTree::kNone) continue;
-          turned_albedo.push_back(sub.intensities[i]);
-          turned_intensity.push_back(intensity[k]);
-          turned_patches.push_back(sub_patches[i]);
-        }
-        const AppearanceScore a = CorrelateAppearance(turned_albedo, turned_intensity,
-                                                      options.appearance, &turned_patches);
-        if (a.defined &&
-            (!result.appearance.defined || a.correlation > result.appearance.correlation)) {
-          result.appearance = a;
-          result.appearance_symmetry = static_cast<int>(s);
-          result.X_BaseItem_appearance = X_BaseTurned;
-        }
+      return flag == 1;
+    };
+    const std::size_t turns = std::max<std::size_t>(1, options.symmetries.size());
+    for (std::size_t s = 0; s < turns; ++s) {
+      const Eigen::Isometry3d X_BaseTurned =
+          options.symmetries.empty() ? X_BaseItem : X_BaseItem * options.symmetries[s];
+      const Eigen::Isometry3f X_ItemSensor =
+          (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
+      albedo.clear();
+      patches.clear();
+      std::vector<float> matched_intensity;
+      matched_intensity.reserve(intensity.size());
+      for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
+        const std::int32_t i =
+            model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
+        if (i == KdTree::kNone || !std::isfinite(sub.intensities[i]) || on_albedo_edge(i)) continue;
+        albedo.push_back(sub.intensities[i]);
+        matched_intensity.push_back(intensity[k]);
+        patches.push_back(sub_patches[i]);
+      }
+      const AppearanceScore a =
+          CorrelateAppearance(albedo, matched_intensity, options.appearance, &patches);
+      // A turn without evidence ranks as neutral: above one the print contradicts, below one
+      // it confirms.
+      const auto rank = [&](const AppearanceScore& x) {
+        return x.defined ? x.correlation : options.min_appearance_correlation;
+      };
+      if (s == 0 || rank(a) > rank(result.appearance)) {
+        result.appearance = a;
+        result.appearance_symmetry = static_cast<int>(s);
+        result.X_BaseItem_appearance = X_BaseTurned;
       }
     }
     if (result.appearance.defined &&

@@ -14,8 +14,15 @@ namespace picking::detector {
 struct VerifyOptions;
 struct VerifyResult;
 
-/// A scene prepared for verifying many poses: its depth image seen from the sensor and a
-/// k-d tree of its points, both in the sensor frame.
+/// A sensor position from which a scan was taken: the camera's pose in the base frame and
+/// its intrinsics.
+struct SensorView {
+  Eigen::Isometry3d X_BaseSensor;
+  PinholeCamera camera;
+};
+
+/// A scene prepared for verifying many poses: a k-d tree of its points and, for each sensor
+/// that took part in the scan, the depth image the scene projects to in that sensor.
 class VerificationScene final {
  public:
   /// `scene`: points in the base frame (NaN allowed), with intensities (or colours, taken as
@@ -24,21 +31,33 @@ class VerificationScene final {
   /// point or a channel's length differs from the point count.
   VerificationScene(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
                     const PinholeCamera& camera);
+  /// A scene merged from the scans of several sensor positions (`sensors`, at least one;
+  /// the first is the reference, whose frame the scene is kept in). A model point counts as
+  /// visible when any sensor faces it unhidden by the model itself (but not when only other
+  /// sensors than the reference do and none of them measured a depth along its ray), as
+  /// occluded when every sensor that measured a depth there saw something in front of it,
+  /// and as a conflict when the reference sensor saw through it (Verify; another sensor's
+  /// depth image is the merged scene, which behind a surface that sensor missed holds what
+  /// the others saw beyond it). Throws as above, and when
+  /// `sensors` is empty or a pose is not finite.
+  VerificationScene(const geometry::PointCloud& scene, std::vector<SensorView> sensors);
   ~VerificationScene();
   VerificationScene(const VerificationScene&) = delete;
   VerificationScene& operator=(const VerificationScene&) = delete;
 
-  const PinholeCamera& camera() const { return camera_; }
-  const Eigen::Isometry3d& X_BaseSensor() const { return X_BaseSensor_; }
-  /// Nearest measured depth (z in the sensor frame, metres) at pixel (u, v), NaN if none.
-  float DepthAt(int u, int v) const;
+  /// The reference sensor's intrinsics and pose.
+  const PinholeCamera& camera() const { return sensors_.front().camera; }
+  const Eigen::Isometry3d& X_BaseSensor() const { return sensors_.front().X_BaseSensor; }
+  const std::vector<SensorView>& sensors() const { return sensors_; }
+  /// Nearest measured depth (z in the frame of sensor `sensor`, metres) at pixel (u, v) of
+  /// that sensor, NaN if none.
+  float DepthAt(int u, int v, std::size_t sensor = 0) const;
 
  private:
   friend VerifyResult Verify(const VerificationScene&, const geometry::PointCloud&,
                              const Eigen::Isometry3d&, const VerifyOptions&);
   struct Impl;
-  PinholeCamera camera_;
-  Eigen::Isometry3d X_BaseSensor_;
+  std::vector<SensorView> sensors_;
   std::unique_ptr<Impl> impl_;
 };
 
@@ -83,10 +102,12 @@ struct VerifyResult {
   /// (supported - conflict_weight * conflicts) / (visible - occluded), clamped to [0, 1].
   double score = 0.0;
   std::size_t num_model_points = 0;  ///< After subsampling.
-  std::size_t num_visible = 0;       ///< Facing the sensor, in the image, not self-occluded.
-  std::size_t num_occluded = 0;      ///< Visible but behind measured scene surface.
+  /// Facing a sensor, in its image and not hidden by the model itself there.
+  std::size_t num_visible = 0;
+  /// Visible, but behind measured scene surface in every sensor that measured a depth there.
+  std::size_t num_occluded = 0;
   std::size_t num_supported = 0;
-  std::size_t num_conflicts = 0;   ///< Visible points in measured free space.
+  std::size_t num_conflicts = 0;   ///< Visible points in free space a sensor measured.
   double conflict_fraction = 0.0;  ///< num_conflicts / (num_visible - num_occluded).
   double inlier_rmse_m = 0.0;      ///< RMS distance of the supported points to the scene.
   /// Model albedo against scene intensity over the supported points (not defined without
@@ -103,8 +124,8 @@ struct VerifyResult {
 
 /// Scores a pose hypothesis X_BaseItem of `model` (points with normals, item frame; optional
 /// albedo in `intensities`) against the scene: back-face culling and a point-splat z-buffer
-/// give the model points the sensor would see; each is then supported (scene point within
-/// tolerance), occluded, in conflict (free-space violation) or unsupported; the supported
+/// per sensor give the model points a sensor would see; each is then supported (scene point
+/// within tolerance), occluded, in conflict (free-space violation) or unsupported; the supported
 /// points' albedo is compared with the scene's intensities (see VerifyOptions). Throws
 /// std::invalid_argument when the model has no normals, is empty, has an albedo channel of
 /// another length or the options are invalid.

@@ -33,25 +33,32 @@ class VerifyTest : public ::testing::Test {
                     Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY());
     X_BaseItem_ =
         Eigen::Translation3d(0.02, 0.01, 0.015) * Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ());
-    // Floor z = 0 and the box, ray cast through a dense splat render of the model.
+    scene_ = Scan(X_BaseSensor_, 1);
+  }
+
+  // Floor z = 0 and the box as a sensor at X_BaseSensor sees them, ray cast through a dense
+  // splat render of the model; organised, NaN where a ray meets nothing.
+  geometry::PointCloud Scan(const Eigen::Isometry3d& X_BaseSensor, unsigned seed) const {
     const RangeImage object =
-        RenderRangeImage(model_, X_BaseSensor_.inverse() * X_BaseItem_, camera_, 0.0015);
-    std::mt19937 rng(1);
+        RenderRangeImage(model_, X_BaseSensor.inverse() * X_BaseItem_, camera_, 0.0015);
+    std::mt19937 rng(seed);
     std::normal_distribution<float> noise(0.0f, 0.0005f);
-    scene_.width = camera_.width();
-    scene_.height = camera_.height();
+    geometry::PointCloud scan;
+    scan.width = camera_.width();
+    scan.height = camera_.height();
     for (int v = 0; v < camera_.height(); ++v) {
       for (int u = 0; u < camera_.width(); ++u) {
         const Eigen::Vector3d d((u - camera_.cx()) / camera_.fx(),
                                 (v - camera_.cy()) / camera_.fy(), 1.0);
-        const Eigen::Vector3d d_Base = X_BaseSensor_.linear() * d;
-        double z = d_Base.z() < 0 ? -X_BaseSensor_.translation().z() / d_Base.z()
+        const Eigen::Vector3d d_Base = X_BaseSensor.linear() * d;
+        double z = d_Base.z() < 0 ? -X_BaseSensor.translation().z() / d_Base.z()
                                   : std::numeric_limits<double>::infinity();
         if (std::isfinite(object.at(u, v))) z = std::min<double>(z, object.at(u, v));
-        const Eigen::Vector3f p = (X_BaseSensor_ * (d * (z + noise(rng)))).cast<float>();
-        scene_.points.push_back(std::isfinite(z) ? p : Eigen::Vector3f::Constant(kNaN));
+        const Eigen::Vector3f p = (X_BaseSensor * (d * (z + noise(rng)))).cast<float>();
+        scan.points.push_back(std::isfinite(z) ? p : Eigen::Vector3f::Constant(kNaN));
       }
     }
+    return scan;
   }
 
   geometry::PointCloud model_, scene_;
@@ -109,6 +116,48 @@ TEST_F(VerifyTest, RejectsBadInput) {
   geometry::PointCloud no_normals = model_;
   no_normals.normals.clear();
   EXPECT_THROW(Verify(scene, no_normals, X_BaseItem_), std::invalid_argument);
+}
+
+// The same box scanned from a second sensor position on its other side (0.4 m along x,
+// looking back at it) and the two scans merged: the faces the first sensor does not
+// see are verified from the second.
+TEST_F(VerifyTest, SeveralSensorsJudgeVisibilityFromEach) {
+  const Eigen::Isometry3d X_BaseOther = Eigen::Translation3d(0.4, 0.0, 0.7) *
+                                        Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()) *
+                                        Eigen::AngleAxisd(-0.5, Eigen::Vector3d::UnitY());
+  const geometry::PointCloud other = Scan(X_BaseOther, 2);
+  geometry::PointCloud merged;
+  for (const geometry::PointCloud* scan :
+       {static_cast<const geometry::PointCloud*>(&scene_), &other}) {
+    for (const Eigen::Vector3f& p : scan->points) {
+      if (p.allFinite()) merged.points.push_back(p);
+    }
+  }
+  merged.width = static_cast<std::uint32_t>(merged.points.size());
+  const std::vector<SensorView> both = {{X_BaseSensor_, camera_}, {X_BaseOther, camera_}};
+  const VerificationScene one(scene_, X_BaseSensor_, camera_);
+  const VerificationScene two(merged, both);
+  ASSERT_EQ(two.sensors().size(), 2u);
+
+  const VerifyResult single = Verify(one, model_, X_BaseItem_);
+  const VerifyResult r = Verify(two, model_, X_BaseItem_);
+  EXPECT_GT(r.num_visible, single.num_visible + 50);  // a face only the second sensor sees
+  EXPECT_GT(r.score, 0.8);
+  EXPECT_LT(r.conflict_fraction, 0.05);
+  // Shifted 2 cm along x: both sensors see it off the box.
+  Eigen::Isometry3d shifted = X_BaseItem_;
+  shifted.translation().x() += 0.02;
+  EXPECT_LT(Verify(two, model_, shifted).score, r.score - 0.3);
+  // Lifted 2 cm: in the free space the first sensor saw.
+  Eigen::Isometry3d lifted = X_BaseItem_;
+  lifted.translation().z() += 0.02;
+  EXPECT_GT(Verify(two, model_, lifted).conflict_fraction, 0.3);
+
+  EXPECT_THROW(VerificationScene(merged, std::vector<SensorView>{}), std::invalid_argument);
+  Eigen::Isometry3d bad = X_BaseOther;
+  bad.translation().x() = std::nan("");
+  EXPECT_THROW(VerificationScene(merged, {{X_BaseSensor_, camera_}, {bad, camera_}}),
+               std::invalid_argument);
 }
 
 }  // namespace
