@@ -703,12 +703,13 @@ class DetectorBinScanTest : public ::testing::Test {
     return {s.x(), s.y(), s.z()};
   }
 
-  // The camera 0.55 m in front of the bin's opening (+x of the bin frame) and 0.1 m above its
-  // centre, looking at the middle of its floor.
-  static Transform CameraPose(common::Container bin) {
+  // The camera 0.55 m in front of the bin's opening (+x of the bin frame), `lateral_m` to the
+  // side and `height_m` above its centre, looking at the middle of its floor.
+  static Transform CameraPose(common::Container bin, double lateral_m = 0.0,
+                              double height_m = 0.1) {
     const std::array<double, 3> size = BinSize(bin);
     const std::array<double, 3> target{0.0, 0.0, -0.5 * size[2] + 0.03};
-    const std::array<double, 3> eye{0.5 * size[0] + 0.55, 0.0, 0.1};
+    const std::array<double, 3> eye{0.5 * size[0] + 0.55, lateral_m, height_m};
     const std::array<double, 3> z =
         Normalized({target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]});
     const std::array<double, 3> x = Normalized(Cross({0.0, 0.0, -1.0}, z));
@@ -719,14 +720,19 @@ class DetectorBinScanTest : public ::testing::Test {
     return Compose(X_BaseBin(bin), X_BinCamera);
   }
 
-  // Scans `bin`; the chunks are ready for Detect (the header carries the sensor pose).
-  static std::vector<common::PointCloudChunk> ScanBin(common::Container bin) {
-    const Transform X_BaseCamera = CameraPose(bin);
-    const Transform X_BaseTool = Compose(X_BaseCamera, Inverse(*X_ToolCamera_));
+  // Scans `bin` from each camera pose (default: the one CameraPose); the scanner stacks the
+  // views' organised clouds. The chunks are ready for Detect (the header carries the first
+  // view's sensor pose).
+  static std::vector<common::PointCloudChunk> ScanBin(common::Container bin,
+                                                      std::vector<Transform> cameras = {}) {
+    if (cameras.empty()) cameras.push_back(CameraPose(bin));
+    const Transform X_BaseCamera = cameras.front();
     grpc::ClientContext ctx;
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(240));
     scan::ScanRequest request;
-    *request.add_views()->mutable_x_base_tool() = ToPose(X_BaseTool);
+    for (const Transform& X : cameras) {
+      *request.add_views()->mutable_x_base_tool() = ToPose(Compose(X, Inverse(*X_ToolCamera_)));
+    }
     request.set_frame_id("base");
     request.set_with_normals(true);
     request.set_with_intensities(true);
@@ -785,13 +791,20 @@ class DetectorBinScanTest : public ::testing::Test {
     return 0.0;
   }
 
-  // Detects `item` in a scan of `bin` and checks it against the simulator's ground truth.
+  // Detects `item` in a scan of `bin` (from `cameras`, default the one CameraPose; several are
+  // stacked views, each camera's pose then in view_sensor_poses) and checks it against the
+  // simulator's ground truth.
   static void ExpectFound(common::Container bin, const std::string& item, bool cylinder,
-                          pb::Method method = pb::METHOD_UNSPECIFIED) {
-    const std::vector<common::PointCloudChunk> chunks = ScanBin(bin);
+                          pb::Method method = pb::METHOD_UNSPECIFIED,
+                          const std::vector<Transform>& cameras = {}) {
+    const std::vector<common::PointCloudChunk> chunks = ScanBin(bin, cameras);
     ASSERT_FALSE(chunks.empty());
+    pb::DetectParams params = BinQuery(bin, item, method);
+    if (cameras.size() > 1) {
+      for (const Transform& X : cameras) *params.add_view_sensor_poses() = ToPose(X);
+    }
     pb::DetectResponse response;
-    const grpc::Status status = Detect(BinQuery(bin, item, method), chunks, &response);
+    const grpc::Status status = Detect(params, chunks, &response);
     ASSERT_TRUE(status.ok()) << status.error_message();
     ASSERT_EQ(response.results_size(), 1);
     const pb::ItemResult& result = response.results(0);
@@ -913,6 +926,40 @@ TEST_F(DetectorBinScanTest, ReportsNothingForAnItemThatIsNotInTheBin) {
   EXPECT_EQ(response.results(0).status().code(), 0);
   EXPECT_EQ(response.results(0).detections_size(), 0);
   EXPECT_GE(response.results(0).methods_tried_size(), 1);
+}
+
+// Three views of the bin (the middle one and 0.15 m to either side, 0.25 m above the bin's
+// middle), stacked by the scanner: the detector takes each view's sensor pose, compensates
+// each view's shading and verifies from all three.
+TEST_F(DetectorBinScanTest, FindsTheTissueBoxInThreeStackedViews) {
+  const common::Container bin = common::CONTAINER_BIN_A;
+  ExpectFound(bin, "kleenex_tissue_box", /*cylinder=*/false, pb::METHOD_UNSPECIFIED,
+              {CameraPose(bin), CameraPose(bin, -0.15, 0.25), CameraPose(bin, 0.15, 0.25)});
+}
+
+TEST_F(DetectorBinScanTest, RejectsViewPosesThatDoNotFitTheStackedViews) {
+  const common::Container bin = common::CONTAINER_BIN_A;
+  const std::vector<Transform> cameras = {CameraPose(bin), CameraPose(bin, 0.15, 0.25)};
+  const std::vector<common::PointCloudChunk> chunks = ScanBin(bin, cameras);
+  ASSERT_FALSE(chunks.empty());
+  pb::DetectResponse response;
+  // Three poses for two stacked views.
+  pb::DetectParams params = BinQuery(bin, "kleenex_tissue_box");
+  for (const Transform& X : {cameras[0], cameras[1], cameras[1]}) {
+    *params.add_view_sensor_poses() = ToPose(X);
+  }
+  grpc::Status status = Detect(params, chunks, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(status.error_message().find("multiple of the view count"), std::string::npos)
+      << status.error_message();
+  // A pose that is not a rotation.
+  params = BinQuery(bin, "kleenex_tissue_box");
+  for (const Transform& X : cameras) *params.add_view_sensor_poses() = ToPose(X);
+  params.mutable_view_sensor_poses(1)->mutable_orientation()->set_w(5.0);
+  status = Detect(params, chunks, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(status.error_message().find("view_sensor_poses[1]"), std::string::npos)
+      << status.error_message();
 }
 
 TEST_F(DetectorBinScanTest, RejectsBadRegionsAndReportsUnknownItems) {

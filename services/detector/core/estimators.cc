@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
+#include <string>
 #include <utility>
 
 #include "libs/errors/errors.h"
@@ -520,6 +522,59 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
     return PinholeCamera(width, height, fu[0], fv[0], fu[1], fv[1]);
   }
   return FitDistortedIntrinsics(samples, width, height, fu, fv, max_rms_px);
+}
+
+StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
+                               const std::vector<Eigen::Isometry3d>& X_BaseSensors,
+                               const PinholeCamera& fallback_camera,
+                               const AppearanceOptions& appearance) {
+  const std::size_t views = X_BaseSensors.size();
+  if (views == 0) throw std::invalid_argument("MergeStackedViews: no view sensor pose");
+  for (std::size_t k = 0; k < views; ++k) {
+    if (!X_BaseSensors[k].matrix().allFinite()) {
+      throw std::invalid_argument("MergeStackedViews: the sensor pose of view " +
+                                  std::to_string(k) + " is not finite");
+    }
+  }
+  if (!stacked.is_organized() || stacked.height % views != 0 ||
+      static_cast<std::size_t>(stacked.width) * stacked.height != stacked.points.size()) {
+    throw std::invalid_argument(
+        "MergeStackedViews: " + std::to_string(views) +
+        " views need an organised cloud whose height is a multiple of the view count (the "
+        "views stacked row-wise), got " +
+        std::to_string(stacked.width) + " x " + std::to_string(stacked.height));
+  }
+  const std::size_t rows = stacked.height / views;
+  const std::size_t block = rows * stacked.width;
+  const bool normals = stacked.has_normals();
+  const bool intensities = stacked.has_intensities() && normals;
+  StackedViews out;
+  for (std::size_t k = 0; k < views; ++k) {
+    geometry::PointCloud view;
+    view.width = stacked.width;
+    view.height = static_cast<std::uint32_t>(rows);
+    const auto first = stacked.points.begin() + static_cast<std::ptrdiff_t>(k * block);
+    view.points.assign(first, first + static_cast<std::ptrdiff_t>(block));
+    out.sensors.push_back(
+        SensorView{X_BaseSensors[k],
+                   FitOrganizedIntrinsics(view, X_BaseSensors[k]).value_or(fallback_camera)});
+    const Eigen::Vector3f viewpoint = X_BaseSensors[k].translation().cast<float>();
+    for (std::size_t i = k * block; i < (k + 1) * block; ++i) {
+      if (!stacked.points[i].allFinite()) continue;
+      out.cloud.points.push_back(stacked.points[i]);
+      if (normals) out.cloud.normals.push_back(stacked.normals[i]);
+      if (stacked.has_colors()) out.cloud.colors.push_back(stacked.colors[i]);
+      if (intensities) {
+        out.cloud.intensities.push_back(
+            CompensatedViewIntensity(stacked.intensities[i], stacked.points[i], stacked.normals[i],
+                                     viewpoint, appearance)
+                .value_or(std::numeric_limits<float>::quiet_NaN()));
+      }
+    }
+  }
+  out.cloud.width = static_cast<std::uint32_t>(out.cloud.points.size());
+  out.cloud.height = 1;
+  return out;
 }
 
 }  // namespace picking::detector

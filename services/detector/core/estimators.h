@@ -260,4 +260,23 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
                                                     const Eigen::Isometry3d& X_BaseSensor,
                                                     double max_rms_px = 1.0);
 
+/// A scan of several views (the scanner's merge without voxels stacks the views' organised
+/// clouds: rows [k h, (k + 1) h) are view k's, h = height / views), turned into what the
+/// detector takes from several views: one unorganised cloud of the finite points whose
+/// intensities have each view's own shading divided out (CompensatedViewIntensity: NaN where
+/// that view grazed the surface; detect with AppearanceOptions::screened_per_view), and each
+/// view's sensor (its pose in X_BaseSensors, its intrinsics fitted to its organised block,
+/// else `fallback_camera`). Without normals the intensities cannot be compensated and are
+/// dropped.
+struct StackedViews {
+  geometry::PointCloud cloud;
+  std::vector<SensorView> sensors;  ///< One per view, the first the reference.
+};
+/// Throws std::invalid_argument when X_BaseSensors is empty or holds a non-finite pose, or
+/// the cloud is not organised in as many blocks of rows as there are poses.
+StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
+                               const std::vector<Eigen::Isometry3d>& X_BaseSensors,
+                               const PinholeCamera& fallback_camera,
+                               const AppearanceOptions& appearance = {});
+
 }  // namespace picking::detector

@@ -177,16 +177,42 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       Clock::time_point budget_start = Clock::now();
 
       geometry::PointCloud scene = std::move(received.cloud);
+      // The crop keeps an organised cloud organised: stacked views stay apart.
       if (params.has_region()) scene = CropToRegion(scene, params.region());
       response->set_points_after_preprocessing(CountFinite(scene));
-      const std::optional<PinholeCamera> camera = CameraFor(scene, received.X_BaseSensor);
-
       SceneContextOptions context_options;
       // A region with a wall margin has lost its floor already.
       context_options.remove_dominant_plane =
           !(params.has_region() && params.region().wall_margin_m() > 0.0);
-      auto context =
-          std::make_shared<SceneContext>(scene, received.X_BaseSensor, camera, context_options);
+      EstimatorOptions estimator_options;
+      std::optional<PinholeCamera> camera;
+      Eigen::Isometry3d X_BaseSensor = received.X_BaseSensor;
+      if (params.view_sensor_poses_size() > 0) {
+        std::vector<Eigen::Isometry3d> poses;
+        for (int k = 0; k < params.view_sensor_poses_size(); ++k) {
+          poses.push_back(pc::PoseFromProto(params.view_sensor_poses(k),
+                                            "params.view_sensor_poses[" + std::to_string(k) + "]"));
+        }
+        StackedViews views;
+        try {
+          views = MergeStackedViews(scene, poses, settings_.default_camera,
+                                    estimator_options.ppf.appearance);
+        } catch (const std::invalid_argument& e) {
+          throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
+        }
+        if (CountFinite(views.cloud) == 0) {
+          throw std::invalid_argument("the views hold no finite point in the region");
+        }
+        scene = std::move(views.cloud);
+        X_BaseSensor = views.sensors.front().X_BaseSensor;
+        camera = views.sensors.front().camera;
+        context_options.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
+        estimator_options.ppf.appearance.screened_per_view = true;
+        estimator_options.refine.verify.appearance.screened_per_view = true;
+      } else {
+        camera = CameraFor(scene, X_BaseSensor);
+      }
+      auto context = std::make_shared<SceneContext>(scene, X_BaseSensor, camera, context_options);
       context->set_deadline(SteadyDeadline(ctx));
       const double shared_preprocess_s = SecondsSince(start);
 
@@ -195,7 +221,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         pb::ItemResult* result = response->add_results();
         result->set_item(query.item());
         try {
-          DetectItem(query, scene, context, shared_preprocess_s, budget_start, result);
+          DetectItem(query, scene, context, estimator_options, shared_preprocess_s, budget_start,
+                     result);
         } catch (const TimeoutError&) {
           throw;
         } catch (...) {
@@ -278,6 +305,10 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
  private:
   static void ValidateParams(const pb::DetectParams& params) {
     if (params.queries().empty()) throw std::invalid_argument("params.queries is empty");
+    for (int k = 0; k < params.view_sensor_poses_size(); ++k) {  // Before the cloud is read.
+      pc::PoseFromProto(params.view_sensor_poses(k),
+                        "params.view_sensor_poses[" + std::to_string(k) + "]");
+    }
     for (int i = 0; i < params.queries_size(); ++i) {
       const pb::ItemQuery& q = params.queries(i);
       const std::string field = "params.queries[" + std::to_string(i) + "]";
@@ -327,7 +358,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
   }
 
   void DetectItem(const pb::ItemQuery& query, const geometry::PointCloud& scene,
-                  const std::shared_ptr<SceneContext>& context, double shared_preprocess_s,
+                  const std::shared_ptr<SceneContext>& context,
+                  const EstimatorOptions& estimator_options, double shared_preprocess_s,
                   Clock::time_point budget_start, pb::ItemResult* result) const {
     const auto model = library_->Get(query.item());  // NotFoundError: this item only.
     ObjectConfig config = model->config;
@@ -361,7 +393,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     }
     std::vector<std::shared_ptr<RecordingEstimator>> recorders;
     std::vector<std::shared_ptr<Estimator>> estimators;
-    for (const auto& e : MakeEstimators(library_, context)) {
+    for (const auto& e : MakeEstimators(library_, context, estimator_options)) {
       recorders.push_back(std::make_shared<RecordingEstimator>(e, context));
       estimators.push_back(recorders.back());
     }

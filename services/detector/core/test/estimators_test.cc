@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -83,6 +84,85 @@ TEST(FitOrganizedIntrinsicsTest, RecoversALensWithDistortion) {
                                    Eigen::Vector3d(-0.25, 0.2, 0.7)}) {
     EXPECT_LT((*fitted->Project(p) - *truth.Project(p)).norm(), 0.05) << p.transpose();
   }
+}
+
+// Two organised views of a floor (z = 0, normals up) stacked row-wise, as the scanner merges
+// views without voxels: each view's intrinsics are fitted to its own block, its intensities
+// compensated for its own sensor's shading, and where it grazes the floor left out.
+TEST(MergeStackedViewsTest, SplitsTheViewsFitsEachCameraAndCompensatesEachShading) {
+  const PinholeCamera camera(80, 60, 100.0, 100.0, 39.5, 29.5);
+  // Looking straight down from 1 m, and from far to the side at a grazing angle.
+  const Eigen::Isometry3d X_Down =
+      Eigen::Translation3d(0.0, 0.0, 1.0) * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX());
+  const Eigen::Isometry3d X_Grazing =
+      Eigen::Translation3d(-3.0, 0.0, 0.3) *
+      Eigen::AngleAxisd(-0.5 * M_PI, Eigen::Vector3d::UnitZ()) *
+      Eigen::AngleAxisd(-0.5 * M_PI - 0.1, Eigen::Vector3d::UnitX());
+  geometry::PointCloud stacked;
+  stacked.width = 80;
+  stacked.height = 120;
+  for (const Eigen::Isometry3d* X : {&X_Down, &X_Grazing}) {
+    for (int v = 0; v < 60; ++v) {
+      for (int u = 0; u < 80; ++u) {
+        const Eigen::Vector3d ray = X->linear() * camera.Unproject(Eigen::Vector2d(u, v));
+        const double t = -X->translation().z() / ray.z();
+        if (!(t > 0.0)) {
+          stacked.points.emplace_back(Eigen::Vector3f::Constant(NAN));
+          stacked.normals.emplace_back(Eigen::Vector3f::Constant(NAN));
+          stacked.intensities.push_back(NAN);
+          continue;
+        }
+        stacked.points.push_back((X->translation() + t * ray).cast<float>());
+        stacked.normals.push_back(Eigen::Vector3f::UnitZ());
+        stacked.intensities.push_back(0.5f);
+      }
+    }
+  }
+  const PinholeCamera fallback(10, 10, 5.0, 5.0, 4.5, 4.5);
+  const StackedViews views = MergeStackedViews(stacked, {X_Down, X_Grazing}, fallback);
+  ASSERT_EQ(views.sensors.size(), 2u);
+  EXPECT_NEAR(views.sensors[0].camera.fx(), 100.0, 0.1);
+  EXPECT_NEAR(views.sensors[1].camera.fx(), 100.0, 0.1);
+  EXPECT_TRUE(views.sensors[1].X_BaseSensor.isApprox(X_Grazing));
+  EXPECT_EQ(views.cloud.height, 1u);
+  std::size_t finite = 0;
+  for (const auto& p : stacked.points) finite += p.allFinite() ? 1 : 0;
+  ASSERT_EQ(views.cloud.size(), finite);
+  ASSERT_EQ(views.cloud.intensities.size(), finite);
+  // The first view's: the intensity with its own shading divided out.
+  const AppearanceOptions appearance;
+  EXPECT_FLOAT_EQ(
+      views.cloud.intensities[0],
+      ShadingCompensatedIntensity(0.5f, views.cloud.points[0], Eigen::Vector3f::UnitZ(),
+                                  X_Down.translation().cast<float>(), appearance.min_cos));
+  // The second view's: left out where it grazes the floor, compensated elsewhere.
+  const std::size_t first_view = static_cast<std::size_t>(
+      std::count_if(stacked.points.begin(), stacked.points.begin() + 80 * 60,
+                    [](const Eigen::Vector3f& p) { return p.allFinite(); }));
+  int grazed = 0, kept = 0;
+  for (std::size_t i = first_view; i < views.cloud.size(); ++i) {
+    const Eigen::Vector3f ray = X_Grazing.translation().cast<float>() - views.cloud.points[i];
+    if (ray.normalized().z() < appearance.min_sample_cos) {
+      EXPECT_TRUE(std::isnan(views.cloud.intensities[i])) << i;
+      ++grazed;
+    } else {
+      EXPECT_FLOAT_EQ(
+          views.cloud.intensities[i],
+          ShadingCompensatedIntensity(0.5f, views.cloud.points[i], Eigen::Vector3f::UnitZ(),
+                                      X_Grazing.translation().cast<float>(), appearance.min_cos));
+      ++kept;
+    }
+  }
+  EXPECT_GT(grazed, 100);
+  EXPECT_GT(kept, 100);
+
+  // Bad input: no pose, a NaN pose, a height that is not a multiple of the views.
+  EXPECT_THROW(MergeStackedViews(stacked, {}, fallback), std::invalid_argument);
+  Eigen::Isometry3d nan_pose = X_Down;
+  nan_pose.translation().x() = NAN;
+  EXPECT_THROW(MergeStackedViews(stacked, {X_Down, nan_pose}, fallback), std::invalid_argument);
+  EXPECT_THROW(MergeStackedViews(stacked, std::vector<Eigen::Isometry3d>(7, X_Down), fallback),
+               std::invalid_argument);
 }
 
 TEST(IntensitiesFromColorsTest, UsesTheLuma) {
