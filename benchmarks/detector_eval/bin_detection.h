@@ -28,23 +28,23 @@ struct BinDetectionOptions {
   /// machine loaded by other work, a factor of the load keeps the budget's share of the
   /// search as on a quiet one.
   double budget_scale = 1.0;
-  /// A scan merged from several views is verified from every view's sensor
+  /// A scan of several views is verified from every view's sensor
   /// (SceneContextOptions::other_sensors), not from the first one's alone.
   bool multi_sensor_verification = true;
   /// The estimators' options (PPF per-segment hypotheses, sphere fits, ...).
   detector::EstimatorOptions estimators;
 };
 
-/// One scan of the bin made of several views (the paper scans each bin from three angles):
-/// the finite points of every view's cloud, with their channels, in one unorganised cloud in
-/// the base frame; the sensor pose and intrinsics, bin box and items are the first view's,
-/// the other views' sensors in `other_sensors` (verification judges visibility from all of
-/// them), the timings the sums. Each view's intensities have its own shading divided out,
-/// and are NaN where that view grazed the surface (detector::CompensatedViewIntensity;
-/// detect with AppearanceOptions::screened_per_view). The detector then has no organised
-/// image (no SIFT, intrinsics not fitted: the first view's are used for verification and
-/// range templates). Throws std::invalid_argument when `views` is empty or the views
-/// disagree on the bin.
+/// One scan of the bin made of several views (the paper scans each bin from three angles), as
+/// the scanner service merges views without voxels: the views' organised clouds stacked
+/// row-wise in one organised cloud, their sensors' poses in `view_poses`; the sensor pose and
+/// intrinsics, bin box and items are the first view's, the timings the sums. DetectInBin
+/// then does what the detector service does with DetectParams.view_sensor_poses: after the
+/// crop, detector::MergeStackedViews splits the views (each view's intrinsics fitted, its
+/// shading divided out of its intensities), and poses are verified from every view's
+/// sensor (unless multi_sensor_verification is off). Throws std::invalid_argument when
+/// `views` is empty, the views disagree on the bin or are not organised clouds of one size
+/// with the same channels.
 BinScan MergeViews(const std::vector<BinScan>& views);
 
 /// One full detection call and what it saw.

@@ -11,7 +11,6 @@
 #include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
 #include "services/detector/core/preprocess.h"
-#include "services/detector/core/verify.h"
 
 namespace picking::detector_eval {
 
@@ -52,8 +51,10 @@ struct BinScan {
   Eigen::Isometry3d X_BaseCamera = Eigen::Isometry3d::Identity();
   /// The camera's intrinsics (what the scanner triangulated with).
   camera::PinholeCamera camera{1, 1, 1.0, 1.0, 0.0, 0.0};
-  /// A scan merged from several views (MergeViews): the other views' sensors.
-  std::vector<detector::SensorView> other_sensors;
+  /// A scan of several views (MergeViews): the views' organised clouds are stacked row-wise
+  /// in `cloud`, and these are their sensors' poses (the first is X_BaseCamera). Empty for
+  /// one view.
+  std::vector<Eigen::Isometry3d> view_poses;
   /// The bin's free inner volume (Box frame axes along the shelf's: x out of the opening,
   /// z up) in the base frame.
   detector::OrientedBox bin_box;

@@ -23,8 +23,10 @@
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
-// and detects in the merged cloud (MergeViews; its print screened per view, so the detector
-// runs with AppearanceOptions::screened_per_view). --appearance=false ranks and accepts poses
+// and detects in the views stacked as the scanner stacks them (MergeViews), as the detector
+// service does with DetectParams.view_sensor_poses: each view's print compensated and screened
+// by its own sensor, poses verified from every view's sensor (--multi_sensor=false: from the
+// first view's alone). --appearance=false ranks and accepts poses
 // without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.
 // --appearance_search=false leaves out PPF's print-guided pose search (SearchAppearancePose);
 // --search_step_m and --search_levels set its first step and number of step halvings.
@@ -322,12 +324,7 @@ int Run(const Args& args) {
         }
       }
       const BinScan scan = views.size() == 1 ? std::move(views.front()) : MergeViews(views);
-      BinDetectionOptions detection = args.detection;
-      if (views.size() > 1) {
-        // MergeViews screened each view's print by its own angle (NaN where it grazed).
-        detection.estimators.ppf.appearance.screened_per_view = true;
-        detection.estimators.refine.verify.appearance.screened_per_view = true;
-      }
+      const BinDetectionOptions& detection = args.detection;
       scan_s += scan.render_s + scan.process_s;
       ++scans;
       const auto model_start = std::chrono::steady_clock::now();

@@ -479,19 +479,20 @@ std::optional<PinholeCamera> FitDistortedIntrinsics(const std::vector<Eigen::Vec
 
 std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
                                                     const Eigen::Isometry3d& X_BaseSensor,
-                                                    double max_rms_px) {
+                                                    double max_rms_px, int pixel_step) {
   if (!cloud.is_organized() ||
       static_cast<std::size_t>(cloud.width) * cloud.height != cloud.points.size()) {
     return std::nullopt;
   }
+  const std::uint32_t step = static_cast<std::uint32_t>(std::max(1, pixel_step));
   const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
   // Normal equations of [a 1] [f c]^T = pixel for each axis.
   Eigen::Matrix2d Au = Eigen::Matrix2d::Zero(), Av = Eigen::Matrix2d::Zero();
   Eigen::Vector2d bu = Eigen::Vector2d::Zero(), bv = Eigen::Vector2d::Zero();
   std::size_t n = 0;
   std::vector<Eigen::Vector4d> samples;  // (x/z, y/z, u, v)
-  for (std::uint32_t v = 0; v < cloud.height; ++v) {
-    for (std::uint32_t u = 0; u < cloud.width; ++u) {
+  for (std::uint32_t v = 0; v < cloud.height; v += step) {
+    for (std::uint32_t u = 0; u < cloud.width; u += step) {
       const Eigen::Vector3f& p = cloud.points[static_cast<std::size_t>(v) * cloud.width + u];
       if (!p.allFinite()) continue;
       const Eigen::Vector3d q = X_SensorBase * p.cast<double>();
@@ -524,10 +525,16 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
   return FitDistortedIntrinsics(samples, width, height, fu, fv, max_rms_px);
 }
 
+namespace {
+// Every 4th pixel of every 4th row: some 50 000 points of a megapixel view.
+constexpr int kViewFitPixelStep = 4;
+}  // namespace
+
 StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
                                const std::vector<Eigen::Isometry3d>& X_BaseSensors,
                                const PinholeCamera& fallback_camera,
-                               const AppearanceOptions& appearance) {
+                               const AppearanceOptions& appearance,
+                               const OrientedBox* keep_inside) {
   const std::size_t views = X_BaseSensors.size();
   if (views == 0) throw std::invalid_argument("MergeStackedViews: no view sensor pose");
   for (std::size_t k = 0; k < views; ++k) {
@@ -555,12 +562,16 @@ StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
     view.height = static_cast<std::uint32_t>(rows);
     const auto first = stacked.points.begin() + static_cast<std::ptrdiff_t>(k * block);
     view.points.assign(first, first + static_cast<std::ptrdiff_t>(block));
-    out.sensors.push_back(
-        SensorView{X_BaseSensors[k],
-                   FitOrganizedIntrinsics(view, X_BaseSensors[k]).value_or(fallback_camera)});
+    const std::optional<PinholeCamera> fitted =
+        FitOrganizedIntrinsics(view, X_BaseSensors[k], 1.0, kViewFitPixelStep);
+    out.fitted_cameras += fitted ? 1 : 0;
+    out.sensors.push_back(SensorView{X_BaseSensors[k], fitted.value_or(fallback_camera)});
     const Eigen::Vector3f viewpoint = X_BaseSensors[k].translation().cast<float>();
     for (std::size_t i = k * block; i < (k + 1) * block; ++i) {
       if (!stacked.points[i].allFinite()) continue;
+      if (keep_inside != nullptr && !keep_inside->Contains(stacked.points[i].cast<double>())) {
+        continue;
+      }
       out.cloud.points.push_back(stacked.points[i]);
       if (normals) out.cloud.normals.push_back(stacked.normals[i]);
       if (stacked.has_colors()) out.cloud.colors.push_back(stacked.colors[i]);

@@ -255,10 +255,12 @@ std::vector<std::shared_ptr<Estimator>> MakeEstimators(
 /// point (points in the sensor frame S) by the pinhole model u = fx x/z + cx, v = fy y/z + cy;
 /// when that leaves more than `max_rms_px` RMS residual, by the model with OpenCV lens
 /// distortion (k1, k2, p1, p2; Gauss-Newton from the pinhole fit). nullopt when the cloud is
-/// not organised, has fewer than 100 finite points or neither fit is within `max_rms_px`.
+/// not organised, has fewer than 100 finite points (of those used) or neither fit is within
+/// `max_rms_px`. `pixel_step` > 1 uses every pixel_step-th pixel of every pixel_step-th row
+/// (a full scan's megapixel needs far fewer than all its points to fit eight parameters).
 std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& cloud,
                                                     const Eigen::Isometry3d& X_BaseSensor,
-                                                    double max_rms_px = 1.0);
+                                                    double max_rms_px = 1.0, int pixel_step = 1);
 
 /// A scan of several views (the scanner's merge without voxels stacks the views' organised
 /// clouds: rows [k h, (k + 1) h) are view k's, h = height / views), turned into what the
@@ -271,12 +273,16 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
 struct StackedViews {
   geometry::PointCloud cloud;
   std::vector<SensorView> sensors;  ///< One per view, the first the reference.
+  int fitted_cameras = 0;           ///< Views whose intrinsics were fitted (not the fallback).
 };
+/// With `keep_inside`, only the points inside that box are kept (the views' intrinsics are
+/// still fitted to the whole of each view): a region's crop before the per-point work.
 /// Throws std::invalid_argument when X_BaseSensors is empty or holds a non-finite pose, or
 /// the cloud is not organised in as many blocks of rows as there are poses.
 StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
                                const std::vector<Eigen::Isometry3d>& X_BaseSensors,
                                const PinholeCamera& fallback_camera,
-                               const AppearanceOptions& appearance = {});
+                               const AppearanceOptions& appearance = {},
+                               const OrientedBox* keep_inside = nullptr);
 
 }  // namespace picking::detector

@@ -177,9 +177,6 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       Clock::time_point budget_start = Clock::now();
 
       geometry::PointCloud scene = std::move(received.cloud);
-      // The crop keeps an organised cloud organised: stacked views stay apart.
-      if (params.has_region()) scene = CropToRegion(scene, params.region());
-      response->set_points_after_preprocessing(CountFinite(scene));
       SceneContextOptions context_options;
       // A region with a wall margin has lost its floor already.
       context_options.remove_dominant_plane =
@@ -188,20 +185,25 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       std::optional<PinholeCamera> camera;
       Eigen::Isometry3d X_BaseSensor = received.X_BaseSensor;
       if (params.view_sensor_poses_size() > 0) {
+        // Stacked views: split first (each view's intrinsics fitted to its whole block), keeping
+        // only the region's points; the region's walls and floor go after.
         std::vector<Eigen::Isometry3d> poses;
         for (int k = 0; k < params.view_sensor_poses_size(); ++k) {
           poses.push_back(pc::PoseFromProto(params.view_sensor_poses(k),
                                             "params.view_sensor_poses[" + std::to_string(k) + "]"));
         }
+        std::optional<OrientedBox> box;
+        if (params.has_region()) box = RegionBox(params.region());
         StackedViews views;
         try {
           views = MergeStackedViews(scene, poses, settings_.default_camera,
-                                    estimator_options.ppf.appearance);
+                                    estimator_options.ppf.appearance, box ? &*box : nullptr);
         } catch (const std::invalid_argument& e) {
           throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
         }
-        if (CountFinite(views.cloud) == 0) {
-          throw std::invalid_argument("the views hold no finite point in the region");
+        if (views.cloud.empty()) {
+          throw std::invalid_argument(
+              "params.region: no point of the views lies inside the region");
         }
         scene = std::move(views.cloud);
         X_BaseSensor = views.sensors.front().X_BaseSensor;
@@ -209,9 +211,12 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         context_options.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
         estimator_options.ppf.appearance.screened_per_view = true;
         estimator_options.refine.verify.appearance.screened_per_view = true;
+        if (params.has_region()) scene = CropToRegion(scene, params.region());
       } else {
+        if (params.has_region()) scene = CropToRegion(scene, params.region());
         camera = CameraFor(scene, X_BaseSensor);
       }
+      response->set_points_after_preprocessing(CountFinite(scene));
       auto context = std::make_shared<SceneContext>(scene, X_BaseSensor, camera, context_options);
       context->set_deadline(SteadyDeadline(ctx));
       const double shared_preprocess_s = SecondsSince(start);
@@ -322,8 +327,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     }
   }
 
-  static geometry::PointCloud CropToRegion(const geometry::PointCloud& scene,
-                                           const pb::Region& region) {
+  static OrientedBox RegionBox(const pb::Region& region) {
     OrientedBox box;
     box.X_BaseBox = pc::PoseFromProto(region.x_frame_region(), "params.region.X_frame_region");
     box.size_m = pc::VectorFromProto(region.size_m(), "params.region.size_m");
@@ -336,6 +340,12 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       throw std::invalid_argument(
           "params.region.wall_margin_m must be >= 0 and less than half the smallest box side");
     }
+    return box;
+  }
+
+  static geometry::PointCloud CropToRegion(const geometry::PointCloud& scene,
+                                           const pb::Region& region) {
+    const OrientedBox box = RegionBox(region);
     geometry::PointCloud cropped = CropToBox(scene, box);
     if (region.wall_margin_m() > 0.0) {
       WallRemovalOptions walls;
