@@ -156,6 +156,18 @@ TEST(MergeStackedViewsTest, SplitsTheViewsFitsEachCameraAndCompensatesEachShadin
   EXPECT_GT(grazed, 100);
   EXPECT_GT(kept, 100);
 
+  // Kept inside a box: only those points, the cameras still fitted to the whole views.
+  OrientedBox half;
+  half.X_BaseBox.translation() = Eigen::Vector3d(-1.0, 0.0, 0.0);
+  half.size_m = Eigen::Vector3d(2.0, 10.0, 1.0);  // x in [-2, 0]
+  const StackedViews inside = MergeStackedViews(stacked, {X_Down, X_Grazing}, fallback, {}, &half);
+  ASSERT_FALSE(inside.cloud.empty());
+  EXPECT_LT(inside.cloud.size(), views.cloud.size());
+  for (const Eigen::Vector3f& p : inside.cloud.points) EXPECT_LE(p.x(), 0.0f);
+  EXPECT_EQ(inside.cloud.intensities.size(), inside.cloud.size());
+  EXPECT_EQ(inside.fitted_cameras, 2);
+  EXPECT_NEAR(inside.sensors[0].camera.fx(), 100.0, 0.1);
+
   // Bad input: no pose, a NaN pose, a height that is not a multiple of the views.
   EXPECT_THROW(MergeStackedViews(stacked, {}, fallback), std::invalid_argument);
   Eigen::Isometry3d nan_pose = X_Down;
