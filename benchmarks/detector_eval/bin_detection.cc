@@ -96,8 +96,7 @@ PreparedScene Prepare(const BinScan& scan, const BinDetectionOptions& options) {
     if (options.multi_sensor_verification) {
       out.context.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
     }
-    out.estimators.ppf.appearance.screened_per_view = true;
-    out.estimators.refine.verify.appearance.screened_per_view = true;
+    detector::UseScreenedViews(&out.estimators);
     return out;
   }
   out.cloud = Region(scan, options);

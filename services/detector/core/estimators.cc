@@ -525,6 +525,11 @@ std::optional<PinholeCamera> FitOrganizedIntrinsics(const geometry::PointCloud& 
   return FitDistortedIntrinsics(samples, width, height, fu, fv, max_rms_px);
 }
 
+void UseScreenedViews(EstimatorOptions* options) {
+  options->ppf.appearance.screened_per_view = true;
+  options->refine.verify.appearance.screened_per_view = true;
+}
+
 namespace {
 // Every 4th pixel of every 4th row: some 50 000 points of a megapixel view.
 constexpr int kViewFitPixelStep = 4;

@@ -246,6 +246,11 @@ struct EstimatorOptions {
   RefineVerifyOptions refine;
 };
 
+/// Sets both copies of the appearance options (PPF's and verification's) for a cloud merged
+/// from several views whose intensities were compensated and screened per view
+/// (MergeStackedViews, AppearanceOptions::screened_per_view).
+void UseScreenedViews(EstimatorOptions* options);
+
 /// The three estimators above for one scene.
 std::vector<std::shared_ptr<Estimator>> MakeEstimators(
     const std::shared_ptr<const ModelLibrary>& library,

@@ -173,9 +173,11 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   const Eigen::Isometry3f X_SensorItem =
       (scene.X_BaseSensor().inverse() * X_BaseItem).cast<float>();
   geometry::PointCloud sub;
-  std::vector<std::uint8_t> sub_patches;  // SurfacePatch of each model normal
+  std::vector<std::uint8_t> sub_patches;     // SurfacePatch of each model normal
+  std::vector<Eigen::Vector3f> p_ItemModel;  // sub's points in the item frame
   for (std::size_t i = 0; i < model.size(); i += stride) {
     if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
+    p_ItemModel.push_back(model.points[i]);
     sub.points.push_back(X_SensorItem * model.points[i]);
     sub.normals.push_back(X_SensorItem.linear() * model.normals[i]);
     if (model.has_intensities()) sub.intensities.push_back(model.intensities[i]);
@@ -317,14 +319,8 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     // of the model point nearest the scene point, in the item frame. Not the albedo of the
     // model point that found the match: a print's dark parts are measured worst (at a grazing
     // angle they may not be decoded at all), so along their edges the model point on the
-    // dark side is matched by a bright scene point beside it. The points are those of `sub`
-    // (same stride and filter), so their albedo and patch are sub's.
-    std::vector<Eigen::Vector3f> p_ItemModel;
-    p_ItemModel.reserve(sub.size());
-    for (std::size_t i = 0; i < model.size(); i += stride) {
-      if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
-      p_ItemModel.push_back(model.points[i]);
-    }
+    // dark side is matched by a bright scene point beside it. The points are sub's, so their
+    // albedo and patch are sub's.
     const KdTree model_tree(p_ItemModel);
     const float lookup_sq =
         static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *

@@ -170,6 +170,12 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       }
       const pb::DetectParams params = first.params();
       ValidateParams(params);
+      // Stacked views' sensor poses, checked before the cloud is read.
+      std::vector<Eigen::Isometry3d> view_poses;
+      for (int k = 0; k < params.view_sensor_poses_size(); ++k) {
+        view_poses.push_back(pc::PoseFromProto(
+            params.view_sensor_poses(k), "params.view_sensor_poses[" + std::to_string(k) + "]"));
+      }
       ReceivedScene received = ReadCloud(reader, settings_);
       response->set_points_received(received.points_received);
       // An item's time budget covers its share of the work on the received cloud: the first
@@ -184,19 +190,14 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       EstimatorOptions estimator_options;
       std::optional<PinholeCamera> camera;
       Eigen::Isometry3d X_BaseSensor = received.X_BaseSensor;
-      if (params.view_sensor_poses_size() > 0) {
+      if (!view_poses.empty()) {
         // Stacked views: split first (each view's intrinsics fitted to its whole block), keeping
         // only the region's points; the region's walls and floor go after.
-        std::vector<Eigen::Isometry3d> poses;
-        for (int k = 0; k < params.view_sensor_poses_size(); ++k) {
-          poses.push_back(pc::PoseFromProto(params.view_sensor_poses(k),
-                                            "params.view_sensor_poses[" + std::to_string(k) + "]"));
-        }
         std::optional<OrientedBox> box;
         if (params.has_region()) box = RegionBox(params.region());
         StackedViews views;
         try {
-          views = MergeStackedViews(scene, poses, settings_.default_camera,
+          views = MergeStackedViews(scene, view_poses, settings_.default_camera,
                                     estimator_options.ppf.appearance, box ? &*box : nullptr);
         } catch (const std::invalid_argument& e) {
           throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
@@ -209,8 +210,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         X_BaseSensor = views.sensors.front().X_BaseSensor;
         camera = views.sensors.front().camera;
         context_options.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
-        estimator_options.ppf.appearance.screened_per_view = true;
-        estimator_options.refine.verify.appearance.screened_per_view = true;
+        UseScreenedViews(&estimator_options);
         if (params.has_region()) scene = CropToRegion(scene, params.region());
       } else {
         if (params.has_region()) scene = CropToRegion(scene, params.region());
@@ -310,10 +310,6 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
  private:
   static void ValidateParams(const pb::DetectParams& params) {
     if (params.queries().empty()) throw std::invalid_argument("params.queries is empty");
-    for (int k = 0; k < params.view_sensor_poses_size(); ++k) {  // Before the cloud is read.
-      pc::PoseFromProto(params.view_sensor_poses(k),
-                        "params.view_sensor_poses[" + std::to_string(k) + "]");
-    }
     for (int i = 0; i < params.queries_size(); ++i) {
       const pb::ItemQuery& q = params.queries(i);
       const std::string field = "params.queries[" + std::to_string(i) + "]";
