@@ -16,10 +16,14 @@
 //                      [--appearance=true|false|rank] [--appearance_search=true|false]
 //                      [--patch_contrast=true|false] [--min_print=F]
 //                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
+//                      [--box_faces=true|false] [--box_continuation=true|false]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
-// the sphere fit of ball models (detector::PpfSearchOptions) for comparisons. --views=3 scans
+// the sphere fit of ball models (detector::PpfSearchOptions) for comparisons; --box_faces
+// the box models' face poses on the scene's planar patches (PpfSearchOptions::fit_boxes) and
+// --box_continuation the penalty of box poses the scene's surface runs on past
+// (RefineVerifyOptions::box_continuation_weight). --views=3 scans
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
@@ -159,6 +163,11 @@ Args Parse(int argc, char** argv) {
       if (!ParseBool("--floor_band", *v)) args.detection.wall_faces &= ~detector::kFaceMinZ;
     } else if (auto v = value("--sphere_fit")) {
       args.detection.estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
+    } else if (auto v = value("--box_faces")) {
+      args.detection.estimators.ppf_search.fit_boxes = ParseBool("--box_faces", *v);
+    } else if (auto v = value("--box_continuation")) {
+      args.detection.estimators.refine.box_continuation_weight =
+          ParseBool("--box_continuation", *v) ? 1.0 : 0.0;
     } else {
       throw std::invalid_argument("unknown argument '" + a +
                                   "' (see the header of detector_eval.cc)");
@@ -376,10 +385,11 @@ int Run(const Args& args) {
             ScoreTruePose(library, scan, entry.item, t.X_BaseItem, detection);
         const detector::SceneAgreement agreement =
             TruePoseAgreement(library, scan, entry.item, t.X_BaseItem, detection);
-        std::cout << "; true pose score " << truth.score << " fitness " << truth.fitness
-                  << " print " << truth.appearance << " ppf support " << agreement.support
-                  << " conflicts " << agreement.conflict_fraction << " visible "
-                  << agreement.visible_points << " occluded " << agreement.occluded_points;
+        std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " score "
+                  << truth.score << " fitness " << truth.fitness << " print " << truth.appearance
+                  << " ppf support " << agreement.support << " conflicts "
+                  << agreement.conflict_fraction << " visible " << agreement.visible_points
+                  << " occluded " << agreement.occluded_points;
       }
       if (args.per_method) {
         for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);

@@ -21,6 +21,17 @@ double SecondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
+// A box model's half sides and centre, item frame, from its points.
+struct BoxExtent {
+  Eigen::Vector3d half_size;
+  Eigen::Vector3d p_ItemCentre;
+};
+BoxExtent BoxExtentOf(const geometry::PointCloud& cloud) {
+  Eigen::AlignedBox3d box;
+  for (const auto& p : cloud.points) box.extend(p.cast<double>());
+  return {0.5 * box.sizes(), box.center()};
+}
+
 void CheckInput(const EstimatorInput& input, const SceneContext& context, const char* who) {
   if (input.scene == nullptr) throw std::invalid_argument(std::string(who) + ": null scene");
   if (input.scene != &context.scene()) {
@@ -195,6 +206,16 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
     verify.symmetries = object.symmetries();
     const VerifyResult v = Verify(*verification, object.icp_cloud(), d.X_BaseItem, verify);
     d.score = v.score;
+    if (model.spec.kind == ModelSourceKind::kShapeBox && options.box_continuation_weight > 0.0 &&
+        d.score > 0.0) {
+      const BoxExtent box = BoxExtentOf(object.icp_cloud());
+      Eigen::Isometry3d X_BaseBox = d.X_BaseItem;
+      X_BaseBox.translation() += d.X_BaseItem.linear() * box.p_ItemCentre;
+      const double continuation =
+          BoxSurfaceContinuation(scene.fine, scene.fine_tree, X_BaseBox, box.half_size,
+                                 context.X_BaseSensor().translation(), options.continuation);
+      d.score *= 1.0 - options.box_continuation_weight * continuation;
+    }
     if (v.appearance.defined) {
       d.appearance = v.appearance.correlation;
       d.X_BaseItem = v.X_BaseItem_appearance;
@@ -220,6 +241,94 @@ PpfEstimator::PpfEstimator(std::shared_ptr<const ModelLibrary> library,
   if (!(search_.voting_budget_fraction > 0.0f && search_.voting_budget_fraction <= 1.0f)) {
     throw std::invalid_argument("PpfSearchOptions: voting_budget_fraction must be in (0, 1]");
   }
+  if (!(search_.box_budget_fraction > 0.0f && search_.box_budget_fraction <= 1.0f)) {
+    throw std::invalid_argument("PpfSearchOptions: box_budget_fraction must be in (0, 1]");
+  }
+  if (!(search_.verify_budget_fraction >= 0.0f &&
+        search_.voting_budget_fraction + search_.verify_budget_fraction < 1.0f)) {
+    throw std::invalid_argument(
+        "PpfSearchOptions: verify_budget_fraction must be >= 0 and leave room for refinement "
+        "after voting_budget_fraction");
+  }
+  if (search_.box_screen_points < 30) {
+    throw std::invalid_argument("PpfSearchOptions: box_screen_points must be >= 30");
+  }
+  if (!(search_.box_screen_tolerance_scale >= 1.0)) {
+    throw std::invalid_argument("PpfSearchOptions: box_screen_tolerance_scale must be >= 1");
+  }
+  if (search_.box_max_refined < 0) {
+    throw std::invalid_argument("PpfSearchOptions: box_max_refined must be >= 0");
+  }
+  search_.box.Validate();
+}
+
+std::vector<Eigen::Isometry3d> PpfEstimator::BoxFaceSeeds(const LoadedModel& model,
+                                                          const PpfScene& scene,
+                                                          Clock::time_point deadline) {
+  if (search_.box_max_refined == 0) return {};
+  const geometry::PointCloud& icp_cloud = model.object->icp_cloud();
+  const auto [half_size, p_ItemCentre] = BoxExtentOf(icp_cloud);
+  BoxFaceOptions faces = search_.box;
+  faces.neighbour_radius_m =
+      std::max(faces.neighbour_radius_m, 2.5 * static_cast<double>(model.object->fine_voxel_m()));
+  const std::vector<PlanarPatch> patches = FindPlanarPatches(scene.fine, scene.fine_tree, faces);
+
+  // Screening: the support of a few hundred model points, geometry only.
+  geometry::PointCloud screen_model;
+  const std::size_t stride = std::max<std::size_t>(
+      1, icp_cloud.size() / static_cast<std::size_t>(search_.box_screen_points));
+  for (std::size_t i = 0; i < icp_cloud.size(); i += stride) {
+    screen_model.points.push_back(icp_cloud.points[i]);
+    screen_model.normals.push_back(icp_cloud.normals[i]);
+  }
+  screen_model.width = static_cast<std::uint32_t>(screen_model.points.size());
+  // PPF's own check of a hypothesis (seen from the reference sensor), widened for a pose
+  // not yet refined.
+  const float step = model.object->sampling_distance_m();
+  const float screen_distance_m =
+      static_cast<float>(search_.box_screen_tolerance_scale) * ppf_.support_distance_rel * step;
+  const float screen_conflict_m = ppf_.conflict_distance_rel * step;
+  std::vector<std::pair<double, Eigen::Isometry3d>> screened;
+  for (const PlanarPatch& patch : patches) {
+    if (Clock::now() > deadline) break;
+    for (Eigen::Isometry3d X : BoxPosesOnPatch(patch, half_size, faces)) {
+      // BoxPosesOnPatch places the box's centre; the item frame may sit elsewhere in it.
+      X.translation() -= X.linear() * p_ItemCentre;
+      const SceneAgreement a = MeasureAgreement(screen_model, scene, X, screen_distance_m,
+                                                ppf_.support_normal_angle_rad, screen_conflict_m);
+      const double score = a.visible_points - a.occluded_points < search_.box_screen_min_points
+                               ? 0.0
+                               : a.support - a.conflict_fraction;
+      if (score >= search_.box_min_screen_score) screened.emplace_back(score, X);
+    }
+  }
+  std::stable_sort(screened.begin(), screened.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  // Distinct seeds only: a face seen whole gives the same pose from its two rectangle
+  // sides of equal length, and neighbouring patches of one face give nearly the same.
+  const auto& symmetries = model.object->symmetries();
+  const auto same = [&](const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
+    if ((a.translation() - b.translation()).norm() > search_.box_seed_distance_m) return false;
+    if (symmetries.empty()) {
+      return RotationAngle(a.linear(), b.linear()) < search_.box_seed_angle_rad;
+    }
+    for (const Eigen::Isometry3d& turn : symmetries) {
+      if (RotationAngle(a.linear(), b.linear() * turn.linear()) < search_.box_seed_angle_rad) {
+        return true;
+      }
+    }
+    return false;
+  };
+  std::vector<Eigen::Isometry3d> seeds;
+  for (const auto& [score, X] : screened) {
+    if (seeds.size() >= static_cast<std::size_t>(search_.box_max_refined)) break;
+    if (std::any_of(seeds.begin(), seeds.end(),
+                    [&](const Eigen::Isometry3d& kept) { return same(kept, X); })) {
+      continue;
+    }
+    seeds.push_back(X);
+  }
+  return seeds;
 }
 
 std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
@@ -249,7 +358,25 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     }
     return Finish(std::move(out), refine_, start);
   }
+  // The verification scene is built once per scene, on first use, and before the time left
+  // is shared out between voting, refinement and verification.
+  context_->Verification();
   PpfDetectorOptions ppf = ppf_;
+  double seed_s = 0.0;
+  if (search_.fit_boxes && model->spec.kind == ModelSourceKind::kShapeBox) {
+    ppf.seed_source = [this, &model, &scene, &seed_s, &input]() {
+      const auto seed_start = Clock::now();
+      const Clock::time_point deadline =
+          input.budget_end == Clock::time_point::max()
+              ? input.budget_end
+              : seed_start + std::chrono::duration_cast<Clock::duration>(
+                                 std::max(Clock::duration::zero(), input.budget_end - seed_start) *
+                                 search_.box_budget_fraction);
+      std::vector<Eigen::Isometry3d> seeds = BoxFaceSeeds(*model, scene, deadline);
+      seed_s = SecondsSince(seed_start);
+      return seeds;
+    };
+  }
   if (scene.sampled.size() <= search_.dense_reference_max_points) ppf.match.reference_step = 1;
   if (search_.per_segment_hypotheses) {
     const float diameter = model->object->diameter_m();
@@ -269,13 +396,11 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     const auto remaining = std::max(Clock::duration::zero(), input.budget_end - now);
     ppf.match.deadline = now + std::chrono::duration_cast<Clock::duration>(
                                    remaining * search_.voting_budget_fraction);
-    ppf.refine_deadline = input.budget_end;
+    ppf.refine_deadline = input.budget_end - std::chrono::duration_cast<Clock::duration>(
+                                                 remaining * search_.verify_budget_fraction);
   }
   context_->CheckDeadline();
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
-  // The verification scene is built once per scene, on first use: outside the per-pose
-  // time that decides how many poses fit the budget.
-  context_->Verification();
   const auto verify_start = Clock::now();
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
@@ -289,7 +414,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.fitness = hypothesis.icp.fitness;
     d.inlier_rmse_m = hypothesis.icp.inlier_rmse_m;
     d.timings.preprocess_s = preprocess_s;
-    d.timings.estimate_s = result.match_s;
+    d.timings.estimate_s = seed_s + result.match_s;
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   }

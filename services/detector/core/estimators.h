@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/box_faces.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/icp.h"
 #include "services/detector/core/kdtree.h"
@@ -127,6 +128,12 @@ struct RefineVerifyOptions {
   /// print evidence ranks with verify.min_appearance_correlation, as neither confirmed nor
   /// contradicted.
   double appearance_rank_weight = 0.5;
+  /// Box models: the verified score is multiplied by 1 - box_continuation_weight *
+  /// BoxSurfaceContinuation (seen from the reference sensor), in [0, 1]: a thin box laid
+  /// along the edge strip of a bigger one is supported everywhere it is visible, but the
+  /// bigger one's surface runs on past its edges.
+  double box_continuation_weight = 1.0;
+  ContinuationOptions continuation;
 };
 
 /// Refines `X_BaseItem` with ICP (when `refine`) and scores it with Verify (or with the ICP
@@ -153,11 +160,40 @@ struct PpfSearchOptions {
   /// With a time budget (EstimatorInput::budget_end), voting stops after this fraction of
   /// the remaining budget, leaving the rest to refinement and verification; in (0, 1].
   float voting_budget_fraction = 0.5f;
+  /// ... and refinement stops this fraction of it before the budget's end, leaving that to
+  /// the verification of the refined poses; >= 0, with voting_budget_fraction below 1.
+  float verify_budget_fraction = 0.15f;
   /// Sphere models (ModelSourceKind::kShapeSphere) are found by FindSpheres with the
   /// model's radius instead of PPF voting: a ball's pose is its centre, and every pair of a
   /// sphere votes alike, which makes voting slow and its peaks flat.
   bool fit_spheres = true;
   SphereSearchOptions sphere;
+  /// Box models (ModelSourceKind::kShapeBox) fall back on poses that put a box face on the
+  /// scene's planar patches (FindPlanarPatches, BoxPosesOnPatch) when no voted hypothesis is
+  /// good enough (PpfDetectorOptions::seed_source): a box mostly hidden behind others shows
+  /// one or two flat faces, whose point pairs vote alike all over the face so that PPF's
+  /// peaks go flat, while a face's plane and a visible corner fix the pose.
+  /// `box.neighbour_radius_m` is raised to 2.5 fine voxels of the model where that is larger.
+  bool fit_boxes = true;
+  BoxFaceOptions box;
+  /// The face poses are screened by PPF's agreement check (MeasureAgreement: support minus
+  /// conflicts) on this many model points (>= 30), its distance tolerance widened by
+  /// box_screen_tolerance_scale (>= 1) for the unrefined pose; a pose showing fewer than
+  /// box_screen_min_points unhidden points scores 0 ...
+  int box_screen_points = 300;
+  double box_screen_tolerance_scale = 2.0;
+  int box_screen_min_points = 10;
+  /// ... and at most box_max_refined (>= 0) of those scoring at least box_min_screen_score
+  /// are refined and verified.
+  int box_max_refined = 4;
+  double box_min_screen_score = 0.4;
+  /// Seeds closer than this (metres and radians, up to the model's symmetry turns) to a
+  /// better-screened one are left out.
+  double box_seed_distance_m = 0.01;
+  double box_seed_angle_rad = 0.2;
+  /// With a time budget, the screening stops after this fraction of what remains of it; in
+  /// (0, 1].
+  float box_budget_fraction = 0.25f;
 };
 
 /// PPF voting, pose clustering and ICP (ppf_detector.h), then verification. Candidates are
@@ -166,8 +202,7 @@ struct PpfSearchOptions {
 /// verified the same way.
 class PpfEstimator final : public Estimator {
  public:
-  /// Throws std::invalid_argument on a null library or context or a voting_budget_fraction
-  /// outside (0, 1].
+  /// Throws std::invalid_argument on a null library or context or bad search options.
   PpfEstimator(std::shared_ptr<const ModelLibrary> library, std::shared_ptr<SceneContext> context,
                PpfDetectorOptions ppf = {}, RefineVerifyOptions refine = {},
                PpfSearchOptions search = {});
@@ -177,6 +212,12 @@ class PpfEstimator final : public Estimator {
   std::vector<Detection> Estimate(const EstimatorInput& input) override;
 
  private:
+  // Box poses on the scene's planar patches that pass the screening, best first, for
+  // DetectPpf to refine and verify (PpfSearchOptions::fit_boxes); none without a
+  // verification scene. Patches are no longer screened after `deadline`.
+  std::vector<Eigen::Isometry3d> BoxFaceSeeds(const LoadedModel& model, const PpfScene& scene,
+                                              std::chrono::steady_clock::time_point deadline);
+
   std::shared_ptr<const ModelLibrary> library_;
   std::shared_ptr<SceneContext> context_;
   PpfDetectorOptions ppf_;

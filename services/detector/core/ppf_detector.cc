@@ -144,10 +144,19 @@ PpfScene PreparePpfScene(const geometry::PointCloud& scene, const ObjectModel& m
 SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
                                 const Eigen::Isometry3d& X_SceneModel, float distance_m,
                                 float normal_angle_rad, float conflict_distance_m) {
+  return MeasureAgreement(model.icp_cloud(), scene, X_SceneModel, distance_m, normal_angle_rad,
+                          conflict_distance_m);
+}
+
+SceneAgreement MeasureAgreement(const geometry::PointCloud& m, const PpfScene& scene,
+                                const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                float normal_angle_rad, float conflict_distance_m) {
+  if (!m.has_normals() || m.normals.size() != m.points.size()) {
+    throw std::invalid_argument("MeasureAgreement: the model needs one normal per point");
+  }
   const Eigen::Isometry3f X = X_SceneModel.cast<float>();
   const float d2_max = distance_m * distance_m;
   const float min_cos = std::cos(normal_angle_rad);
-  const geometry::PointCloud& m = model.icp_cloud();
   // Something measured this far in front of a model point hides it from the sensor.
   const float occlusion_m = std::max(conflict_distance_m, 2.0f * distance_m);
   int visible = 0;
@@ -477,6 +486,9 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     throw std::invalid_argument(
         "PpfDetectorOptions: min_appearance_correlation must be in [-1, 1]");
   }
+  if (!(options.seed_refine_fraction >= 0.0f && options.seed_refine_fraction < 1.0f)) {
+    throw std::invalid_argument("PpfDetectorOptions: seed_refine_fraction must be in [0, 1)");
+  }
   PpfDetectionResult result;
   auto start = std::chrono::steady_clock::now();
   result.match = MatchPpf(model.table(), scene.sampled, scene.sampled_tree, options.match);
@@ -518,14 +530,26 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
            options.appearance_weight * (appearance.defined ? appearance.correlation : 0.0);
   };
   std::vector<PpfDetection> verified;
-  const std::size_t count = std::min(result.match.hypotheses.size(),
+  // The best-voted hypotheses, then the seed poses (refined only when no voted one passes).
+  struct Job {
+    bool seed = false;
+    std::size_t index = 0;
+  };
+  std::vector<Job> jobs;
+  const std::size_t voted = std::min(result.match.hypotheses.size(),
                                      static_cast<std::size_t>(options.hypotheses_to_verify));
+  for (std::size_t i = 0; i < voted; ++i) jobs.push_back({false, i});
+  std::vector<Eigen::Isometry3d> seed_poses;  // Filled when the fallback is taken.
   const auto refine_one = [&](std::size_t h) {
-    const PpfHypothesis& hyp = result.match.hypotheses[h];
     PpfDetection d;
-    d.votes = hyp.votes;
-    Eigen::Isometry3d X = hyp.X_SceneModel;
-    if (options.coarse_icp_iterations > 0) {
+    const Job& job = jobs[h];
+    d.seed = job.seed;
+    Eigen::Isometry3d X =
+        job.seed ? seed_poses[job.index] : result.match.hypotheses[job.index].X_SceneModel;
+    if (!job.seed) d.votes = result.match.hypotheses[job.index].votes;
+    // A seed is placed by the scene's surfaces already; the coarse pass would let it slide
+    // to a neighbour's.
+    if (options.coarse_icp_iterations > 0 && !job.seed) {
       const IcpResult c = RunIcp(coarse_model, scene.fine, scene.fine_tree, X, coarse);
       if (c.correspondences >= coarse.min_correspondences) X = c.X_TargetSource;
     }
@@ -541,7 +565,7 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     }
     // The agreement of the pose kept: measured once, also when the search compared two.
     std::optional<SceneAgreement> kept;
-    if (options.appearance_search.levels > 0 && d.appearance.defined) {
+    if (options.appearance_search.levels > 0 && d.appearance.defined && !job.seed) {
       // Kept only when it ranks higher: the print may not buy a worse fit of the shape.
       const AppearancePose ap = SearchAppearancePose(model, scene, d.X_SceneModel, support_m,
                                                      options.support_normal_angle_rad,
@@ -568,40 +592,90 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   // Hypotheses are refined in parallel, each taken only while the mean time of those done
   // so far still fits before the deadline (the first always is); the results keep the
   // hypotheses' order, so that without a deadline the outcome does not depend on threads.
-  const int threads = std::clamp(options.match.num_threads > 0
-                                     ? options.match.num_threads
-                                     : static_cast<int>(std::thread::hardware_concurrency()),
-                                 1, std::max(1, static_cast<int>(count)));
-  std::vector<std::optional<PpfDetection>> refined(count);
-  std::atomic<std::size_t> next{0};
-  std::atomic<std::int64_t> done{0};
-  std::atomic<std::int64_t> busy_ns{0};
-  std::mutex error_mutex;
-  std::exception_ptr error;
-  const auto worker = [&]() {
-    try {
-      for (std::size_t h = next++; h < count; h = next++) {
-        const auto now = std::chrono::steady_clock::now();
-        const std::int64_t n = done.load();
-        const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
-        if (h > 0 && now + mean > options.refine_deadline) return;
-        refined[h] = refine_one(h);
-        busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
-                       std::chrono::steady_clock::now() - now)
-                       .count();
-        ++done;
-      }
-    } catch (...) {
-      std::lock_guard<std::mutex> lock(error_mutex);
-      if (!error) error = std::current_exception();
-      next = count;  // the others stop too
-    }
+  const double min_visible =
+      std::max(static_cast<double>(options.min_visible_points),
+               options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
+  const auto passes = [&](const PpfDetection& d) {
+    // A seed was screened by its source; the support here is seen from one viewpoint, which
+    // undercounts a merged scan's side faces, so the caller's verification judges it.
+    return (d.seed || d.support >= options.min_support) &&
+           d.conflict_fraction <= options.max_conflict_fraction &&
+           d.visible_points >= min_visible &&
+           !(d.appearance.defined && d.appearance.correlation < options.min_appearance_correlation);
   };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-  worker();
-  for (std::thread& t : pool) t.join();
-  if (error) std::rethrow_exception(error);
+  std::vector<std::optional<PpfDetection>> refined(voted);
+  // Refines jobs [begin, end) on the threads; the first always runs, the others while the
+  // mean time of those done so far still fits before the deadline.
+  // A voted hypothesis good enough that the seeds will not be needed.
+  const auto found = [&](const PpfDetection& d) {
+    return passes(d) && d.support >= options.seed_fallback_support;
+  };
+  std::atomic<bool> voted_found{false};
+  const auto refine_range = [&](std::size_t begin, std::size_t end,
+                                std::chrono::steady_clock::time_point early_deadline) {
+    std::atomic<std::size_t> next{begin};
+    std::atomic<std::int64_t> done{0};
+    std::atomic<std::int64_t> busy_ns{0};
+    std::mutex error_mutex;
+    std::exception_ptr error;
+    const auto worker = [&]() {
+      try {
+        for (std::size_t h = next++; h < end; h = next++) {
+          const auto now = std::chrono::steady_clock::now();
+          const std::int64_t n = done.load();
+          const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
+          // Once a voted hypothesis is found the seeds' share of the time is not needed.
+          if (h > begin && now + mean > (voted_found ? options.refine_deadline : early_deadline)) {
+            return;
+          }
+          refined[h] = refine_one(h);
+          if (!refined[h]->seed && found(*refined[h])) voted_found = true;
+          busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
+                         std::chrono::steady_clock::now() - now)
+                         .count();
+          ++done;
+        }
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (!error) error = std::current_exception();
+        next = end;  // the others stop too
+      }
+    };
+    const int threads = std::clamp(options.match.num_threads > 0
+                                       ? options.match.num_threads
+                                       : static_cast<int>(std::thread::hardware_concurrency()),
+                                   1, std::max(1, static_cast<int>(end - begin)));
+    std::vector<std::thread> pool;
+    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+    worker();
+    for (std::thread& t : pool) t.join();
+    if (error) std::rethrow_exception(error);
+  };
+  // The voted hypotheses leave seed_refine_fraction of the refinement time to the seeds,
+  // unless one of them is found.
+  const auto refine_start = std::chrono::steady_clock::now();
+  auto voted_deadline = options.refine_deadline;
+  if (options.seed_source &&
+      options.refine_deadline != std::chrono::steady_clock::time_point::max()) {
+    const auto span = std::max(std::chrono::steady_clock::duration::zero(),
+                               options.refine_deadline - refine_start);
+    voted_deadline = refine_start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                        span * (1.0 - options.seed_refine_fraction));
+  }
+  if (voted > 0) refine_range(0, voted, voted_deadline);
+  if (!voted_found && options.seed_source) {
+    seed_poses = options.seed_source();
+    for (const Eigen::Isometry3d& X : seed_poses) {
+      const Eigen::Matrix3d& R = X.linear();
+      if (!X.matrix().allFinite() ||
+          !(R.transpose() * R).isApprox(Eigen::Matrix3d::Identity(), 1e-6) || R.determinant() < 0) {
+        throw std::invalid_argument("DetectPpf: a seed pose is not a finite rigid motion");
+      }
+    }
+    for (std::size_t i = 0; i < seed_poses.size(); ++i) jobs.push_back({true, i});
+    refined.resize(jobs.size());
+    if (!seed_poses.empty()) refine_range(voted, jobs.size(), options.refine_deadline);
+  }
   for (std::optional<PpfDetection>& d : refined) {
     if (!d) continue;
     ++result.refined_hypotheses;
@@ -614,17 +688,9 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
       verified.begin(), verified.end(),
       [&rank](const PpfDetection& a, const PpfDetection& b) { return rank(a) > rank(b); });
   if (!verified.empty()) result.best = verified.front();
-  const double min_visible =
-      std::max(static_cast<double>(options.min_visible_points),
-               options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
   // Keep distinct poses only: hypotheses that converged to the same place are one object.
   for (const PpfDetection& d : verified) {
-    if (d.support < options.min_support) continue;
-    if (d.conflict_fraction > options.max_conflict_fraction) continue;
-    if (d.visible_points < min_visible) continue;
-    if (d.appearance.defined && d.appearance.correlation < options.min_appearance_correlation) {
-      continue;
-    }
+    if (!passes(d)) continue;
     bool duplicate = false;
     for (const PpfDetection& kept : result.detections) {
       if ((kept.X_SceneModel.translation() - d.X_SceneModel.translation()).norm() <

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -150,7 +151,20 @@ struct PpfDetectorOptions {
   int min_visible_points = 30;
   /// Hypotheses (by votes) refined by ICP and verified.
   int hypotheses_to_verify = 6;
-  /// No further hypothesis is refined after this time (the best-voted one always is): a
+  /// Poses found otherwise (e.g. a box's faces on the scene's planes, BoxPosesOnPatch),
+  /// X_SceneModel, best first: a fallback. When no voted hypothesis passes with a support of
+  /// at least seed_fallback_support, seed_source is called (once) and its poses are refined
+  /// (fine ICP only, no print search: they sit on the scene's surfaces already) and
+  /// verified like the voted ones. They are not held to min_support (their source screened
+  /// them, and the support here is seen from one viewpoint). DetectPpf throws
+  /// std::invalid_argument when a pose is not a finite rigid motion.
+  std::function<std::vector<Eigen::Isometry3d>()> seed_source;
+  /// With a seed_source and a refine_deadline, the voted hypotheses stop this fraction of
+  /// the refinement time early, leaving it to the seeds; in [0, 1).
+  float seed_refine_fraction = 0.25f;
+  float seed_fallback_support = 0.75f;
+  /// No further hypothesis is refined after this time (the best-voted hypothesis and, when
+  /// the seeds are tried, the first seed always are): a
   /// caller's time budget, as PpfMatchOptions::deadline is for the voting.
   std::chrono::steady_clock::time_point refine_deadline =
       std::chrono::steady_clock::time_point::max();
@@ -184,6 +198,8 @@ struct PpfDetection {
   AppearanceScore appearance;
   /// Index into the model's symmetries() of the turn applied after ICP (0: none).
   int symmetry = 0;
+  /// Refined from PpfDetectorOptions::seed_source's poses rather than voted.
+  bool seed = false;
 };
 
 struct PpfDetectionResult {
@@ -225,6 +241,11 @@ struct SceneAgreement {
 };
 inline constexpr float kMinConflictViewCos = 0.26f;
 SceneAgreement MeasureAgreement(const ObjectModel& model, const PpfScene& scene,
+                                const Eigen::Isometry3d& X_SceneModel, float distance_m,
+                                float normal_angle_rad, float conflict_distance_m);
+/// The same over any model points with normals (e.g. a subsample of the ICP cloud, for a
+/// quick screening). Throws std::invalid_argument when a point lacks its normal.
+SceneAgreement MeasureAgreement(const geometry::PointCloud& model_points, const PpfScene& scene,
                                 const Eigen::Isometry3d& X_SceneModel, float distance_m,
                                 float normal_angle_rad, float conflict_distance_m);
 

@@ -284,6 +284,26 @@ TEST_F(MilkEstimatorTest, PpfFindsTheMilkAndVerifiesIt) {
   for (std::size_t i = 1; i < found.size(); ++i) EXPECT_LE(found[i].score, found[i - 1].score);
 }
 
+TEST_F(MilkEstimatorTest, BadSearchOptionsThrow) {
+  auto context = Context();
+  const auto make = [&](const PpfSearchOptions& search) {
+    return PpfEstimator(*library_, context, PpfDetectorOptions{}, RefineVerifyOptions{}, search);
+  };
+  PpfSearchOptions no_room;
+  no_room.verify_budget_fraction = 0.6f;  // with voting's 0.5, nothing is left to refine
+  EXPECT_THROW(make(no_room), std::invalid_argument);
+  PpfSearchOptions no_patches;
+  no_patches.box.max_patches = 0;
+  EXPECT_THROW(make(no_patches), std::invalid_argument);
+  PpfSearchOptions few_points;
+  few_points.box_screen_points = 10;
+  EXPECT_THROW(make(few_points), std::invalid_argument);
+  PpfSearchOptions no_time;
+  no_time.box_budget_fraction = 0.0f;
+  EXPECT_THROW(make(no_time), std::invalid_argument);
+  EXPECT_NO_THROW(make(PpfSearchOptions{}));
+}
+
 TEST_F(MilkEstimatorTest, AbsentObjectGetsNoAcceptableCandidate) {
   auto context = Context();
   PpfEstimator ppf(*library_, context);

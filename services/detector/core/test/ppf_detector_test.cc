@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <vector>
 
 #include "services/detector/core/test/ppf_test_util.h"
 
@@ -151,6 +152,45 @@ TEST_F(MilkSceneTest, FreeSpaceConflicts) {
       MeasureAgreement(milk, scene, X_front, 0.5f * step, 0.5f, 2.0f * step);
   EXPECT_LT(front.support, 0.2);
   EXPECT_GT(front.conflict_fraction, 0.5);
+}
+
+// Seed poses are a fallback: not asked for while a voted hypothesis finds the milk, and
+// refined into a detection when none is good enough.
+TEST_F(MilkSceneTest, SeedPosesAreRefinedOnlyWhenVotingFindsNothing) {
+  const ObjectModel model(*milk_, ObjectModelOptions{});
+  const PpfScene scene = PreparePpfScene(*scene_, model);
+  std::mt19937 rng(11);
+  const Eigen::Isometry3d seed = testing::Perturbation(&rng, 2.0 * kDeg, 0.003);
+  int calls = 0;
+  PpfDetectorOptions options;
+  options.seed_source = [&]() {
+    ++calls;
+    return std::vector<Eigen::Isometry3d>{seed};
+  };
+  const PpfDetectionResult voted = DetectPpf(model, scene, options);
+  EXPECT_EQ(calls, 0);
+  ASSERT_FALSE(voted.detections.empty());
+  EXPECT_FALSE(voted.detections.front().seed);
+
+  options.seed_fallback_support = 1.01f;  // no voted hypothesis is good enough
+  const PpfDetectionResult seeded = DetectPpf(model, scene, options);
+  EXPECT_EQ(calls, 1);
+  EXPECT_EQ(seeded.refined_hypotheses, voted.refined_hypotheses + 1);
+  // The seed converges on the milk, where the best-voted hypothesis is too (one object, one
+  // detection).
+  ASSERT_FALSE(seeded.detections.empty());
+  EXPECT_LT(testing::TranslationError(seeded.detections.front().X_SceneModel,
+                                      Eigen::Isometry3d::Identity()),
+            0.005);
+
+  options.seed_source = []() {
+    Eigen::Isometry3d bad = Eigen::Isometry3d::Identity();
+    bad.translation().x() = std::numeric_limits<double>::quiet_NaN();
+    return std::vector<Eigen::Isometry3d>{bad};
+  };
+  EXPECT_THROW(DetectPpf(model, scene, options), std::invalid_argument);
+  options.seed_refine_fraction = 1.0f;
+  EXPECT_THROW(DetectPpf(model, scene, options), std::invalid_argument);
 }
 
 TEST_F(MilkSceneTest, BadScenesThrow) {
