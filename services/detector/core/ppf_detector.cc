@@ -589,9 +589,6 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     d.visible_points = a.visible_points;
     return d;
   };
-  // Hypotheses are refined in parallel, each taken only while the mean time of those done
-  // so far still fits before the deadline (the first always is); the results keep the
-  // hypotheses' order, so that without a deadline the outcome does not depend on threads.
   const double min_visible =
       std::max(static_cast<double>(options.min_visible_points),
                options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
@@ -603,14 +600,16 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
            d.visible_points >= min_visible &&
            !(d.appearance.defined && d.appearance.correlation < options.min_appearance_correlation);
   };
-  std::vector<std::optional<PpfDetection>> refined(voted);
-  // Refines jobs [begin, end) on the threads; the first always runs, the others while the
-  // mean time of those done so far still fits before the deadline.
   // A voted hypothesis good enough that the seeds will not be needed.
   const auto found = [&](const PpfDetection& d) {
     return passes(d) && d.support >= options.seed_fallback_support;
   };
   std::atomic<bool> voted_found{false};
+  std::vector<std::optional<PpfDetection>> refined(voted);
+  // Refines jobs [begin, end) in parallel, each taken only while the mean time of those done
+  // so far still fits before the deadline (the first always is: early_deadline while no
+  // voted hypothesis is found, refine_deadline after); the results keep the jobs' order, so
+  // that without a deadline the outcome does not depend on threads.
   const auto refine_range = [&](std::size_t begin, std::size_t end,
                                 std::chrono::steady_clock::time_point early_deadline) {
     std::atomic<std::size_t> next{begin};
