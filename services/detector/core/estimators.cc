@@ -274,14 +274,9 @@ std::vector<Eigen::Isometry3d> PpfEstimator::BoxFaceSeeds(const LoadedModel& mod
   const std::vector<PlanarPatch> patches = FindPlanarPatches(scene.fine, scene.fine_tree, faces);
 
   // Screening: the support of a few hundred model points, geometry only.
-  geometry::PointCloud screen_model;
-  const std::size_t stride = std::max<std::size_t>(
-      1, icp_cloud.size() / static_cast<std::size_t>(search_.box_screen_points));
-  for (std::size_t i = 0; i < icp_cloud.size(); i += stride) {
-    screen_model.points.push_back(icp_cloud.points[i]);
-    screen_model.normals.push_back(icp_cloud.normals[i]);
-  }
-  screen_model.width = static_cast<std::uint32_t>(screen_model.points.size());
+  const geometry::PointCloud screen_model = EveryNthPoint(
+      icp_cloud, std::max<std::size_t>(
+                     1, icp_cloud.size() / static_cast<std::size_t>(search_.box_screen_points)));
   // PPF's own check of a hypothesis (seen from the reference sensor), widened for a pose
   // not yet refined.
   const float step = model.object->sampling_distance_m();

@@ -60,6 +60,17 @@ geometry::PointCloud RemoveInvalidPoints(const geometry::PointCloud& cloud) {
   return out;
 }
 
+geometry::PointCloud EveryNthPoint(const geometry::PointCloud& cloud, std::size_t stride) {
+  if (stride == 0) throw std::invalid_argument("EveryNthPoint: stride must be >= 1");
+  geometry::PointCloud out;
+  for (std::size_t i = 0; i < cloud.size(); i += stride) {
+    out.points.push_back(cloud.points[i]);
+    if (cloud.has_normals()) out.normals.push_back(cloud.normals[i]);
+  }
+  FinishUnorganized(&out);
+  return out;
+}
+
 geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel_m) {
   CheckCloudChannels(cloud, "VoxelAverage");
   if (!(voxel_m > 0.0f) || !std::isfinite(voxel_m)) {

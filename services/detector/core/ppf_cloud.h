@@ -38,6 +38,11 @@ geometry::PointCloud RemoveInvalidPoints(const geometry::PointCloud& cloud);
 /// integer coordinates, so the result is deterministic. Non-finite points are ignored.
 /// Throws std::invalid_argument when voxel_m <= 0 or the cloud spans more than 2^20 voxels
 /// along an axis.
+/// Every `stride`-th point (>= 1) of `cloud` with its normal (when it has normals), as an
+/// unorganised cloud: a quick, deterministic thinning of a model for coarse passes and
+/// screenings. Throws std::invalid_argument for stride 0.
+geometry::PointCloud EveryNthPoint(const geometry::PointCloud& cloud, std::size_t stride);
+
 geometry::PointCloud VoxelAverage(const geometry::PointCloud& cloud, float voxel_m);
 
 /// A copy of `cloud` with normals from a PCA plane fit over the neighbours within

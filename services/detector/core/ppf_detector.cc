@@ -14,6 +14,8 @@
 #include <string>
 #include <thread>
 
+#include "services/detector/core/ppf_cloud.h"
+
 namespace picking::detector {
 namespace {
 
@@ -508,15 +510,9 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   fine.viewpoint = scene.viewpoint;
 
   geometry::PointCloud coarse_model;
-  const geometry::PointCloud& icp_model = model.icp_cloud();
   if (options.coarse_icp_iterations > 0) {
-    const auto stride = static_cast<std::size_t>(options.coarse_icp_stride);
-    for (std::size_t i = 0; i < icp_model.size(); i += stride) {
-      coarse_model.points.push_back(icp_model.points[i]);
-      coarse_model.normals.push_back(icp_model.normals[i]);
-    }
-    coarse_model.width = static_cast<std::uint32_t>(coarse_model.points.size());
-    coarse_model.height = 1;
+    coarse_model =
+        EveryNthPoint(model.icp_cloud(), static_cast<std::size_t>(options.coarse_icp_stride));
   }
   const float support_m = options.support_distance_rel * step;
   const auto agreement = [&](const Eigen::Isometry3d& X) {
