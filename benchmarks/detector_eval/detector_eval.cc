@@ -385,8 +385,9 @@ int Run(const Args& args) {
             ScoreTruePose(library, scan, entry.item, t.X_BaseItem, detection);
         const detector::SceneAgreement agreement =
             TruePoseAgreement(library, scan, entry.item, t.X_BaseItem, detection);
-        std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " score "
-                  << truth.score << " fitness " << truth.fitness << " print " << truth.appearance
+        std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " x "
+                  << t.X_BaseItem.linear().col(0).transpose() << " score " << truth.score
+                  << " fitness " << truth.fitness << " print " << truth.appearance
                   << " ppf support " << agreement.support << " conflicts "
                   << agreement.conflict_fraction << " visible " << agreement.visible_points
                   << " occluded " << agreement.occluded_points;

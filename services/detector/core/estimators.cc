@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -119,9 +120,10 @@ const SceneContext::Clusters& SceneContext::SceneClusters() {
     PlaneRemovalOptions plane = options_.plane;
     plane.keep_organized = true;
     c->cloud = options_.remove_dominant_plane ? RemoveDominantPlane(*scene_, plane).cloud : *scene_;
-    c->clusters = EuclideanClusters(c->cloud, options_.clusters);
+    c->clusters = EuclideanClusters(c->cloud, options_.clusters, &c->representatives);
     if (c->clusters.size() > static_cast<std::size_t>(options_.max_clusters)) {
       c->clusters.resize(static_cast<std::size_t>(options_.max_clusters));
+      c->representatives.resize(static_cast<std::size_t>(options_.max_clusters));
     }
     for (const auto& cluster : c->clusters) {
       Eigen::AlignedBox3f box;
@@ -140,8 +142,8 @@ std::vector<std::int32_t> SceneContext::ClusterLabels(const std::vector<Eigen::V
     std::lock_guard<std::mutex> lock(mutex_);
     if (!cluster_tree_) {
       std::vector<Eigen::Vector3f> clustered;
-      for (std::size_t c = 0; c < clusters.clusters.size(); ++c) {
-        for (int i : clusters.clusters[c]) {
+      for (std::size_t c = 0; c < clusters.representatives.size(); ++c) {
+        for (int i : clusters.representatives[c]) {
           clustered.push_back(clusters.cloud.points[i]);
           cluster_labels_.push_back(static_cast<std::int32_t>(c));
         }
@@ -258,6 +260,13 @@ PpfEstimator::PpfEstimator(std::shared_ptr<const ModelLibrary> library,
   }
   if (search_.box_max_refined < 0) {
     throw std::invalid_argument("PpfSearchOptions: box_max_refined must be >= 0");
+  }
+  if (!(search_.box_polish_step_m > 0.0) || search_.box_polish_levels < 0) {
+    throw std::invalid_argument(
+        "PpfSearchOptions: box_polish_step_m must be > 0 and box_polish_levels >= 0");
+  }
+  if (!(search_.box_near_square_tolerance >= 0.0)) {
+    throw std::invalid_argument("PpfSearchOptions: box_near_square_tolerance must be >= 0");
   }
   search_.box.Validate();
 }
@@ -413,7 +422,81 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   }
+  if (model->spec.kind == ModelSourceKind::kShapeBox && !out.empty()) {
+    const auto by_score = [](const Detection& a, const Detection& b) { return a.score < b.score; };
+    const auto time_for_another = [&]() {
+      context_->CheckDeadline();
+      return TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end);
+    };
+    const auto add = [&](Detection d) {
+      d.timings.preprocess_s = preprocess_s;
+      d.timings.estimate_s = seed_s + result.match_s;
+      d.timings.refine_s += result.refine_s;
+      out.push_back(std::move(d));
+    };
+    if (search_.box_near_square_tolerance > 0.0) {
+      const Eigen::Isometry3d X_best =
+          std::max_element(out.begin(), out.end(), by_score)->X_BaseItem;
+      for (const Eigen::Isometry3d& X : NearSquareTurns(*model, X_best)) {
+        if (!time_for_another()) break;
+        add(RefineAndVerify(*model, *context_, Method::kPpf, X, true, refine_));
+      }
+    }
+    if (search_.box_polish_levels > 0) {
+      Detection best = *std::max_element(out.begin(), out.end(), by_score);
+      if (PolishBoxPose(*model, &best, time_for_another)) add(std::move(best));
+    }
+  }
   return Finish(std::move(out), refine_, start);
+}
+
+bool PpfEstimator::PolishBoxPose(const LoadedModel& model, Detection* detection,
+                                 const std::function<bool()>& time_for_another) {
+  const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
+  // The face directions: along the box's two longer sides, where a pose on a flat surface
+  // slides freely under ICP.
+  int thin = 0;
+  half_size.minCoeff(&thin);
+  bool improved = false;
+  double step = search_.box_polish_step_m;
+  for (int level = 0; level < search_.box_polish_levels; ++level, step *= 0.5) {
+    for (bool moved = true; moved;) {
+      moved = false;
+      Detection best_move;
+      for (int axis = 0; axis < 3; ++axis) {
+        if (axis == thin) continue;
+        for (const double sign : {-1.0, 1.0}) {
+          if (!time_for_another()) return improved;
+          Eigen::Isometry3d X = detection->X_BaseItem;
+          X.translation() += X.linear().col(axis) * (sign * step);
+          Detection d = RefineAndVerify(model, *context_, Method::kPpf, X, false, refine_);
+          if (d.score > detection->score && d.score > best_move.score) best_move = std::move(d);
+        }
+      }
+      if (best_move.score > detection->score) {
+        *detection = std::move(best_move);
+        moved = improved = true;
+      }
+    }
+  }
+  return improved;
+}
+
+std::vector<Eigen::Isometry3d> PpfEstimator::NearSquareTurns(
+    const LoadedModel& model, const Eigen::Isometry3d& X_BaseItem) const {
+  const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
+  std::vector<Eigen::Isometry3d> turns;
+  for (int axis = 0; axis < 3; ++axis) {
+    const double a = half_size((axis + 1) % 3);
+    const double b = half_size((axis + 2) % 3);
+    if (std::abs(a - b) > search_.box_near_square_tolerance * std::max(a, b)) continue;
+    // A quarter-turn about the box's centre, in the item frame.
+    const Eigen::Isometry3d turn = Eigen::Translation3d(p_ItemCentre) *
+                                   Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::Unit(axis)) *
+                                   Eigen::Translation3d(-p_ItemCentre);
+    turns.push_back(X_BaseItem * turn);
+  }
+  return turns;
 }
 
 // --- SIFT -----------------------------------------------------------------------------------
@@ -681,6 +764,13 @@ StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
   const bool normals = stacked.has_normals();
   const bool intensities = stacked.has_intensities() && normals;
   StackedViews out;
+  // The box test in the box's frame, once per point: the box's pose is inverted once.
+  Eigen::Isometry3f X_BoxBase = Eigen::Isometry3f::Identity();
+  Eigen::Vector3f half_size = Eigen::Vector3f::Zero();
+  if (keep_inside != nullptr) {
+    X_BoxBase = keep_inside->X_BaseBox.inverse().cast<float>();
+    half_size = (0.5 * keep_inside->size_m).cast<float>();
+  }
   for (std::size_t k = 0; k < views; ++k) {
     geometry::PointCloud view;
     view.width = stacked.width;
@@ -694,7 +784,8 @@ StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
     const Eigen::Vector3f viewpoint = X_BaseSensors[k].translation().cast<float>();
     for (std::size_t i = k * block; i < (k + 1) * block; ++i) {
       if (!stacked.points[i].allFinite()) continue;
-      if (keep_inside != nullptr && !keep_inside->Contains(stacked.points[i].cast<double>())) {
+      if (keep_inside != nullptr &&
+          !((X_BoxBase * stacked.points[i]).cwiseAbs().array() <= half_size.array()).all()) {
         continue;
       }
       out.cloud.points.push_back(stacked.points[i]);

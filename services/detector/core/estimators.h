@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -82,13 +83,18 @@ class SceneContext final {
   struct Clusters {
     geometry::PointCloud cloud;
     std::vector<std::vector<int>> clusters;
+    /// Each cluster thinned to one point per clustering voxel (EuclideanClusters'
+    /// representatives), for ClusterLabels.
+    std::vector<std::vector<int>> representatives;
     /// Bounding-box diagonal of each cluster, metres.
     std::vector<double> extent_m;
   };
   const Clusters& SceneClusters();
   /// For each of `points` (base frame): the index into SceneClusters().clusters of the
   /// cluster of the nearest clustered scene point within max_distance_m (metres), -1 when
-  /// there is none. The search tree over the clustered points is built on first use.
+  /// there is none; the points searched are the clusters' representatives (one per
+  /// clustering voxel, SceneContextOptions::clusters.subsample_voxel_m). Their search tree
+  /// is built on first use.
   std::vector<std::int32_t> ClusterLabels(const std::vector<Eigen::Vector3f>& points,
                                           float max_distance_m);
 
@@ -194,6 +200,19 @@ struct PpfSearchOptions {
   /// With a time budget, the screening stops after this fraction of what remains of it; in
   /// (0, 1].
   float box_budget_fraction = 0.25f;
+  /// A box whose face is nearly square (its two sides differ by at most this fraction of
+  /// the longer; >= 0, 0: off) fits a scan of that face about as well quarter-turned about
+  /// its normal, and its symmetry turns (half-turns) do not cover that: the best-scored
+  /// candidate is also refined and verified quarter-turned about each such face's normal,
+  /// and the scan's side faces and edges pick the turn.
+  double box_near_square_tolerance = 0.1;
+  /// The best box candidate is then polished on the verification score: moved by
+  /// box_polish_step_m (> 0) along its two longer sides while that scores higher, the step
+  /// halved box_polish_levels (>= 0, 0: off) times. A box on a flat surface slides freely
+  /// under ICP along it; its visible edges and the free space beside it, which the score
+  /// weighs, place it.
+  double box_polish_step_m = 0.008;
+  int box_polish_levels = 3;
 };
 
 /// PPF voting, pose clustering and ICP (ppf_detector.h), then verification. Candidates are
@@ -215,6 +234,14 @@ class PpfEstimator final : public Estimator {
   // Box poses on the scene's planar patches that pass the screening, best first, for
   // DetectPpf to refine and verify (PpfSearchOptions::fit_boxes); none without a
   // verification scene. Patches are no longer screened after `deadline`.
+  // The pose quarter-turned about each nearly square face's normal
+  // (PpfSearchOptions::box_near_square_tolerance).
+  std::vector<Eigen::Isometry3d> NearSquareTurns(const LoadedModel& model,
+                                                 const Eigen::Isometry3d& X_BaseItem) const;
+  // PpfSearchOptions::box_polish_*: true when `detection` was moved to a higher score.
+  // Each evaluation first asks time_for_another.
+  bool PolishBoxPose(const LoadedModel& model, Detection* detection,
+                     const std::function<bool()>& time_for_another);
   std::vector<Eigen::Isometry3d> BoxFaceSeeds(const LoadedModel& model, const PpfScene& scene,
                                               std::chrono::steady_clock::time_point deadline);
 

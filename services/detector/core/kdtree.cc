@@ -17,40 +17,44 @@ KdTree::KdTree(const std::vector<Eigen::Vector3f>& points, int leaf_size) {
   if (points.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
     throw std::invalid_argument("KdTree: too many points");
   }
-  points_ = points;
-  index_.resize(points.size());
-  std::iota(index_.begin(), index_.end(), 0);
   if (points.empty()) return;
+  std::vector<Entry> entries(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    entries[i] = {points[i], static_cast<std::int32_t>(i)};
+  }
   nodes_.reserve(2 * points.size() / leaf_size + 2);
-  Build(0, static_cast<std::int32_t>(points.size()), leaf_size);
-  // Reorder the points to tree order for cache-friendly leaves.
-  std::vector<Eigen::Vector3f> ordered(points.size());
-  for (std::size_t i = 0; i < index_.size(); ++i) ordered[i] = points[index_[i]];
-  points_ = std::move(ordered);
+  Build(entries, 0, static_cast<std::int32_t>(points.size()), leaf_size);
+  // The points in tree order, for cache-friendly leaves.
+  points_.resize(points.size());
+  index_.resize(points.size());
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    points_[i] = entries[i].p;
+    index_[i] = entries[i].index;
+  }
 }
 
-std::int32_t KdTree::Build(std::int32_t begin, std::int32_t end, int leaf_size) {
+std::int32_t KdTree::Build(std::vector<Entry>& entries, std::int32_t begin, std::int32_t end,
+                           int leaf_size) {
   const std::int32_t id = static_cast<std::int32_t>(nodes_.size());
   nodes_.emplace_back();
   nodes_[id].begin = begin;
   nodes_[id].end = end;
   if (end - begin <= leaf_size) return id;
-  Eigen::Vector3f lo = points_[index_[begin]];
+  Eigen::Vector3f lo = entries[begin].p;
   Eigen::Vector3f hi = lo;
   for (std::int32_t i = begin + 1; i < end; ++i) {
-    lo = lo.cwiseMin(points_[index_[i]]);
-    hi = hi.cwiseMax(points_[index_[i]]);
+    lo = lo.cwiseMin(entries[i].p);
+    hi = hi.cwiseMax(entries[i].p);
   }
   int axis = 0;
   (hi - lo).maxCoeff(&axis);
   if (hi[axis] - lo[axis] <= 0.0f) return id;  // all points equal: keep as a leaf
   const std::int32_t mid = begin + (end - begin) / 2;
-  std::nth_element(
-      index_.begin() + begin, index_.begin() + mid, index_.begin() + end,
-      [&](std::int32_t a, std::int32_t b) { return points_[a][axis] < points_[b][axis]; });
-  const float split = points_[index_[mid]][axis];
-  const std::int32_t left = Build(begin, mid, leaf_size);
-  const std::int32_t right = Build(mid, end, leaf_size);
+  std::nth_element(entries.begin() + begin, entries.begin() + mid, entries.begin() + end,
+                   [axis](const Entry& a, const Entry& b) { return a.p[axis] < b.p[axis]; });
+  const float split = entries[mid].p[axis];
+  const std::int32_t left = Build(entries, begin, mid, leaf_size);
+  const std::int32_t right = Build(entries, mid, end, leaf_size);
   nodes_[id].axis = axis;
   nodes_[id].split = split;
   nodes_[id].left = left;

@@ -46,7 +46,14 @@ class KdTree final {
     std::int32_t end = 0;
   };
 
-  std::int32_t Build(std::int32_t begin, std::int32_t end, int leaf_size);
+  // A point with its input index, partitioned in place while building: the comparisons of
+  // nth_element then read contiguous memory instead of following an index into the points.
+  struct Entry {
+    Eigen::Vector3f p;
+    std::int32_t index;
+  };
+  std::int32_t Build(std::vector<Entry>& entries, std::int32_t begin, std::int32_t end,
+                     int leaf_size);
 
   std::vector<Eigen::Vector3f> points_;  // tree order
   std::vector<std::int32_t> index_;      // tree order -> input index

@@ -488,6 +488,9 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     throw std::invalid_argument(
         "PpfDetectorOptions: min_appearance_correlation must be in [-1, 1]");
   }
+  if (!(options.seed_keep_margin >= 0.0f)) {
+    throw std::invalid_argument("PpfDetectorOptions: seed_keep_margin must be >= 0");
+  }
   if (!(options.seed_refine_fraction >= 0.0f && options.seed_refine_fraction < 1.0f)) {
     throw std::invalid_argument("PpfDetectorOptions: seed_refine_fraction must be in [0, 1)");
   }
@@ -579,7 +582,18 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
         }
       }
     }
-    const SceneAgreement a = kept ? *kept : agreement(d.X_SceneModel);
+    SceneAgreement a = kept ? *kept : agreement(d.X_SceneModel);
+    if (job.seed) {
+      // A seed placed flush on the scene's faces can be better than where ICP takes it: a
+      // thin box cut by the floor band, or pulled onto a neighbour's surface.
+      const Eigen::Isometry3d& X_seed = seed_poses[job.index];
+      const SceneAgreement s = agreement(X_seed);
+      if (s.support - s.conflict_fraction >
+          a.support - a.conflict_fraction + options.seed_keep_margin) {
+        a = s;
+        d.X_SceneModel = X_seed;
+      }
+    }
     d.support = a.support;
     d.conflict_fraction = a.conflict_fraction;
     d.visible_points = a.visible_points;
@@ -589,12 +603,13 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
       std::max(static_cast<double>(options.min_visible_points),
                options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
   const auto passes = [&](const PpfDetection& d) {
-    // A seed was screened by its source; the support here is seen from one viewpoint, which
-    // undercounts a merged scan's side faces, so the caller's verification judges it.
-    return (d.seed || d.support >= options.min_support) &&
-           d.conflict_fraction <= options.max_conflict_fraction &&
-           d.visible_points >= min_visible &&
-           !(d.appearance.defined && d.appearance.correlation < options.min_appearance_correlation);
+    // A seed was screened by its source; its support and print here are seen from one
+    // viewpoint, which undercounts a merged scan's side faces, so the caller's verification
+    // (every view) judges it.
+    return (d.seed || (d.support >= options.min_support &&
+                       !(d.appearance.defined &&
+                         d.appearance.correlation < options.min_appearance_correlation))) &&
+           d.conflict_fraction <= options.max_conflict_fraction && d.visible_points >= min_visible;
   };
   // A voted hypothesis good enough that the seeds will not be needed.
   const auto found = [&](const PpfDetection& d) {

@@ -155,14 +155,18 @@ struct PpfDetectorOptions {
   /// X_SceneModel, best first: a fallback. When no voted hypothesis passes with a support of
   /// at least seed_fallback_support, seed_source is called (once) and its poses are refined
   /// (fine ICP only, no print search: they sit on the scene's surfaces already) and
-  /// verified like the voted ones. They are not held to min_support (their source screened
-  /// them, and the support here is seen from one viewpoint). DetectPpf throws
+  /// verified like the voted ones. They are not held to min_support nor to
+  /// min_appearance_correlation (their source screened them, and the support and print here
+  /// are seen from one viewpoint: the caller's verification judges them). DetectPpf throws
   /// std::invalid_argument when a pose is not a finite rigid motion.
   std::function<std::vector<Eigen::Isometry3d>()> seed_source;
   /// With a seed_source and a refine_deadline, the voted hypotheses stop this fraction of
   /// the refinement time early, leaving it to the seeds; in [0, 1).
   float seed_refine_fraction = 0.25f;
   float seed_fallback_support = 0.75f;
+  /// A refined seed keeps its unrefined pose when that agrees with the scene (support minus
+  /// conflicts, MeasureAgreement) by more than this (>= 0) better than ICP's.
+  float seed_keep_margin = 0.05f;
   /// No further hypothesis is refined after this time (the best-voted hypothesis and, when
   /// the seeds are tried, the first seed always are): a
   /// caller's time budget, as PpfMatchOptions::deadline is for the voting.

@@ -588,7 +588,8 @@ PointCloud EstimateNormals(const PointCloud& cloud, const NormalOptions& options
 }
 
 std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
-                                                const ClusterOptions& options) {
+                                                const ClusterOptions& options,
+                                                std::vector<std::vector<int>>* representatives) {
   ValidateCloud(cloud, options.limits);
   if (!(options.tolerance_m > 0.0))
     throw std::invalid_argument("EuclideanClusters: tolerance_m must be > 0");
@@ -640,31 +641,45 @@ std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
   extraction.setIndices(indices);
   std::vector<pcl::PointIndices> clusters;
   extraction.extract(clusters);
-  std::vector<std::vector<int>> out;
-  out.reserve(clusters.size());
+  // Members and representatives of each cluster, then the clusters within the size limits,
+  // largest first.
+  std::vector<std::vector<int>> members(clusters.size());
+  std::vector<std::vector<int>> reps_of(clusters.size());
   if (subsampled) {
     // Representative (point index) -> cluster, then every point joins its voxel's cluster.
     std::unordered_map<int, int> cluster_of_rep;
     for (std::size_t c = 0; c < clusters.size(); ++c) {
       for (int i : clusters[c].indices) cluster_of_rep[i] = static_cast<int>(c);
+      reps_of[c].assign(clusters[c].indices.begin(), clusters[c].indices.end());
+      std::sort(reps_of[c].begin(), reps_of[c].end());
     }
-    std::vector<std::vector<int>> members(clusters.size());
     for (std::size_t k = 0; k < all_finite.size(); ++k) {
       const auto it = cluster_of_rep.find(reps[voxel_of[k]]);
       if (it != cluster_of_rep.end()) members[it->second].push_back(all_finite[k]);
     }
-    for (auto& m : members) {
-      if (m.size() >= options.min_size && m.size() <= options.max_size) out.push_back(std::move(m));
-    }
   } else {
-    for (auto& c : clusters) {
-      std::vector<int> members(c.indices.begin(), c.indices.end());
-      std::sort(members.begin(), members.end());
-      out.push_back(std::move(members));
+    for (std::size_t c = 0; c < clusters.size(); ++c) {
+      members[c].assign(clusters[c].indices.begin(), clusters[c].indices.end());
+      std::sort(members[c].begin(), members[c].end());
+      if (representatives != nullptr) reps_of[c] = members[c];
     }
   }
-  std::stable_sort(out.begin(), out.end(),
-                   [](const auto& a, const auto& b) { return a.size() > b.size(); });
+  std::vector<std::size_t> kept;
+  for (std::size_t c = 0; c < members.size(); ++c) {
+    if (members[c].size() >= options.min_size && members[c].size() <= options.max_size) {
+      kept.push_back(c);
+    }
+  }
+  std::stable_sort(kept.begin(), kept.end(), [&members](std::size_t a, std::size_t b) {
+    return members[a].size() > members[b].size();
+  });
+  std::vector<std::vector<int>> out;
+  out.reserve(kept.size());
+  if (representatives != nullptr) representatives->clear();
+  for (std::size_t c : kept) {
+    out.push_back(std::move(members[c]));
+    if (representatives != nullptr) representatives->push_back(std::move(reps_of[c]));
+  }
   return out;
 }
 

@@ -185,9 +185,13 @@ struct ClusterOptions {
 /// Euclidean clusters of the finite points (pcl::EuclideanClusterExtraction), each as indices
 /// into `cloud.points`, largest first; min_size and max_size count points of `cloud`. Throws
 /// as ValidateCloud and std::invalid_argument on tolerance_m <= 0, min_size > max_size or a
-/// subsample_voxel_m outside [0, tolerance_m).
-std::vector<std::vector<int>> EuclideanClusters(const geometry::PointCloud& cloud,
-                                                const ClusterOptions& options = {});
+/// subsample_voxel_m outside [0, tolerance_m). `representatives`, when given, receives for
+/// each cluster (same order) its points that stood for their voxel (one per
+/// subsample_voxel_m voxel; without subsampling, every member): a thinned copy of the cluster
+/// for nearest-cluster lookups.
+std::vector<std::vector<int>> EuclideanClusters(
+    const geometry::PointCloud& cloud, const ClusterOptions& options = {},
+    std::vector<std::vector<int>>* representatives = nullptr);
 
 /// A copy of the listed points (unorganised) with their channels.
 geometry::PointCloud SelectPoints(const geometry::PointCloud& cloud,

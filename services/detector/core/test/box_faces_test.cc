@@ -98,7 +98,9 @@ TEST(FindPlanarPatchesTest, FindsTheVisibleFacesOfABoxWithTheirSides) {
   std::size_t total = 0;
   for (std::size_t i = 0; i < patches.size(); ++i) {
     total += patches[i].points;
-    if (i > 0) EXPECT_LE(patches[i].points, patches[i - 1].points);
+    if (i > 0) {
+      EXPECT_LE(patches[i].points, patches[i - 1].points);
+    }
   }
   EXPECT_LE(total, cloud.size());
 }
