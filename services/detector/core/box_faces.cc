@@ -324,4 +324,71 @@ double BoxSurfaceContinuation(const geometry::PointCloud& scene, const KdTree& t
   return probed == 0 ? 0.0 : static_cast<double>(continued) / static_cast<double>(probed);
 }
 
+std::vector<Eigen::Isometry3d> NearSquareQuarterTurns(const Eigen::Vector3d& half_size,
+                                                      const Eigen::Vector3d& p_ItemCentre,
+                                                      double tolerance) {
+  if (!(half_size.array() > 0.0).all() || !half_size.allFinite() || !p_ItemCentre.allFinite()) {
+    throw std::invalid_argument("NearSquareQuarterTurns: half sizes must be positive and finite");
+  }
+  if (!(tolerance >= 0.0)) {
+    throw std::invalid_argument("NearSquareQuarterTurns: tolerance must be >= 0");
+  }
+  std::vector<Eigen::Isometry3d> turns;
+  for (int axis = 0; axis < 3; ++axis) {
+    const double a = half_size((axis + 1) % 3);
+    const double b = half_size((axis + 2) % 3);
+    if (std::abs(a - b) > tolerance * std::max(a, b)) continue;
+    turns.push_back(Eigen::Translation3d(p_ItemCentre) *
+                    Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::Unit(axis)) *
+                    Eigen::Translation3d(-p_ItemCentre));
+  }
+  return turns;
+}
+
+PosePolish PolishTranslation(
+    const Eigen::Isometry3d& X, double score, const std::vector<int>& axes, double step_m,
+    int levels, const std::function<std::optional<double>(const Eigen::Isometry3d&)>& score_of) {
+  if (!(step_m > 0.0) || !std::isfinite(step_m) || levels < 0) {
+    throw std::invalid_argument("PolishTranslation: step_m must be > 0 and levels >= 0");
+  }
+  for (int axis : axes) {
+    if (axis < 0 || axis > 2) throw std::invalid_argument("PolishTranslation: axes are 0, 1, 2");
+  }
+  if (!score_of) throw std::invalid_argument("PolishTranslation: no score function");
+  PosePolish best{X, score, 0};
+  double step = step_m;
+  for (int level = 0; level < levels; ++level, step *= 0.5) {
+    for (bool moved = true; moved;) {
+      // The best of the moves from the current pose; taken when it scores higher.
+      Eigen::Isometry3d move_X = best.X;
+      double move_score = best.score;
+      for (int axis : axes) {
+        for (const double sign : {-1.0, 1.0}) {
+          Eigen::Isometry3d candidate = best.X;
+          candidate.translation() += best.X.linear().col(axis) * (sign * step);
+          const std::optional<double> s = score_of(candidate);
+          if (!s) {  // out of time: the best pose scored so far
+            if (move_score > best.score) {
+              best.X = move_X;
+              best.score = move_score;
+            }
+            return best;
+          }
+          ++best.evaluations;
+          if (*s > move_score) {
+            move_X = candidate;
+            move_score = *s;
+          }
+        }
+      }
+      moved = move_score > best.score;
+      if (moved) {
+        best.X = move_X;
+        best.score = move_score;
+      }
+    }
+  }
+  return best;
+}
+
 }  // namespace picking::detector

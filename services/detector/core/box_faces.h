@@ -3,6 +3,8 @@
 #include <Eigen/Geometry>
 
 #include <cstddef>
+#include <functional>
+#include <optional>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -101,5 +103,31 @@ double BoxSurfaceContinuation(const geometry::PointCloud& scene, const KdTree& t
                               const Eigen::Isometry3d& X_SceneBox, const Eigen::Vector3d& half_size,
                               const Eigen::Vector3d& viewpoint,
                               const ContinuationOptions& options = {});
+
+/// The quarter-turns of a box about its centre (item frame: half sides `half_size`, centre
+/// `p_ItemCentre`) that map it nearly onto itself: one about each axis whose two
+/// perpendicular sides differ by at most `tolerance` (>= 0) of the longer. Each is
+/// T_ItemItem', so that X_BaseItem * T is the turned pose. A nearly square face fits a scan
+/// of it about as well either way, and a box's symmetry turns (half turns) do not cover
+/// this. Throws std::invalid_argument for sizes that are not positive or a negative
+/// tolerance.
+std::vector<Eigen::Isometry3d> NearSquareQuarterTurns(const Eigen::Vector3d& half_size,
+                                                      const Eigen::Vector3d& p_ItemCentre,
+                                                      double tolerance);
+
+/// Pattern search of a pose's translation on a score: from X (scoring `score`), moves by
+/// `step_m` (> 0) along each of `axes` (columns of X's rotation, 0-2) both ways and takes
+/// the best move while it scores higher, then halves the step, `levels` (>= 0) times.
+/// `score_of` gives a pose's score, or nothing when there is no time left (the search then
+/// stops with the best so far). Returns the best pose and its score (X and `score` when
+/// no move scored higher). Throws std::invalid_argument for bad steps, levels or axes.
+struct PosePolish {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  double score = 0.0;
+  int evaluations = 0;
+};
+PosePolish PolishTranslation(
+    const Eigen::Isometry3d& X, double score, const std::vector<int>& axes, double step_m,
+    int levels, const std::function<std::optional<double>(const Eigen::Isometry3d&)>& score_of);
 
 }  // namespace picking::detector

@@ -434,69 +434,41 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       d.timings.refine_s += result.refine_s;
       out.push_back(std::move(d));
     };
+    const auto [half_size, p_ItemCentre] = BoxExtentOf(model->object->icp_cloud());
     if (search_.box_near_square_tolerance > 0.0) {
       const Eigen::Isometry3d X_best =
           std::max_element(out.begin(), out.end(), by_score)->X_BaseItem;
-      for (const Eigen::Isometry3d& X : NearSquareTurns(*model, X_best)) {
+      for (const Eigen::Isometry3d& turn :
+           NearSquareQuarterTurns(half_size, p_ItemCentre, search_.box_near_square_tolerance)) {
         if (!time_for_another()) break;
-        add(RefineAndVerify(*model, *context_, Method::kPpf, X, true, refine_));
+        add(RefineAndVerify(*model, *context_, Method::kPpf, X_best * turn, true, refine_));
       }
     }
     if (search_.box_polish_levels > 0) {
+      // Along the box's two longer sides, where a box lying on a flat surface slides freely
+      // under ICP; the verification score weighs its edges and the free space beside them.
+      int thin = 0;
+      half_size.minCoeff(&thin);
+      std::vector<int> axes;
+      for (int axis = 0; axis < 3; ++axis) {
+        if (axis != thin) axes.push_back(axis);
+      }
       Detection best = *std::max_element(out.begin(), out.end(), by_score);
-      if (PolishBoxPose(*model, &best, time_for_another)) add(std::move(best));
+      const double start_score = best.score;
+      const PosePolish polished = PolishTranslation(
+          best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
+          [&](const Eigen::Isometry3d& X) -> std::optional<double> {
+            if (!time_for_another()) return std::nullopt;
+            Detection d = RefineAndVerify(*model, *context_, Method::kPpf, X, false, refine_);
+            const double score = d.score;
+            if (score > best.score) best = std::move(d);
+            return score;
+          });
+      // `best` is the detection of the highest score seen: the polished pose's.
+      if (polished.score > start_score) add(std::move(best));
     }
   }
   return Finish(std::move(out), refine_, start);
-}
-
-bool PpfEstimator::PolishBoxPose(const LoadedModel& model, Detection* detection,
-                                 const std::function<bool()>& time_for_another) {
-  const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
-  // The face directions: along the box's two longer sides, where a pose on a flat surface
-  // slides freely under ICP.
-  int thin = 0;
-  half_size.minCoeff(&thin);
-  bool improved = false;
-  double step = search_.box_polish_step_m;
-  for (int level = 0; level < search_.box_polish_levels; ++level, step *= 0.5) {
-    for (bool moved = true; moved;) {
-      moved = false;
-      Detection best_move;
-      for (int axis = 0; axis < 3; ++axis) {
-        if (axis == thin) continue;
-        for (const double sign : {-1.0, 1.0}) {
-          if (!time_for_another()) return improved;
-          Eigen::Isometry3d X = detection->X_BaseItem;
-          X.translation() += X.linear().col(axis) * (sign * step);
-          Detection d = RefineAndVerify(model, *context_, Method::kPpf, X, false, refine_);
-          if (d.score > detection->score && d.score > best_move.score) best_move = std::move(d);
-        }
-      }
-      if (best_move.score > detection->score) {
-        *detection = std::move(best_move);
-        moved = improved = true;
-      }
-    }
-  }
-  return improved;
-}
-
-std::vector<Eigen::Isometry3d> PpfEstimator::NearSquareTurns(
-    const LoadedModel& model, const Eigen::Isometry3d& X_BaseItem) const {
-  const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
-  std::vector<Eigen::Isometry3d> turns;
-  for (int axis = 0; axis < 3; ++axis) {
-    const double a = half_size((axis + 1) % 3);
-    const double b = half_size((axis + 2) % 3);
-    if (std::abs(a - b) > search_.box_near_square_tolerance * std::max(a, b)) continue;
-    // A quarter-turn about the box's centre, in the item frame.
-    const Eigen::Isometry3d turn = Eigen::Translation3d(p_ItemCentre) *
-                                   Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::Unit(axis)) *
-                                   Eigen::Translation3d(-p_ItemCentre);
-    turns.push_back(X_BaseItem * turn);
-  }
-  return turns;
 }
 
 // --- SIFT -----------------------------------------------------------------------------------

@@ -3,7 +3,6 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
-#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -234,14 +233,6 @@ class PpfEstimator final : public Estimator {
   // Box poses on the scene's planar patches that pass the screening, best first, for
   // DetectPpf to refine and verify (PpfSearchOptions::fit_boxes); none without a
   // verification scene. Patches are no longer screened after `deadline`.
-  // The pose quarter-turned about each nearly square face's normal
-  // (PpfSearchOptions::box_near_square_tolerance).
-  std::vector<Eigen::Isometry3d> NearSquareTurns(const LoadedModel& model,
-                                                 const Eigen::Isometry3d& X_BaseItem) const;
-  // PpfSearchOptions::box_polish_*: true when `detection` was moved to a higher score.
-  // Each evaluation first asks time_for_another.
-  bool PolishBoxPose(const LoadedModel& model, Detection* detection,
-                     const std::function<bool()>& time_for_another);
   std::vector<Eigen::Isometry3d> BoxFaceSeeds(const LoadedModel& model, const PpfScene& scene,
                                               std::chrono::steady_clock::time_point deadline);
 

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <random>
 #include <stdexcept>
 #include <vector>
@@ -201,6 +202,72 @@ TEST(BoxSurfaceContinuationTest, TellsAStripOfALargerSurfaceFromABox) {
       &with_box);
   const KdTree with_box_tree(with_box.points);
   EXPECT_LT(BoxSurfaceContinuation(with_box, with_box_tree, on_top, half, viewpoint), 0.05);
+}
+
+// A folded T-shirt's 0.224 x 0.218 m top is nearly square: its quarter-turn about the top's
+// normal is offered, and lands the box on itself but for the sides' difference.
+TEST(NearSquareQuarterTurnsTest, TurnsAboutTheNormalsOfNearlySquareFacesOnly) {
+  const Eigen::Vector3d half(0.112, 0.109, 0.025);
+  const Eigen::Vector3d centre(0.01, -0.02, 0.025);
+  const auto turns = NearSquareQuarterTurns(half, centre, 0.1);
+  ASSERT_EQ(turns.size(), 1u);
+  const Eigen::Isometry3d& T = turns.front();
+  EXPECT_NEAR((T * centre - centre).norm(), 0.0, 1e-12);  // about the box's centre
+  EXPECT_NEAR(std::abs(T.linear().col(2).dot(Eigen::Vector3d::UnitZ())), 1.0, 1e-12);
+  EXPECT_NEAR(Eigen::AngleAxisd(T.linear()).angle(), 0.5 * M_PI, 1e-9);
+  // Every corner lands within the sides' difference of a corner.
+  for (int k = 0; k < 8; ++k) {
+    const Eigen::Vector3d corner =
+        centre + Eigen::Vector3d((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(),
+                                 (k & 4) ? half.z() : -half.z());
+    const Eigen::Vector3d d = ((T * corner - centre).cwiseAbs() - half).cwiseAbs();
+    EXPECT_LE(d.maxCoeff(), half.x() - half.y() + 1e-12);
+  }
+  EXPECT_TRUE(NearSquareQuarterTurns(half, centre, 0.01).empty());  // 2.7 % apart
+  EXPECT_EQ(NearSquareQuarterTurns(Eigen::Vector3d::Constant(0.05), centre, 0.0).size(), 3u);
+  EXPECT_TRUE(NearSquareQuarterTurns(Eigen::Vector3d(0.1, 0.03, 0.01), centre, 0.1).empty());
+  EXPECT_THROW(NearSquareQuarterTurns(Eigen::Vector3d(0.1, 0.0, 0.01), centre, 0.1),
+               std::invalid_argument);
+  EXPECT_THROW(NearSquareQuarterTurns(half, centre, -0.1), std::invalid_argument);
+}
+
+// The pattern search climbs a score peaked off the start along the pose's own axes, to
+// within its last step, and never along an axis it was not given.
+TEST(PolishTranslationTest, ClimbsToThePeakAlongTheGivenAxesOnly) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  X.translation() = Eigen::Vector3d(1.0, -0.3, 0.8);
+  // Peak 13 mm along the pose's x and -9 mm along its y, from the start.
+  const Eigen::Vector3d peak =
+      X.translation() + X.linear().col(0) * 0.013 - X.linear().col(1) * 0.009;
+  const auto score = [&](const Eigen::Isometry3d& P) {
+    return 1.0 - 100.0 * (P.translation() - peak).squaredNorm();
+  };
+  const auto score_of = [&](const Eigen::Isometry3d& P) -> std::optional<double> {
+    return score(P);
+  };
+  const PosePolish polished = PolishTranslation(X, score(X), {0, 1}, 0.008, 4, score_of);
+  EXPECT_LE((polished.X.translation() - peak).norm(), 0.0011);  // last step 1 mm
+  EXPECT_TRUE(polished.X.linear().isApprox(X.linear()));
+  EXPECT_NEAR(polished.score, score(polished.X), 1e-12);
+  EXPECT_GT(polished.evaluations, 8);
+  // Along z only: the peak's offset is across it, so the pose stays.
+  const PosePolish across = PolishTranslation(X, score(X), {2}, 0.008, 4, score_of);
+  EXPECT_TRUE(across.X.isApprox(X));
+  EXPECT_EQ(across.score, score(X));
+  // Out of time after three evaluations: the best of those.
+  int calls = 0;
+  const PosePolish hurried = PolishTranslation(
+      X, score(X), {0, 1}, 0.008, 4, [&](const Eigen::Isometry3d& P) -> std::optional<double> {
+        if (++calls > 3) return std::nullopt;
+        return score(P);
+      });
+  EXPECT_EQ(hurried.evaluations, 3);
+  EXPECT_GT(hurried.score, score(X));  // the move along +x, the first two evaluations' best
+  EXPECT_NEAR(hurried.score, score(hurried.X), 1e-12);
+  EXPECT_THROW(PolishTranslation(X, 0.0, {0}, 0.0, 1, score_of), std::invalid_argument);
+  EXPECT_THROW(PolishTranslation(X, 0.0, {3}, 0.01, 1, score_of), std::invalid_argument);
+  EXPECT_THROW(PolishTranslation(X, 0.0, {0}, 0.01, -1, score_of), std::invalid_argument);
 }
 
 }  // namespace

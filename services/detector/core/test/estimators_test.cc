@@ -301,6 +301,15 @@ TEST_F(MilkEstimatorTest, BadSearchOptionsThrow) {
   PpfSearchOptions no_time;
   no_time.box_budget_fraction = 0.0f;
   EXPECT_THROW(make(no_time), std::invalid_argument);
+  PpfSearchOptions negative_tolerance;
+  negative_tolerance.box_near_square_tolerance = -0.1;
+  EXPECT_THROW(make(negative_tolerance), std::invalid_argument);
+  PpfSearchOptions no_step;
+  no_step.box_polish_step_m = 0.0;
+  EXPECT_THROW(make(no_step), std::invalid_argument);
+  PpfSearchOptions negative_levels;
+  negative_levels.box_polish_levels = -1;
+  EXPECT_THROW(make(negative_levels), std::invalid_argument);
   EXPECT_NO_THROW(make(PpfSearchOptions{}));
 }
 

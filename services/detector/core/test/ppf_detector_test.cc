@@ -191,6 +191,11 @@ TEST_F(MilkSceneTest, SeedPosesAreRefinedOnlyWhenVotingFindsNothing) {
   EXPECT_THROW(DetectPpf(model, scene, options), std::invalid_argument);
   options.seed_refine_fraction = 1.0f;
   EXPECT_THROW(DetectPpf(model, scene, options), std::invalid_argument);
+  options.seed_refine_fraction = 0.25f;
+  options.seed_source = [&]() { return std::vector<Eigen::Isometry3d>{seed}; };
+  EXPECT_NO_THROW(DetectPpf(model, scene, options));
+  options.seed_keep_margin = -0.01f;
+  EXPECT_THROW(DetectPpf(model, scene, options), std::invalid_argument);
 }
 
 TEST_F(MilkSceneTest, BadScenesThrow) {

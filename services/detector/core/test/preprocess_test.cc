@@ -373,8 +373,28 @@ TEST(PreprocessTest, SubsampledEuclideanClustersMatchTheExactOnes) {
   EXPECT_EQ(a, b);
   EXPECT_EQ(b[0].size(), 3600u);
   EXPECT_EQ(b[1].size(), 900u);
+  // The representatives: members of their cluster, one per voxel of the subsampling.
+  std::vector<std::vector<int>> reps;
+  EXPECT_EQ(EuclideanClusters(Unorganised(points), voxels, &reps), b);
+  ASSERT_EQ(reps.size(), b.size());
+  for (std::size_t c = 0; c < b.size(); ++c) {
+    std::set<std::tuple<int, int, int>> cells;
+    for (int i : reps[c]) {
+      EXPECT_TRUE(std::binary_search(b[c].begin(), b[c].end(), i));
+      const Eigen::Vector3f cell = (points[i] / 0.003f).array().floor();
+      EXPECT_TRUE(cells.emplace(int(cell.x()), int(cell.y()), int(cell.z())).second)
+          << "two representatives in one voxel";
+    }
+    EXPECT_LT(reps[c].size(), b[c].size() / 4);
+    EXPECT_GT(reps[c].size(), 0u);
+  }
+  // Without subsampling every member stands for itself.
+  EXPECT_EQ(EuclideanClusters(Unorganised(points), exact, &reps), a);
+  EXPECT_EQ(reps, a);
   voxels.max_size = 1000;  // in points, not voxels
-  const auto small = EuclideanClusters(Unorganised(points), voxels);
+  const auto small = EuclideanClusters(Unorganised(points), voxels, &reps);
+  ASSERT_EQ(reps.size(), 1u);
+  EXPECT_TRUE(std::binary_search(small[0].begin(), small[0].end(), reps[0].front()));
   ASSERT_EQ(small.size(), 1u);
   EXPECT_EQ(small[0].size(), 900u);
   voxels.subsample_voxel_m = 0.01;  // not below the tolerance
