@@ -435,6 +435,7 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       out.push_back(std::move(d));
     };
     const auto [half_size, p_ItemCentre] = BoxExtentOf(model->object->icp_cloud());
+    const std::size_t turned_from = out.size();
     if (search_.box_near_square_tolerance > 0.0) {
       const Eigen::Isometry3d X_best =
           std::max_element(out.begin(), out.end(), by_score)->X_BaseItem;
@@ -453,19 +454,41 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
       for (int axis = 0; axis < 3; ++axis) {
         if (axis != thin) axes.push_back(axis);
       }
-      Detection best = *std::max_element(out.begin(), out.end(), by_score);
-      const double start_score = best.score;
-      const PosePolish polished = PolishTranslation(
-          best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
-          [&](const Eigen::Isometry3d& X) -> std::optional<double> {
-            if (!time_for_another()) return std::nullopt;
-            Detection d = RefineAndVerify(*model, *context_, Method::kPpf, X, false, refine_);
-            const double score = d.score;
-            if (score > best.score) best = std::move(d);
-            return score;
-          });
-      // `best` is the detection of the highest score seen: the polished pose's.
-      if (polished.score > start_score) add(std::move(best));
+      // Each start polished in its share of the time left (the budget's end, or the
+      // verification's pace without a budget).
+      const auto polish = [&](Detection best, Clock::time_point deadline) {
+        const double start_score = best.score;
+        Clock::duration last = Clock::duration::zero();
+        const PosePolish polished = PolishTranslation(
+            best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
+            [&](const Eigen::Isometry3d& X) -> std::optional<double> {
+              const auto now = Clock::now();
+              if (!time_for_another() || now + last > deadline) return std::nullopt;
+              Detection d = RefineAndVerify(*model, *context_, Method::kPpf, X, false, refine_);
+              last = Clock::now() - now;
+              const double score = d.score;
+              if (score > best.score) best = std::move(d);
+              return score;
+            });
+        // `best` is the detection of the highest score seen: the polished pose's.
+        if (polished.score > start_score) add(std::move(best));
+      };
+      // The best candidate, and the best of its quarter-turns: a near-square face's two
+      // turns score alike until each is placed.
+      const auto best = std::max_element(out.begin(), out.end(), by_score);
+      const auto turned_begin = out.begin() + static_cast<std::ptrdiff_t>(turned_from);
+      const auto best_turned = std::max_element(turned_begin, out.end(), by_score);
+      std::vector<Detection> starts = {*best};
+      if (best_turned != out.end() && best_turned != best) starts.push_back(*best_turned);
+      for (std::size_t i = 0; i < starts.size(); ++i) {
+        Clock::time_point deadline = Clock::time_point::max();
+        if (input.budget_end != Clock::time_point::max()) {
+          const auto now = Clock::now();
+          deadline = now + std::max(Clock::duration::zero(), input.budget_end - now) /
+                               static_cast<int>(starts.size() - i);
+        }
+        polish(std::move(starts[i]), deadline);
+      }
     }
   }
   return Finish(std::move(out), refine_, start);
