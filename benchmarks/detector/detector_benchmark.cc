@@ -10,6 +10,7 @@
 #include <benchmark/benchmark.h>
 #include <pcl/features/ppf.h>
 #include <pcl/io/pcd_io.h>
+#include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_types.h>
 #include <pcl/registration/ppf_registration.h>
 #include <sys/wait.h>
@@ -32,6 +33,7 @@
 #include <vector>
 
 #include "services/detector/core/icp.h"
+#include "services/detector/core/kdtree.h"
 #include "services/detector/core/model.h"
 #include "services/detector/core/ppf.h"
 #include "services/detector/core/ppf_detector.h"
@@ -565,6 +567,43 @@ void BM_OpenCvIcpRs1(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_OpenCvIcpRs1)->Unit(benchmark::kMillisecond)->Iterations(3);
+
+// Search-tree build over a scan-sized cloud (550 k points, the largest bin regions of the
+// shelf scans): ours against PCL's KdTreeFLANN. The points are a seeded, gently curved
+// surface in shuffled order.
+const std::vector<Eigen::Vector3f>& ScanSizedCloud() {
+  static const std::vector<Eigen::Vector3f> points = [] {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(0.0f, 0.3f);
+    std::vector<Eigen::Vector3f> out;
+    for (int i = 0; i < 550000; ++i) {
+      const float x = u(rng), y = u(rng);
+      out.emplace_back(x, y, 0.05f * std::sin(20.0f * x) + 0.003f * static_cast<float>(i % 3));
+    }
+    return out;
+  }();
+  return points;
+}
+
+void BM_KdTreeBuild550k(benchmark::State& state) {
+  const std::vector<Eigen::Vector3f>& points = ScanSizedCloud();
+  for (auto _ : state) {
+    pd::KdTree tree(points);
+    benchmark::DoNotOptimize(tree.size());
+  }
+}
+BENCHMARK(BM_KdTreeBuild550k)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_PclKdTreeFlannBuild550k(benchmark::State& state) {
+  auto cloud = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  for (const auto& p : ScanSizedCloud()) cloud->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+  for (auto _ : state) {
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+    tree.setInputCloud(cloud);
+    benchmark::DoNotOptimize(tree.getInputCloud());
+  }
+}
+BENCHMARK(BM_PclKdTreeFlannBuild550k)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 bool Flag(const std::string& arg, const std::string& name, int* value) {
   const std::string prefix = "--" + name + "=";

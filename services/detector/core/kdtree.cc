@@ -18,43 +18,40 @@ KdTree::KdTree(const std::vector<Eigen::Vector3f>& points, int leaf_size) {
     throw std::invalid_argument("KdTree: too many points");
   }
   if (points.empty()) return;
-  std::vector<Entry> entries(points.size());
+  entries_.resize(points.size());
+  Eigen::Vector3f lo = points.front();
+  Eigen::Vector3f hi = lo;
   for (std::size_t i = 0; i < points.size(); ++i) {
-    entries[i] = {points[i], static_cast<std::int32_t>(i)};
+    entries_[i] = {points[i], static_cast<std::int32_t>(i)};
+    lo = lo.cwiseMin(points[i]);
+    hi = hi.cwiseMax(points[i]);
   }
   nodes_.reserve(2 * points.size() / leaf_size + 2);
-  Build(entries, 0, static_cast<std::int32_t>(points.size()), leaf_size);
-  // The points in tree order, for cache-friendly leaves.
-  points_.resize(points.size());
-  index_.resize(points.size());
-  for (std::size_t i = 0; i < entries.size(); ++i) {
-    points_[i] = entries[i].p;
-    index_[i] = entries[i].index;
-  }
+  Build(0, static_cast<std::int32_t>(points.size()), leaf_size, lo, hi);
 }
 
-std::int32_t KdTree::Build(std::vector<Entry>& entries, std::int32_t begin, std::int32_t end,
-                           int leaf_size) {
+std::int32_t KdTree::Build(std::int32_t begin, std::int32_t end, int leaf_size, Eigen::Vector3f lo,
+                           Eigen::Vector3f hi) {
   const std::int32_t id = static_cast<std::int32_t>(nodes_.size());
   nodes_.emplace_back();
   nodes_[id].begin = begin;
   nodes_[id].end = end;
   if (end - begin <= leaf_size) return id;
-  Eigen::Vector3f lo = entries[begin].p;
-  Eigen::Vector3f hi = lo;
-  for (std::int32_t i = begin + 1; i < end; ++i) {
-    lo = lo.cwiseMin(entries[i].p);
-    hi = hi.cwiseMax(entries[i].p);
-  }
+  // Split the widest side of the cell (the parent's cell cut at its split: no pass over the
+  // points to measure it) at the median point.
   int axis = 0;
   (hi - lo).maxCoeff(&axis);
-  if (hi[axis] - lo[axis] <= 0.0f) return id;  // all points equal: keep as a leaf
   const std::int32_t mid = begin + (end - begin) / 2;
-  std::nth_element(entries.begin() + begin, entries.begin() + mid, entries.begin() + end,
+  std::nth_element(entries_.begin() + begin, entries_.begin() + mid, entries_.begin() + end,
                    [axis](const Entry& a, const Entry& b) { return a.p[axis] < b.p[axis]; });
-  const float split = entries[mid].p[axis];
-  const std::int32_t left = Build(entries, begin, mid, leaf_size);
-  const std::int32_t right = Build(entries, mid, end, leaf_size);
+  const float split = entries_[mid].p[axis];
+  if (!(hi[axis] > lo[axis])) return id;  // a cell of one point: keep as a leaf
+  Eigen::Vector3f left_hi = hi;
+  left_hi[axis] = split;
+  Eigen::Vector3f right_lo = lo;
+  right_lo[axis] = split;
+  const std::int32_t left = Build(begin, mid, leaf_size, lo, left_hi);
+  const std::int32_t right = Build(mid, end, leaf_size, right_lo, hi);
   nodes_[id].axis = axis;
   nodes_[id].split = split;
   nodes_[id].left = left;
@@ -77,7 +74,7 @@ std::int32_t KdTree::Nearest(const Eigen::Vector3f& query, float* distance_sq,
     const Node& node = nodes_[id];
     if (node.axis < 0) {
       for (std::int32_t i = node.begin; i < node.end; ++i) {
-        const float d2 = (points_[i] - query).squaredNorm();
+        const float d2 = (entries_[i].p - query).squaredNorm();
         if (d2 < best_d2) {
           best_d2 = d2;
           best = i;
@@ -93,7 +90,7 @@ std::int32_t KdTree::Nearest(const Eigen::Vector3f& query, float* distance_sq,
   }
   if (best == kNone) return kNone;
   if (distance_sq != nullptr) *distance_sq = best_d2;
-  return index_[best];
+  return entries_[best].index;
 }
 
 void KdTree::RadiusSearch(const Eigen::Vector3f& query, float radius,
@@ -108,7 +105,7 @@ void KdTree::RadiusSearch(const Eigen::Vector3f& query, float radius,
     const Node& node = nodes_[stack[--top]];
     if (node.axis < 0) {
       for (std::int32_t i = node.begin; i < node.end; ++i) {
-        if ((points_[i] - query).squaredNorm() <= r2) indices->push_back(index_[i]);
+        if ((entries_[i].p - query).squaredNorm() <= r2) indices->push_back(entries_[i].index);
       }
       continue;
     }

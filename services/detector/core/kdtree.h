@@ -23,8 +23,8 @@ class KdTree final {
   /// Builds the tree. Throws std::invalid_argument when a point is not finite.
   explicit KdTree(const std::vector<Eigen::Vector3f>& points, int leaf_size = 12);
 
-  std::size_t size() const { return points_.size(); }
-  bool empty() const { return points_.empty(); }
+  std::size_t size() const { return entries_.size(); }
+  bool empty() const { return entries_.empty(); }
 
   /// Index of the nearest point with squared distance below `max_distance_sq` (metres^2),
   /// or kNone. `distance_sq` receives the squared distance when a point is found.
@@ -46,17 +46,18 @@ class KdTree final {
     std::int32_t end = 0;
   };
 
-  // A point with its input index, partitioned in place while building: the comparisons of
-  // nth_element then read contiguous memory instead of following an index into the points.
+  // A point with its input index, partitioned in place while building (nth_element's
+  // comparisons read contiguous memory instead of following an index into the points) and
+  // kept in tree order for cache-friendly leaves.
   struct Entry {
     Eigen::Vector3f p;
     std::int32_t index;
   };
-  std::int32_t Build(std::vector<Entry>& entries, std::int32_t begin, std::int32_t end,
-                     int leaf_size);
+  // Builds the subtree of entries_ [begin, end) in the cell [lo, hi].
+  std::int32_t Build(std::int32_t begin, std::int32_t end, int leaf_size, Eigen::Vector3f lo,
+                     Eigen::Vector3f hi);
 
-  std::vector<Eigen::Vector3f> points_;  // tree order
-  std::vector<std::int32_t> index_;      // tree order -> input index
+  std::vector<Entry> entries_;  // tree order
   std::vector<Node> nodes_;
 };
 
