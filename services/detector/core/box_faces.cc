@@ -358,7 +358,9 @@ PosePolish PolishTranslation(
   PosePolish best{X, score, 0};
   double step = step_m;
   for (int level = 0; level < levels; ++level, step *= 0.5) {
-    for (bool moved = true; moved;) {
+    // Bounded: a score that keeps rising a little along a long surface does not walk the
+    // pose off along it.
+    for (int moves = 0; moves < kMaxPolishMoves; ++moves) {
       // The best of the moves from the current pose; taken when it scores higher.
       Eigen::Isometry3d move_X = best.X;
       double move_score = best.score;
@@ -381,11 +383,9 @@ PosePolish PolishTranslation(
           }
         }
       }
-      moved = move_score > best.score;
-      if (moved) {
-        best.X = move_X;
-        best.score = move_score;
-      }
+      if (!(move_score > best.score)) break;
+      best.X = move_X;
+      best.score = move_score;
     }
   }
   return best;

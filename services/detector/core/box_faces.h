@@ -115,12 +115,14 @@ std::vector<Eigen::Isometry3d> NearSquareQuarterTurns(const Eigen::Vector3d& hal
                                                       const Eigen::Vector3d& p_ItemCentre,
                                                       double tolerance);
 
-/// Pattern search of a pose's translation on a score: from X (scoring `score`), moves by
-/// `step_m` (> 0) along each of `axes` (columns of X's rotation, 0-2) both ways and takes
-/// the best move while it scores higher, then halves the step, `levels` (>= 0) times.
+/// Pattern search of a pose's translation on a score: from X (scoring `score`), tries a
+/// move by `step_m` (> 0) along each of `axes` (columns of X's rotation, 0-2) both ways and
+/// takes the best while it scores higher (at most kMaxPolishMoves times), then does the
+/// same with half the step; `levels` (>= 0) step sizes in all.
 /// `score_of` gives a pose's score, or nothing when there is no time left (the search then
 /// stops with the best so far). Returns the best pose and its score (X and `score` when
 /// no move scored higher). Throws std::invalid_argument for bad steps, levels or axes.
+inline constexpr int kMaxPolishMoves = 16;
 struct PosePolish {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   double score = 0.0;

@@ -205,11 +205,12 @@ struct PpfSearchOptions {
   /// candidate is also refined and verified quarter-turned about each such face's normal,
   /// and the scan's side faces and edges pick the turn.
   double box_near_square_tolerance = 0.1;
-  /// The best box candidate is then polished on the verification score: moved by
-  /// box_polish_step_m (> 0) along its two longer sides while that scores higher, the step
-  /// halved box_polish_levels (>= 0, 0: off) times. A box on a flat surface slides freely
-  /// under ICP along it; its visible edges and the free space beside it, which the score
-  /// weighs, place it.
+  /// The best box candidate and the best of its quarter-turns are then polished on the
+  /// verification score (PolishTranslation), each in its share of the time left: moved
+  /// along the box's two longer sides while that scores higher, in steps of
+  /// box_polish_step_m (> 0), then of half that, box_polish_levels (>= 0, 0: off) step
+  /// sizes in all. A box on a flat surface slides freely under ICP along it; its visible
+  /// edges and the free space beside it, which the score weighs, place it.
   double box_polish_step_m = 0.008;
   int box_polish_levels = 3;
 };

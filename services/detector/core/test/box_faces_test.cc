@@ -265,6 +265,12 @@ TEST(PolishTranslationTest, ClimbsToThePeakAlongTheGivenAxesOnly) {
   EXPECT_EQ(hurried.evaluations, 3);
   EXPECT_GT(hurried.score, score(X));  // the move along +x, the first two evaluations' best
   EXPECT_NEAR(hurried.score, score(hurried.X), 1e-12);
+  // A score rising without end along x: the walk stops after kMaxPolishMoves moves.
+  const PosePolish walk = PolishTranslation(
+      X, 0.0, {0}, 0.01, 1, [&](const Eigen::Isometry3d& P) -> std::optional<double> {
+        return X.linear().col(0).dot(P.translation() - X.translation());
+      });
+  EXPECT_NEAR((walk.X.translation() - X.translation()).norm(), 0.01 * kMaxPolishMoves, 1e-9);
   EXPECT_THROW(PolishTranslation(X, 0.0, {0}, 0.0, 1, score_of), std::invalid_argument);
   EXPECT_THROW(PolishTranslation(X, 0.0, {3}, 0.01, 1, score_of), std::invalid_argument);
   EXPECT_THROW(PolishTranslation(X, 0.0, {0}, 0.01, -1, score_of), std::invalid_argument);
