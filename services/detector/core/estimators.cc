@@ -759,13 +759,7 @@ StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
   const bool normals = stacked.has_normals();
   const bool intensities = stacked.has_intensities() && normals;
   StackedViews out;
-  // The box test in the box's frame, once per point: the box's pose is inverted once.
-  Eigen::Isometry3f X_BoxBase = Eigen::Isometry3f::Identity();
-  Eigen::Vector3f half_size = Eigen::Vector3f::Zero();
-  if (keep_inside != nullptr) {
-    X_BoxBase = keep_inside->X_BaseBox.inverse().cast<float>();
-    half_size = (0.5 * keep_inside->size_m).cast<float>();
-  }
+  const BoxContainment inside(keep_inside != nullptr ? *keep_inside : OrientedBox{});
   for (std::size_t k = 0; k < views; ++k) {
     geometry::PointCloud view;
     view.width = stacked.width;
@@ -779,10 +773,7 @@ StackedViews MergeStackedViews(const geometry::PointCloud& stacked,
     const Eigen::Vector3f viewpoint = X_BaseSensors[k].translation().cast<float>();
     for (std::size_t i = k * block; i < (k + 1) * block; ++i) {
       if (!stacked.points[i].allFinite()) continue;
-      if (keep_inside != nullptr &&
-          !((X_BoxBase * stacked.points[i]).cwiseAbs().array() <= half_size.array()).all()) {
-        continue;
-      }
+      if (keep_inside != nullptr && !inside(stacked.points[i])) continue;
       out.cloud.points.push_back(stacked.points[i]);
       if (normals) out.cloud.normals.push_back(stacked.normals[i]);
       if (stacked.has_colors()) out.cloud.colors.push_back(stacked.colors[i]);

@@ -9,11 +9,6 @@ namespace picking::detector {
 
 KdTree::KdTree(const std::vector<Eigen::Vector3f>& points, int leaf_size) {
   if (leaf_size < 1) throw std::invalid_argument("KdTree: leaf_size must be >= 1");
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    if (!points[i].allFinite()) {
-      throw std::invalid_argument("KdTree: point " + std::to_string(i) + " is not finite");
-    }
-  }
   if (points.size() > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
     throw std::invalid_argument("KdTree: too many points");
   }
@@ -22,6 +17,9 @@ KdTree::KdTree(const std::vector<Eigen::Vector3f>& points, int leaf_size) {
   Eigen::Vector3f lo = points.front();
   Eigen::Vector3f hi = lo;
   for (std::size_t i = 0; i < points.size(); ++i) {
+    if (!points[i].allFinite()) {
+      throw std::invalid_argument("KdTree: point " + std::to_string(i) + " is not finite");
+    }
     entries_[i] = {points[i], static_cast<std::int32_t>(i)};
     lo = lo.cwiseMin(points[i]);
     hi = hi.cwiseMax(points[i]);

@@ -168,12 +168,11 @@ PointCloud CropToBox(const PointCloud& cloud, const OrientedBox& box, const Crop
       << "); check the bin/tote pose and that the scan covers it";
     throw std::invalid_argument(s.str());
   }
-  const Eigen::Isometry3f X_BoxBase = box.X_BaseBox.inverse().cast<float>();
-  const Eigen::Vector3f half = (0.5 * box.size_m).cast<float>();
+  const BoxContainment inside(box);
   std::vector<bool> keep(cloud.size(), false);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     if (!Finite(cloud.points[i])) continue;
-    keep[i] = ((X_BoxBase * cloud.points[i]).cwiseAbs() - half).maxCoeff() <= 0.0f;
+    keep[i] = inside(cloud.points[i]);
   }
   return Filter(cloud, keep, options.keep_organized);
 }
@@ -650,8 +649,10 @@ std::vector<std::vector<int>> EuclideanClusters(const PointCloud& cloud,
     std::unordered_map<int, int> cluster_of_rep;
     for (std::size_t c = 0; c < clusters.size(); ++c) {
       for (int i : clusters[c].indices) cluster_of_rep[i] = static_cast<int>(c);
-      reps_of[c].assign(clusters[c].indices.begin(), clusters[c].indices.end());
-      std::sort(reps_of[c].begin(), reps_of[c].end());
+      if (representatives != nullptr) {
+        reps_of[c].assign(clusters[c].indices.begin(), clusters[c].indices.end());
+        std::sort(reps_of[c].begin(), reps_of[c].end());
+      }
     }
     for (std::size_t k = 0; k < all_finite.size(); ++k) {
       const auto it = cluster_of_rep.find(reps[voxel_of[k]]);

@@ -24,6 +24,22 @@ struct OrientedBox {
   bool Contains(const Eigen::Vector3d& p_BasePoint, double margin_m = 0.0) const;
 };
 
+/// OrientedBox::Contains (margin 0) for many points: the box's pose is inverted once, and
+/// points are tested in float.
+class BoxContainment final {
+ public:
+  explicit BoxContainment(const OrientedBox& box)
+      : X_BoxBase_(box.X_BaseBox.inverse().cast<float>()),
+        half_size_((0.5 * box.size_m).cast<float>()) {}
+  bool operator()(const Eigen::Vector3f& p_BasePoint) const {
+    return ((X_BoxBase_ * p_BasePoint).cwiseAbs() - half_size_).maxCoeff() <= 0.0f;
+  }
+
+ private:
+  Eigen::Isometry3f X_BoxBase_;
+  Eigen::Vector3f half_size_;
+};
+
 /// Faces of an OrientedBox, as bit flags, named by the Box-frame axis they are normal to.
 enum BoxFace : std::uint32_t {
   kFaceMinX = 1u << 0,
