@@ -23,17 +23,6 @@ TEST(PlannerServerTest, ServesHealthAndReflectionAndStopsCleanly) {
 
 TEST(PlannerServerTest, RejectsBadFlags) { ExpectRejectsBadFlags(ServerBinary(kBinary)); }
 
-TEST(PlannerServerTest, UnfinishedRpcAnswersUnimplemented) {
-  ServerProcess server(ServerBinary(kBinary));
-  auto stub = planner::v1::PlannerService::NewStub(server.Channel());
-  grpc::ClientContext ctx;
-  planner::v1::ListNamedPosesRequest request;
-  planner::v1::ListNamedPosesResponse response;
-  const grpc::Status status = stub->ListNamedPoses(&ctx, request, &response);
-  EXPECT_EQ(status.error_code(), grpc::StatusCode::UNIMPLEMENTED) << status.error_message();
-  EXPECT_EQ(server.Stop(), 0);
-}
-
 class PlannerKinematicsTest : public ::testing::Test {
  protected:
   PlannerKinematicsTest()

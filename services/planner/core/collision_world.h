@@ -1,0 +1,132 @@
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "libs/world/cell_config.h"
+#include "services/planner/core/distance_grid.h"
+#include "services/planner/core/robot_geometry.h"
+
+namespace octomap {
+class OcTree;
+}
+
+namespace picking::planner {
+
+/// Options of StaticCell.
+struct StaticCellOptions {
+  /// Distance grid cell of the shelf, tote and table, metres.
+  double grid_resolution_m = 0.01;
+  /// Surface sampling gap for the grids' seeds, metres.
+  double surface_gap_m = 0.003;
+  /// The robot's pedestal below the base, an obstacle for every body but the base (base
+  /// frame, metres). Empty box: none.
+  Eigen::AlignedBox3d pedestal_Base =
+      Eigen::AlignedBox3d(Eigen::Vector3d(-0.25, -0.25, -0.70), Eigen::Vector3d(0.25, 0.25, -0.05));
+};
+
+/// The static cell as obstacles: the shelf, tote and table meshes (at their poses from the
+/// cell description the simulator also loads), the floor plane and the pedestal. Holds a
+/// distance grid per mesh for the fast check and FCL objects for the exact one. Immutable and
+/// thread-safe after construction.
+class StaticCell final {
+ public:
+  /// Throws std::invalid_argument for bad options.
+  StaticCell(const world::CellModel& cell, const StaticCellOptions& options = {});
+  ~StaticCell();
+  StaticCell(const StaticCell&) = delete;
+  StaticCell& operator=(const StaticCell&) = delete;
+
+  struct Grid {
+    std::string name;  ///< "shelf", "tote", "table".
+    DistanceGrid grid;
+  };
+  const std::vector<Grid>& grids() const { return grids_; }
+  double floor_z_m() const { return floor_z_m_; }
+  const Eigen::AlignedBox3d& pedestal_Base() const { return options_.pedestal_Base; }
+  const world::CellModel& cell() const { return cell_; }
+
+  struct Fcl;
+  const Fcl& fcl() const { return *fcl_; }
+
+ private:
+  world::CellModel cell_;
+  StaticCellOptions options_;
+  double floor_z_m_ = 0.0;
+  std::vector<Grid> grids_;
+  std::unique_ptr<Fcl> fcl_;
+};
+
+/// Occupied space seen by a scan: the voxels of an OctoMap and their distance grid. Built
+/// by BuildScanScene (scene.h); immutable and thread-safe afterwards.
+struct ScanObstacles {
+  DistanceGrid grid;                              ///< Over the occupied voxels' centres.
+  std::shared_ptr<const octomap::OcTree> octree;  ///< For the exact check; may be null.
+  std::size_t num_occupied_voxels = 0;
+};
+
+/// What a state check found.
+struct CollisionReport {
+  bool in_collision = false;
+  int body = -1;         ///< Body (see Body) that hits; -1 when free.
+  std::string obstacle;  ///< "shelf", "tote", "table", "floor", "pedestal", "scan", or
+                         ///< "self: <body name>".
+  /// Lower bound of the clearance of the worst sphere (fast check; metres, < 0 in
+  /// collision). The exact check leaves it at 0.
+  double clearance_m = 0.0;
+  /// "<body> hits <obstacle>" or empty.
+  std::string ToString() const;
+};
+
+/// The fast, conservative check of the search: the bodies' enclosing spheres against the
+/// static cell's and the scan's distance grids, the floor and pedestal, and each other. Never
+/// calls free a state that the exact check (FCL on the meshes) calls colliding; it may call
+/// colliding a state that is free by up to a couple of centimetres of clearance.
+/// Thread-safe (const).
+class FastChecker final {
+ public:
+  /// Keeps references: `robot`, `cell` and `scan` (may be null) must outlive the checker.
+  FastChecker(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan);
+
+  /// True if the arm (and `carried`, if given) at `q_rad` touches nothing. `padding_m`
+  /// grows every sphere (e.g. to cover the motion between two checked states).
+  bool IsFree(const JointVector& q_rad, const CarriedItem* carried = nullptr,
+              float padding_m = 0.f) const;
+  /// As IsFree, saying what hits what (slower).
+  CollisionReport Check(const JointVector& q_rad, const CarriedItem* carried = nullptr,
+                        float padding_m = 0.f) const;
+
+  const RobotGeometry& robot() const { return robot_; }
+
+ private:
+  template <bool kExplain>
+  bool Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
+           CollisionReport* report) const;
+
+  const RobotGeometry& robot_;
+  const StaticCell& cell_;
+  const ScanObstacles* scan_;
+};
+
+/// The exact check that validates every returned trajectory: FCL on the link meshes, the
+/// gripper tube (a cylinder) and the carried item (its box) against the cell's meshes, the
+/// floor (a half space), the pedestal (a box), the scan's OctoMap (fcl::OcTree) and each
+/// other (the same body pairs as the fast check). Not thread-safe: it moves one FCL object
+/// per body to each checked state (make one per thread).
+class ExactChecker final {
+ public:
+  ExactChecker(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan);
+  ~ExactChecker();
+
+  CollisionReport Check(const JointVector& q_rad, const CarriedItem* carried = nullptr) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace picking::planner

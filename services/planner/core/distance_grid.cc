@@ -1,0 +1,152 @@
+#include "services/planner/core/distance_grid.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace picking::planner {
+namespace {
+
+// "Far": large but finite, so the parabola intersections stay well defined.
+constexpr double kFar = 1e20;
+
+// Felzenszwalb & Huttenlocher's 1-D squared distance transform of f (n samples, unit
+// spacing) into d: the lower envelope of the parabolas (q - p)^2 + f(p). v and z are scratch
+// space of at least n and n + 1 entries.
+void Transform1d(const double* f, int n, double* d, int* v, double* z) {
+  int k = 0;
+  v[0] = 0;
+  z[0] = -kFar;
+  z[1] = kFar;
+  for (int q = 1; q < n; ++q) {
+    double s = ((f[q] + double(q) * q) - (f[v[k]] + double(v[k]) * v[k])) / (2.0 * (q - v[k]));
+    while (s <= z[k]) {
+      --k;
+      s = ((f[q] + double(q) * q) - (f[v[k]] + double(v[k]) * v[k])) / (2.0 * (q - v[k]));
+    }
+    ++k;
+    v[k] = q;
+    z[k] = s;
+    z[k + 1] = kFar;
+  }
+  k = 0;
+  for (int q = 0; q < n; ++q) {
+    while (z[k + 1] < q) ++k;
+    const double dq = double(q - v[k]);
+    d[q] = dq * dq + f[v[k]];
+  }
+}
+
+// Runs the 1-D transform along one axis of the nx * ny * nz volume (stride of the axis,
+// count along it, and the strides/counts of the other two).
+void TransformAxis(std::vector<double>& volume, int n, std::size_t stride, int n1,
+                   std::size_t stride1, int n2, std::size_t stride2) {
+  std::vector<double> f(n), d(n), z(n + 1);
+  std::vector<int> v(n);
+  for (int b = 0; b < n2; ++b) {
+    for (int a = 0; a < n1; ++a) {
+      const std::size_t base = a * stride1 + b * stride2;
+      for (int i = 0; i < n; ++i) f[i] = volume[base + i * stride];
+      Transform1d(f.data(), n, d.data(), v.data(), z.data());
+      for (int i = 0; i < n; ++i) volume[base + i * stride] = d[i];
+    }
+  }
+}
+
+}  // namespace
+
+DistanceGrid DistanceGrid::Build(const std::vector<Eigen::Vector3f>& seeds_F,
+                                 const DistanceGridOptions& options, std::size_t max_cells) {
+  if (!(options.resolution_m > 0.0) || !std::isfinite(options.resolution_m)) {
+    throw std::invalid_argument("distance grid resolution must be finite and > 0");
+  }
+  if (!(options.margin_m > 0.0) || !std::isfinite(options.margin_m)) {
+    throw std::invalid_argument("distance grid margin must be finite and > 0");
+  }
+  if (!(options.seed_allowance_m >= 0.0) || !std::isfinite(options.seed_allowance_m)) {
+    throw std::invalid_argument("distance grid seed allowance must be finite and >= 0");
+  }
+  DistanceGrid grid;
+  grid.resolution_ = static_cast<float>(options.resolution_m);
+  grid.inv_resolution_ = 1.f / grid.resolution_;
+  // 10 micrometres cover the float rounding of the query arithmetic.
+  grid.allowance_m_ = static_cast<float>(0.5 * std::sqrt(3.0) * options.resolution_m +
+                                         options.seed_allowance_m + 1e-5);
+  grid.outside_clearance_m_ = 1e3f;
+  if (seeds_F.empty()) return grid;
+
+  Eigen::AlignedBox3f box;
+  for (const auto& p : seeds_F) {
+    if (!p.allFinite()) throw std::invalid_argument("distance grid: non-finite seed point");
+    box.extend(p);
+  }
+  const double h = options.resolution_m;
+  Eigen::Vector3d lo = box.min().cast<double>().array() - options.margin_m;
+  Eigen::Vector3d hi = box.max().cast<double>().array() + options.margin_m;
+  if (options.align_to_resolution) {
+    lo = (lo / h).array().floor() * h;
+    hi = (hi / h).array().ceil() * h;
+  }
+  const Eigen::Vector3d cells = ((hi - lo) / h).array().ceil().max(1.0);
+  if (cells.prod() > static_cast<double>(max_cells)) {
+    throw std::invalid_argument("distance grid of " + std::to_string(cells.prod()) +
+                                " cells exceeds the limit of " + std::to_string(max_cells));
+  }
+  grid.nx_ = static_cast<int>(cells.x());
+  grid.ny_ = static_cast<int>(cells.y());
+  grid.nz_ = static_cast<int>(cells.z());
+  grid.origin_F_ = lo.cast<float>();
+  grid.size_f_ = Eigen::Vector3f(grid.nx_, grid.ny_, grid.nz_);
+  grid.outside_clearance_m_ = static_cast<float>(options.margin_m - options.seed_allowance_m);
+
+  const std::size_t nxy = static_cast<std::size_t>(grid.nx_) * grid.ny_;
+  std::vector<double> volume(nxy * grid.nz_, kFar);
+  for (const auto& p : seeds_F) {
+    const Eigen::Vector3d u = (p.cast<double>() - lo) / h;
+    const int ix = std::clamp(static_cast<int>(u.x()), 0, grid.nx_ - 1);
+    const int iy = std::clamp(static_cast<int>(u.y()), 0, grid.ny_ - 1);
+    const int iz = std::clamp(static_cast<int>(u.z()), 0, grid.nz_ - 1);
+    volume[iz * nxy + static_cast<std::size_t>(iy) * grid.nx_ + ix] = 0.0;
+  }
+  TransformAxis(volume, grid.nx_, 1, grid.ny_, grid.nx_, grid.nz_, nxy);
+  TransformAxis(volume, grid.ny_, grid.nx_, grid.nx_, 1, grid.nz_, nxy);
+  TransformAxis(volume, grid.nz_, nxy, grid.nx_, 1, grid.ny_, grid.nx_);
+
+  grid.distance_01mm_.resize(volume.size());
+  const double to_units = h * 1e4;  // cells -> 0.1 mm
+  for (std::size_t i = 0; i < volume.size(); ++i) {
+    const double d = std::sqrt(volume[i]) * to_units;
+    grid.distance_01mm_[i] = static_cast<std::uint16_t>(std::min(65535.0, std::floor(d)));
+  }
+  return grid;
+}
+
+Eigen::AlignedBox3f DistanceGrid::bounds_F() const {
+  return Eigen::AlignedBox3f(origin_F_, origin_F_ + size_f_ * resolution_);
+}
+
+void SampleSurface(const std::vector<Eigen::Vector3f>& vertices,
+                   const std::vector<std::array<std::uint32_t, 3>>& triangles,
+                   const Eigen::Isometry3d& X_FMesh, double gap_m,
+                   std::vector<Eigen::Vector3f>* points_F) {
+  if (!(gap_m > 0.0)) throw std::invalid_argument("SampleSurface: gap must be > 0");
+  const Eigen::Isometry3f X = X_FMesh.cast<float>();
+  const float max_edge = static_cast<float>(gap_m * std::sqrt(3.0));
+  for (const auto& t : triangles) {
+    const Eigen::Vector3f a = X * vertices.at(t[0]), b = X * vertices.at(t[1]),
+                          c = X * vertices.at(t[2]);
+    const float longest = std::max({(b - a).norm(), (c - b).norm(), (a - c).norm()});
+    const int n = std::max(1, static_cast<int>(std::ceil(longest / max_edge)));
+    // Vertices of the n x n subdivision: every small triangle's edges are the big one's / n.
+    for (int i = 0; i <= n; ++i) {
+      for (int j = 0; j <= n - i; ++j) {
+        const float u = float(i) / n, v = float(j) / n;
+        points_F->push_back(a + u * (b - a) + v * (c - a));
+      }
+    }
+  }
+}
+
+}  // namespace picking::planner

@@ -1,0 +1,704 @@
+#include "services/planner/core/motion_planner.h"
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <sstream>
+
+#include "libs/errors/errors.h"
+
+namespace picking::planner {
+namespace {
+
+double Seconds(std::chrono::steady_clock::time_point since) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+void CheckDeadline(Deadline deadline, const std::string& stage) {
+  if (std::chrono::steady_clock::now() > deadline) {
+    throw TimeoutError("planning ran past the call's deadline during " + stage);
+  }
+}
+
+bool IsRigid(const Eigen::Isometry3d& X) {
+  if (!X.matrix().allFinite()) return false;
+  const Eigen::Matrix3d R = X.linear();
+  return (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+         std::abs(R.determinant() - 1.0) < 1e-6;
+}
+
+PlanFailure FromSearch(const std::string& stage, const std::string& grasp,
+                       const CartesianSearchResult& search) {
+  PlanFailure f;
+  f.stage = stage;
+  f.kind = CartesianFailureName(search.failure);
+  f.grasp = grasp;
+  f.node = search.failed_node;
+  f.fraction_achieved = search.fraction_achieved;
+  if (search.collision.in_collision) {
+    f.body = BodyName(search.collision.body);
+    f.obstacle = search.collision.obstacle;
+  }
+  f.message = stage + " for grasp '" + grasp + "': " + search.Describe();
+  return f;
+}
+
+// The camera at `p_Camera` looking at `p_Target`, its x axis horizontal (image rows level).
+Eigen::Isometry3d LookAt(const Eigen::Vector3d& p_Camera, const Eigen::Vector3d& p_Target,
+                         const Eigen::Vector3d& up) {
+  const Eigen::Vector3d z = (p_Target - p_Camera).normalized();
+  Eigen::Vector3d x = z.cross(up);
+  if (x.norm() < 1e-6) x = z.unitOrthogonal();
+  x.normalize();
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() << x, z.cross(x), z;
+  X.translation() = p_Camera;
+  return X;
+}
+
+// The tcp pointing straight down at `p`, its x axis along base +x.
+Eigen::Isometry3d DownAt(const Eigen::Vector3d& p) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() << Eigen::Vector3d::UnitX(), -Eigen::Vector3d::UnitY(), -Eigen::Vector3d::UnitZ();
+  X.translation() = p;
+  return X;
+}
+
+}  // namespace
+
+PlanFailedError::PlanFailedError(std::vector<PlanFailure> failures)
+    : std::runtime_error(failures.empty() ? std::string("no plan found")
+                                          : failures.front().message),
+      failures_(std::move(failures)) {}
+
+JointVector DefaultHomeJoints() {
+  JointVector q;
+  q << M_PI, -2.0, 2.0, -M_PI / 2, -M_PI / 2, 0.0;
+  return q;
+}
+
+// ---------------------------------------------------------------------------------------
+// Named poses
+
+std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const StaticCell& cell,
+                                         const FastChecker& checker, const ExactChecker& exact,
+                                         const JointVector& home_rad,
+                                         const Eigen::Isometry3d& X_ToolCamera,
+                                         std::vector<std::string>* missing) {
+  std::vector<NamedPose> poses;
+  const ur10::Ur10Kinematics& kinematics = robot.kinematics();
+  auto free = [&](const JointVector& q) {
+    return checker.IsFree(q) && !exact.Check(q).in_collision;
+  };
+  if (free(home_rad)) {
+    poses.push_back({"home", home_rad});
+  } else if (missing) {
+    missing->push_back("home (" + checker.Check(home_rad).ToString() + ")");
+  }
+  // The solution nearest to home (every branch, every 2 pi variant) that is free.
+  auto solve = [&](const Eigen::Isometry3d& X_BaseTool) -> std::optional<JointVector> {
+    ur10::IkOptions ik_options;
+    ik_options.include_2pi_variants = true;
+    ur10::IkResult ik = kinematics.Solve(X_BaseTool, ik_options);
+    std::sort(ik.solutions.begin(), ik.solutions.end(), [&](const auto& a, const auto& b) {
+      return (a.q_rad - home_rad).cwiseAbs().sum() < (b.q_rad - home_rad).cwiseAbs().sum();
+    });
+    for (const auto& s : ik.solutions) {
+      if (free(s.q_rad)) return s.q_rad;
+    }
+    return std::nullopt;
+  };
+  // The first of the candidate poses (in order of preference) that has one.
+  auto add_first = [&](const std::string& name, const std::vector<Eigen::Isometry3d>& candidates) {
+    for (const Eigen::Isometry3d& X_BaseTool : candidates) {
+      if (const auto q = solve(X_BaseTool)) {
+        poses.push_back({name, *q});
+        return;
+      }
+    }
+    if (missing) missing->push_back(name);
+  };
+  auto add = [&](const std::string& name, const Eigen::Isometry3d& X_BaseTool) {
+    add_first(name, {X_BaseTool});
+  };
+  const Eigen::Isometry3d X_CameraTool = X_ToolCamera.inverse();
+  const Eigen::Isometry3d& X_BaseShelf = cell.cell().config.X_BaseShelf;
+  const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+  for (const world::BinGeometry& bin : cell.cell().bins) {
+    const Eigen::Vector3d c = bin.inner_S.center();
+    const Eigen::Vector3d p_ShelfTarget(c.x(), c.y(), bin.inner_S.min().z() + 0.03);
+    const double lateral[3] = {0.0, -0.10, 0.10};
+    for (int k = 0; k < 3; ++k) {
+      // The scanner's working distance is about 0.55 m; where the arm cannot hold the camera
+      // there (the wrist would pass the base axis for the middle column), a little closer or
+      // higher.
+      std::vector<Eigen::Isometry3d> candidates;
+      for (const double standoff : {0.55, 0.50, 0.45, 0.60}) {
+        for (const double height : {0.10, 0.18, 0.03}) {
+          const Eigen::Vector3d p_ShelfCamera(bin.opening_x_m + standoff, c.y() + lateral[k],
+                                              c.z() + height);
+          candidates.push_back(
+              LookAt(X_BaseShelf * p_ShelfCamera, X_BaseShelf * p_ShelfTarget, up) * X_CameraTool);
+        }
+      }
+      add_first("scan/" + bin.name + "/" + std::to_string(k), candidates);
+    }
+  }
+  const world::CellConfig& config = cell.cell().config;
+  const Eigen::Vector3d tote_floor = config.X_BaseTote.translation();
+  const Eigen::Vector3d tote_x = config.X_BaseTote.linear().col(0);
+  for (int k = 0; k < 2; ++k) {
+    const Eigen::Vector3d p_Camera =
+        tote_floor + Eigen::Vector3d(0, 0, 0.95) + (k == 0 ? -0.08 : 0.08) * tote_x;
+    const Eigen::Isometry3d X_BaseCamera =
+        LookAt(p_Camera, tote_floor + (k == 0 ? -0.04 : 0.04) * tote_x, tote_x);
+    add("scan/tote/" + std::to_string(k), X_BaseCamera * X_CameraTool);
+  }
+  const Eigen::Isometry3d X_TcpTool = robot.gripper().X_ToolTcp.inverse();
+  add("above_tote", DownAt(tote_floor + Eigen::Vector3d(0, 0, 0.60)) * X_TcpTool);
+  const Eigen::Vector3d table_top = config.X_BaseTable.translation();
+  add("table", DownAt(table_top + Eigen::Vector3d(0, 0, 0.30)) * X_TcpTool);
+  add("verify",
+      LookAt(table_top + Eigen::Vector3d(0, 0, 0.60), table_top, Eigen::Vector3d::UnitX()) *
+          X_CameraTool);
+  return poses;
+}
+
+// ---------------------------------------------------------------------------------------
+// Set-up
+
+MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world::CellModel& cell,
+                             const GripperGeometry& gripper, const Eigen::Isometry3d& X_ToolCamera,
+                             std::shared_ptr<const GraspTable> grasps,
+                             std::shared_ptr<world::ItemModelLibrary> items,
+                             const MotionPlannerOptions& options)
+    : options_(options),
+      robot_(std::make_unique<RobotGeometry>(kinematics, gripper)),
+      cell_(std::make_unique<StaticCell>(cell, options.cell)),
+      grasps_(std::move(grasps)),
+      items_(std::move(items)),
+      X_ToolCamera_(X_ToolCamera) {
+  if (!grasps_ || !items_) throw std::invalid_argument("MotionPlanner needs grasps and items");
+  if (!IsRigid(X_ToolCamera_)) throw std::invalid_argument("X_ToolCamera must be rigid");
+  static_fast_ = std::make_unique<FastChecker>(*robot_, *cell_, nullptr);
+  static_motion_ = std::make_unique<MotionChecker>(*static_fast_, options_.motion);
+  static_exact_ = std::make_unique<ExactChecker>(*robot_, *cell_, nullptr);
+  std::vector<std::string> missing;
+  std::vector<NamedPose> named = ComputeNamedPoses(*robot_, *cell_, *static_fast_, *static_exact_,
+                                                   DefaultHomeJoints(), X_ToolCamera_, &missing);
+  if (!missing.empty()) {
+    std::string list;
+    for (const auto& m : missing) list += (list.empty() ? "" : ", ") + m;
+    throw std::runtime_error("no collision-free IK solution for the named poses: " + list);
+  }
+  roadmap_ = std::make_unique<Roadmap>(*static_motion_, std::move(named), options_.roadmap);
+}
+
+MotionPlanner::~MotionPlanner() = default;
+
+GraspContainer MotionPlanner::Container(const std::string& name) const {
+  if (name == "tote") return ToteContainer(cell_->cell());
+  for (const auto& bin : cell_->cell().bins) {
+    if (bin.name == name) return ShelfBinContainer(cell_->cell(), name);
+  }
+  throw NotFoundError("unknown container '" + name.substr(0, 40) +
+                      "': expected bin_A..bin_L or tote");
+}
+
+void MotionPlanner::ValidateStart(const JointVector& start_rad) const {
+  if (!start_rad.allFinite()) throw std::invalid_argument("start joints must be finite");
+  if (!robot_->kinematics().model().WithinPositionLimits(start_rad)) {
+    throw PreconditionError("the start joints are outside the UR10's joint limits");
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// Scenes and grasps
+
+PlanningScene MotionPlanner::BuildScene(const std::string& container, const float* xyz_Base,
+                                        std::size_t count, const std::string& item,
+                                        const Eigen::Isometry3d& X_BaseItem,
+                                        const PlanningScene* previous) const {
+  const auto start = std::chrono::steady_clock::now();
+  const GraspContainer box = Container(container);
+  PlanningScene scene;
+  scene.container = container;
+  scene.item = item;
+  scene.X_BaseItem = X_BaseItem;
+  ScanSceneOptions scene_options;
+  scene_options.resolution_m = options_.scene_resolution_m;
+  // The container's box in base, grown by the margin (an axis-aligned box around it).
+  Eigen::AlignedBox3d region;
+  const Eigen::Vector3d half = 0.5 * box.inner_size_m;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d corner((i & 1) ? half.x() : -half.x(), (i & 2) ? half.y() : -half.y(),
+                                 (i & 4) ? half.z() : -half.z());
+    region.extend(box.X_BaseContainer * corner);
+  }
+  region.min().array() -= options_.scene_region_margin_m;
+  region.max().array() += options_.scene_region_margin_m;
+  scene_options.region_Base = region;
+  std::vector<SceneCutOut> cuts;
+  if (!item.empty()) {
+    if (!IsRigid(X_BaseItem)) throw std::invalid_argument("X_base_item must be a rigid pose");
+    std::shared_ptr<const world::ItemModel> model;
+    try {
+      model = items_->Get(item);
+    } catch (const apc::UnknownItemError&) {
+      throw NotFoundError("unknown item '" + item.substr(0, 60) + "'");
+    }
+    ConvexHull hull_Item;
+    {
+      std::lock_guard<std::mutex> lock(hull_mutex_);
+      auto it = hulls_Item_.find(item);
+      if (it == hulls_Item_.end()) {
+        it = hulls_Item_.emplace(item, ComputeConvexHull(model->mesh.vertices)).first;
+      }
+      hull_Item = it->second;
+    }
+    cuts.push_back({item, hull_Item.Transformed(X_BaseItem), options_.cut_margin_m});
+  }
+  if (previous && previous->container != container) {
+    throw std::invalid_argument("the scene shows " + previous->container + ", not " + container);
+  }
+  auto scan = previous && previous->scan ? std::make_shared<ScanScene>(*previous->scan)
+                                         : std::make_shared<ScanScene>(scene_options);
+  scene.stats = scan->Insert(xyz_Base, count, cuts);
+  scene.obstacles = scan->Snapshot();
+  scene.scan = std::move(scan);
+  scene.build_time_s = Seconds(start);
+  return scene;
+}
+
+GraspResult MotionPlanner::ComputeGraspsFor(const std::string& item,
+                                            const Eigen::Isometry3d& X_BaseItem,
+                                            const std::string& container,
+                                            const PlanningScene* scene) const {
+  if (!grasps_->find(item)) throw NotFoundError("unknown item '" + item.substr(0, 60) + "'");
+  if (!IsRigid(X_BaseItem)) throw std::invalid_argument("X_base_item must be a rigid pose");
+  GraspOptions options = options_.grasp;
+  if (scene && scene->obstacles) {
+    // Free distance behind the point: march back along -approach through the scan's and the
+    // cell's grids (clearance bounds are conservative, so is the distance).
+    const ScanObstacles* scan = scene->obstacles.get();
+    const StaticCell* cell = cell_.get();
+    const double radius = robot_->gripper().tube_radius_m;
+    options.clearance = [scan, cell, radius](const Eigen::Vector3d& p,
+                                             const Eigen::Vector3d& direction, double max_m) {
+      for (double s = 0.02; s <= max_m; s += 0.01) {
+        const Eigen::Vector3f q = (p + s * direction).cast<float>();
+        float d = scan->grid.Clearance(q);
+        for (const auto& g : cell->grids()) d = std::min(d, g.grid.Clearance(q));
+        if (d < radius) return std::max(0.0, s - 0.01);
+      }
+      return max_m;
+    };
+  }
+  return ComputeGrasps(*grasps_, item, X_BaseItem, Container(container), options);
+}
+
+// ---------------------------------------------------------------------------------------
+// Timing and validation
+
+Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_rad,
+                                          double speed_fraction, const MotionChecker& checker,
+                                          const ExactChecker& exact, const CarriedItem* carried,
+                                          const std::string& stage) const {
+  if (!(speed_fraction > 0.0 && speed_fraction <= 1.0)) {
+    throw std::invalid_argument("speed_fraction must be in (0, 1]");
+  }
+  const ur10::Ur10Model& model = robot_->kinematics().model();
+  TimeOptimalOptions timing;
+  timing.max_velocity_rad_s = model.max_velocity_rad_s() * speed_fraction;
+  timing.max_acceleration_rad_s2 = model.max_acceleration_rad_s2() * speed_fraction;
+  timing.sample_period_s = options_.sample_period_s;
+  auto fail = [&](const std::string& kind, const std::string& message,
+                  const CollisionReport* report) {
+    PlanFailure f;
+    f.stage = stage;
+    f.kind = kind;
+    f.message = stage + ": " + message;
+    if (report && report->in_collision) {
+      f.body = BodyName(report->body);
+      f.obstacle = report->obstacle;
+    }
+    throw PlanFailedError({f});
+  };
+  // Blended corners leave the checked polyline; if the blended motion collides, time the
+  // exact polyline instead (it stops at each corner).
+  for (const double deviation : {options_.blend_deviation_rad, 0.0}) {
+    timing.max_deviation_rad = deviation;
+    const TimeOptimalResult timed = TimeParametrizeTimeOptimal(path_rad, timing);
+    if (!timed.ok) fail("timing", timed.reason, nullptr);
+    std::vector<JointVector> samples;
+    samples.reserve(timed.samples.size());
+    for (const auto& s : timed.samples) samples.push_back(s.q_rad);
+    const MotionCheckResult check = checker.CheckPath(samples, carried);
+    if (!check.free) {
+      if (deviation > 0.0) continue;
+      fail("collision", "the timed motion collides: " + check.report.ToString(), &check.report);
+    }
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      if (i % options_.exact_sample_stride != 0 && i + 1 != samples.size()) continue;
+      const CollisionReport report = exact.Check(samples[i], carried);
+      if (report.in_collision) {
+        fail("collision",
+             "exact validation found a collision at t = " +
+                 std::to_string(timed.samples[i].time_s) + " s: " + report.ToString(),
+             &report);
+      }
+    }
+    for (const JointVector& q : path_rad) {
+      const CollisionReport report = exact.Check(q, carried);
+      if (report.in_collision) {
+        fail("collision", "exact validation found a collision at a path node: " + report.ToString(),
+             &report);
+      }
+    }
+    Trajectory trajectory;
+    trajectory.samples = timed.samples;
+    return trajectory;
+  }
+  fail("collision", "no collision-free timing", nullptr);
+  return {};
+}
+
+JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
+                                               const JointVector& goal_rad, double speed_fraction,
+                                               Deadline deadline) const {
+  const auto started = std::chrono::steady_clock::now();
+  ValidateStart(start_rad);
+  if (!goal_rad.allFinite()) throw std::invalid_argument("goal joints must be finite");
+  if (!robot_->kinematics().model().WithinPositionLimits(goal_rad)) {
+    throw std::invalid_argument("the goal joints are outside the UR10's joint limits");
+  }
+  if (const CollisionReport r = static_fast_->Check(start_rad); r.in_collision) {
+    throw PreconditionError("the start state collides: " + r.ToString());
+  }
+  if (const CollisionReport r = static_fast_->Check(goal_rad); r.in_collision) {
+    throw std::invalid_argument("the goal state collides: " + r.ToString());
+  }
+  const JointPathResult path = roadmap_->Plan(start_rad, goal_rad, nullptr, deadline);
+  CheckDeadline(deadline, "the joint motion");
+  if (!path.ok) {
+    PlanFailure f;
+    f.stage = "joint motion";
+    f.kind = "no path";
+    f.message = "no collision-free joint motion: " + path.reason;
+    throw PlanFailedError({f});
+  }
+  JointMotionPlan plan;
+  plan.path_rad = path.path_rad;
+  plan.cached = path.cached;
+  plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *static_motion_, *static_exact_,
+                                    nullptr, "joint motion");
+  plan.planning_time_s = Seconds(started);
+  return plan;
+}
+
+// ---------------------------------------------------------------------------------------
+// Pick
+
+std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_BaseTcp,
+                                                 const JointVector& seed,
+                                                 const FastChecker& checker,
+                                                 const CarriedItem* carried,
+                                                 std::string* reason) const {
+  ur10::IkOptions ik_options;
+  ik_options.include_2pi_variants = true;
+  ur10::IkResult ik =
+      robot_->kinematics().Solve(X_BaseTcp * robot_->gripper().X_ToolTcp.inverse(), ik_options);
+  if (ik.empty()) {
+    *reason = "no IK solution: " + ik.reason;
+    return std::nullopt;
+  }
+  std::sort(ik.solutions.begin(), ik.solutions.end(), [&](const auto& a, const auto& b) {
+    return (a.q_rad - seed).cwiseAbs().sum() < (b.q_rad - seed).cwiseAbs().sum();
+  });
+  CollisionReport first;
+  for (const auto& s : ik.solutions) {
+    const CollisionReport report = checker.Check(s.q_rad, carried);
+    if (!report.in_collision) return s.q_rad;
+    if (!first.in_collision) first = report;
+  }
+  *reason = "every IK solution collides (nearest: " + first.ToString() + ")";
+  return std::nullopt;
+}
+
+bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
+                             const std::shared_ptr<const world::ItemModel>& model,
+                             const FastChecker& fast, const MotionChecker& motion,
+                             const ExactChecker& exact, Deadline deadline, PickPlan* plan,
+                             PlanFailure* failure) const {
+  const GraspContainer container = Container(request.container);
+  const bool tote = container.kind == GraspContainerKind::kTote;
+  const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
+  const Eigen::Vector3d a = grasp.approach_Base;
+  auto translated = [](const Eigen::Isometry3d& X, const Eigen::Vector3d& d) {
+    Eigen::Isometry3d Y = X;
+    Y.translation() += d;
+    return Y;
+  };
+  auto fail = [&](const std::string& stage, const std::string& kind, const std::string& message) {
+    failure->stage = stage;
+    failure->kind = kind;
+    failure->grasp = grasp.surface;
+    failure->message = stage + " for grasp '" + grasp.surface + "': " + message;
+    return false;
+  };
+  // Pre-grasp: back along the approach line until outside the opening (or above the rim).
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  const Eigen::Vector3d p_opening =
+      container.X_BaseContainer.translation() +
+      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  const double back_per_m = (-a).dot(o);  // opening-normal distance per metre of back-off
+  if (back_per_m < 0.1)
+    return fail("pre-grasp", "ik unreachable", "approach runs along the opening");
+  const double to_opening = std::max(0.0, (p_opening - X_grasp.translation()).dot(o)) / back_per_m;
+  const double clearance = tote ? options_.tote_pregrasp_height_m : options_.pregrasp_clearance_m;
+  const double back_m = to_opening + clearance / back_per_m;
+  if (back_m > 0.6) {
+    return fail("pre-grasp", "ik unreachable",
+                "the approach leaves the container " + std::to_string(back_m) +
+                    " m from the grasp (too oblique to the opening)");
+  }
+  const Eigen::Isometry3d X_pre = translated(X_grasp, -a * back_m);
+  std::string reason;
+  const auto q_pre = FreeIk(X_pre, request.start_rad, fast, nullptr, &reason);
+  if (!q_pre) return fail("pre-grasp", "ik unreachable", reason);
+
+  // Descend along the approach to guarded_distance short of the grasp.
+  CartesianSearchOptions search = options_.search;
+  search.deadline = deadline;
+  if (tote) search.max_lateral_steps = search.max_tilt_steps = 0;  // tote picks go straight
+  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
+  const CartesianSearchResult descend =
+      SearchCartesianPath(motion, *q_pre, X_descend_end, nullptr, search);
+  plan->nodes_expanded += descend.nodes_expanded;
+  if (!descend.ok) {
+    *failure = FromSearch("descend", grasp.surface, descend);
+    return false;
+  }
+  // The guarded move and the lift: straight along the approach, the arm checked (the cup
+  // touches the item, whose voxels are cut out).
+  const ur10::Branch branch = robot_->kinematics().BranchOf(descend.path_rad.back());
+  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const auto ik_grasp =
+      robot_->kinematics().NearestSolution(X_grasp * X_TcpTool, descend.path_rad.back(), branch);
+  if (!ik_grasp) return fail("descend", "ik unreachable", "the grasp pose has no IK solution");
+  const JointVector* q_grasp = &ik_grasp->q_rad;
+  if (const MotionCheckResult m = motion.CheckSegment(descend.path_rad.back(), *q_grasp); !m.free) {
+    failure->body = BodyName(m.report.body);
+    failure->obstacle = m.report.obstacle;
+    return fail("descend", "collision", "the guarded move collides: " + m.report.ToString());
+  }
+  // Lift straight up off the support first: the item rests on the floor or other items, so
+  // its check starts where the lift ends.
+  const Eigen::Vector3d lift_direction = Eigen::Vector3d::UnitZ();
+  const auto ik_lift = robot_->kinematics().NearestSolution(
+      translated(X_grasp, lift_direction * options_.lift_m) * X_TcpTool, *q_grasp, branch);
+  if (!ik_lift) return fail("retreat", "ik unreachable", "the lift pose has no IK solution");
+  const JointVector* q_lift = &ik_lift->q_rad;
+  if (const MotionCheckResult m = motion.CheckSegment(*q_grasp, *q_lift); !m.free) {
+    failure->body = BodyName(m.report.body);
+    failure->obstacle = m.report.obstacle;
+    return fail("retreat", "collision", "the lift collides: " + m.report.ToString());
+  }
+
+  // Retreat carrying the item, from the lift to the pre-grasp pose.
+  const CarriedItem carried =
+      MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
+  const Eigen::Isometry3d X_exit =
+      tote ? X_pre : translated(X_pre, lift_direction * options_.lift_m);
+  const CartesianSearchResult retreat =
+      SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
+  plan->nodes_expanded += retreat.nodes_expanded;
+  if (!retreat.ok) {
+    *failure = FromSearch("retreat", grasp.surface, retreat);
+    return false;
+  }
+  // Approach: a joint motion from the start to the pre-grasp configuration.
+  const JointPathResult approach = roadmap_->Plan(request.start_rad, *q_pre, &motion, deadline);
+  if (!approach.ok) return fail("approach", "no path", approach.reason);
+  CheckDeadline(deadline, "the pick's trajectories");
+
+  plan->grasp = grasp;
+  plan->approach = TimeAndValidate(approach.path_rad, request.speed_fraction, motion, exact,
+                                   nullptr, "approach");
+  plan->descend =
+      TimeAndValidate(descend.path_rad, request.speed_fraction, motion, exact, nullptr, "descend");
+  // The lift itself is checked without the item (above); the item from the lift's end on.
+  const Trajectory lift = TimeAndValidate({*q_grasp, *q_lift}, request.speed_fraction, motion,
+                                          exact, nullptr, "retreat");
+  const Trajectory out =
+      TimeAndValidate(retreat.path_rad, request.speed_fraction, motion, exact, &carried, "retreat");
+  plan->retreat = lift;
+  const double t0 = lift.duration_s();
+  for (std::size_t i = 1; i < out.samples.size(); ++i) {
+    TrajectorySample s = out.samples[i];
+    s.time_s += t0;
+    plan->retreat.samples.push_back(s);
+  }
+  plan->guarded_direction_Base = a;
+  plan->guarded_distance_m = options_.guarded_distance_m + options_.guarded_overshoot_m;
+  return true;
+}
+
+PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene* scene,
+                                 Deadline deadline) const {
+  const auto started = std::chrono::steady_clock::now();
+  ValidateStart(request.start_rad);
+  if (!IsRigid(request.X_BaseItem)) throw std::invalid_argument("X_base_item must be a rigid pose");
+  if (!(request.speed_fraction > 0.0 && request.speed_fraction <= 1.0)) {
+    throw std::invalid_argument("speed_fraction must be in (0, 1]");
+  }
+  std::shared_ptr<const world::ItemModel> model;
+  try {
+    model = items_->Get(request.item);
+  } catch (const apc::UnknownItemError&) {
+    throw NotFoundError("unknown item '" + request.item.substr(0, 60) + "'");
+  }
+  Container(request.container);  // throws NotFoundError
+  CheckDeadline(deadline, "the pick's set-up");
+  const ScanObstacles* scan = scene ? scene->obstacles.get() : nullptr;
+  const FastChecker fast(*robot_, *cell_, scan);
+  const MotionChecker motion(fast, options_.motion);
+  const ExactChecker exact(*robot_, *cell_, scan);
+  if (const CollisionReport r = fast.Check(request.start_rad); r.in_collision) {
+    throw PreconditionError("the start state collides: " + r.ToString());
+  }
+  const GraspResult grasps =
+      ComputeGraspsFor(request.item, request.X_BaseItem, request.container, scene);
+  if (grasps.empty()) {
+    PlanFailure f;
+    f.stage = "grasps";
+    f.kind = "no grasp";
+    f.message =
+        "no grasp for '" + request.item + "' in " + request.container + ": " + grasps.reason;
+    throw PlanFailedError({f});
+  }
+  PickPlan plan;
+  std::vector<PlanFailure> failures;
+  const int tries = std::min<int>(options_.max_grasps_tried, grasps.candidates.size());
+  for (int g = 0; g < tries; ++g) {
+    ++plan.grasps_tried;
+    // Suction is symmetric about the cup's axis: the wrist may take the grasp at another
+    // roll where the first one runs into a joint limit, a wrist singularity or a wall.
+    const GraspCandidate& candidate = grasps.candidates[g];
+    PlanFailure best;
+    bool have_best = false;
+    for (const double roll : {0.0, M_PI / 2, -M_PI / 2, M_PI}) {
+      if (roll != 0.0 && !candidate.roll_symmetric) break;
+      CheckDeadline(deadline, "the pick search");
+      GraspCandidate rolled = candidate;
+      const Eigen::Matrix3d R =
+          Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      rolled.X_BaseTcp.linear() = candidate.X_BaseTcp.linear() * R;
+      rolled.X_BaseTcpPreGrasp.linear() = candidate.X_BaseTcpPreGrasp.linear() * R;
+      PlanFailure failure;
+      try {
+        if (TryGrasp(request, rolled, model, fast, motion, exact, deadline, &plan, &failure)) {
+          plan.rejected = failures;
+          plan.planning_time_s = Seconds(started);
+          return plan;
+        }
+      } catch (const PlanFailedError& e) {
+        failure = e.failures().front();
+        failure.grasp = candidate.surface;
+      }
+      if (!have_best || failure.fraction_achieved > best.fraction_achieved) best = failure;
+      have_best = true;
+    }
+    failures.push_back(best);
+  }
+  // The most advanced attempt first.
+  auto rank = [](const PlanFailure& f) {
+    static const char* kOrder[] = {"grasps",  "pre-grasp", "descend",
+                                   "retreat", "approach",  "validation"};
+    int r = 0;
+    for (int i = 0; i < 6; ++i) {
+      if (f.stage == kOrder[i]) r = i;
+    }
+    return r + f.fraction_achieved;
+  };
+  std::stable_sort(failures.begin(), failures.end(),
+                   [&](const auto& x, const auto& y) { return rank(x) > rank(y); });
+  throw PlanFailedError(std::move(failures));
+}
+
+// ---------------------------------------------------------------------------------------
+// Place
+
+PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadline) const {
+  const auto started = std::chrono::steady_clock::now();
+  ValidateStart(request.start_rad);
+  std::shared_ptr<const world::ItemModel> model;
+  try {
+    model = items_->Get(request.item);
+  } catch (const apc::UnknownItemError&) {
+    throw NotFoundError("unknown item '" + request.item.substr(0, 60) + "'");
+  }
+  if (!IsRigid(request.X_TcpItem)) throw std::invalid_argument("X_tcp_item must be rigid");
+  const GraspContainer container = Container(request.container);
+  const CarriedItem carried = MakeCarriedItem(request.item, model->box_I, request.X_TcpItem);
+  // The item's lowest point below the tcp when the tcp points straight down.
+  const Eigen::Isometry3d X_down = DownAt(Eigen::Vector3d::Zero());
+  double below_m = 0.0;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d corner((i & 1) ? model->box_I.max().x() : model->box_I.min().x(),
+                                 (i & 2) ? model->box_I.max().y() : model->box_I.min().y(),
+                                 (i & 4) ? model->box_I.max().z() : model->box_I.min().z());
+    below_m = std::max(below_m, -(X_down * request.X_TcpItem * corner).z());
+  }
+  const Eigen::Vector3d centre = container.X_BaseContainer.translation();
+  const double floor_z = centre.z() - 0.5 * container.inner_size_m.z();
+  const double rim_z = centre.z() + 0.5 * container.inner_size_m.z();
+  PlacePlan plan;
+  std::vector<PlanFailure> failures;
+  // Release over the tote (item 5 cm above the rim), or just inside a bin's opening.
+  std::vector<Eigen::Isometry3d> candidates;
+  if (container.kind == GraspContainerKind::kTote) {
+    const Eigen::Vector3d x = container.X_BaseContainer.linear().col(0);
+    for (double dx : {0.0, -0.1, 0.1}) {
+      candidates.push_back(
+          DownAt(centre + dx * x + Eigen::Vector3d(0, 0, rim_z - centre.z() + 0.05 + below_m)));
+    }
+  } else {
+    const Eigen::Vector3d p =
+        centre + Eigen::Vector3d(0, 0, 0.5 * container.inner_size_m.z() - 0.02 - below_m * 0.0);
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d z = -container.opening_direction_Base;
+    X.linear() << Eigen::Vector3d::UnitZ().cross(z).normalized().cross(z) * -1.0,
+        z.cross(Eigen::Vector3d::UnitZ().cross(z).normalized() * -1.0), z;
+    X.translation() = p;
+    candidates.push_back(X);
+  }
+  for (const Eigen::Isometry3d& X_release : candidates) {
+    CheckDeadline(deadline, "the place");
+    std::string reason;
+    const auto q_release = FreeIk(X_release, request.start_rad, *static_fast_, &carried, &reason);
+    if (!q_release) {
+      failures.push_back({"place", "ik unreachable", "", -1, 0.0, "", "",
+                          "release pose over " + request.container + ": " + reason});
+      continue;
+    }
+    const JointPathResult path = roadmap_->Plan(request.start_rad, *q_release, nullptr, deadline);
+    // The roadmap checks the arm; the path must also be free carrying the item.
+    std::vector<JointVector> joints = path.ok ? path.path_rad : std::vector<JointVector>{};
+    if (!path.ok || !static_motion_->CheckPath(joints, &carried).free) {
+      failures.push_back({"place", "no path", "", -1, 0.0, "", "",
+                          "no free motion to the release pose: " +
+                              (path.ok ? std::string("the carried item collides") : path.reason)});
+      continue;
+    }
+    plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *static_motion_,
+                                      *static_exact_, &carried, "place");
+    plan.X_BaseTcp_release = X_release;
+    plan.drop_height_m = X_release.translation().z() - below_m - floor_z;
+    plan.planning_time_s = Seconds(started);
+    return plan;
+  }
+  throw PlanFailedError(std::move(failures));
+}
+
+}  // namespace picking::planner

@@ -1,0 +1,239 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "libs/world/cell_config.h"
+#include "libs/world/item_models.h"
+#include "services/planner/core/cartesian_search.h"
+#include "services/planner/core/collision_world.h"
+#include "services/planner/core/grasps.h"
+#include "services/planner/core/roadmap.h"
+#include "services/planner/core/scene.h"
+#include "services/planner/core/time_optimal.h"
+
+namespace picking::planner {
+
+using Deadline = std::chrono::steady_clock::time_point;
+
+/// Settings of the planner's request-level workflows. Lengths in metres, angles in radians.
+struct MotionPlannerOptions {
+  CartesianSearchOptions search;
+  MotionCheckOptions motion;
+  RoadmapOptions roadmap;
+  GraspOptions grasp;
+  StaticCellOptions cell;
+  /// OctoMap resolution of scans and how far around the target container scan points are
+  /// kept (the rest of the cell is the static cell's).
+  double scene_resolution_m = 0.01;
+  double scene_region_margin_m = 0.15;
+  /// The target's convex hull is grown by this before its points and voxels are cut out.
+  double cut_margin_m = 0.02;
+  /// The descent ends this far short of the grasp; the robot's guarded move covers it and
+  /// may go `guarded_overshoot_m` beyond (the item may sit a little deeper than detected).
+  double guarded_distance_m = 0.05;
+  double guarded_overshoot_m = 0.04;
+  /// The retreat's first straight lift, upward; the carried item is checked against the scene
+  /// from the lift's end on (it rests on its support before).
+  double lift_m = 0.05;
+  /// The pre-grasp pose lies on the approach line this far outside the bin's opening plane,
+  /// or this far above the tote's rim.
+  double pregrasp_clearance_m = 0.10;
+  double tote_pregrasp_height_m = 0.20;
+  /// Grasps tried, best first, before the pick is given up.
+  int max_grasps_tried = 8;
+  /// Trajectory timing: the blend tolerance at corners and the output sample period.
+  double blend_deviation_rad = 0.02;
+  double sample_period_s = 0.008;
+  /// Exact (FCL) validation: every path node, and trajectory samples at this spacing.
+  int exact_sample_stride = 8;
+};
+
+/// A time-parametrised joint trajectory.
+struct Trajectory {
+  std::vector<TrajectorySample> samples;
+  double duration_s() const { return samples.empty() ? 0.0 : samples.back().time_s; }
+};
+
+/// Where and why a plan failed, typed for the caller.
+struct PlanFailure {
+  std::string stage;  ///< "start", "grasps", "pre-grasp", "descend", "retreat", "approach",
+                      ///< "place", "validation".
+  std::string kind;   ///< "collision", "ik unreachable", "joint jump", "node budget spent",
+                      ///< "deadline", "no grasp", "no path".
+  std::string grasp;  ///< The grasp's surface, when one was being tried.
+  int node = -1;      ///< Search node where it stopped.
+  double fraction_achieved = 0.0;
+  std::string body;      ///< Colliding body, if any.
+  std::string obstacle;  ///< What it hit.
+  std::string message;   ///< One line a person can act on.
+};
+
+/// Thrown when no plan exists (mapped to ABORTED); carries every attempt's failure, the most
+/// advanced first.
+class PlanFailedError final : public std::runtime_error {
+ public:
+  explicit PlanFailedError(std::vector<PlanFailure> failures);
+  const std::vector<PlanFailure>& failures() const { return failures_; }
+
+ private:
+  std::vector<PlanFailure> failures_;
+};
+
+/// A planning scene: the scan of one container with the target item cut out.
+struct PlanningScene {
+  std::string container;  ///< "bin_A".."bin_L" or "tote".
+  std::string item;       ///< The cut-out target ("" if none).
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  std::shared_ptr<const ScanScene> scan;  ///< The voxels, for later updates.
+  std::shared_ptr<const ScanObstacles> obstacles;
+  SceneUpdateStats stats;
+  double build_time_s = 0.0;
+};
+
+/// What a pick needs to know.
+struct PickRequest {
+  std::string item;
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  std::string container;  ///< "bin_A".."bin_L" or "tote".
+  JointVector start_rad = JointVector::Zero();
+  double speed_fraction = 1.0;  ///< (0, 1]
+};
+
+struct PickPlan {
+  GraspCandidate grasp;
+  Trajectory approach;  ///< start -> pre-grasp
+  Trajectory descend;   ///< pre-grasp -> guarded_distance short of the grasp
+  Trajectory retreat;   ///< grasp -> pre-grasp, carrying the item
+  Eigen::Vector3d guarded_direction_Base = Eigen::Vector3d::Zero();
+  double guarded_distance_m = 0.0;
+  int nodes_expanded = 0;
+  int grasps_tried = 0;
+  double planning_time_s = 0.0;
+  std::vector<PlanFailure> rejected;  ///< Grasps tried before the one returned.
+};
+
+struct PlaceRequest {
+  std::string item;                                             ///< The carried item.
+  Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();  ///< Where it hangs.
+  std::string container;  ///< "tote" (pick task) or a bin (stow).
+  JointVector start_rad = JointVector::Zero();
+  double speed_fraction = 1.0;
+};
+
+struct PlacePlan {
+  Trajectory trajectory;
+  Eigen::Isometry3d X_BaseTcp_release = Eigen::Isometry3d::Identity();
+  double drop_height_m = 0.0;  ///< From the item's lowest point to the container floor.
+  double planning_time_s = 0.0;
+};
+
+struct JointMotionPlan {
+  Trajectory trajectory;
+  std::vector<JointVector> path_rad;
+  bool cached = false;
+  double planning_time_s = 0.0;
+};
+
+/// The planner's workflows over one cell: the collision world, the named poses and their
+/// roadmap, grasps, scenes from scans, pick, place and joint motions. Every plan it returns
+/// is collision-free for the fast check along its whole sampled motion, exactly validated
+/// (FCL) at its nodes and samples, and within the joint speed and acceleration limits.
+/// Thread-safe: plans run concurrently.
+class MotionPlanner final {
+ public:
+  /// Builds the static cell's grids, the named poses (IK at start-up) and the roadmap.
+  /// Throws std::runtime_error if the cell or a model cannot be loaded, std::invalid_argument
+  /// for bad options.
+  MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world::CellModel& cell,
+                const GripperGeometry& gripper, const Eigen::Isometry3d& X_ToolCamera,
+                std::shared_ptr<const GraspTable> grasps,
+                std::shared_ptr<world::ItemModelLibrary> items,
+                const MotionPlannerOptions& options = {});
+  ~MotionPlanner();
+
+  const RobotGeometry& robot() const { return *robot_; }
+  const StaticCell& cell() const { return *cell_; }
+  const std::vector<NamedPose>& named_poses() const { return roadmap_->named(); }
+  const MotionPlannerOptions& options() const { return options_; }
+
+  /// A scene from a scan (x, y, z floats in base) of `container`, with `item` at X_BaseItem
+  /// cut out (item may be empty); with `previous`, that scene's voxels plus this scan's (the
+  /// cut-out applies to both). Throws NotFoundError for an unknown item or container,
+  /// std::invalid_argument for a previous scene of another container.
+  PlanningScene BuildScene(const std::string& container, const float* xyz_Base, std::size_t count,
+                           const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+                           const PlanningScene* previous = nullptr) const;
+
+  /// Grasps for `item` at X_BaseItem in `container`, best first (scene optional, for the
+  /// clearance along each approach).
+  GraspResult ComputeGraspsFor(const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+                               const std::string& container,
+                               const PlanningScene* scene = nullptr) const;
+
+  /// A collision-free trajectory from start to goal (joint values, or a named pose).
+  JointMotionPlan PlanJointMotion(const JointVector& start_rad, const JointVector& goal_rad,
+                                  double speed_fraction, Deadline deadline) const;
+
+  /// Approach, descent and retreat for picking `request.item`. Throws PlanFailedError when no
+  /// grasp can be planned, NotFoundError / std::invalid_argument / PreconditionError for bad
+  /// requests, TimeoutError when the deadline passes.
+  PickPlan PlanPick(const PickRequest& request, const PlanningScene* scene,
+                    Deadline deadline) const;
+
+  /// From the retreat's end, carrying the item, to its release pose over the container.
+  PlacePlan PlanPlace(const PlaceRequest& request, Deadline deadline) const;
+
+  /// Times a joint path within the limits (scaled by speed_fraction) and checks the timed
+  /// motion: continuous fast check, then FCL at nodes and samples. Throws PlanFailedError.
+  Trajectory TimeAndValidate(const std::vector<JointVector>& path_rad, double speed_fraction,
+                             const MotionChecker& checker, const ExactChecker& exact,
+                             const CarriedItem* carried, const std::string& stage) const;
+
+ private:
+  struct Attempt;
+  void ValidateStart(const JointVector& start_rad) const;
+  GraspContainer Container(const std::string& name) const;
+  std::optional<JointVector> FreeIk(const Eigen::Isometry3d& X_BaseTcp, const JointVector& seed,
+                                    const FastChecker& checker, const CarriedItem* carried,
+                                    std::string* reason) const;
+  bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
+                const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
+                const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,
+                PickPlan* plan, PlanFailure* failure) const;
+
+  MotionPlannerOptions options_;
+  std::unique_ptr<RobotGeometry> robot_;
+  std::unique_ptr<StaticCell> cell_;
+  std::unique_ptr<FastChecker> static_fast_;
+  std::unique_ptr<MotionChecker> static_motion_;
+  std::unique_ptr<ExactChecker> static_exact_;
+  std::unique_ptr<Roadmap> roadmap_;
+  std::shared_ptr<const GraspTable> grasps_;
+  std::shared_ptr<world::ItemModelLibrary> items_;
+  Eigen::Isometry3d X_ToolCamera_;
+  mutable std::mutex hull_mutex_;
+  mutable std::map<std::string, ConvexHull> hulls_Item_;
+};
+
+/// The named poses of the cell: "home", "scan/<bin>/<k>" (three views per bin: the camera in
+/// front of the opening, centred and 10 cm to each side, looking at the floor's middle),
+/// "scan/tote/<k>" (two views from above), "above_tote", "table", "verify" (the camera above
+/// the table). Each from IK, the solution nearest to `home` that is collision-free. Poses
+/// with no such solution are left out and named in `missing`.
+std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const StaticCell& cell,
+                                         const FastChecker& checker, const ExactChecker& exact,
+                                         const JointVector& home_rad,
+                                         const Eigen::Isometry3d& X_ToolCamera,
+                                         std::vector<std::string>* missing);
+
+/// The UR10 facing the shelf, elbow up, the tool pointing at the shelf: the default home.
+JointVector DefaultHomeJoints();
+
+}  // namespace picking::planner

@@ -1,0 +1,248 @@
+#include "services/planner/core/roadmap.h"
+
+#include <algorithm>
+#include <cmath>
+#include <queue>
+#include <random>
+#include <stdexcept>
+
+namespace picking::planner {
+namespace {
+
+bool SameJoints(const JointVector& a, const JointVector& b) {
+  return (a - b).cwiseAbs().maxCoeff() < 1e-9;
+}
+
+}  // namespace
+
+Roadmap::Roadmap(const MotionChecker& checker, std::vector<NamedPose> named,
+                 const RoadmapOptions& options)
+    : checker_(checker), named_(std::move(named)), options_(options) {
+  const ur10::Ur10Model& model = checker_.checker().robot().kinematics().model();
+  for (int j = 0; j < 6; ++j) weights_[j] = checker_.reach_m(j, nullptr);
+  Eigen::Array<double, 6, 1> lo = Eigen::Array<double, 6, 1>::Constant(1e9), hi = -lo;
+  for (const NamedPose& pose : named_) {
+    if (!model.WithinPositionLimits(pose.q_rad)) {
+      throw std::invalid_argument("named pose '" + pose.name + "' is outside the joint limits");
+    }
+    const CollisionReport report = checker_.checker().Check(pose.q_rad);
+    if (report.in_collision) {
+      throw std::invalid_argument("named pose '" + pose.name + "' collides: " + report.ToString());
+    }
+    nodes_.push_back(pose.q_rad);
+    lo = lo.min(pose.q_rad.array());
+    hi = hi.max(pose.q_rad.array());
+  }
+  if (!named_.empty()) {
+    lo = (lo - options_.sample_margin_rad).max(model.min_position_rad().array());
+    hi = (hi + options_.sample_margin_rad).min(model.max_position_rad().array());
+    std::mt19937 rng(options_.seed);
+    int tries = 0;
+    while (static_cast<int>(nodes_.size() - named_.size()) < options_.samples &&
+           tries++ < 50 * options_.samples) {
+      JointVector q;
+      for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+      if (checker_.checker().IsFree(q)) nodes_.push_back(q);
+    }
+  }
+  edges_.resize(nodes_.size());
+  for (std::size_t n = 0; n < nodes_.size(); ++n) {
+    for (int m : Nearest(nodes_[n], options_.neighbours + 1)) {
+      if (m == static_cast<int>(n)) continue;
+      const bool known =
+          std::any_of(edges_[n].begin(), edges_[n].end(), [&](const Edge& e) { return e.to == m; });
+      if (known) continue;
+      const double length = Distance(nodes_[n], nodes_[m]);
+      edges_[n].push_back({m, length, EdgeState::kUnknown});
+      edges_[m].push_back({static_cast<int>(n), length, EdgeState::kUnknown});
+    }
+  }
+}
+
+const NamedPose* Roadmap::Find(const std::string& name) const {
+  for (const NamedPose& pose : named_) {
+    if (pose.name == name) return &pose;
+  }
+  return nullptr;
+}
+
+double Roadmap::Distance(const JointVector& a, const JointVector& b) const {
+  return ((a - b).cwiseAbs().cwiseProduct(weights_)).sum();
+}
+
+std::vector<int> Roadmap::Nearest(const JointVector& q, int count) const {
+  std::vector<std::pair<double, int>> all;
+  all.reserve(nodes_.size());
+  for (std::size_t n = 0; n < nodes_.size(); ++n) all.emplace_back(Distance(q, nodes_[n]), n);
+  const std::size_t k = std::min<std::size_t>(count, all.size());
+  std::partial_sort(all.begin(), all.begin() + k, all.end());
+  std::vector<int> out;
+  for (std::size_t i = 0; i < k; ++i) out.push_back(all[i].second);
+  return out;
+}
+
+bool Roadmap::EdgeFree(int from, std::size_t edge_index, int* edges_checked) const {
+  const Edge& edge = edges_[from][edge_index];
+  if (edge.state == EdgeState::kUnknown) {
+    ++*edges_checked;
+    const bool free = checker_.CheckSegment(nodes_[from], nodes_[edge.to]).free;
+    edge.state = free ? EdgeState::kFree : EdgeState::kBlocked;
+    for (const Edge& back : edges_[edge.to]) {
+      if (back.to == from) back.state = edge.state;
+    }
+  }
+  return edge.state == EdgeState::kFree;
+}
+
+std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
+                                           const MotionChecker& checker) const {
+  std::mt19937 rng(options_.seed + static_cast<std::uint32_t>(path.size()));
+  for (int attempt = 0; attempt < options_.shortcut_attempts && path.size() > 2; ++attempt) {
+    const int i = std::uniform_int_distribution<int>(0, path.size() - 3)(rng);
+    const int j = std::uniform_int_distribution<int>(i + 2, path.size() - 1)(rng);
+    if (checker.CheckSegment(path[i], path[j]).free) {
+      path.erase(path.begin() + i + 1, path.begin() + j);
+    }
+  }
+  return path;
+}
+
+JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& goal_rad,
+                              const MotionChecker* scene_checker,
+                              std::chrono::steady_clock::time_point deadline) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  JointPathResult result;
+  const MotionChecker& final_checker = scene_checker ? *scene_checker : checker_;
+  auto finish = [&](std::vector<JointVector> path) {
+    const MotionCheckResult check = final_checker.CheckPath(path);
+    if (!check.free) {
+      result.reason = "the path collides with the scene at " +
+                      std::to_string(static_cast<int>(100 * check.fraction_free)) +
+                      "% of the way: " + check.report.ToString();
+      return result;
+    }
+    result.ok = true;
+    result.path_rad = std::move(path);
+    return result;
+  };
+  if (const CollisionReport r = final_checker.checker().Check(start_rad); r.in_collision) {
+    result.reason = "the start collides: " + r.ToString();
+    return result;
+  }
+  if (const CollisionReport r = final_checker.checker().Check(goal_rad); r.in_collision) {
+    result.reason = "the goal collides: " + r.ToString();
+    return result;
+  }
+  // Cached paths between named poses.
+  const NamedPose* from = nullptr;
+  const NamedPose* to = nullptr;
+  for (const NamedPose& pose : named_) {
+    if (SameJoints(pose.q_rad, start_rad)) from = &pose;
+    if (SameJoints(pose.q_rad, goal_rad)) to = &pose;
+  }
+  if (from && to) {
+    const auto it = cache_.find({from->name, to->name});
+    if (it != cache_.end()) {
+      result.cached = true;
+      return finish(it->second);
+    }
+  }
+  auto remember = [&](const std::vector<JointVector>& path) {
+    if (from && to) cache_[{from->name, to->name}] = path;
+  };
+  ++result.edges_checked;
+  if (checker_.CheckSegment(start_rad, goal_rad).free) {
+    remember({start_rad, goal_rad});
+    return finish({start_rad, goal_rad});
+  }
+  // Join start and goal to their nearest nodes with free edges.
+  std::string first_block;
+  auto join = [&](const JointVector& q) {
+    std::vector<int> joined;
+    for (int n : Nearest(q, 3 * options_.neighbours)) {
+      ++result.edges_checked;
+      const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n]);
+      if (check.free) {
+        joined.push_back(n);
+      } else if (first_block.empty()) {
+        first_block = check.report.ToString() + " at " +
+                      std::to_string(static_cast<int>(100 * check.fraction_free)) + "% of the way";
+      }
+    }
+    return joined;
+  };
+  const std::vector<int> start_nodes = join(start_rad);
+  const std::vector<int> goal_nodes = join(goal_rad);
+  if (start_nodes.empty() || goal_nodes.empty()) {
+    result.reason = std::string("no free straight motion joins the ") +
+                    (start_nodes.empty() ? "start" : "goal") +
+                    " to the roadmap (nearest: " + first_block + ")";
+    return result;
+  }
+  // Lazy A*: search over edges not known to be blocked, check the path's edges, repeat.
+  const int n = static_cast<int>(nodes_.size());
+  for (int round = 0; round < 200; ++round) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      result.reason = "the call's deadline passed during the roadmap search";
+      return result;
+    }
+    std::vector<double> g(n, 1e18);
+    std::vector<int> parent(n, -1), parent_edge(n, -1);
+    using Entry = std::pair<double, int>;
+    std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> open;
+    for (int s : start_nodes) {
+      g[s] = Distance(start_rad, nodes_[s]);
+      open.emplace(g[s] + Distance(nodes_[s], goal_rad), s);
+    }
+    int reached = -1;
+    std::vector<bool> is_goal(n, false);
+    for (int t : goal_nodes) is_goal[t] = true;
+    std::vector<bool> closed(n, false);
+    while (!open.empty()) {
+      const int u = open.top().second;
+      open.pop();
+      if (closed[u]) continue;
+      closed[u] = true;
+      if (is_goal[u]) {
+        reached = u;
+        break;
+      }
+      for (std::size_t e = 0; e < edges_[u].size(); ++e) {
+        const Edge& edge = edges_[u][e];
+        if (edge.state == EdgeState::kBlocked) continue;
+        const double cost = g[u] + edge.length;
+        if (cost < g[edge.to]) {
+          g[edge.to] = cost;
+          parent[edge.to] = u;
+          parent_edge[edge.to] = static_cast<int>(e);
+          open.emplace(cost + Distance(nodes_[edge.to], goal_rad), edge.to);
+        }
+      }
+    }
+    if (reached < 0) {
+      result.reason = "the roadmap has no free path between start and goal";
+      return result;
+    }
+    std::vector<int> chain;
+    for (int v = reached; v >= 0; v = parent[v]) chain.push_back(v);
+    std::reverse(chain.begin(), chain.end());
+    bool blocked = false;
+    for (std::size_t i = 1; i < chain.size(); ++i) {
+      if (!EdgeFree(chain[i - 1], parent_edge[chain[i]], &result.edges_checked)) {
+        blocked = true;
+        break;
+      }
+    }
+    if (blocked) continue;
+    std::vector<JointVector> path = {start_rad};
+    for (int v : chain) path.push_back(nodes_[v]);
+    path.push_back(goal_rad);
+    path = Shortcut(std::move(path), checker_);
+    remember(path);
+    return finish(std::move(path));
+  }
+  result.reason = "the roadmap search gave up after 200 rounds of blocked edges";
+  return result;
+}
+
+}  // namespace picking::planner

@@ -1,0 +1,92 @@
+#pragma once
+
+#include <chrono>
+#include <map>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "services/planner/core/motion_check.h"
+
+namespace picking::planner {
+
+/// A joint configuration with a name ("home", "scan/bin_A/0", "above_tote", ...).
+struct NamedPose {
+  std::string name;
+  JointVector q_rad = JointVector::Zero();
+};
+
+/// Options of Roadmap.
+struct RoadmapOptions {
+  /// Random configurations added to the named poses, drawn within the joint-space box around
+  /// the named poses grown by `sample_margin_rad` (and inside the joint limits).
+  int samples = 300;
+  double sample_margin_rad = 0.6;
+  /// Each node is joined to this many nearest nodes (edges checked lazily, when a search
+  /// first uses them).
+  int neighbours = 10;
+  /// Shortcut attempts on a found path (seeded).
+  int shortcut_attempts = 40;
+  std::uint32_t seed = 2016;
+};
+
+/// Why a joint path could not be planned.
+struct JointPathResult {
+  bool ok = false;
+  std::vector<JointVector> path_rad;  ///< Start, intermediate nodes, goal.
+  std::string reason;                 ///< Why not, naming the blocked state.
+  bool cached = false;                ///< Served from the cache of named-pose paths.
+  int edges_checked = 0;
+};
+
+/// A lazy probabilistic roadmap over the static cell: the named poses and seeded random
+/// collision-free configurations, joined to their nearest neighbours by straight joint-space
+/// edges that are checked (continuously, MotionChecker) the first time a search uses them.
+/// Paths between two named poses are cached. Thread-safe (edge states and the cache behind a
+/// mutex).
+class Roadmap final {
+ public:
+  /// `checker` must check the static cell only (no scan) and outlive the roadmap. Throws
+  /// std::invalid_argument if a named pose is outside the limits or in collision.
+  Roadmap(const MotionChecker& checker, std::vector<NamedPose> named,
+          const RoadmapOptions& options = {});
+
+  const std::vector<NamedPose>& named() const { return named_; }
+  /// The named pose or nullptr.
+  const NamedPose* Find(const std::string& name) const;
+
+  /// A collision-free path from `start` to `goal`: the straight segment if it is free,
+  /// otherwise through the roadmap (start and goal joined to their nearest free nodes), then
+  /// shortcut. `scene_checker`, if given, also checks the path (e.g. with a scan); a path it
+  /// rejects is searched again without the rejected edges.
+  JointPathResult Plan(const JointVector& start_rad, const JointVector& goal_rad,
+                       const MotionChecker* scene_checker = nullptr,
+                       std::chrono::steady_clock::time_point deadline =
+                           std::chrono::steady_clock::time_point::max()) const;
+
+  std::size_t num_nodes() const { return nodes_.size(); }
+
+ private:
+  enum class EdgeState : std::uint8_t { kUnknown, kFree, kBlocked };
+  struct Edge {
+    int to;
+    double length;
+    mutable EdgeState state;
+  };
+  double Distance(const JointVector& a, const JointVector& b) const;
+  std::vector<int> Nearest(const JointVector& q, int count) const;
+  bool EdgeFree(int from, std::size_t edge_index, int* edges_checked) const;
+  std::vector<JointVector> Shortcut(std::vector<JointVector> path,
+                                    const MotionChecker& checker) const;
+
+  const MotionChecker& checker_;
+  std::vector<NamedPose> named_;
+  RoadmapOptions options_;
+  JointVector weights_ = JointVector::Ones();
+  std::vector<JointVector> nodes_;
+  std::vector<std::vector<Edge>> edges_;
+  mutable std::mutex mutex_;
+  mutable std::map<std::pair<std::string, std::string>, std::vector<JointVector>> cache_;
+};
+
+}  // namespace picking::planner

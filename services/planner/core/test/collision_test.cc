@@ -1,0 +1,206 @@
+#include <gtest/gtest.h>
+
+#include <map>
+#include <random>
+
+#include "libs/world/cell_config.h"
+#include "services/planner/core/collision_world.h"
+#include "services/planner/core/scene.h"
+
+namespace picking::planner {
+namespace {
+
+// The real UR10, gripper and cell, and a scan of boxes standing in three bins.
+class CollisionTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    kinematics_ = new ur10::Ur10Kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
+    robot_ = new RobotGeometry(*kinematics_, GripperGeometry{});
+    cell_model_ = new world::CellModel(
+        world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml")));
+    cell_ = new StaticCell(*cell_model_);
+    ScanScene scene(ScanSceneOptions{});
+    std::vector<float> xyz;
+    for (const char* name : {"bin_B", "bin_E", "bin_J"}) {
+      const Eigen::AlignedBox3d inner = cell_model_->bin(name).inner_S;
+      // A 10 x 8 x 12 cm box on the bin floor near the opening, sampled every 3 mm.
+      const Eigen::Vector3d c_S(inner.max().x() - 0.12, inner.center().y() + 0.04,
+                                inner.min().z() + 0.06);
+      const Eigen::Vector3d half(0.05, 0.04, 0.06);
+      for (double x = -half.x(); x <= half.x(); x += 0.003) {
+        for (double y = -half.y(); y <= half.y(); y += 0.003) {
+          for (double z = -half.z(); z <= half.z(); z += 0.003) {
+            const bool surface = std::abs(std::abs(x) - half.x()) < 0.003 ||
+                                 std::abs(std::abs(y) - half.y()) < 0.003 ||
+                                 std::abs(std::abs(z) - half.z()) < 0.003;
+            if (!surface) continue;
+            const Eigen::Vector3d p =
+                cell_model_->config.X_BaseShelf * (c_S + Eigen::Vector3d(x, y, z));
+            xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+          }
+        }
+      }
+    }
+    scene.Insert(xyz.data(), xyz.size() / 3, {});
+    scan_ = new std::shared_ptr<const ScanObstacles>(scene.Snapshot());
+  }
+
+  static ur10::Ur10Kinematics* kinematics_;
+  static RobotGeometry* robot_;
+  static world::CellModel* cell_model_;
+  static StaticCell* cell_;
+  static std::shared_ptr<const ScanObstacles>* scan_;
+};
+ur10::Ur10Kinematics* CollisionTest::kinematics_ = nullptr;
+RobotGeometry* CollisionTest::robot_ = nullptr;
+world::CellModel* CollisionTest::cell_model_ = nullptr;
+StaticCell* CollisionTest::cell_ = nullptr;
+std::shared_ptr<const ScanObstacles>* CollisionTest::scan_ = nullptr;
+
+TEST_F(CollisionTest, SpheresEncloseEveryLinkVertex) {
+  for (int b = 0; b < 7; ++b) {
+    const auto& mesh = robot_->link_mesh(b);
+    ASSERT_FALSE(robot_->spheres(b).empty()) << BodyName(b);
+    for (const auto& v : mesh.vertices) {
+      bool inside = false;
+      // In a coarse sphere, and in one of that sphere's leaves.
+      bool in_leaf = false;
+      for (const auto& s : robot_->spheres(b).coarse) {
+        if ((v - s.center_B).norm() > s.radius_m) continue;
+        inside = true;
+        if (s.num_children == 0) in_leaf = true;
+        for (std::uint32_t k = 0; k < s.num_children; ++k) {
+          const Sphere& leaf = robot_->spheres(b).fine[s.first_child + k];
+          if ((v - leaf.center_B).norm() <= leaf.radius_m) in_leaf = true;
+        }
+      }
+      ASSERT_TRUE(inside) << BodyName(b) << " vertex " << v.transpose();
+      ASSERT_TRUE(in_leaf) << BodyName(b) << " vertex " << v.transpose();
+    }
+  }
+  for (int b = 0; b < kNumArmBodies; ++b) {
+    float largest = 0.f;
+    for (const auto& s : robot_->spheres(b).fine) largest = std::max(largest, s.radius_m);
+    std::printf("%s: %zu coarse spheres, %zu fine, largest fine radius %.3f m\n", BodyName(b),
+                robot_->spheres(b).size(), robot_->spheres(b).fine.size(), largest);
+  }
+  std::printf("self-collision pairs:");
+  for (const auto& [a, b] : robot_->self_pairs()) std::printf(" %s-%s", BodyName(a), BodyName(b));
+  std::printf("\n");
+  EXPECT_GE(robot_->num_arm_spheres(), 20u);
+  EXPECT_LE(robot_->num_arm_spheres(), 80u);
+}
+
+TEST_F(CollisionTest, ReportsWhichBodyHitsWhat) {
+  // Stretched straight down through the floor.
+  JointVector q;
+  q << 0.0, 1.5707963, 0.0, 0.0, 0.0, 0.0;
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  const ExactChecker exact(*robot_, *cell_, scan_->get());
+  const CollisionReport f = fast.Check(q);
+  const CollisionReport e = exact.Check(q);
+  EXPECT_TRUE(f.in_collision);
+  EXPECT_TRUE(e.in_collision);
+  EXPECT_FALSE(f.ToString().empty());
+  EXPECT_NE(e.ToString().find("hits"), std::string::npos);
+}
+
+// Joint vectors with the tcp in and around the shelf's bins and the tote: where the planner
+// works and where contacts are close.
+std::vector<JointVector> NearContactSamples(const ur10::Ur10Kinematics& kinematics,
+                                            const world::CellModel& cell,
+                                            const GripperGeometry& gripper, int count,
+                                            std::mt19937& rng) {
+  std::vector<JointVector> out;
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> tilt(0.0, 0.35);
+  std::normal_distribution<double> jitter(0.0, 0.03);
+  while (static_cast<int>(out.size()) < count) {
+    const auto& bin = cell.bins[static_cast<int>(u(rng) * cell.bins.size()) % cell.bins.size()];
+    Eigen::Vector3d p_S =
+        bin.inner_S.min() +
+        (bin.inner_S.sizes().array() * Eigen::Array3d(u(rng), u(rng), u(rng))).matrix();
+    p_S.x() += 0.25 * u(rng);  // also in front of the opening
+    const Eigen::Vector3d p_Base = cell.config.X_BaseShelf * p_S;
+    // Tool axis into the bin (-x of the shelf frame), tilted at random.
+    const Eigen::Vector3d into = cell.config.X_BaseShelf.linear() * -Eigen::Vector3d::UnitX();
+    Eigen::Vector3d z = (into + Eigen::Vector3d(tilt(rng), tilt(rng), tilt(rng))).normalized();
+    Eigen::Vector3d x = z.unitOrthogonal();
+    Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+    X_BaseTcp.linear() << x, z.cross(x), z;
+    X_BaseTcp.linear() =
+        X_BaseTcp.linear() *
+        Eigen::AngleAxisd(6.283 * u(rng), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    X_BaseTcp.translation() = p_Base;
+    const auto ik = kinematics.Solve(X_BaseTcp * gripper.X_ToolTcp.inverse());
+    for (const auto& s : ik.solutions) {
+      JointVector q = s.q_rad;
+      for (int j = 0; j < 6; ++j) q[j] += jitter(rng);
+      out.push_back(q);
+    }
+  }
+  out.resize(count);
+  return out;
+}
+
+TEST_F(CollisionTest, FastCheckIsNeverFreeWhereFclCollides) {
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  const ExactChecker exact(*robot_, *cell_, scan_->get());
+  std::mt19937 rng(20161);
+  const JointVector lo = kinematics_->model().min_position_rad();
+  const JointVector hi = kinematics_->model().max_position_rad();
+  std::vector<JointVector> states;
+  for (int i = 0; i < 40000; ++i) {
+    JointVector q;
+    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+    states.push_back(q);
+  }
+  const auto near = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 60000, rng);
+  states.insert(states.end(), near.begin(), near.end());
+  const CarriedItem item = MakeCarriedItem(
+      "box",
+      Eigen::AlignedBox3d(Eigen::Vector3d(-0.1, -0.06, 0.0), Eigen::Vector3d(0.1, 0.06, 0.08)),
+      Eigen::Isometry3d::Identity());
+  int exact_hits = 0, fast_hits = 0, missed = 0;
+  std::map<std::string, int> false_alarm_by_;
+  for (std::size_t i = 0; i < states.size(); ++i) {
+    const CarriedItem* carried = (i % 4 == 3) ? &item : nullptr;
+    const bool exact_collides = exact.Check(states[i], carried).in_collision;
+    const bool fast_free = fast.IsFree(states[i], carried);
+    exact_hits += exact_collides;
+    fast_hits += !fast_free;
+    if (!exact_collides && !fast_free) {
+      const CollisionReport r = fast.Check(states[i], carried);
+      ++false_alarm_by_[std::string(BodyName(r.body)) + " / " + r.obstacle];
+    }
+    if (exact_collides && fast_free) {
+      ++missed;
+      ADD_FAILURE() << "fast check calls free what FCL calls colliding ("
+                    << exact.Check(states[i], carried).ToString() << ") at "
+                    << states[i].transpose();
+      if (missed > 5) break;
+    }
+  }
+  EXPECT_EQ(missed, 0);
+  // Both checks see plenty of collisions and plenty of free states, and the fast one is
+  // not so conservative that it calls nearly everything colliding.
+  EXPECT_GT(exact_hits, 10000);
+  EXPECT_LT(exact_hits, 90000);
+  const int false_alarms = fast_hits - exact_hits;
+  RecordProperty("states", static_cast<int>(states.size()));
+  RecordProperty("exact_collisions", exact_hits);
+  RecordProperty("fast_false_alarms", false_alarms);
+  std::printf(
+      "states %zu, FCL collisions %d, fast collisions %d (false alarms %d, %.1f%% of "
+      "the free states)\n",
+      states.size(), exact_hits, fast_hits, false_alarms,
+      100.0 * false_alarms / (states.size() - exact_hits));
+  for (const auto& [what, n] : false_alarm_by_)
+    std::printf("  false alarm %s: %d\n", what.c_str(), n);
+  // Most false alarms are the forearm against the wrist housings, which stay within a
+  // centimetre or two of each other over much of the joint space (benchmarks/RESULTS.md).
+  EXPECT_LT(false_alarms, static_cast<int>(0.65 * (states.size() - exact_hits)));
+}
+
+}  // namespace
+}  // namespace picking::planner

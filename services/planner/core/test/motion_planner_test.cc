@@ -1,0 +1,199 @@
+#include "services/planner/core/motion_planner.h"
+
+#include <gtest/gtest.h>
+
+#include "libs/errors/errors.h"
+
+namespace picking::planner {
+namespace {
+
+// One planner over the real cell for all tests (start-up builds grids and the roadmap).
+class MotionPlannerTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
+    const world::CellModel cell =
+        world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
+    apc::Catalogue catalogue =
+        apc::Catalogue::FromCsvFile(PICKING_DATA_DIR "/apc2016/items/item_data.csv");
+    auto grasps = std::make_shared<const GraspTable>(
+        GraspTable::FromYamlFile(PICKING_DATA_DIR "/planner/grasps.yaml", catalogue));
+    auto items = std::make_shared<world::ItemModelLibrary>(std::move(catalogue));
+    items_ = items;
+    Eigen::Isometry3d X_ToolCamera = Eigen::Isometry3d::Identity();
+    X_ToolCamera.translation() = Eigen::Vector3d(-0.075, 0.06, 0.04);
+    planner_ = new MotionPlanner(kinematics, cell, GripperGeometry{}, X_ToolCamera, grasps, items);
+  }
+  static void TearDownTestSuite() { delete planner_; }
+
+  static const NamedPose& Named(const std::string& name) {
+    for (const auto& p : planner_->named_poses()) {
+      if (p.name == name) return p;
+    }
+    throw std::runtime_error("no named pose " + name);
+  }
+
+  // An item lying on the floor of `bin`, 12 cm behind the opening, and a scan of it: points
+  // on the item's box surface and on the bin's floor.
+  static std::pair<Eigen::Isometry3d, std::vector<float>> ItemInBin(const std::string& bin,
+                                                                    const std::string& item) {
+    const auto& cell = planner_->cell().cell();
+    const Eigen::Vector3d size = items_->Get(item)->box_I.sizes();
+    const world::BinGeometry& geometry = cell.bin(bin);
+    const Eigen::Vector3d c_S(geometry.opening_x_m - 0.12, geometry.inner_S.center().y(),
+                              geometry.floor_max_z_m + 0.5 * size.z() + 0.002);
+    // Item frame: long side across the bin (shelf y), middle side along the depth, short
+    // side up.
+    Eigen::Isometry3d X_ShelfItem = Eigen::Isometry3d::Identity();
+    X_ShelfItem.linear().col(0) = Eigen::Vector3d::UnitY();
+    X_ShelfItem.linear().col(1) = -Eigen::Vector3d::UnitX();
+    X_ShelfItem.linear().col(2) = Eigen::Vector3d::UnitZ();
+    X_ShelfItem.translation() = c_S;
+    const Eigen::Isometry3d X_BaseItem = cell.config.X_BaseShelf * X_ShelfItem;
+    std::vector<float> xyz;
+    const Eigen::Vector3d half = 0.5 * size;
+    for (double x = -half.x(); x <= half.x(); x += 0.004) {
+      for (double y = -half.y(); y <= half.y(); y += 0.004) {
+        for (double z : {-half.z(), half.z()}) {
+          const Eigen::Vector3d p = X_BaseItem * Eigen::Vector3d(x, y, z);
+          xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+        }
+      }
+    }
+    for (double x = geometry.inner_S.min().x(); x < geometry.opening_x_m; x += 0.005) {
+      for (double y = geometry.inner_S.min().y(); y < geometry.inner_S.max().y(); y += 0.005) {
+        const Eigen::Vector3d p =
+            cell.config.X_BaseShelf * Eigen::Vector3d(x, y, geometry.floor_max_z_m - 0.001);
+        xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+      }
+    }
+    return {X_BaseItem, xyz};
+  }
+
+  static MotionPlanner* planner_;
+  static std::shared_ptr<world::ItemModelLibrary> items_;
+};
+MotionPlanner* MotionPlannerTest::planner_ = nullptr;
+std::shared_ptr<world::ItemModelLibrary> MotionPlannerTest::items_;
+
+Deadline Far() { return std::chrono::steady_clock::now() + std::chrono::seconds(30); }
+
+void ExpectWithinLimits(const Trajectory& t, const ur10::Ur10Model& model) {
+  ASSERT_FALSE(t.samples.empty());
+  for (const auto& s : t.samples) {
+    for (int j = 0; j < 6; ++j) {
+      EXPECT_LE(std::abs(s.qd_rad_s[j]), model.max_velocity_rad_s()[j] * (1 + 1e-6));
+      EXPECT_LE(std::abs(s.qdd_rad_s2[j]), model.max_acceleration_rad_s2()[j] * (1 + 1e-6));
+    }
+    EXPECT_TRUE(model.WithinPositionLimits(s.q_rad));
+  }
+}
+
+TEST_F(MotionPlannerTest, EveryNamedPoseExistsAndIsFree) {
+  const auto& poses = planner_->named_poses();
+  EXPECT_EQ(poses.size(), 1u + 36u + 2u + 3u);
+  const FastChecker fast(planner_->robot(), planner_->cell(), nullptr);
+  for (const auto& p : poses) EXPECT_TRUE(fast.IsFree(p.q_rad)) << p.name;
+}
+
+TEST_F(MotionPlannerTest, JointMotionsBetweenNamedPosesAreTimedAndFree) {
+  const auto& model = planner_->robot().kinematics().model();
+  for (const char* goal : {"scan/bin_A/0", "scan/bin_L/2", "above_tote", "table", "verify"}) {
+    SCOPED_TRACE(goal);
+    const JointMotionPlan plan =
+        planner_->PlanJointMotion(Named("home").q_rad, Named(goal).q_rad, 1.0, Far());
+    ExpectWithinLimits(plan.trajectory, model);
+    EXPECT_LT((plan.trajectory.samples.back().q_rad - Named(goal).q_rad).norm(), 1e-9) << goal;
+    EXPECT_LT((plan.trajectory.samples.front().q_rad - Named("home").q_rad).norm(), 1e-9);
+  }
+  // The second time the path comes from the cache.
+  EXPECT_TRUE(
+      planner_->PlanJointMotion(Named("home").q_rad, Named("table").q_rad, 0.5, Far()).cached);
+}
+
+TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box");
+  const PlanningScene scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
+  EXPECT_GT(scene.stats.points_cut, 0u);
+  PickRequest request;
+  request.item = "kleenex_tissue_box";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
+  const auto& model = planner_->robot().kinematics().model();
+  ExpectWithinLimits(plan.approach, model);
+  ExpectWithinLimits(plan.descend, model);
+  ExpectWithinLimits(plan.retreat, model);
+  // The descent ends guarded_distance short of the grasp, on the approach line.
+  const Eigen::Isometry3d X_end = planner_->robot().X_BaseTcp(plan.descend.samples.back().q_rad);
+  const Eigen::Vector3d to_grasp = plan.grasp.X_BaseTcp.translation() - X_end.translation();
+  EXPECT_NEAR(to_grasp.norm(), planner_->options().guarded_distance_m, 1e-4);
+  EXPECT_GT(to_grasp.normalized().dot(plan.guarded_direction_Base), 0.999);
+  // The retreat ends outside the bin, above the pre-grasp pose by the lift.
+  const Eigen::Isometry3d X_out = planner_->robot().X_BaseTcp(plan.retreat.samples.back().q_rad);
+  const Eigen::Vector3d p_pre =
+      planner_->robot().X_BaseTcp(plan.approach.samples.back().q_rad).translation();
+  EXPECT_LT(
+      (X_out.translation() - p_pre - Eigen::Vector3d(0, 0, planner_->options().lift_m)).norm(),
+      1e-4);
+}
+
+TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
+  // The item pose is inside the shelf's side wall between bins D and E: every grasp fails,
+  // each with a stage and a kind.
+  const auto& cell = planner_->cell().cell();
+  const auto& d = cell.bin("bin_D");
+  const auto& e = cell.bin("bin_E");
+  Eigen::Isometry3d X_ShelfItem = Eigen::Isometry3d::Identity();
+  X_ShelfItem.translation() =
+      Eigen::Vector3d(d.opening_x_m - 0.2, 0.5 * (d.inner_S.max().y() + e.inner_S.min().y()),
+                      d.floor_max_z_m + 0.05);
+  PickRequest request;
+  request.item = "dove_beauty_bar";
+  request.X_BaseItem = cell.config.X_BaseShelf * X_ShelfItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  try {
+    planner_->PlanPick(request, nullptr, Far());
+    FAIL() << "planned into a wall";
+  } catch (const PlanFailedError& error) {
+    ASSERT_FALSE(error.failures().empty());
+    for (const PlanFailure& f : error.failures()) {
+      EXPECT_FALSE(f.stage.empty());
+      EXPECT_FALSE(f.kind.empty());
+      EXPECT_FALSE(f.message.empty());
+    }
+  }
+}
+
+TEST_F(MotionPlannerTest, BadRequestsAreRefused) {
+  PickRequest request;
+  request.item = "dove_beauty_bar";
+  request.container = "bin_E";
+  request.start_rad = Named("home").q_rad;
+  request.X_BaseItem.translation() = Eigen::Vector3d(1.0, 0.0, 0.5);
+  PickRequest nan = request;
+  nan.start_rad[2] = NAN;
+  EXPECT_THROW(planner_->PlanPick(nan, nullptr, Far()), std::invalid_argument);
+  PickRequest unknown = request;
+  unknown.item = "no_such_item";
+  EXPECT_THROW(planner_->PlanPick(unknown, nullptr, Far()), NotFoundError);
+  PickRequest bin = request;
+  bin.container = "bin_Z";
+  EXPECT_THROW(planner_->PlanPick(bin, nullptr, Far()), NotFoundError);
+  PickRequest outside = request;
+  outside.start_rad[2] = 4.0;  // the elbow allows +-pi
+  EXPECT_THROW(planner_->PlanPick(outside, nullptr, Far()), PreconditionError);
+  PickRequest colliding = request;
+  colliding.start_rad << 0.0, 1.5707963, 0.0, 0.0, 0.0, 0.0;  // down through the floor
+  EXPECT_THROW(planner_->PlanPick(colliding, nullptr, Far()), PreconditionError);
+  PickRequest late = request;
+  EXPECT_THROW(planner_->PlanPick(late, nullptr, std::chrono::steady_clock::now()), TimeoutError);
+  EXPECT_THROW(planner_->PlanJointMotion(request.start_rad, colliding.start_rad, 1.0, Far()),
+               std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::planner
