@@ -18,6 +18,7 @@
 
 #include "libs/ur10/kinematics.h"
 #include "libs/ur10/ur10_model.h"
+#include "libs/world/cell_config.h"
 #include "picking/gripper/v1/gripper.grpc.pb.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
@@ -31,8 +32,6 @@ namespace robot = ::picking::robot::v1;
 namespace gripper = ::picking::gripper::v1;
 namespace common = ::picking::common::v1;
 
-// The suction cup's lip in the flange frame: the servers' common default tool centre point.
-constexpr double kToolLengthM = 0.35;
 constexpr std::uint64_t kSeed = 7;
 constexpr double kForceThresholdN = 10.0;
 constexpr double kLiftM = 0.01;
@@ -87,8 +86,12 @@ Eigen::Isometry3d CupPose(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& 
   return X;
 }
 
-Eigen::Isometry3d X_CupFlange() {
-  return Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, -kToolLengthM));
+// The flange in the cup's frame: the inverse of the tool centre point of the bundled cell
+// description, which every server loads.
+Eigen::Isometry3d X_TcpTool() {
+  static const Eigen::Isometry3d X =
+      world::ReadCellConfig(world::DefaultCellConfigPath()).gripper.X_ToolTcp.inverse();
+  return X;
 }
 
 std::string ReadText(const std::string& path) {
@@ -129,7 +132,7 @@ class CellSimTest : public ::testing::Test {
   sim::ProbeContactResponse Probe(const Eigen::Isometry3d& X_BaseCup, double max_distance_m) {
     grpc::ClientContext ctx;
     sim::ProbeContactRequest req;
-    *req.mutable_x_base_tool() = ToProto(X_BaseCup * X_CupFlange());
+    *req.mutable_x_base_tool() = ToProto(X_BaseCup * X_TcpTool());
     req.mutable_direction_tcp()->set_z(1.0);
     req.set_max_distance_m(max_distance_m);
     sim::ProbeContactResponse out;
@@ -263,7 +266,7 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
         Eigen::Isometry3d X = X_before;
         X.translation().x() += depth_m * k / 20.0;
         bool found = false;
-        for (const auto& solution : kinematics_.Solve(X * X_CupFlange()).solutions) {
+        for (const auto& solution : kinematics_.Solve(X * X_TcpTool()).solutions) {
           if (solution.branch.id() != branch) continue;
           found = true;
           measure = std::min(measure, kinematics_.SingularityMeasure(solution.q_rad));
@@ -333,8 +336,8 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
     return nullptr;
   };
   ASSERT_NE(find(held), nullptr);
-  const Eigen::Isometry3d X_ToolItem_held =
-      FromProto(held.x_base_tool()).inverse() * FromProto(find(held)->x_base_item());
+  const Eigen::Isometry3d X_TcpItem_held =
+      FromProto(held.x_base_tcp()).inverse() * FromProto(find(held)->x_base_item());
 
   // Lift, then retract out of the bin.
   const Eigen::Isometry3d X_BaseTcp_contact = FromProto(RobotState().x_base_tcp());
@@ -353,10 +356,10 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
   ASSERT_NE(carried, nullptr);
   EXPECT_EQ(carried->container(), common::CONTAINER_GRIPPER);
   EXPECT_EQ(out.attached_item().SerializeAsString(), target.item.item().SerializeAsString());
-  const Eigen::Isometry3d X_BaseTool = FromProto(out.x_base_tool());
-  EXPECT_LT((X_BaseTool.translation() - X_out.translation()).norm(), 1e-3);
-  const Eigen::Isometry3d X_ToolItem = X_BaseTool.inverse() * FromProto(carried->x_base_item());
-  EXPECT_LT((X_ToolItem.matrix() - X_ToolItem_held.matrix()).cwiseAbs().maxCoeff(), 1e-6);
+  const Eigen::Isometry3d X_BaseTcp = FromProto(out.x_base_tcp());
+  EXPECT_LT((X_BaseTcp.translation() - X_out.translation()).norm(), 1e-3);
+  const Eigen::Isometry3d X_TcpItem = X_BaseTcp.inverse() * FromProto(carried->x_base_item());
+  EXPECT_LT((X_TcpItem.matrix() - X_TcpItem_held.matrix()).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT(FromProto(carried->x_base_item()).translation().x(), target.opening_x_m);
   for (const auto& e : out.events()) {
     EXPECT_NE(e.kind(), sim::EVENT_KIND_COLLISION) << e.detail();
