@@ -9,7 +9,8 @@ int main(int argc, char** argv) {
   spec.description = "the planner service of the picking cell (gRPC: picking.planner.v1)";
   spec.settings_help = {
       "data_dir=DIR            bundled data (default: $PICKING_DATA_DIR or the source data/)",
-      "tcp_xyz_m=X,Y,Z         tool centre point in the flange frame (default 0,0,0.35)",
+      "cell=FILE               cell description; its gripper's X_ToolTcp is the tool centre",
+      "                        point (default <data_dir>/cell/default_cell.yaml)",
       "ur10.max_acceleration_rad_s2=A  joint acceleration limit (default 2.5)"};
   spec.build = picking::planner::BuildPlannerServices;
   return picking::runtime::RunServerMain(argc, argv, spec);

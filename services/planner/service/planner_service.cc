@@ -7,6 +7,7 @@
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/status.h"
 #include "libs/ur10/kinematics.h"
+#include "libs/world/cell_config.h"
 
 namespace picking::planner {
 namespace {
@@ -99,15 +100,14 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   model_options.max_acceleration_rad_s2 =
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(data_dir + "/ur10", model_options));
-  // The tool centre point (suction cup tip) in the flange frame: along the flange's z axis.
-  const Eigen::Vector3d tcp_default = ur10::DefaultTcpXyzM();
-  const std::vector<double> tcp =
-      config.GetDoubles("tcp_xyz_m", {tcp_default.x(), tcp_default.y(), tcp_default.z()});
-  if (tcp.size() != 3) throw std::invalid_argument("setting 'tcp_xyz_m' needs 3 values");
+  // The tool centre point (the suction cup's lip centre) in the flange frame: the gripper's
+  // of the cell description.
+  const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
-  X_ToolTcp.translation() = Eigen::Vector3d(tcp[0], tcp[1], tcp[2]);
-  if (!X_ToolTcp.translation().allFinite()) {
-    throw std::invalid_argument("setting 'tcp_xyz_m' must be finite");
+  try {
+    X_ToolTcp = world::ReadCellConfig(cell_path).gripper.X_ToolTcp;
+  } catch (const world::CellConfigError& e) {
+    throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
   }
 
   runtime::ServiceSet set;
