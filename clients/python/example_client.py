@@ -1,8 +1,9 @@
 #!/usr/bin/python3
 """Example: talk to a picking service from Python.
 
-Checks the server's health (grpc.health.v1) and asks the planner for the UR10's tool pose
-at a joint configuration (picking.planner.v1.PlannerService/ComputeFk).
+Checks the server's health (grpc.health.v1) and asks the planner for the poses of the UR10's
+tool flange (X_base_tool) and of the gripper's tool centre point, the suction cup's lip
+(X_base_tcp), at a joint configuration (picking.planner.v1.PlannerService/ComputeFk).
 
     /usr/bin/python3 clients/python/example_client.py --address 127.0.0.1:50053 \
         --joints 0,-1.57,1.57,-1.57,-1.57,0
@@ -51,9 +52,10 @@ def main(argv=None):
         except grpc.RpcError as err:
             print(f"ComputeFk failed: {err.code().name}: {err.details()}", file=sys.stderr)
             return 1
-        p, q = fk.X_base_tool.position, fk.X_base_tool.orientation
-        print(f"X_base_tool position_m: {p.x:.4f} {p.y:.4f} {p.z:.4f}")
-        print(f"X_base_tool orientation_wxyz: {q.w:.4f} {q.x:.4f} {q.y:.4f} {q.z:.4f}")
+        for name, pose in (("X_base_tool", fk.X_base_tool), ("X_base_tcp", fk.X_base_tcp)):
+            p, q = pose.position, pose.orientation
+            print(f"{name} position_m: {p.x:.4f} {p.y:.4f} {p.z:.4f}")
+            print(f"{name} orientation_wxyz: {q.w:.4f} {q.x:.4f} {q.y:.4f} {q.z:.4f}")
     return 0
 
 

@@ -5,6 +5,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -60,20 +61,24 @@ double ParseDouble(const std::string& key, const std::string& text) {
 Config::Config(const Config& other) {
   std::lock_guard<std::mutex> lock(other.mutex_);
   values_ = other.values_;
+  file_dirs_ = other.file_dirs_;
   used_ = other.used_;
 }
 
 Config& Config::operator=(const Config& other) {
   if (this == &other) return *this;
   std::map<std::string, std::string> values;
+  std::map<std::string, std::string> file_dirs;
   std::set<std::string> used;
   {
     std::lock_guard<std::mutex> lock(other.mutex_);
     values = other.values_;
+    file_dirs = other.file_dirs_;
     used = other.used_;
   }
   std::lock_guard<std::mutex> lock(mutex_);
   values_ = std::move(values);
+  file_dirs_ = std::move(file_dirs);
   used_ = std::move(used);
   return *this;
 }
@@ -100,12 +105,16 @@ Config Config::FromYamlFile(const std::string& path) {
   if (!in) throw std::invalid_argument("cannot open config file '" + path + "'");
   std::stringstream ss;
   ss << in.rdbuf();
-  return FromYamlText(ss.str(), path);
+  Config config = FromYamlText(ss.str(), path);
+  const std::string dir = std::filesystem::absolute(path).parent_path().string();
+  for (const auto& [key, value] : config.values_) config.file_dirs_[key] = dir;
+  return config;
 }
 
 void Config::Set(const std::string& key, const std::string& value) {
   std::lock_guard<std::mutex> lock(mutex_);
   values_[key] = value;
+  file_dirs_.erase(key);
 }
 
 const std::string* Config::Find(const std::string& key) const {
@@ -120,6 +129,20 @@ bool Config::Has(const std::string& key) const { return Find(key) != nullptr; }
 std::string Config::GetString(const std::string& key, const std::string& default_value) const {
   const std::string* v = Find(key);
   return v ? *v : default_value;
+}
+
+std::string Config::GetPath(const std::string& key, const std::string& default_value) const {
+  const std::string* v = Find(key);
+  if (!v) return default_value;
+  std::string dir;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = file_dirs_.find(key);
+    if (it != file_dirs_.end()) dir = it->second;
+  }
+  const std::filesystem::path path(*v);
+  if (dir.empty() || v->empty() || path.is_absolute()) return *v;
+  return (std::filesystem::path(dir) / path).lexically_normal().string();
 }
 
 std::string Config::Require(const std::string& key) const {

@@ -22,11 +22,16 @@ class Config final {
   static Config FromYamlFile(const std::string& path);
   static Config FromYamlText(const std::string& text, const std::string& source_name);
 
-  /// Sets or overrides one key.
+  /// Sets or overrides one key (a command-line flag: a relative path in it is relative to the
+  /// working directory).
   void Set(const std::string& key, const std::string& value);
 
   bool Has(const std::string& key) const;
   std::string GetString(const std::string& key, const std::string& default_value) const;
+  /// A file path: as GetString, except that a relative path read from a YAML file
+  /// (FromYamlFile) is resolved against that file's folder, so a settings file can name files
+  /// beside it. Relative paths from Set() or the default are returned as given.
+  std::string GetPath(const std::string& key, const std::string& default_value) const;
   /// Throws std::invalid_argument if the value is not a finite number.
   double GetDouble(const std::string& key, double default_value) const;
   /// Throws std::invalid_argument if the value is not an integer.
@@ -48,6 +53,8 @@ class Config final {
   const std::string* Find(const std::string& key) const;
 
   std::map<std::string, std::string> values_;
+  // Folder of the YAML file each key was read from (FromYamlFile); none for Set() keys.
+  std::map<std::string, std::string> file_dirs_;
   mutable std::set<std::string> used_;
   mutable std::mutex mutex_;
 

@@ -46,12 +46,6 @@ struct JointLimit {
 enum class Link { kBase = 0, kShoulder, kUpperArm, kForearm, kWrist1, kWrist2, kWrist3 };
 inline constexpr int kNumLinks = 7;
 
-/// The cell's tool centre point in the flange frame, metres: the lip of the vacuum gripper's
-/// suction cup at the end of its 0.35 m tube, on the flange's z axis. The robot, planner and
-/// simulator servers default their `tcp_xyz_m` setting to it so that all of them mean the
-/// same point by "the tool" unless a deployment says otherwise.
-inline Eigen::Vector3d DefaultTcpXyzM() { return Eigen::Vector3d(0.0, 0.0, 0.35); }
-
 /// Options of Ur10Model::Load.
 struct Ur10ModelOptions {
   /// Joint acceleration limit used for every joint, rad/s^2. Universal Robots do not publish

@@ -82,6 +82,20 @@ class Reader {
     return X;
   }
 
+  double Number(const YAML::Node& parent, const std::string& key, const std::string& field) const {
+    const YAML::Node node = parent[key];
+    if (!node) Fail(field, "missing");
+    if (!node.IsScalar()) Fail(field, "must be a number");
+    double v = 0.0;
+    try {
+      v = node.as<double>();
+    } catch (const YAML::Exception&) {
+      Fail(field, "not a number");
+    }
+    if (!std::isfinite(v)) Fail(field, "not finite");
+    return v;
+  }
+
   std::string Path(const YAML::Node& parent, const std::string& key,
                    const std::string& field) const {
     const YAML::Node node = parent[key];
@@ -114,7 +128,7 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
   for (const auto& kv : root) {
     const auto name = kv.first.as<std::string>();
     if (name != "version" && name != "robot_base" && name != "shelf" && name != "tote" &&
-        name != "table") {
+        name != "table" && name != "gripper") {
       rd.Fail(name, "unknown key");
     }
   }
@@ -144,6 +158,22 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
     if (size[i] <= 0.0) rd.Fail("table.size_m[" + std::to_string(i) + "]", "must be positive");
   }
   config.table_size_m = Eigen::Vector3d(size[0], size[1], size[2]);
+
+  const YAML::Node gripper =
+      rd.Map(root, "gripper", "gripper", {"X_ToolTcp", "tube_radius_m", "cup_length_m"});
+  GripperConfig& g = config.gripper;
+  g.X_ToolTcp = rd.Pose(gripper, "X_ToolTcp", "gripper.X_ToolTcp");
+  g.tube_radius_m = rd.Number(gripper, "tube_radius_m", "gripper.tube_radius_m");
+  if (!(g.tube_radius_m > 0.0)) rd.Fail("gripper.tube_radius_m", "must be positive");
+  g.cup_length_m = rd.Number(gripper, "cup_length_m", "gripper.cup_length_m");
+  if (g.cup_length_m < 0.0) rd.Fail("gripper.cup_length_m", "must not be negative");
+  const double tube_length_m = g.X_ToolTcp.translation().norm();
+  if (!(g.cup_length_m < tube_length_m)) {
+    std::ostringstream msg;
+    msg << "must be shorter than the tube (" << tube_length_m
+        << " m from the flange to the TCP of X_ToolTcp)";
+    rd.Fail("gripper.cup_length_m", msg.str());
+  }
   return config;
 }
 
@@ -155,8 +185,10 @@ CellConfig ReadCellConfig(const std::string& path) {
   return ParseCellConfig(text.str(), path, std::filesystem::absolute(path).parent_path().string());
 }
 
-std::string DefaultCellConfigPath() {
-  return (std::filesystem::path(apc::DefaultDataDir()) / "cell" / "default_cell.yaml").string();
+std::string DefaultCellConfigPath() { return DefaultCellConfigPath(apc::DefaultDataDir()); }
+
+std::string DefaultCellConfigPath(const std::string& data_dir) {
+  return (std::filesystem::path(data_dir) / "cell" / "default_cell.yaml").string();
 }
 
 const BinGeometry& CellModel::bin(const std::string& name) const {

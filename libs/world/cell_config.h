@@ -22,8 +22,24 @@ class CellConfigError final : public std::runtime_error {
   std::string field_;
 };
 
-/// Layout of the static cell. Every pose is in the UR10 base frame (Base), metres, except
-/// X_WorldBase. World is the floor frame (z = 0 on the floor, z up).
+/// The vacuum gripper on the UR10's flange: an aluminium tube along the flange's z axis from
+/// the flange to the suction cup. Frames: `Tool` is the UR10 flange (tool0); `Tcp` is the
+/// tool centre point, the centre of the cup's lip, +z out of the cup (the approach direction).
+/// Every service that needs the tool centre point takes it from here.
+struct GripperConfig {
+  /// Pose of the TCP in the flange frame (rigid; metres).
+  Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
+  /// Radius of the tube and the cup, metres (> 0).
+  double tube_radius_m = 0.0;
+  /// Length of the compliant cup at the end of the tube, metres (>= 0 and shorter than the
+  /// tube, whose length is |p_ToolTcp|). Collision checks leave it out, so that a cup pressed
+  /// onto a surface is contact, not collision.
+  double cup_length_m = 0.0;
+};
+
+/// Layout of the static cell and the robot's gripper. Every pose is in the UR10 base frame
+/// (Base), metres, except X_WorldBase and the gripper's X_ToolTcp. World is the floor frame
+/// (z = 0 on the floor, z up).
 struct CellConfig {
   std::string source;                                             ///< File it was read from.
   Eigen::Isometry3d X_WorldBase = Eigen::Isometry3d::Identity();  ///< Robot base on the floor.
@@ -33,6 +49,7 @@ struct CellConfig {
   std::string tote_mesh_path;  ///< Absolute path of the tote mesh (STL, z up, floor at z = 0).
   Eigen::Isometry3d X_BaseTable = Eigen::Isometry3d::Identity();  ///< Centre of the table top.
   Eigen::Vector3d table_size_m = Eigen::Vector3d::Zero();         ///< Table length, width, height.
+  GripperConfig gripper;  ///< The gripper on the flange, with the tool centre point.
 
   /// Floor height in the base frame (metres).
   double floor_z_m() const { return X_WorldBase.inverse().translation().z(); }
@@ -45,11 +62,14 @@ struct CellConfig {
 ///     shelf: {X_BaseShelf: <pose>, mesh: <path>}
 ///     tote:  {X_BaseTote: <pose>, mesh: <path>}
 ///     table: {X_BaseTable: <pose>, size_m: [l, w, h]}
+///     gripper: {X_ToolTcp: <pose>, tube_radius_m: r, cup_length_m: c}
 ///
 /// where <pose> is `{position: [x, y, z], orientation: [w, x, y, z]}` (metres; a unit
 /// quaternion, norm within 1e-3 of 1, normalised on reading). Relative mesh paths are
-/// resolved against the YAML file's folder and must exist. Throws CellConfigError naming the
-/// file and the field for a missing, mistyped or invalid entry, or an unknown key.
+/// resolved against the YAML file's folder and must exist. The gripper needs r > 0 and
+/// 0 <= c < |p_ToolTcp| (the tube's length). Throws CellConfigError naming the file and the
+/// field for a missing, mistyped or invalid entry (a missing section names the section, e.g.
+/// "gripper"), or an unknown key.
 CellConfig ReadCellConfig(const std::string& path);
 
 /// As ReadCellConfig, from YAML text; relative paths are resolved against `base_dir`.
@@ -58,6 +78,9 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
 
 /// data/cell/default_cell.yaml under apc::DefaultDataDir().
 std::string DefaultCellConfigPath();
+/// cell/default_cell.yaml under `data_dir` (the servers' default for their `cell` setting;
+/// DefaultCellConfigPath() for the default data folder).
+std::string DefaultCellConfigPath(const std::string& data_dir);
 
 /// The static cell's geometry as loaded from a configuration.
 struct CellModel {

@@ -9,8 +9,19 @@ int main(int argc, char** argv) {
   spec.description = "the planner service of the picking cell (gRPC: picking.planner.v1)";
   spec.settings_help = {
       "data_dir=DIR            bundled data (default: $PICKING_DATA_DIR or the source data/)",
-      "tcp_xyz_m=X,Y,Z         tool centre point in the flange frame (default 0,0,0.35)",
-      "ur10.max_acceleration_rad_s2=A  joint acceleration limit (default 2.5)"};
+      "cell=FILE               cell description; its gripper's X_ToolTcp is the tool centre",
+      "                        point (default <data_dir>/cell/default_cell.yaml)",
+      "ur10.max_acceleration_rad_s2=A  joint acceleration limit (default 2.5)",
+      "hand_eye=FILE           camera in the flange frame, for the scan poses",
+      "                        (default <data_dir>/scanner/sim_sensor/hand_eye.json)",
+      "grasps=FILE             suction points per item (default <data_dir>/planner/grasps.yaml)",
+      "search.step_m=M         cartesian search step (default 0.02)",
+      "search.node_budget=N    nodes per cartesian search (default 1500)",
+      "guarded_distance_m=M    the descent stops this short of the grasp (default 0.05)",
+      "scene.cut_margin_m=M    growth of the target's hull when cut out (default 0.02)",
+      "scene.ttl_s=S           scenes kept after their last use (default 120)",
+      "scene.max_scenes=N      scenes kept at most (default 32)",
+      "max_plan_time_s=S       longest planning call without a deadline (default 30)"};
   spec.build = picking::planner::BuildPlannerServices;
   return picking::runtime::RunServerMain(argc, argv, spec);
 }

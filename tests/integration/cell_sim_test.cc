@@ -18,6 +18,7 @@
 
 #include "libs/ur10/kinematics.h"
 #include "libs/ur10/ur10_model.h"
+#include "libs/world/cell_config.h"
 #include "picking/gripper/v1/gripper.grpc.pb.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
@@ -31,8 +32,6 @@ namespace robot = ::picking::robot::v1;
 namespace gripper = ::picking::gripper::v1;
 namespace common = ::picking::common::v1;
 
-// The suction cup's lip in the flange frame: the servers' common default tool centre point.
-constexpr double kToolLengthM = 0.35;
 constexpr std::uint64_t kSeed = 7;
 constexpr double kForceThresholdN = 10.0;
 constexpr double kLiftM = 0.01;
@@ -73,9 +72,9 @@ ur10::JointVector JointsFromProto(const common::JointPositions& j) {
   return q;
 }
 
-// The cup (TCP) at p_Base with its axis along `axis_Base`; the tool's x axis as close to
+// The cup (TCP) at p_Base with its axis along `axis_Base`; the TCP's x axis as close to
 // `x_hint` as the axis allows.
-Eigen::Isometry3d CupPose(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& axis_Base,
+Eigen::Isometry3d TcpPose(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& axis_Base,
                           const Eigen::Vector3d& x_hint) {
   const Eigen::Vector3d z = axis_Base.normalized();
   const Eigen::Vector3d x = (x_hint - x_hint.dot(z) * z).normalized();
@@ -87,8 +86,12 @@ Eigen::Isometry3d CupPose(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& 
   return X;
 }
 
-Eigen::Isometry3d X_CupFlange() {
-  return Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, -kToolLengthM));
+// The flange in the cup's frame: the inverse of the tool centre point of the bundled cell
+// description, which every server loads.
+Eigen::Isometry3d X_TcpTool() {
+  static const Eigen::Isometry3d X =
+      world::ReadCellConfig(world::DefaultCellConfigPath()).gripper.X_ToolTcp.inverse();
+  return X;
 }
 
 std::string ReadText(const std::string& path) {
@@ -125,11 +128,11 @@ class CellSimTest : public ::testing::Test {
     return truth;
   }
 
-  // Probe of the simulator from the flange pose of a cup at X_BaseCup, along the cup's axis.
-  sim::ProbeContactResponse Probe(const Eigen::Isometry3d& X_BaseCup, double max_distance_m) {
+  // Probe of the simulator from the flange pose of a cup at X_BaseTcp, along the cup's axis.
+  sim::ProbeContactResponse Probe(const Eigen::Isometry3d& X_BaseTcp, double max_distance_m) {
     grpc::ClientContext ctx;
     sim::ProbeContactRequest req;
-    *req.mutable_x_base_tool() = ToProto(X_BaseCup * X_CupFlange());
+    *req.mutable_x_base_tool() = ToProto(X_BaseTcp * X_TcpTool());
     req.mutable_direction_tcp()->set_z(1.0);
     req.set_max_distance_m(max_distance_m);
     sim::ProbeContactResponse out;
@@ -175,10 +178,10 @@ class CellSimTest : public ::testing::Test {
 // An item the cup can reach through its bin's opening.
 struct Target {
   sim::ItemState item;
-  Eigen::Isometry3d X_BaseCupStart;  // in the opening plane's front, aimed at the item
-  double face_distance_m = 0.0;      // from X_BaseCupStart to the item's front face
+  Eigen::Isometry3d X_BaseTcpStart;  // in the opening plane's front, aimed at the item
+  double face_distance_m = 0.0;      // from X_BaseTcpStart to the item's front face
   double opening_x_m = 0.0;
-  ur10::JointVector q_before;  // joints with the cup kRetractM in front of X_BaseCupStart
+  ur10::JointVector q_before;  // joints with the cup kRetractM in front of X_BaseTcpStart
 };
 
 TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
@@ -225,8 +228,8 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
     Target t;
     t.item = item;
     t.opening_x_m = c.x() - 0.5 * size.x();
-    t.X_BaseCupStart = CupPose(Eigen::Vector3d(t.opening_x_m - 0.03, p.y(), p.z()), kInto, kDown);
-    const auto hit = Probe(t.X_BaseCupStart, 0.5);
+    t.X_BaseTcpStart = TcpPose(Eigen::Vector3d(t.opening_x_m - 0.03, p.y(), p.z()), kInto, kDown);
+    const auto hit = Probe(t.X_BaseTcpStart, 0.5);
     if (!hit.contact() || hit.item().name() != item.item().name() ||
         hit.item().instance() != item.item().instance() || hit.distance_m() > 0.25) {
       continue;
@@ -235,7 +238,7 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
     bool flat = true;
     for (const Eigen::Vector3d& d : {Eigen::Vector3d(0, 0.01, 0), Eigen::Vector3d(0, -0.01, 0),
                                      Eigen::Vector3d(0, 0, 0.01), Eigen::Vector3d(0, 0, -0.01)}) {
-      Eigen::Isometry3d X = t.X_BaseCupStart;
+      Eigen::Isometry3d X = t.X_BaseTcpStart;
       X.translation() += d;
       const auto h = Probe(X, 0.5);
       flat = flat && h.contact() &&
@@ -245,14 +248,14 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
     if (!flat) continue;
     // Headroom: the cup pointing down from just under the ceiling meets the item's top.
     const auto top =
-        Probe(CupPose(Eigen::Vector3d(p.x(), p.y(), ceiling - 0.005), kDown, kInto), size.z());
+        Probe(TcpPose(Eigen::Vector3d(p.x(), p.y(), ceiling - 0.005), kDown, kInto), size.z());
     if (!top.contact() || top.item().SerializeAsString() != item.item().SerializeAsString() ||
         top.distance_m() < kLiftM + 0.01) {
       continue;
     }
     // The arm's configuration: the IK branch farthest from singularities along the whole
     // approach line, from kRetractM in front of the opening to 1 cm beyond the face.
-    Eigen::Isometry3d X_before = t.X_BaseCupStart;
+    Eigen::Isometry3d X_before = t.X_BaseTcpStart;
     X_before.translation().x() -= kRetractM;
     const double depth_m = kRetractM + hit.distance_m() + 0.01;
     double best_measure = 0.0;
@@ -263,7 +266,7 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
         Eigen::Isometry3d X = X_before;
         X.translation().x() += depth_m * k / 20.0;
         bool found = false;
-        for (const auto& solution : kinematics_.Solve(X * X_CupFlange()).solutions) {
+        for (const auto& solution : kinematics_.Solve(X * X_TcpTool()).solutions) {
           if (solution.branch.id() != branch) continue;
           found = true;
           measure = std::min(measure, kinematics_.SingularityMeasure(solution.q_rad));
@@ -293,7 +296,7 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
   // In front of the bin, then straight to the opening.
   grpc::Status s = MoveJoints(target.q_before);
   ASSERT_TRUE(s.ok()) << s.error_message();
-  s = MoveLinear(target.X_BaseCupStart);
+  s = MoveLinear(target.X_BaseTcpStart);
   ASSERT_TRUE(s.ok()) << s.error_message();
 
   // Guarded move along the cup's axis: stops pressed on the item's face.
@@ -333,8 +336,8 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
     return nullptr;
   };
   ASSERT_NE(find(held), nullptr);
-  const Eigen::Isometry3d X_ToolItem_held =
-      FromProto(held.x_base_tool()).inverse() * FromProto(find(held)->x_base_item());
+  const Eigen::Isometry3d X_TcpItem_held =
+      FromProto(held.x_base_tcp()).inverse() * FromProto(find(held)->x_base_item());
 
   // Lift, then retract out of the bin.
   const Eigen::Isometry3d X_BaseTcp_contact = FromProto(RobotState().x_base_tcp());
@@ -353,10 +356,10 @@ TEST_F(CellSimTest, PicksAnItemOutOfAShelfBinWithTheSuctionGripper) {
   ASSERT_NE(carried, nullptr);
   EXPECT_EQ(carried->container(), common::CONTAINER_GRIPPER);
   EXPECT_EQ(out.attached_item().SerializeAsString(), target.item.item().SerializeAsString());
-  const Eigen::Isometry3d X_BaseTool = FromProto(out.x_base_tool());
-  EXPECT_LT((X_BaseTool.translation() - X_out.translation()).norm(), 1e-3);
-  const Eigen::Isometry3d X_ToolItem = X_BaseTool.inverse() * FromProto(carried->x_base_item());
-  EXPECT_LT((X_ToolItem.matrix() - X_ToolItem_held.matrix()).cwiseAbs().maxCoeff(), 1e-6);
+  const Eigen::Isometry3d X_BaseTcp = FromProto(out.x_base_tcp());
+  EXPECT_LT((X_BaseTcp.translation() - X_out.translation()).norm(), 1e-3);
+  const Eigen::Isometry3d X_TcpItem = X_BaseTcp.inverse() * FromProto(carried->x_base_item());
+  EXPECT_LT((X_TcpItem.matrix() - X_TcpItem_held.matrix()).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT(FromProto(carried->x_base_item()).translation().x(), target.opening_x_m);
   for (const auto& e : out.events()) {
     EXPECT_NE(e.kind(), sim::EVENT_KIND_COLLISION) << e.detail();

@@ -11,11 +11,17 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <thread>
 
+#include <unistd.h>
+
 #include "libs/ur10/kinematics.h"
+#include "libs/world/cell_config.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "services/robot/core/test/fake_ur_controller.h"
@@ -52,6 +58,44 @@ JointVector Joints(const google::protobuf::RepeatedField<double>& values) {
 void SetJoints(const JointVector& q, common::v1::JointPositions* out) {
   out->clear_positions_rad();
   for (int i = 0; i < 6; ++i) out->add_positions_rad(q[i]);
+}
+
+void SetPose(const Eigen::Isometry3d& X, common::v1::Pose* out) {
+  out->mutable_position()->set_x(X.translation().x());
+  out->mutable_position()->set_y(X.translation().y());
+  out->mutable_position()->set_z(X.translation().z());
+  const Eigen::Quaterniond r(X.linear());
+  auto* o = out->mutable_orientation();
+  o->set_w(r.w()), o->set_x(r.x()), o->set_y(r.y()), o->set_z(r.z());
+}
+
+// The tool centre point of the test cell: 0.1 m along the flange's z axis.
+const Eigen::Isometry3d kTestTcp(Eigen::Translation3d(0.0, 0.0, 0.1));
+
+// A cell description like the bundled one with the test cell's gripper (kTestTcp), written
+// once per test process.
+std::string TestCellPath() {
+  static const std::string path = [] {
+    const std::string data = PICKING_DATA_DIR;
+    const std::filesystem::path file =
+        std::filesystem::temp_directory_path() /
+        ("picking_robot_test_cell_" + std::to_string(::getpid()) + ".yaml");
+    std::ofstream out(file);
+    out << "version: 1\n"
+        << "robot_base: {X_WorldBase: {position: [0, 0, 0.7], orientation: [1, 0, 0, 0]}}\n"
+        << "shelf:\n  X_BaseShelf: {position: [1.25, 0, -0.7], orientation: [0, 0, 0, 1]}\n"
+        << "  mesh: " << data << "/apc2016/shelf/pod_lowres.stl\n"
+        << "tote:\n  X_BaseTote: {position: [0.2, -0.75, -0.7], orientation: [1, 0, 0, 0]}\n"
+        << "  mesh: " << data << "/apc2016/shelf/tote_delft.stl\n"
+        << "table:\n  X_BaseTable: {position: [0.2, 0.8, -0.2], orientation: [1, 0, 0, 0]}\n"
+        << "  size_m: [0.6, 0.6, 0.5]\n"
+        << "gripper:\n"
+        << "  X_ToolTcp: {position: [0, 0, " << kTestTcp.translation().z()
+        << "], orientation: [1, 0, 0, 0]}\n"
+        << "  tube_radius_m: 0.02\n  cup_length_m: 0.02\n";
+    return file.string();
+  }();
+  return path;
 }
 
 // The simulator as far as the robot service uses it: the arm's joints, an obstacle box the
@@ -95,12 +139,8 @@ class FakeSimulator final : public sim::SimulatorService::Service {
       response->set_in_collision(true);
       response->set_collision_detail("suction cup touches the item");
     }
-    response->mutable_x_base_tool()->mutable_position()->set_x(p.x());
-    response->mutable_x_base_tool()->mutable_position()->set_y(p.y());
-    response->mutable_x_base_tool()->mutable_position()->set_z(p.z());
-    const Eigen::Quaterniond r(X.linear());
-    auto* o = response->mutable_x_base_tool()->mutable_orientation();
-    o->set_w(r.w()), o->set_x(r.x()), o->set_y(r.y()), o->set_z(r.z());
+    SetPose(X, response->mutable_x_base_tool());
+    if (X_ToolTcp_) SetPose(X * *X_ToolTcp_, response->mutable_x_base_tcp());
     placed_.notify_all();
     return grpc::Status::OK;
   }
@@ -134,6 +174,11 @@ class FakeSimulator final : public sim::SimulatorService::Service {
   void set_surface_z(double z) {
     std::lock_guard<std::mutex> lock(mutex_);
     surface_z_ = z;
+  }
+  // The tool centre point the fake reports in SetArmJoints (X_base_tcp); none if nullopt.
+  void set_tcp(const std::optional<Eigen::Isometry3d>& X_ToolTcp) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    X_ToolTcp_ = X_ToolTcp;
   }
   void set_layout_loaded(bool loaded) {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -169,6 +214,7 @@ class FakeSimulator final : public sim::SimulatorService::Service {
   Eigen::Vector3d obstacle_max_ = Eigen::Vector3d::Zero();
   double surface_z_ = -10.0;
   bool layout_loaded_ = true;
+  std::optional<Eigen::Isometry3d> X_ToolTcp_;
   int port_ = 0;
   std::unique_ptr<grpc::Server> server_;
 };
@@ -302,7 +348,56 @@ TEST(RobotServerTest, StartsWithTheBundledSettingsFile) {
   ASSERT_EQ(limits.forbidden_zones_size(), 2);
   EXPECT_EQ(limits.forbidden_zones(1).max().z(), 0.07);
   EXPECT_EQ(limits.max_contact_force_n(), 50.0);
-  EXPECT_EQ(client.State().status(), rb::ROBOT_STATUS_IDLE);
+  const rb::GetStateResponse state = client.State();
+  EXPECT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
+  // Its `cell` (beside the settings file) is the bundled cell description: the TCP is its
+  // gripper's.
+  const Eigen::Isometry3d X_ToolTcp =
+      world::ReadCellConfig(world::DefaultCellConfigPath()).gripper.X_ToolTcp;
+  const Eigen::Vector3d p_BaseTcp =
+      Kinematics().ForwardKinematics(Joints(state.joints().positions_rad())) *
+      X_ToolTcp.translation();
+  EXPECT_NEAR(state.x_base_tcp().position().x(), p_BaseTcp.x(), 1e-9);
+  EXPECT_NEAR(state.x_base_tcp().position().y(), p_BaseTcp.y(), 1e-9);
+  EXPECT_NEAR(state.x_base_tcp().position().z(), p_BaseTcp.z(), 1e-9);
+  EXPECT_EQ(server.Stop(), 0);
+}
+
+TEST(RobotServerTest, RefusesACellDescriptionWithoutAGripper) {
+  const std::filesystem::path file =
+      std::filesystem::temp_directory_path() /
+      ("picking_robot_test_no_gripper_" + std::to_string(::getpid()) + ".yaml");
+  {
+    std::ifstream in(TestCellPath());
+    std::ofstream out(file);
+    std::string line;
+    while (std::getline(in, line) && line != "gripper:") out << line << "\n";
+  }
+  const ProgramResult r =
+      RunProgram(ServerBinary(kBinary), {"--listen=127.0.0.1:0", "--cell=" + file.string()});
+  EXPECT_EQ(r.exit_status, 2) << r.output;
+  EXPECT_NE(r.output.find("gripper"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(file.string()), std::string::npos) << r.output;
+  std::filesystem::remove(file);
+}
+
+TEST(RobotServerTest, AMotionFailsWhenTheSimulatorPutsTheTcpElsewhere) {
+  // The simulator's gripper is 0.25 m longer than the robot's cell description says.
+  FakeSimulator sim;
+  sim.set_tcp(Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.35)));
+  ServerProcess server(ServerBinary(kBinary), {"--sim.address=" + sim.address(),
+                                               "--cell=" + TestCellPath(), "--sim.time_scale=100"});
+  RobotClient client(server.Channel());
+  JointVector target = StartJoints();
+  target[0] += 0.05;
+  rb::MoveJointsResponse move;
+  const grpc::Status s = client.MoveJoints(target, &move);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
+  EXPECT_NE(s.error_message().find("cell description"), std::string::npos) << s.error_message();
+  // Put back where it was; nothing else moved.
+  EXPECT_TRUE(sim.q().isApprox(StartJoints(), 1e-12));
+  EXPECT_TRUE(Joints(client.State().joints().positions_rad()).isApprox(StartJoints(), 1e-12));
+  EXPECT_EQ(sim.placements(), 2);
   EXPECT_EQ(server.Stop(), 0);
 }
 
@@ -327,13 +422,15 @@ class SimRobotTest : public ::testing::Test {
   explicit SimRobotTest(std::vector<std::string> extra = {"--sim.time_scale=1000"})
       : kin_(Kinematics()),
         server_(ServerBinary(kBinary), Args(extra)),
-        client_(server_.Channel()) {}
+        client_(server_.Channel()) {
+    sim_.set_tcp(kTestTcp);
+  }
   ~SimRobotTest() override { EXPECT_EQ(server_.Stop(), 0); }
 
   std::vector<std::string> Args(std::vector<std::string> extra) {
     extra.push_back("--backend=sim");
     extra.push_back("--sim.address=" + sim_.address());
-    extra.push_back("--tcp_xyz_m=0,0,0.1");
+    extra.push_back("--cell=" + TestCellPath());
     extra.push_back("--safety.workspace_max_m=1.3,1.4,1.2");
     return extra;
   }
@@ -350,7 +447,7 @@ TEST_F(SimRobotTest, GetStateReportsTheSimulatedArm) {
   EXPECT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
   EXPECT_TRUE(Joints(state.joints().positions_rad()).isApprox(StartJoints()));
   const Eigen::Isometry3d X = kin_.ForwardKinematics(StartJoints());
-  const Eigen::Vector3d tcp = X * Eigen::Vector3d(0, 0, 0.1);
+  const Eigen::Vector3d tcp = X * kTestTcp.translation();
   EXPECT_NEAR(state.x_base_tool().position().z(), X.translation().z(), 1e-9);
   EXPECT_NEAR(state.x_base_tcp().position().x(), tcp.x(), 1e-9);
   EXPECT_NEAR(state.x_base_tcp().position().z(), tcp.z(), 1e-9);

@@ -58,6 +58,49 @@ TEST(SimulatorServerTest, RefusesAnUnreadableLayoutSetting) {
   EXPECT_NE(r.output.find("layout"), std::string::npos) << r.output;
 }
 
+// The bundled cell description with its gripper section replaced by `gripper` (YAML text,
+// may be empty) and its mesh paths made absolute, written to a file of the test's own.
+std::string CellWithGripper(const std::string& name, const std::string& gripper) {
+  std::string yaml = ReadText(std::string(PICKING_DATA_DIR) + "/cell/default_cell.yaml");
+  const std::string mesh_dir = std::string(PICKING_DATA_DIR) + "/apc2016/";
+  for (std::size_t pos; (pos = yaml.find("../apc2016/")) != std::string::npos;) {
+    yaml.replace(pos, std::strlen("../apc2016/"), mesh_dir);
+  }
+  yaml = yaml.substr(0, yaml.find("\ngripper:")) + "\n" + gripper;
+  const std::string path = ::testing::TempDir() + "/simulator_test_" + name + ".yaml";
+  std::ofstream(path) << yaml;
+  return path;
+}
+
+TEST(SimulatorServerTest, TakesTheToolCentrePointFromTheCellDescription) {
+  ServerProcess server(ServerBinary(kBinary),
+                       {"--cell=" + CellWithGripper("short_tube",
+                                                    "gripper:\n"
+                                                    "  X_ToolTcp: {position: [0, 0, 0.2], "
+                                                    "orientation: [1, 0, 0, 0]}\n"
+                                                    "  tube_radius_m: 0.02\n"
+                                                    "  cup_length_m: 0.02\n")});
+  auto stub = sim::SimulatorService::NewStub(server.Channel());
+  grpc::ClientContext ctx;
+  sim::SetArmJointsRequest req;
+  for (double v : kHome) req.mutable_joints()->add_positions_rad(v);
+  sim::SetArmJointsResponse placed;
+  ASSERT_TRUE(stub->SetArmJoints(&ctx, req, &placed).ok());
+  const auto& tool = placed.x_base_tool().position();
+  const auto& tcp = placed.x_base_tcp().position();
+  EXPECT_NEAR(std::hypot(tcp.x() - tool.x(), tcp.y() - tool.y(), tcp.z() - tool.z()), 0.2, 1e-9);
+  EXPECT_EQ(server.Stop(), 0);
+}
+
+TEST(SimulatorServerTest, RefusesACellDescriptionWithoutAGripper) {
+  const std::string cell = CellWithGripper("no_gripper", "");
+  const ProgramResult r =
+      RunProgram(ServerBinary(kBinary), {"--listen=127.0.0.1:0", "--cell=" + cell});
+  EXPECT_EQ(r.exit_status, 2) << r.output;
+  EXPECT_NE(r.output.find("gripper"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(cell), std::string::npos) << r.output;
+}
+
 TEST(SimulatorServerTest, LoadsTheLayoutSettingAtStart) {
   ServerProcess server(ServerBinary(kBinary), {"--layout=" + std::string(PICKING_DATA_DIR) +
                                                    "/apc2016/tasks/pick_layout_2.json",
@@ -178,7 +221,12 @@ TEST_F(SimulatorRpcTest, ArmPlacementReportsCollisionsWithTheShelfOnce) {
   auto truth = Truth();
   ASSERT_EQ(truth.arm_joints().positions_rad_size(), 6);
   for (int i = 0; i < 6; ++i) EXPECT_DOUBLE_EQ(truth.arm_joints().positions_rad(i), kHome[i]);
-  EXPECT_EQ(truth.x_base_tool().SerializeAsString(), placed.x_base_tool().SerializeAsString());
+  EXPECT_EQ(truth.x_base_tcp().SerializeAsString(), placed.x_base_tcp().SerializeAsString());
+  // The flange, whose z axis the cup is on (GetGroundTruth derives it from the cup).
+  const auto& flange = placed.x_base_tool().position();
+  EXPECT_NEAR(truth.x_base_tool().position().x(), flange.x(), 1e-9);
+  EXPECT_NEAR(truth.x_base_tool().position().y(), flange.y(), 1e-9);
+  EXPECT_NEAR(truth.x_base_tool().position().z(), flange.z(), 1e-9);
 
   // Turned toward the shelf and stretched out low: the arm is in the pod's solid base.
   const std::vector<double> into_shelf = {M_PI, 0.0, 0.0, 0.0, 0.0, 0.0};
@@ -186,9 +234,13 @@ TEST_F(SimulatorRpcTest, ArmPlacementReportsCollisionsWithTheShelfOnce) {
   EXPECT_TRUE(placed.in_collision());
   EXPECT_NE(placed.collision_detail().find("shelf"), std::string::npos)
       << placed.collision_detail();
-  // The cup 0.35 m from the flange, which is at (1.1843, 0.2561, 0.0116) (the DH chain at
-  // zero turned by pi about z).
-  const auto& cup = placed.x_base_tool().position();
+  // The flange at (1.1843, 0.2561, 0.0116) (the DH chain at zero turned by pi about z), the
+  // cup 0.35 m from it (the bundled cell's gripper).
+  const auto& tool = placed.x_base_tool().position();
+  EXPECT_NEAR(tool.x(), 1.1843, 1e-4);
+  EXPECT_NEAR(tool.y(), 0.2561, 1e-4);
+  EXPECT_NEAR(tool.z(), 0.0116, 1e-4);
+  const auto& cup = placed.x_base_tcp().position();
   EXPECT_NEAR(std::hypot(cup.x() - 1.1843, cup.y() - 0.2561, cup.z() - 0.0116), 0.35, 1e-3);
   ASSERT_TRUE(SetJoints(into_shelf, &placed).ok());  // still in collision: no new event
   ASSERT_TRUE(SetJoints(kHome, &placed).ok());

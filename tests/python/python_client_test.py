@@ -4,6 +4,7 @@
 Usage (CTest does this): python_client_test.py BIN_DIR
 """
 
+import math
 import os
 import pathlib
 import select
@@ -56,6 +57,15 @@ class PythonClientTest(unittest.TestCase):
         self.assertIn("health picking.planner.v1.PlannerService: SERVING", result.stdout)
         # UR10 factory DH chain at zero joints: x = a2 + a3, y = -(d4 + d6), z = d1 - d5.
         self.assertIn("X_base_tool position_m: -1.1843 -0.2561 0.0116", result.stdout)
+        # The suction cup's lip: the bundled cell's tool centre point, 0.35 m from the flange.
+        positions = {}
+        for line in result.stdout.splitlines():
+            name, _, values = line.partition(" position_m: ")
+            if values:
+                positions[name] = [float(v) for v in values.split()]
+        self.assertIn("X_base_tcp", positions, result.stdout)
+        self.assertAlmostEqual(math.dist(positions["X_base_tool"], positions["X_base_tcp"]),
+                               0.35, places=3)
         self.assertEqual(server.exit_code, 0)
 
     def test_bad_request_reports_invalid_argument(self):

@@ -2,7 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
 #include <stdexcept>
+#include <string>
+
+#include <unistd.h>
 
 namespace picking::runtime {
 namespace {
@@ -78,6 +83,30 @@ TEST(ConfigTest, RequireNamesMissingKey) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("robot.address"), std::string::npos);
   }
+}
+
+TEST(ConfigTest, RelativePathsFromAFileAreBesideTheFile) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("picking_config_test_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "conf");
+  const fs::path file = dir / "conf" / "server.yaml";
+  {
+    std::ofstream out(file);
+    out << "cell: ../cell/my_cell.yaml\nabsolute: /etc/cell.yaml\nflag: here.yaml\n";
+  }
+  Config c = Config::FromYamlFile(file.string());
+  c.Set("flag", "relative/to/cwd.yaml");
+  EXPECT_EQ(c.GetPath("cell", ""), (dir / "cell" / "my_cell.yaml").string());
+  EXPECT_EQ(c.GetString("cell", ""), "../cell/my_cell.yaml");
+  EXPECT_EQ(c.GetPath("absolute", ""), "/etc/cell.yaml");
+  EXPECT_EQ(c.GetPath("flag", ""), "relative/to/cwd.yaml");
+  EXPECT_EQ(c.GetPath("missing", "default/path.yaml"), "default/path.yaml");
+  const Config copy = c;
+  EXPECT_EQ(copy.GetPath("cell", ""), (dir / "cell" / "my_cell.yaml").string());
+  // Text without a file: paths as given.
+  EXPECT_EQ(Config::FromYamlText("cell: a/b.yaml\n", "t.yaml").GetPath("cell", ""), "a/b.yaml");
+  fs::remove_all(dir);
 }
 
 }  // namespace

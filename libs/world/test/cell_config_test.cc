@@ -11,6 +11,12 @@ namespace {
 
 const std::string kDataDir = PICKING_DATA_DIR;
 
+std::string Replace(std::string s, const std::string& from, const std::string& to) {
+  const auto pos = s.find(from);
+  EXPECT_NE(pos, std::string::npos) << from;
+  return s.replace(pos, from.size(), to);
+}
+
 std::string ValidYaml() {
   return R"(version: 1
 robot_base:
@@ -24,7 +30,20 @@ tote:
 table:
   X_BaseTable: {position: [0.2, 0.8, -0.2], orientation: [1, 0, 0, 0]}
   size_m: [0.6, 0.6, 0.5]
+gripper:
+  X_ToolTcp: {position: [0, 0, 0.35], orientation: [1, 0, 0, 0]}
+  tube_radius_m: 0.02
+  cup_length_m: 0.02
 )";
+}
+
+// ValidYaml() with the gripper section's three entries replaced.
+std::string WithGripper(const std::string& pose, const std::string& radius,
+                        const std::string& cup) {
+  std::string yaml =
+      Replace(ValidYaml(), "{position: [0, 0, 0.35], orientation: [1, 0, 0, 0]}", pose);
+  yaml = Replace(yaml, "tube_radius_m: 0.02", "tube_radius_m: " + radius);
+  return Replace(yaml, "cup_length_m: 0.02", "cup_length_m: " + cup);
 }
 
 std::string FieldOfError(const std::string& yaml) {
@@ -35,12 +54,6 @@ std::string FieldOfError(const std::string& yaml) {
     return e.field();
   }
   return "<no error>";
-}
-
-std::string Replace(std::string s, const std::string& from, const std::string& to) {
-  const auto pos = s.find(from);
-  EXPECT_NE(pos, std::string::npos) << from;
-  return s.replace(pos, from.size(), to);
 }
 
 TEST(CellConfigTest, ParsesPosesAndResolvesPaths) {
@@ -77,8 +90,66 @@ TEST(CellConfigTest, ErrorsNameTheField) {
   EXPECT_THROW(ReadCellConfig(kDataDir + "/cell/no_such_file.yaml"), CellConfigError);
 }
 
+TEST(CellConfigTest, ParsesTheGripper) {
+  const CellConfig c = ParseCellConfig(
+      WithGripper("{position: [0.01, 0, 0.3], orientation: [0.7071068, 0.7071068, 0, 0]}", "0.025",
+                  "0"),
+      "test.yaml", kDataDir);
+  EXPECT_TRUE(c.gripper.X_ToolTcp.translation().isApprox(Eigen::Vector3d(0.01, 0.0, 0.3)));
+  // A quarter turn about x: the TCP's z axis along -y of the flange; normalised on reading.
+  EXPECT_TRUE((c.gripper.X_ToolTcp.linear() * Eigen::Vector3d::UnitZ())
+                  .isApprox(-Eigen::Vector3d::UnitY(), 1e-6));
+  EXPECT_NEAR(c.gripper.X_ToolTcp.linear().determinant(), 1.0, 1e-12);
+  EXPECT_EQ(c.gripper.tube_radius_m, 0.025);
+  EXPECT_EQ(c.gripper.cup_length_m, 0.0);
+}
+
+TEST(CellConfigTest, GripperErrorsNameTheField) {
+  const std::string pose = "{position: [0, 0, 0.35], orientation: [1, 0, 0, 0]}";
+  const std::string section =
+      "gripper:\n  X_ToolTcp: " + pose + "\n  tube_radius_m: 0.02\n  cup_length_m: 0.02\n";
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), section, "")), "gripper");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), section, "gripper: 0.35\n")), "gripper");
+  EXPECT_EQ(FieldOfError(WithGripper("{position: [0, 0, 0.35], orientation: [1, 0, 0, 0.5]}",
+                                     "0.02", "0.02")),
+            "gripper.X_ToolTcp.orientation");
+  EXPECT_EQ(
+      FieldOfError(WithGripper("{position: [0, 0.35], orientation: [1, 0, 0, 0]}", "0.02", "0.02")),
+      "gripper.X_ToolTcp.position");
+  EXPECT_EQ(FieldOfError(
+                WithGripper("{position: [0, 0, .nan], orientation: [1, 0, 0, 0]}", "0.02", "0.02")),
+            "gripper.X_ToolTcp.position[2]");
+  EXPECT_EQ(FieldOfError(WithGripper("[0, 0, 0.35]", "0.02", "0.02")), "gripper.X_ToolTcp");
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "0", "0.02")), "gripper.tube_radius_m");
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "-0.02", "0.02")), "gripper.tube_radius_m");
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "wide", "0.02")), "gripper.tube_radius_m");
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "[0.02]", "0.02")), "gripper.tube_radius_m");
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "0.02", "-0.01")), "gripper.cup_length_m");
+  // The cup cannot be as long as the whole tube (0.35 m from the flange to the TCP).
+  EXPECT_EQ(FieldOfError(WithGripper(pose, "0.02", "0.35")), "gripper.cup_length_m");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "  cup_length_m: 0.02\n", "")),
+            "gripper.cup_length_m");
+  EXPECT_EQ(FieldOfError(
+                Replace(ValidYaml(), "  cup_length_m:", "  tube_length_m: 0.35\n  cup_length_m:")),
+            "gripper.tube_length_m");
+  EXPECT_EQ(FieldOfError(ValidYaml() + "X_ToolTcp: {position: [0, 0, 0.35]}\n"), "X_ToolTcp");
+  // The message names the file and the field.
+  try {
+    ParseCellConfig(WithGripper(pose, "0", "0.02"), "my_cell.yaml", kDataDir);
+    ADD_FAILURE() << "no error";
+  } catch (const CellConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("my_cell.yaml"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("gripper.tube_radius_m"), std::string::npos) << e.what();
+  }
+}
+
 TEST(CellConfigTest, DefaultCellLoadsAndItsBinsAreReachable) {
   const CellConfig config = ReadCellConfig(DefaultCellConfigPath());
+  // The suction cup's lip 0.35 m along the flange's z axis, turned as the flange.
+  EXPECT_TRUE(config.gripper.X_ToolTcp.translation().isApprox(Eigen::Vector3d(0.0, 0.0, 0.35)));
+  EXPECT_TRUE(config.gripper.X_ToolTcp.linear().isIdentity());
+  EXPECT_EQ(config.gripper.tube_radius_m, 0.02);
+  EXPECT_EQ(config.gripper.cup_length_m, 0.02);
   const CellModel cell = LoadCellModel(config);
   ASSERT_EQ(cell.bins.size(), 12u);
   EXPECT_EQ(cell.bin("bin_E").name, "bin_E");

@@ -28,7 +28,7 @@ struct SimGripperOptions {
 ///  - vacuum: SetSuction; the level is the simulator's, or the modelled sealed/open level;
 ///    a seal whose item the ground truth no longer shows attached reads as open;
 ///  - joint: kinematic. The tool orientation comes from GetGroundTruth.X_base_tool (the
-///    suction cup frame, +z out of the cup) with gravity along -z of base. Keep-vertical
+///    UR10 flange, +z along the tube) with gravity along -z of base. Keep-vertical
 ///    sets the angle that makes the head vertical (clamped to the servo range); fixed holds
 ///    its angle; unactuated hangs vertically while the vacuum is off and stays where it was
 ///    once the vacuum seals the joint's play.

@@ -427,19 +427,20 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   model_options.max_acceleration_rad_s2 =
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(data_dir + "/ur10", model_options));
-  // The tool centre point (suction cup tip) in the flange frame: along the flange's z axis.
-  const Eigen::Vector3d tcp_default = ur10::DefaultTcpXyzM();
-  const std::vector<double> tcp =
-      config.GetDoubles("tcp_xyz_m", {tcp_default.x(), tcp_default.y(), tcp_default.z()});
-  if (tcp.size() != 3) throw std::invalid_argument("setting 'tcp_xyz_m' needs 3 values");
-  GripperGeometry gripper;
-  gripper.X_ToolTcp = Eigen::Isometry3d::Identity();
-  gripper.X_ToolTcp.translation() = Eigen::Vector3d(tcp[0], tcp[1], tcp[2]);
-  if (!gripper.X_ToolTcp.translation().allFinite()) {
-    throw std::invalid_argument("setting 'tcp_xyz_m' must be finite");
+  // The tool centre point and the gripper's tube from the cell description every service
+  // loads; the static cell from the same file.
+  const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
+  world::CellConfig cell_config;
+  try {
+    cell_config = world::ReadCellConfig(cell_path);
+  } catch (const world::CellConfigError& e) {
+    throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
   }
-  const world::CellModel cell = world::LoadCellModel(
-      world::ReadCellConfig(config.GetString("cell", world::DefaultCellConfigPath())));
+  GripperGeometry gripper;
+  gripper.X_ToolTcp = cell_config.gripper.X_ToolTcp;
+  gripper.tube_radius_m = cell_config.gripper.tube_radius_m;
+  gripper.cup_length_m = cell_config.gripper.cup_length_m;
+  const world::CellModel cell = world::LoadCellModel(cell_config);
   const Eigen::Isometry3d X_ToolCamera =
       ReadHandEye(config.GetString("hand_eye", data_dir + "/scanner/sim_sensor/hand_eye.json"));
   apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());

@@ -22,6 +22,29 @@ void RequirePositive(double value, const char* field) {
   }
 }
 
+// Empty when the world's TCP pose agrees with ours within 1e-6 m and 1e-6 rad, else why not.
+std::string TcpDisagreement(const Eigen::Isometry3d& X_BaseTcp_ours,
+                            const Eigen::Isometry3d& X_BaseTcp_world) {
+  constexpr double kToleranceM = 1e-6, kToleranceRad = 1e-6;
+  const double distance_m = (X_BaseTcp_world.translation() - X_BaseTcp_ours.translation()).norm();
+  const double angle_rad =
+      Eigen::AngleAxisd(X_BaseTcp_ours.linear().transpose() * X_BaseTcp_world.linear()).angle();
+  if (distance_m <= kToleranceM && angle_rad <= kToleranceRad) return {};
+  auto position = [](const Eigen::Isometry3d& X) {
+    std::ostringstream os;
+    os << "(" << X.translation().x() << ", " << X.translation().y() << ", " << X.translation().z()
+       << ")";
+    return os.str();
+  };
+  std::ostringstream os;
+  os << "the simulator puts the tool centre point at " << position(X_BaseTcp_world)
+     << ", the robot's cell description at " << position(X_BaseTcp_ours) << " (" << distance_m
+     << " m, " << angle_rad
+     << " rad apart): the simulator and the robot must load the same cell description "
+        "(setting 'cell')";
+  return os.str();
+}
+
 }  // namespace
 
 void SimBackendOptions::Validate() const {
@@ -246,6 +269,19 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
       return finish(MotionOutcome::kFailed,
                     std::string("simulator refused the arm motion: ") + e.what(),
                     RobotStatus::kReady);
+    }
+    if (placement.X_BaseTcp) {
+      const std::string disagreement = TcpDisagreement(
+          kinematics.ForwardKinematics(q) * checker_.X_ToolTcp(), *placement.X_BaseTcp);
+      if (!disagreement.empty()) {
+        try {
+          std::lock_guard<std::mutex> arm(arm_mutex_);
+          arm_->PlaceArm(last_free);
+        } catch (const std::exception&) {
+          // The motion fails anyway; the next call reads the arm again.
+        }
+        return finish(MotionOutcome::kFailed, disagreement, RobotStatus::kReady);
+      }
     }
     if (placement.in_collision && !(zone.enabled && penetration_m > -kContactSlackM)) {
       // The safety system stops the arm before the hit: back to the last free sample.

@@ -6,6 +6,7 @@
 #include <condition_variable>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 
 #include "services/robot/core/robot_backend.h"
@@ -19,6 +20,9 @@ struct ArmPlacement {
   bool in_collision = false;
   /// Which link hit what (empty without a collision).
   std::string collision_detail;
+  /// The world's tool centre point (the suction cup) at these joints, when it reports one:
+  /// SimBackend checks it against its own X_BaseTool * X_ToolTcp.
+  std::optional<Eigen::Isometry3d> X_BaseTcp;
 };
 
 /// Where the suction cup touches along a straight tool motion.
@@ -74,7 +78,10 @@ struct SimBackendOptions {
 /// the motion ends with kProtectiveStop naming what hit. A guarded move probes the contact
 /// along its direction first, then travels to the contact plus the press needed to reach the
 /// force threshold (force = stiffness * press, capped by the maximum distance); touching
-/// beyond the contact point is expected and not a collision. The state (joints, wrench,
+/// beyond the contact point is expected and not a collision. A world that places the tool
+/// centre point elsewhere than the checker's X_ToolTcp (more than 1e-6 m or 1e-6 rad apart:
+/// the simulator and the robot loaded different cell descriptions) fails the motion at its
+/// first sample with kFailed naming both poses. The state (joints, wrench,
 /// status) is the commanded one, read from the world once at first use and again after the
 /// world was unreachable.
 class SimBackend final : public RobotBackend {

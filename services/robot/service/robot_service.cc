@@ -15,6 +15,7 @@
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/status.h"
+#include "libs/world/cell_config.h"
 #include "services/robot/core/sim_backend.h"
 #include "services/robot/core/ur_backend.h"
 #include "services/robot/service/sim_arm_client.h"
@@ -703,15 +704,19 @@ std::shared_ptr<v1::RobotService::Service> MakeRobotService(std::shared_ptr<Robo
 }
 
 runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
-  // The UR10 model and the tool.
+  // The UR10 model, and the gripper's tool centre point from the cell description.
   const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
   ur10::Ur10ModelOptions model_options;
   model_options.max_acceleration_rad_s2 =
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
-  const Eigen::Vector3d tcp = Vector3Setting(config, "tcp_xyz_m", ur10::DefaultTcpXyzM());
+  const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
-  X_ToolTcp.translation() = tcp;
+  try {
+    X_ToolTcp = world::ReadCellConfig(cell_path).gripper.X_ToolTcp;
+  } catch (const world::CellConfigError& e) {
+    throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
+  }
 
   // Safety limits: the model's joint limits, the workspace box and the forbidden zones.
   Box workspace;

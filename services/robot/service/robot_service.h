@@ -40,8 +40,9 @@ std::shared_ptr<v1::RobotService::Service> MakeRobotService(std::shared_ptr<Robo
                                                             const RobotServiceOptions& options);
 
 /// Builds the robot server's services from its settings (see docs/services.md): the backend
-/// (`backend` = sim | ur), the UR10 model from `data_dir`, the TCP offset and the safety
-/// limits. @throws std::invalid_argument for bad settings, std::runtime_error when the UR
+/// (`backend` = sim | ur), the UR10 model from `data_dir`, the tool centre point (the gripper's
+/// X_ToolTcp of the cell description `cell`) and the safety limits. @throws
+/// std::invalid_argument for bad settings or cell description, std::runtime_error when the UR
 /// controller cannot be reached.
 runtime::ServiceSet BuildRobotServices(const runtime::Config& config);
 

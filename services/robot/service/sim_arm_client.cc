@@ -110,6 +110,14 @@ ArmPlacement SimulatorArmClient::PlaceArm(const JointVector& q_rad) {
   ArmPlacement placement;
   placement.in_collision = response.in_collision();
   placement.collision_detail = response.collision_detail();
+  if (response.has_x_base_tcp()) {
+    try {
+      placement.X_BaseTcp = pc::PoseFromProto(response.x_base_tcp(), "X_base_tcp");
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error("simulator at " + address_ +
+                               " sent a bad SetArmJoints pose: " + e.what());
+    }
+  }
   return placement;
 }
 

@@ -21,7 +21,8 @@ struct SimulatorArmClientOptions {
 };
 
 /// SimulatedArm served by picking-simulator (picking.simulator.v1): ReadJoints is
-/// GetGroundTruth's arm joints, PlaceArm is SetArmJoints, Probe is ProbeContact. An
+/// GetGroundTruth's arm joints, PlaceArm is SetArmJoints (with its X_base_tcp, the cup the
+/// simulator placed), Probe is ProbeContact from the flange pose. An
 /// unreachable simulator or a call past its deadline throws UnavailableError naming the
 /// address; any other refusal throws std::runtime_error with the simulator's message.
 class SimulatorArmClient final : public SimulatedArm {

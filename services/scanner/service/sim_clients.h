@@ -36,7 +36,9 @@ class SimulatorClient final : public PatternRenderer {
   SimulatorClient(const std::string& address, const SimRenderSettings& settings);
 
   std::vector<GrayImage> Render(const PatternRenderRequest& request) override;
-  /// X_BaseTool of the simulated arm now.
+  /// The simulated arm's flange pose now, X_BaseTool (GetGroundTruth.X_base_tool; the camera
+  /// is mounted on the flange, not on the suction cup). @throws picking::PreconditionError
+  /// before the arm is placed.
   Eigen::Isometry3d ToolPose();
 
  private:

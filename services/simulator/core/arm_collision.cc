@@ -44,7 +44,7 @@ struct ArmCollisionChecker::Impl {
   std::shared_ptr<const ur10::Ur10Kinematics> kinematics;
   std::array<std::shared_ptr<Bvh>, ur10::kNumLinks> links;
   std::shared_ptr<fcl::Cylinderd> tube;  // null for a tool too short to have a tube
-  Eigen::Isometry3d X_FlangeTube = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d X_ToolTube = Eigen::Isometry3d::Identity();
   mutable int carried_id = 0;
   mutable const world::TriangleMesh* carried_mesh = nullptr;
   mutable std::shared_ptr<Bvh> carried;
@@ -64,17 +64,16 @@ struct ArmCollisionChecker::Impl {
 };
 
 ArmCollisionChecker::ArmCollisionChecker(const world::CellModel& cell,
-                                         const ur10::Ur10Kinematics& kinematics,
-                                         const ToolGeometry& tool)
-    : impl_(std::make_unique<Impl>()), tool_(tool) {
-  if (!(tool_.radius_m > 0.0) || !std::isfinite(tool_.radius_m)) {
-    throw std::invalid_argument("ToolGeometry.radius_m must be finite and > 0");
+                                         const ur10::Ur10Kinematics& kinematics)
+    : impl_(std::make_unique<Impl>()), gripper_(cell.config.gripper) {
+  if (!(gripper_.tube_radius_m > 0.0) || !std::isfinite(gripper_.tube_radius_m)) {
+    throw std::invalid_argument("gripper.tube_radius_m must be finite and > 0");
   }
-  if (!(tool_.cup_length_m >= 0.0) || !std::isfinite(tool_.cup_length_m)) {
-    throw std::invalid_argument("ToolGeometry.cup_length_m must be finite and >= 0");
+  if (!(gripper_.cup_length_m >= 0.0) || !std::isfinite(gripper_.cup_length_m)) {
+    throw std::invalid_argument("gripper.cup_length_m must be finite and >= 0");
   }
-  if (!IsRigid(tool_.X_FlangeTool)) {
-    throw std::invalid_argument("ToolGeometry.X_FlangeTool must be a finite rigid transform");
+  if (!IsRigid(gripper_.X_ToolTcp)) {
+    throw std::invalid_argument("gripper.X_ToolTcp must be a finite rigid transform");
   }
   impl_->kinematics = std::make_shared<ur10::Ur10Kinematics>(kinematics.model());
   auto add = [&](const std::string& name, const world::TriangleMesh& mesh,
@@ -90,14 +89,14 @@ ArmCollisionChecker::ArmCollisionChecker(const world::CellModel& cell,
   for (int i = 0; i < ur10::kNumLinks; ++i) {
     impl_->links[i] = MakeBvh(kinematics.model().LoadCollisionMesh(static_cast<ur10::Link>(i)));
   }
-  const Eigen::Vector3d p_FlangeLip = tool_.X_FlangeTool.translation();
-  const double length = p_FlangeLip.norm() - tool_.cup_length_m;
+  const Eigen::Vector3d p_ToolTcp = gripper_.X_ToolTcp.translation();
+  const double length = p_ToolTcp.norm() - gripper_.cup_length_m;
   if (length > 1e-6) {
-    impl_->tube = std::make_shared<fcl::Cylinderd>(tool_.radius_m, length);
-    const Eigen::Vector3d axis = p_FlangeLip.normalized();
-    impl_->X_FlangeTube.linear() =
+    impl_->tube = std::make_shared<fcl::Cylinderd>(gripper_.tube_radius_m, length);
+    const Eigen::Vector3d axis = p_ToolTcp.normalized();
+    impl_->X_ToolTube.linear() =
         Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
-    impl_->X_FlangeTube.translation() = 0.5 * length * axis;
+    impl_->X_ToolTube.translation() = 0.5 * length * axis;
   }
 }
 
@@ -125,10 +124,10 @@ ArmCollision ArmCollisionChecker::Check(const ur10::JointVector& q_rad,
     const std::string hit = impl_->Hit(impl_->carried, carried->X_BaseItem);
     if (!hit.empty()) return report("carried item " + carried->name, hit);
   }
-  const Eigen::Isometry3d X_BaseFlange = impl_->kinematics->ForwardKinematics(q_rad);
+  const Eigen::Isometry3d X_BaseTool = impl_->kinematics->ForwardKinematics(q_rad);
   if (impl_->tube) {
-    const std::string hit = impl_->Hit(impl_->tube, X_BaseFlange * impl_->X_FlangeTube);
-    if (!hit.empty()) return report("tool", hit);
+    const std::string hit = impl_->Hit(impl_->tube, X_BaseTool * impl_->X_ToolTube);
+    if (!hit.empty()) return report("gripper", hit);
   }
   const auto frames = impl_->kinematics->LinkFrames(q_rad);
   const ur10::Ur10Model& model = impl_->kinematics->model();

@@ -11,22 +11,10 @@
 
 namespace picking::simulator {
 
-/// The suction tool as a collision body: an aluminium tube along the flange's z axis from
-/// the flange to the cup's lip.
-struct ToolGeometry {
-  /// Cup lip frame in the flange frame (+z out of the cup); its z offset is the tube length.
-  Eigen::Isometry3d X_FlangeTool = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.35));
-  /// Radius of the tube and cup, metres (> 0).
-  double radius_m = 0.02;
-  /// The last part of the tube before the lip (the compliant cup) is left out of the check, so
-  /// that a cup pressed onto a surface is contact, not collision. Metres (>= 0).
-  double cup_length_m = 0.02;
-};
-
 /// What hits the cell first at one arm configuration.
 struct ArmCollision {
   bool in_collision = false;
-  /// "<body> hits <object>": body is a UR10 link name ("forearm", "wrist_3", ...), "tool" or
+  /// "<body> hits <object>": body is a UR10 link name ("forearm", "wrist_3", ...), "gripper" or
   /// "carried item <name>"; object is "shelf", "tote" or "table". Empty without collision.
   std::string detail;
 };
@@ -40,17 +28,18 @@ struct CarriedItem {
 };
 
 /// Collision test (FCL, exact mesh-mesh) of the UR10's links (ur_description collision meshes),
-/// the suction tool (a cylinder, see ToolGeometry) and a carried item (its mesh) against the
+/// the gripper's tube (a cylinder from the flange toward the TCP, the cell's
+/// world::GripperConfig, without its last cup_length_m: a cup pressed onto a surface is
+/// contact, not collision) and a carried item (its mesh) against the
 /// static cell: shelf, tote and table. Items in the bins and the tote are not obstacles here
 /// (a cup pressed onto an item is contact, modelled by the world's guarded move), and
 /// self-collision is not checked. Not thread safe (caches the carried item's BVH).
 class ArmCollisionChecker final {
  public:
-  /// Loads the link meshes through `kinematics.model()`. Throws std::invalid_argument for a
-  /// non-positive radius, a negative cup length or a non-rigid X_FlangeTool,
-  /// std::runtime_error if a link mesh cannot be read.
-  ArmCollisionChecker(const world::CellModel& cell, const ur10::Ur10Kinematics& kinematics,
-                      const ToolGeometry& tool);
+  /// Loads the link meshes through `kinematics.model()`; the gripper is `cell.config.gripper`.
+  /// Throws std::invalid_argument for a gripper with a non-positive radius, a negative cup
+  /// length or a non-rigid X_ToolTcp, std::runtime_error if a link mesh cannot be read.
+  ArmCollisionChecker(const world::CellModel& cell, const ur10::Ur10Kinematics& kinematics);
   ~ArmCollisionChecker();
   ArmCollisionChecker(const ArmCollisionChecker&) = delete;
   ArmCollisionChecker& operator=(const ArmCollisionChecker&) = delete;
@@ -61,12 +50,13 @@ class ArmCollisionChecker final {
   /// without a mesh.
   ArmCollision Check(const ur10::JointVector& q_rad, const CarriedItem* carried = nullptr) const;
 
-  const ToolGeometry& tool() const { return tool_; }
+  /// The gripper checked with the arm (the cell's).
+  const world::GripperConfig& gripper() const { return gripper_; }
 
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
-  ToolGeometry tool_;
+  world::GripperConfig gripper_;
 };
 
 }  // namespace picking::simulator

@@ -32,11 +32,13 @@ SimWorld::SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModel
       !(options_.contact_stiffness_n_per_m > 0) || !(options_.contact_force_threshold_n > 0) ||
       !(options_.seal_flatness_tolerance_m > 0) || !(options_.seal_angle_tolerance_rad > 0) ||
       !(options_.seal_max_gap_m >= 0) || !(options_.seal_lookback_m >= 0) ||
-      !(options_.drop_event_height_m > 0) || !(options_.settle_tolerance_m > 0) ||
-      !IsRigid(options_.X_FlangeTool)) {
+      !(options_.drop_event_height_m > 0) || !(options_.settle_tolerance_m > 0)) {
     throw std::invalid_argument(
         "SimOptions: cup_radius_m, stiffness, force threshold, tolerances and drop height must "
-        "be positive, rim_samples >= 3, X_FlangeTool rigid");
+        "be positive, rim_samples >= 3");
+  }
+  if (!IsRigid(cell_.config.gripper.X_ToolTcp)) {
+    throw std::invalid_argument("SimWorld: the cell's gripper.X_ToolTcp is not a rigid transform");
   }
   static_scene_ = std::make_unique<RayScene>();
   static_scene_->Add(kShelfId, cell_.shelf, cell_.config.X_BaseShelf);
@@ -68,7 +70,7 @@ void SimWorld::LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutO
   events_.clear();
   vacuum_on_ = false;
   attached_ = 0;
-  X_ToolItem_ = Eigen::Isometry3d::Identity();
+  X_TcpItem_ = Eigen::Isometry3d::Identity();
   pending_settle_box_.reset();
   MarkMoved();
 }
@@ -120,16 +122,16 @@ std::vector<ItemState> SimWorld::ItemsIn(const std::string& container) const {
 }
 
 SimState SimWorld::state() const {
-  return {items_, X_BaseTool_, q_rad_, vacuum_on_, attached_, X_ToolItem_, events_};
+  return {items_, X_BaseTcp_, q_rad_, vacuum_on_, attached_, X_TcpItem_, events_};
 }
 
-void SimWorld::SetToolPose(const Eigen::Isometry3d& X_BaseTool) {
-  ValidatePose(X_BaseTool, "SetToolPose");
-  X_BaseTool_ = X_BaseTool;
+void SimWorld::SetTcpPose(const Eigen::Isometry3d& X_BaseTcp) {
+  ValidatePose(X_BaseTcp, "SetTcpPose");
+  X_BaseTcp_ = X_BaseTcp;
   q_rad_.reset();
   if (attached_ != 0) {
     ItemState& s = Mutable(attached_);
-    s.X_BaseItem = X_BaseTool_ * X_ToolItem_;
+    s.X_BaseItem = X_BaseTcp_ * X_TcpItem_;
     MarkMoved();
     if (pending_settle_box_ &&
         !pending_settle_box_->intersects(world::Bounds(model(attached_).mesh, s.X_BaseItem))) {
@@ -142,8 +144,7 @@ void SimWorld::SetToolPose(const Eigen::Isometry3d& X_BaseTool) {
 void SimWorld::SetJointPositions(const ur10::JointVector& q_rad) {
   if (!kinematics_) throw std::logic_error("SetJointPositions: the world has no UR10 kinematics");
   if (!q_rad.allFinite()) throw std::invalid_argument("SetJointPositions: non-finite angle");
-  const Eigen::Isometry3d X = kinematics_->ForwardKinematics(q_rad) * options_.X_FlangeTool;
-  SetToolPose(X);
+  SetTcpPose(kinematics_->ForwardKinematics(q_rad) * X_ToolTcp());
   q_rad_ = q_rad;
 }
 
@@ -172,12 +173,12 @@ GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
     throw std::invalid_argument("GuardedMove: max_distance_m must be positive and finite");
   }
   const RayScene& scene = ItemScene();
-  const Eigen::Vector3d z = X_BaseTool_.linear().col(2);
-  const Eigen::Vector3d x = X_BaseTool_.linear().col(0), y = X_BaseTool_.linear().col(1);
+  const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
+  const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
   GuardedMoveResult result;
   std::optional<RayHit> first;
   for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTool_.translation();
+    Eigen::Vector3d p = X_BaseTcp_.translation();
     if (k >= 0) {
       const double a = 2 * M_PI * k / options_.rim_samples;
       p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
@@ -202,15 +203,15 @@ GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
                                                            : "table";
   }
   result.travelled_m = travel;
-  Eigen::Isometry3d X = X_BaseTool_;
+  Eigen::Isometry3d X = X_BaseTcp_;
   X.translation() += travel * z;
-  SetToolPose(X);
+  SetTcpPose(X);
   return result;
 }
 
-ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTool,
+ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTcp,
                             const Eigen::Vector3d& direction_Base, double max_distance_m) const {
-  ValidatePose(X_BaseTool, "Probe");
+  ValidatePose(X_BaseTcp, "Probe");
   if (!direction_Base.allFinite() || direction_Base.norm() < 1e-9) {
     throw std::invalid_argument("Probe: direction must be finite and non-zero");
   }
@@ -219,10 +220,10 @@ ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTool,
   }
   const RayScene& scene = ItemScene();
   const Eigen::Vector3d d = direction_Base.normalized();
-  const Eigen::Vector3d x = X_BaseTool.linear().col(0), y = X_BaseTool.linear().col(1);
+  const Eigen::Vector3d x = X_BaseTcp.linear().col(0), y = X_BaseTcp.linear().col(1);
   std::optional<RayHit> first;
   for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTool.translation();
+    Eigen::Vector3d p = X_BaseTcp.translation();
     if (k >= 0) {
       const double a = 2 * M_PI * k / options_.rim_samples;
       p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
@@ -261,8 +262,8 @@ SuctionResult SimWorld::SuctionOn() {
     return result;
   }
   const RayScene& scene = ItemScene();
-  const Eigen::Vector3d z = X_BaseTool_.linear().col(2);
-  const Eigen::Vector3d x = X_BaseTool_.linear().col(0), y = X_BaseTool_.linear().col(1);
+  const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
+  const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
   std::vector<Eigen::Vector3d> points;
   std::vector<double> gaps;  // distance of each hit in front of the lip plane
   int object = 0;
@@ -271,7 +272,7 @@ SuctionResult SimWorld::SuctionOn() {
   const double reach =
       options_.seal_lookback_m + options_.seal_max_gap_m + 2 * options_.cup_radius_m;
   for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTool_.translation() - options_.seal_lookback_m * z;
+    Eigen::Vector3d p = X_BaseTcp_.translation() - options_.seal_lookback_m * z;
     if (k >= 0) {
       const double a = 2 * M_PI * k / options_.rim_samples;
       p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
@@ -321,7 +322,7 @@ SuctionResult SimWorld::SuctionOn() {
   if (object > 0) {
     ItemState& s = Mutable(object);
     attached_ = object;
-    X_ToolItem_ = X_BaseTool_.inverse() * s.X_BaseItem;
+    X_TcpItem_ = X_BaseTcp_.inverse() * s.X_BaseItem;
     s.container = kGripper;
     result.attached_item_id = object;
     Log(EventKind::kAttached, s, 0.0);
@@ -337,7 +338,7 @@ int SimWorld::SuctionOff() {
   if (attached_ == 0) return 0;
   const int id = attached_;
   attached_ = 0;
-  X_ToolItem_ = Eigen::Isometry3d::Identity();
+  X_TcpItem_ = Eigen::Isometry3d::Identity();
   pending_settle_box_.reset();
   Drop(Mutable(id), EventKind::kReleased);
   SettleAll();

@@ -39,12 +39,12 @@ struct ItemState {
 };
 
 enum class EventKind {
-  kAttached,   ///< The suction cup sealed on the item; it follows the tool.
+  kAttached,   ///< The suction cup sealed on the item; it follows the cup.
   kReleased,   ///< The item left the gripper and fell `drop_height_m` onto `container`.
   kDropped,    ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
   kFell,       ///< The item lost its support (e.g. the item below was picked) and settled.
   kOutside,    ///< The item came to rest outside every bin, the tote, the table and gripper.
-  kCollision,  ///< The arm, tool or carried item hit the cell (see Event::detail).
+  kCollision,  ///< The arm, gripper or carried item hit the cell (see Event::detail).
 };
 
 /// One entry of the event log.
@@ -67,42 +67,40 @@ struct Event {
 /// Everything that changes in the world, for snapshots and comparisons.
 struct SimState {
   std::vector<ItemState> items;
-  Eigen::Isometry3d X_BaseTool = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();  ///< The suction cup (TCP).
   std::optional<ur10::JointVector> q_rad;
   bool vacuum_on = false;
-  int attached_item_id = 0;  ///< 0: none.
-  Eigen::Isometry3d X_ToolItem = Eigen::Isometry3d::Identity();
+  int attached_item_id = 0;                                     ///< 0: none.
+  Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();  ///< The attached item.
   std::vector<Event> events;
 
   bool operator==(const SimState& o) const {
-    return items == o.items && X_BaseTool.matrix() == o.X_BaseTool.matrix() && q_rad == o.q_rad &&
+    return items == o.items && X_BaseTcp.matrix() == o.X_BaseTcp.matrix() && q_rad == o.q_rad &&
            vacuum_on == o.vacuum_on && attached_item_id == o.attached_item_id &&
-           X_ToolItem.matrix() == o.X_ToolItem.matrix() && events == o.events;
+           X_TcpItem.matrix() == o.X_TcpItem.matrix() && events == o.events;
   }
   bool operator!=(const SimState& o) const { return !(*this == o); }
 };
 
-/// Physical parameters of the simulated gripper and world.
+/// Physical parameters of the simulated gripper and world. The gripper's tool centre point
+/// (X_ToolTcp) is the cell's (world::CellConfig::gripper).
 struct SimOptions {
-  /// Suction cup (the tool frame: origin at the cup's lip centre, +z out of the cup, the
-  /// approach direction) relative to the UR10 flange; used with SetJointPositions.
-  Eigen::Isometry3d X_FlangeTool = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.35));
   double cup_radius_m = 0.015;                ///< Radius of the cup's lip.
   int rim_samples = 16;                       ///< Points on the lip tested for contact and seal.
   double contact_stiffness_n_per_m = 2000.0;  ///< Spring of the compliant cup (bellows).
   double contact_force_threshold_n = 10.0;    ///< A guarded move stops at this force.
   double seal_flatness_tolerance_m = 0.002;   ///< Max deviation of lip points from a plane.
-  double seal_angle_tolerance_rad = 0.35;     ///< Max angle between surface normal and -z_tool.
+  double seal_angle_tolerance_rad = 0.35;     ///< Max angle between surface normal and -z_tcp.
   double seal_max_gap_m = 0.004;      ///< Lip points may be at most this far in front of the cup.
   double seal_lookback_m = 0.02;      ///< Surfaces up to this far behind the lip (compressed cup).
   double drop_event_height_m = 0.3;   ///< Falls above this are recorded as kDropped.
   double settle_tolerance_m = 0.002;  ///< An item hanging higher than this above support falls.
 };
 
-/// Result of a guarded move along the tool's +z axis.
+/// Result of a guarded move along the TCP's +z axis.
 struct GuardedMoveResult {
   bool contact = false;        ///< The force threshold was reached.
-  double travelled_m = 0.0;    ///< Distance moved along +z_tool.
+  double travelled_m = 0.0;    ///< Distance moved along +z_tcp.
   double force_n = 0.0;        ///< Spring force at the end (k * penetration).
   int contact_item_id = 0;     ///< Item touched (0: none or a static object).
   std::string contact_object;  ///< Item name, "shelf", "tote", "table", or empty.
@@ -124,19 +122,22 @@ struct SuctionResult {
   bool sealed = false;       ///< Every lip point met one flat surface facing the cup.
   int attached_item_id = 0;  ///< The sealed item (0 when sealed on a static object).
   double flatness_m = 0.0;   ///< Max deviation of the lip hits from their plane.
-  double angle_rad = 0.0;    ///< Angle between surface normal and -z_tool.
+  double angle_rad = 0.0;    ///< Angle between surface normal and -z_tcp.
   std::string reason;        ///< Why there is no seal, when sealed is false.
 };
 
 /// The simulated APC cell: static shelf / tote / table, the items with their poses and
-/// containers, the tool (suction cup) pose, contact, suction, falling and the event log.
+/// containers, the suction cup's pose (the TCP: X_BaseTcp; the flange, X_BaseTool, is
+/// X_BaseTcp * X_ToolTcp^-1 with the cell's gripper), contact, suction, falling and the event
+/// log.
 ///
 /// Every request is validated before anything changes: on an exception the state is exactly
 /// as before. Not thread safe (one owner; the service adapter serialises requests).
 class SimWorld final {
  public:
   /// `models` must hold every item used later. `kinematics` (optional) enables
-  /// SetJointPositions. Throws std::invalid_argument for bad options.
+  /// SetJointPositions. Throws std::invalid_argument for bad options or a cell whose
+  /// gripper's X_ToolTcp is not rigid.
   SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModelLibrary> models,
            SimOptions options = {},
            std::shared_ptr<const ur10::Ur10Kinematics> kinematics = nullptr);
@@ -151,32 +152,32 @@ class SimWorld final {
   /// its id. Throws apc::UnknownItemError, LayoutError (unknown container or no room).
   int AddItem(const std::string& name, const std::string& container, std::uint32_t seed);
 
-  /// Moves the tool (the suction cup frame) to X_BaseTool; an attached item follows. No
-  /// collision checking (the planner's job). Throws std::invalid_argument for a non-finite
-  /// or non-rigid pose.
-  void SetToolPose(const Eigen::Isometry3d& X_BaseTool);
+  /// Moves the suction cup (the TCP) to X_BaseTcp; an attached item follows. No collision
+  /// checking (the planner's job). Forgets the arm's joints. Throws std::invalid_argument for
+  /// a non-finite or non-rigid pose.
+  void SetTcpPose(const Eigen::Isometry3d& X_BaseTcp);
 
-  /// Sets the arm's joints: X_BaseTool = FK(q) * X_FlangeTool. Throws std::logic_error without
+  /// Sets the arm's joints: X_BaseTcp = FK(q) * X_ToolTcp. Throws std::logic_error without
   /// kinematics, std::invalid_argument for non-finite angles.
   void SetJointPositions(const ur10::JointVector& q_rad);
 
-  /// Moves the tool along its +z axis by up to `max_distance_m` (> 0), stopping where the
-  /// cup (centre and lip points) pressed on the first surface reaches the force threshold.
-  /// Throws std::invalid_argument for a non-positive or non-finite distance.
+  /// Moves the cup along the TCP's +z axis by up to `max_distance_m` (> 0), stopping where
+  /// the cup (centre and lip points) pressed on the first surface reaches the force
+  /// threshold. Throws std::invalid_argument for a non-positive or non-finite distance.
   GuardedMoveResult GuardedMove(double max_distance_m);
 
-  /// Where the cup (centre and lip points) at X_BaseTool first touches a surface when moved
+  /// Where the cup (centre and lip points) at X_BaseTcp first touches a surface when moved
   /// along the unit `direction_Base` by up to `max_distance_m` (> 0); the attached item is
   /// ignored. Changes nothing. Throws std::invalid_argument for a bad pose, a non-finite or
   /// zero direction or a non-positive distance.
-  ProbeResult Probe(const Eigen::Isometry3d& X_BaseTool, const Eigen::Vector3d& direction_Base,
+  ProbeResult Probe(const Eigen::Isometry3d& X_BaseTcp, const Eigen::Vector3d& direction_Base,
                     double max_distance_m) const;
 
   /// Appends a kCollision event with `detail` (the arm is checked by ArmCollisionChecker).
   void LogCollision(const std::string& detail);
 
   /// Vacuum on: seals if the lip meets one flat surface facing the cup; a sealed item is
-  /// attached (it follows the tool, X_ToolItem kept). Already attached: returns the seal.
+  /// attached (it follows the cup, X_TcpItem kept). Already attached: returns the seal.
   SuctionResult SuctionOn();
 
   /// Vacuum off: an attached item is released and falls onto the highest support under it
@@ -195,7 +196,12 @@ class SimWorld final {
   /// Items currently in `container`; throws std::invalid_argument for an unknown container.
   std::vector<ItemState> ItemsIn(const std::string& container) const;
   const std::vector<Event>& events() const { return events_; }
-  const Eigen::Isometry3d& X_BaseTool() const { return X_BaseTool_; }
+  /// The suction cup (TCP) in Base.
+  const Eigen::Isometry3d& X_BaseTcp() const { return X_BaseTcp_; }
+  /// The UR10's flange in Base: X_BaseTcp * X_ToolTcp^-1.
+  Eigen::Isometry3d X_BaseTool() const { return X_BaseTcp_ * X_ToolTcp().inverse(); }
+  /// The TCP in the flange frame: the cell's gripper's.
+  const Eigen::Isometry3d& X_ToolTcp() const { return cell_.config.gripper.X_ToolTcp; }
   bool vacuum_on() const { return vacuum_on_; }
   int attached_item_id() const { return attached_; }
   SimState state() const;
@@ -243,11 +249,11 @@ class SimWorld final {
   mutable std::unique_ptr<RayScene> item_scene_;
   std::vector<ItemState> items_;
   std::vector<std::shared_ptr<const world::ItemModel>> item_models_;  // parallel to items_
-  Eigen::Isometry3d X_BaseTool_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d X_BaseTcp_ = Eigen::Isometry3d::Identity();
   std::optional<ur10::JointVector> q_rad_;
   bool vacuum_on_ = false;
   int attached_ = 0;
-  Eigen::Isometry3d X_ToolItem_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d X_TcpItem_ = Eigen::Isometry3d::Identity();
   // Where the attached item was when picked: once it has left that box, what rested on it
   // falls.
   std::optional<Eigen::AlignedBox3d> pending_settle_box_;

@@ -329,8 +329,12 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
                                                         : "now in " + e.container);
       }
       const SimState state = world_->state();
-      if (state.q_rad) *response->mutable_arm_joints() = pc::JointsToProto(ToArray(*state.q_rad));
-      *response->mutable_x_base_tool() = pc::PoseToProto(state.X_BaseTool);
+      if (state.q_rad) {
+        // The arm is placed: the cup, and the flange it hangs from.
+        *response->mutable_arm_joints() = pc::JointsToProto(ToArray(*state.q_rad));
+        *response->mutable_x_base_tcp() = pc::PoseToProto(state.X_BaseTcp);
+        *response->mutable_x_base_tool() = pc::PoseToProto(world_->X_BaseTool());
+      }
       if (state.attached_item_id != 0) {
         *response->mutable_attached_item() = ItemRefOf(world_->item(state.attached_item_id).name,
                                                        instances.at(state.attached_item_id));
@@ -383,8 +387,8 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
         }
       }
       std::lock_guard<std::mutex> lock(mutex_);
-      const Eigen::Isometry3d X_BaseTool =
-          collisions_kinematics().ForwardKinematics(q) * world_->options().X_FlangeTool;
+      const Eigen::Isometry3d X_BaseTool = collisions_kinematics().ForwardKinematics(q);
+      const Eigen::Isometry3d X_BaseTcp = X_BaseTool * world_->X_ToolTcp();
       const SimState state = world_->state();
       ArmCollision collision;
       if (state.attached_item_id != 0) {
@@ -392,7 +396,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
         carried.id = state.attached_item_id;
         carried.name = world_->item(carried.id).name;
         carried.mesh = &world_->model(carried.id).mesh;
-        carried.X_BaseItem = X_BaseTool * state.X_ToolItem;
+        carried.X_BaseItem = X_BaseTcp * state.X_TcpItem;
         collision = collisions_->Check(q, &carried);
       } else {
         collision = collisions_->Check(q);
@@ -403,7 +407,8 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       in_collision_ = collision.in_collision;
       response->set_in_collision(collision.in_collision);
       response->set_collision_detail(collision.detail);
-      *response->mutable_x_base_tool() = pc::PoseToProto(world_->X_BaseTool());
+      *response->mutable_x_base_tcp() = pc::PoseToProto(world_->X_BaseTcp());
+      *response->mutable_x_base_tool() = pc::PoseToProto(X_BaseTool);
       return grpc::Status::OK;
     });
   }
@@ -422,22 +427,22 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
         throw std::invalid_argument("max_distance_m must be in (0, 10], got " +
                                     Num(max_distance_m));
       }
-      std::optional<Eigen::Isometry3d> X_BaseFlange;
+      std::optional<Eigen::Isometry3d> X_BaseTool;
       if (request->has_x_base_tool()) {
-        X_BaseFlange = pc::PoseFromProto(request->x_base_tool(), "X_base_tool");
+        X_BaseTool = pc::PoseFromProto(request->x_base_tool(), "X_base_tool");
       }
       std::lock_guard<std::mutex> lock(mutex_);
-      if (!X_BaseFlange) {
+      if (!X_BaseTool) {
         const SimState state = world_->state();
         if (!state.q_rad) {
           throw PreconditionError(
               "X_base_tool is unset and the arm has not been placed yet (SetArmJoints)");
         }
-        X_BaseFlange = collisions_kinematics().ForwardKinematics(*state.q_rad);
+        X_BaseTool = collisions_kinematics().ForwardKinematics(*state.q_rad);
       }
-      const Eigen::Isometry3d X_BaseCup = *X_BaseFlange * world_->options().X_FlangeTool;
+      const Eigen::Isometry3d X_BaseTcp = *X_BaseTool * world_->X_ToolTcp();
       const ProbeResult probe =
-          world_->Probe(X_BaseCup, X_BaseCup.linear() * direction_tcp, max_distance_m);
+          world_->Probe(X_BaseTcp, X_BaseTcp.linear() * direction_tcp, max_distance_m);
       response->set_contact(probe.contact);
       if (probe.contact) {
         response->set_distance_m(probe.distance_m);
@@ -622,17 +627,6 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
   bool in_collision_ = false;  // the last SetArmJoints was in collision
 };
 
-Eigen::Vector3d Vector3Setting(const runtime::Config& config, const std::string& key,
-                               const Eigen::Vector3d& default_value) {
-  const std::vector<double> v =
-      config.GetDoubles(key, {default_value.x(), default_value.y(), default_value.z()});
-  if (v.size() != 3) {
-    throw std::invalid_argument("setting '" + key + "' needs 3 values, got " +
-                                std::to_string(v.size()));
-  }
-  return Eigen::Vector3d(v[0], v[1], v[2]);
-}
-
 double PositiveSetting(const runtime::Config& config, const std::string& key, double fallback) {
   const double v = config.GetDouble(key, fallback);
   if (!(v > 0.0)) throw std::invalid_argument("setting '" + key + "' must be > 0");
@@ -655,35 +649,32 @@ std::shared_ptr<v1::SimulatorService::Service> MakeSimulatorService(
   if (world && !world->has_kinematics()) {
     throw std::invalid_argument("SimulatorService: the world needs UR10 kinematics");
   }
+  if (world && collisions && !world->X_ToolTcp().isApprox(collisions->gripper().X_ToolTcp, 1e-12)) {
+    throw std::invalid_argument(
+        "SimulatorService: the world and the collision checker have different grippers "
+        "(X_ToolTcp)");
+  }
   return std::make_shared<SimulatorServiceImpl>(std::move(world), std::move(collisions), options);
 }
 
 runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config) {
   const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
-  const std::string cell_path = config.GetString("cell", data_dir + "/cell/default_cell.yaml");
+  const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
   const std::string layout_path = config.GetString("layout", "");
   const long long seed = config.GetInt("seed", 1);
   if (seed < 0 || seed > static_cast<long long>(std::numeric_limits<std::uint32_t>::max())) {
     throw std::invalid_argument("setting 'seed' must be in [0, 2^32)");
   }
   SimOptions sim_options;
-  sim_options.X_FlangeTool = Eigen::Isometry3d::Identity();
-  sim_options.X_FlangeTool.translation() =
-      Vector3Setting(config, "tcp_xyz_m", Eigen::Vector3d(0.0, 0.0, 0.35));
-  if (!sim_options.X_FlangeTool.translation().allFinite()) {
-    throw std::invalid_argument("setting 'tcp_xyz_m' must be finite");
-  }
   sim_options.cup_radius_m = PositiveSetting(config, "tool.cup_radius_m", sim_options.cup_radius_m);
   sim_options.contact_stiffness_n_per_m =
       PositiveSetting(config, "contact.stiffness_n_per_m", sim_options.contact_stiffness_n_per_m);
-  ToolGeometry tool;
-  tool.X_FlangeTool = sim_options.X_FlangeTool;
-  tool.radius_m = PositiveSetting(config, "tool.radius_m", tool.radius_m);
   SimulatorServiceOptions options;
   options.sealed_kpa = config.GetDouble("suction.sealed_kpa", options.sealed_kpa);
   options.open_kpa = config.GetDouble("suction.open_kpa", options.open_kpa);
   options.Validate();
 
+  // The cell description: the static cell and the gripper (the tool centre point, the tube).
   world::CellModel cell;
   try {
     cell = world::LoadCellModel(world::ReadCellConfig(cell_path));
@@ -694,7 +685,7 @@ runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config) {
       apc::Catalogue::FromCsvFile(data_dir + "/apc2016/items/item_data.csv"));
   auto kinematics =
       std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(data_dir + "/ur10"));
-  auto collisions = std::make_unique<ArmCollisionChecker>(cell, *kinematics, tool);
+  auto collisions = std::make_unique<ArmCollisionChecker>(cell, *kinematics);
   auto world = std::make_unique<SimWorld>(std::move(cell), models, sim_options, kinematics);
   if (!layout_path.empty()) {
     std::ifstream in(layout_path);

@@ -25,20 +25,22 @@ struct SimulatorServiceOptions {
 /// The gRPC adapter of picking.simulator.v1.SimulatorService over a SimWorld. Every call
 /// holds one mutex around the world, so calls are serialised; a refused request (any status
 /// but OK) leaves the world unchanged. `collisions` checks the arm placed by SetArmJoints;
-/// the world must have UR10 kinematics and the same X_FlangeTool as `collisions->tool()`.
+/// the world must have UR10 kinematics and the same gripper X_ToolTcp as
+/// `collisions->gripper()` (both from one cell description).
 /// RenderPatterns and RenderDepth share one scene renderer that is kept between calls (its
 /// BVH and per-camera-model ray tables are reused; LoadLayout rebuilds it, moved items are
 /// re-posed), so they are serialised with each other.
-/// Throws std::invalid_argument for a null world or checker or bad options.
+/// Throws std::invalid_argument for a null world or checker, different grippers or bad
+/// options.
 std::shared_ptr<v1::SimulatorService::Service> MakeSimulatorService(
     std::unique_ptr<SimWorld> world, std::unique_ptr<ArmCollisionChecker> collisions,
     const SimulatorServiceOptions& options = {});
 
 /// Builds the simulator server's services from its settings (see docs/services.md):
-/// data_dir, cell, layout, seed, tcp_xyz_m, tool.radius_m, tool.cup_radius_m,
-/// contact.stiffness_n_per_m, suction.sealed_kpa, suction.open_kpa. Throws
-/// std::invalid_argument for a bad setting or layout file, std::runtime_error when the cell or
-/// the UR10 model cannot be read.
+/// data_dir, cell (the cell description, with the gripper's tool centre point), layout, seed,
+/// tool.cup_radius_m, contact.stiffness_n_per_m, suction.sealed_kpa, suction.open_kpa. Throws
+/// std::invalid_argument for a bad setting, cell description or layout file,
+/// std::runtime_error when the cell's meshes or the UR10 model cannot be read.
 runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config);
 
 }  // namespace picking::simulator

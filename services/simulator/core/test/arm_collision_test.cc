@@ -18,7 +18,7 @@ class ArmCollisionTest : public ::testing::Test {
         world::LoadCellModel(world::ReadCellConfig(world::DefaultCellConfigPath())));
     kinematics_ =
         new ur10::Ur10Kinematics(ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10"));
-    checker_ = new ArmCollisionChecker(*cell_, *kinematics_, ToolGeometry{});
+    checker_ = new ArmCollisionChecker(*cell_, *kinematics_);
   }
   static void TearDownTestSuite() {
     delete checker_;
@@ -51,20 +51,20 @@ TEST_F(ArmCollisionTest, ArmStretchedIntoThePodsBaseHitsTheShelf) {
   EXPECT_NE(c.detail.find("hits shelf"), std::string::npos) << c.detail;
 }
 
-TEST_F(ArmCollisionTest, ToolReachingIntoABinIsFreeUntilItMeetsTheBackWall) {
+TEST_F(ArmCollisionTest, GripperReachingIntoABinIsFreeUntilItMeetsTheBackWall) {
   // Cup axis along +x of base, through the middle of bin_E's opening.
   const world::BinGeometry& bin = cell_->bin("bin_E");
   const Eigen::Vector3d c_Base = cell_->config.X_BaseShelf * bin.inner_S.center();
   const Eigen::Vector3d opening_Base =
       cell_->config.X_BaseShelf *
       Eigen::Vector3d(bin.opening_x_m, bin.inner_S.center().y(), bin.inner_S.center().z());
-  Eigen::Isometry3d X_BaseCup = Eigen::Isometry3d::Identity();
-  X_BaseCup.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  const ToolGeometry tool;
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+  X_BaseTcp.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  EXPECT_TRUE(checker_->gripper().X_ToolTcp.isApprox(cell_->config.gripper.X_ToolTcp));
   auto check_at = [&](double x) {
-    X_BaseCup.translation() = Eigen::Vector3d(x, c_Base.y(), c_Base.z());
-    const Eigen::Isometry3d X_BaseFlange = X_BaseCup * tool.X_FlangeTool.inverse();
-    const auto q = kinematics_->NearestSolution(X_BaseFlange, kHome);
+    X_BaseTcp.translation() = Eigen::Vector3d(x, c_Base.y(), c_Base.z());
+    const Eigen::Isometry3d X_BaseTool = X_BaseTcp * checker_->gripper().X_ToolTcp.inverse();
+    const auto q = kinematics_->NearestSolution(X_BaseTool, kHome);
     EXPECT_TRUE(q.has_value());
     return q ? checker_->Check(q->q_rad) : ArmCollision{};
   };
@@ -72,7 +72,7 @@ TEST_F(ArmCollisionTest, ToolReachingIntoABinIsFreeUntilItMeetsTheBackWall) {
   EXPECT_FALSE(check_at(opening_Base.x() + 0.1).in_collision);
   const ArmCollision deep = check_at(back_x + 0.05);  // the cup through the back wall
   EXPECT_TRUE(deep.in_collision);
-  EXPECT_NE(deep.detail.find("shelf"), std::string::npos) << deep.detail;
+  EXPECT_EQ(deep.detail, "gripper hits shelf");
 }
 
 TEST_F(ArmCollisionTest, CarriedItemIsChecked) {
@@ -98,9 +98,15 @@ TEST_F(ArmCollisionTest, BadInputThrows) {
   EXPECT_THROW(checker_->Check(q), std::invalid_argument);
   CarriedItem empty;
   EXPECT_THROW(checker_->Check(kHome, &empty), std::invalid_argument);
-  ToolGeometry bad;
-  bad.radius_m = 0.0;
-  EXPECT_THROW(ArmCollisionChecker(*cell_, *kinematics_, bad), std::invalid_argument);
+  world::CellModel bad = *cell_;
+  bad.config.gripper.tube_radius_m = 0.0;
+  EXPECT_THROW(ArmCollisionChecker(bad, *kinematics_), std::invalid_argument);
+  bad.config.gripper = cell_->config.gripper;
+  bad.config.gripper.cup_length_m = -0.01;
+  EXPECT_THROW(ArmCollisionChecker(bad, *kinematics_), std::invalid_argument);
+  bad.config.gripper = cell_->config.gripper;
+  bad.config.gripper.X_ToolTcp.linear() *= 1.1;
+  EXPECT_THROW(ArmCollisionChecker(bad, *kinematics_), std::invalid_argument);
 }
 
 }  // namespace

@@ -11,8 +11,8 @@
 namespace picking::simulator {
 namespace {
 
-// Tool frame with +z (the approach direction) along `approach_Base`.
-Eigen::Isometry3d ToolAt(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& approach_Base) {
+// The cup (TCP) frame with +z (the approach direction) along `approach_Base`.
+Eigen::Isometry3d CupAt(const Eigen::Vector3d& p_Base, const Eigen::Vector3d& approach_Base) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), approach_Base)
                    .toRotationMatrix();
@@ -49,11 +49,11 @@ class SimWorldTest : public ::testing::Test {
   }
 
   // Puts the cup 5 cm above the top centre of item `id`, pointing down.
-  void ToolAbove(int id, double height_m = 0.05) {
+  void CupAbove(int id, double height_m = 0.05) {
     const auto box = BoxOf(id);
-    world_->SetToolPose(
-        ToolAt(Eigen::Vector3d(box.center().x(), box.center().y(), box.max().z() + height_m),
-               -Eigen::Vector3d::UnitZ()));
+    world_->SetTcpPose(
+        CupAt(Eigen::Vector3d(box.center().x(), box.center().y(), box.max().z() + height_m),
+              -Eigen::Vector3d::UnitZ()));
   }
 
   static std::shared_ptr<world::ItemModelLibrary> models_;
@@ -66,7 +66,7 @@ std::shared_ptr<world::ItemModelLibrary> SimWorldTest::models_;
 world::CellModel* SimWorldTest::cell_ = nullptr;
 
 TEST_F(SimWorldTest, GuardedMoveStopsAtTheForceThreshold) {
-  ToolAbove(box_id_, 0.05);
+  CupAbove(box_id_, 0.05);
   const GuardedMoveResult r = world_->GuardedMove(0.2);
   EXPECT_TRUE(r.contact);
   EXPECT_EQ(r.contact_item_id, box_id_);
@@ -76,24 +76,24 @@ TEST_F(SimWorldTest, GuardedMoveStopsAtTheForceThreshold) {
   EXPECT_NEAR(r.travelled_m, 0.05 + f / k, 1e-4);
   EXPECT_NEAR(r.force_n, f, 0.2);
   EXPECT_NEAR(r.p_BaseContact.z(), BoxOf(box_id_).max().z(), 1e-4);
-  EXPECT_NEAR(world_->X_BaseTool().translation().z(), BoxOf(box_id_).max().z() - f / k, 1e-4);
+  EXPECT_NEAR(world_->X_BaseTcp().translation().z(), BoxOf(box_id_).max().z() - f / k, 1e-4);
 
   // Nothing within reach: full travel, no force.
-  world_->SetToolPose(ToolAt(Eigen::Vector3d(0.3, 0.0, 0.5), Eigen::Vector3d::UnitZ()));
+  world_->SetTcpPose(CupAt(Eigen::Vector3d(0.3, 0.0, 0.5), Eigen::Vector3d::UnitZ()));
   const GuardedMoveResult up = world_->GuardedMove(0.1);
   EXPECT_FALSE(up.contact);
   EXPECT_DOUBLE_EQ(up.force_n, 0.0);
-  EXPECT_NEAR(world_->X_BaseTool().translation().z(), 0.6, 1e-12);
+  EXPECT_NEAR(world_->X_BaseTcp().translation().z(), 0.6, 1e-12);
 
   // Short of the surface: moves the whole distance with no contact.
-  ToolAbove(box_id_, 0.05);
+  CupAbove(box_id_, 0.05);
   const GuardedMoveResult short_move = world_->GuardedMove(0.03);
   EXPECT_FALSE(short_move.contact);
   EXPECT_NEAR(short_move.travelled_m, 0.03, 1e-12);
 }
 
 TEST_F(SimWorldTest, PickCarryAndDropIntoTheToteIsLogged) {
-  ToolAbove(box_id_);
+  CupAbove(box_id_);
   world_->GuardedMove(0.2);
   const SuctionResult seal = world_->SuctionOn();
   ASSERT_TRUE(seal.sealed) << seal.reason;
@@ -101,15 +101,15 @@ TEST_F(SimWorldTest, PickCarryAndDropIntoTheToteIsLogged) {
   EXPECT_LT(seal.flatness_m, 1e-4);
   EXPECT_LT(seal.angle_rad, 1e-3);
   EXPECT_EQ(world_->item(box_id_).container, kGripper);
-  const Eigen::Isometry3d X_ToolItem =
-      world_->X_BaseTool().inverse() * world_->item(box_id_).X_BaseItem;
+  const Eigen::Isometry3d X_TcpItem =
+      world_->X_BaseTcp().inverse() * world_->item(box_id_).X_BaseItem;
 
-  // Carry it 0.5 m above the tote floor; it follows the tool.
+  // Carry it 0.5 m above the tote floor; it follows the cup.
   const Eigen::Vector3d tote_centre = cell_->config.X_BaseTote.translation();
-  world_->SetToolPose(
-      ToolAt(tote_centre + Eigen::Vector3d(0.0, 0.0, 0.5), -Eigen::Vector3d::UnitZ()));
+  world_->SetTcpPose(
+      CupAt(tote_centre + Eigen::Vector3d(0.0, 0.0, 0.5), -Eigen::Vector3d::UnitZ()));
   const Eigen::Isometry3d carried = world_->item(box_id_).X_BaseItem;
-  EXPECT_TRUE((world_->X_BaseTool() * X_ToolItem).isApprox(carried, 1e-12));
+  EXPECT_TRUE((world_->X_BaseTcp() * X_TcpItem).isApprox(carried, 1e-12));
   const double bottom = BoxOf(box_id_).min().z();
 
   EXPECT_EQ(world_->SuctionOff(), box_id_);
@@ -131,25 +131,25 @@ TEST_F(SimWorldTest, PickCarryAndDropIntoTheToteIsLogged) {
 }
 
 TEST_F(SimWorldTest, LowPlacementIsNotADropAndOutsideIsRecorded) {
-  ToolAbove(box_id_);
+  CupAbove(box_id_);
   world_->GuardedMove(0.2);
   ASSERT_TRUE(world_->SuctionOn().sealed);
   // Over the table, 5 cm above its top: a gentle placement.
-  const double h = BoxOf(box_id_).max().z() - world_->X_BaseTool().translation().z();
+  const double h = BoxOf(box_id_).max().z() - world_->X_BaseTcp().translation().z();
   const double height = BoxOf(box_id_).sizes().z();
   const Eigen::Vector3d table_top = cell_->config.X_BaseTable.translation();
-  world_->SetToolPose(
-      ToolAt(table_top + Eigen::Vector3d(0, 0, height + 0.05 - h), -Eigen::Vector3d::UnitZ()));
+  world_->SetTcpPose(
+      CupAt(table_top + Eigen::Vector3d(0, 0, height + 0.05 - h), -Eigen::Vector3d::UnitZ()));
   world_->SuctionOff();
   EXPECT_EQ(world_->item(box_id_).container, kTable);
   EXPECT_NEAR(world_->events().back().drop_height_m, 0.05, 2e-3);
   for (const Event& e : world_->events()) EXPECT_NE(e.kind, EventKind::kDropped);
 
   // Pick it again and let go between robot and shelf: it lands on the floor, outside.
-  ToolAbove(box_id_);
+  CupAbove(box_id_);
   world_->GuardedMove(0.2);
   ASSERT_TRUE(world_->SuctionOn().sealed);
-  world_->SetToolPose(ToolAt(Eigen::Vector3d(0.5, 0.0, 0.0), -Eigen::Vector3d::UnitZ()));
+  world_->SetTcpPose(CupAt(Eigen::Vector3d(0.5, 0.0, 0.0), -Eigen::Vector3d::UnitZ()));
   world_->SuctionOff();
   EXPECT_EQ(world_->item(box_id_).container, kOutside);
   EXPECT_EQ(world_->events().back().kind, EventKind::kOutside);
@@ -157,7 +157,7 @@ TEST_F(SimWorldTest, LowPlacementIsNotADropAndOutsideIsRecorded) {
 }
 
 TEST_F(SimWorldTest, NoSealOnARoundOrTiltedSurface) {
-  ToolAbove(ball_id_, 0.03);
+  CupAbove(ball_id_, 0.03);
   world_->GuardedMove(0.1);
   const SuctionResult ball = world_->SuctionOn();
   EXPECT_FALSE(ball.sealed);
@@ -170,7 +170,7 @@ TEST_F(SimWorldTest, NoSealOnARoundOrTiltedSurface) {
   const auto box = BoxOf(box_id_);
   const Eigen::Vector3d approach =
       Eigen::AngleAxisd(40.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()) * -Eigen::Vector3d::UnitZ();
-  world_->SetToolPose(ToolAt(
+  world_->SetTcpPose(CupAt(
       box.center() + Eigen::Vector3d(0, 0, 0.5 * box.sizes().z()) - 0.03 * approach, approach));
   world_->GuardedMove(0.1);
   const SuctionResult tilted = world_->SuctionOn();
@@ -182,7 +182,7 @@ TEST_F(SimWorldTest, NoSealOnARoundOrTiltedSurface) {
 
   // Held 2 cm above the box top: the lip does not touch.
   world_->SuctionOff();
-  ToolAbove(box_id_, 0.02);
+  CupAbove(box_id_, 0.02);
   const SuctionResult away = world_->SuctionOn();
   EXPECT_FALSE(away.sealed);
   EXPECT_NE(away.reason.find("touch"), std::string::npos) << away.reason;
@@ -201,16 +201,16 @@ TEST_F(SimWorldTest, ItemOnTopFallsWhenTheItemBelowIsPulledOut) {
 
   // Grip the box's front face (approach toward the shelf, -x of the base is out of the bin).
   const Eigen::Vector3d front(box.min().x(), box.center().y(), box.min().z() + 0.03);
-  world_->SetToolPose(ToolAt(front - Eigen::Vector3d(0.05, 0, 0), Eigen::Vector3d::UnitX()));
+  world_->SetTcpPose(CupAt(front - Eigen::Vector3d(0.05, 0, 0), Eigen::Vector3d::UnitX()));
   const GuardedMoveResult touch = world_->GuardedMove(0.2);
   ASSERT_TRUE(touch.contact);
   EXPECT_EQ(touch.contact_item_id, box_id_);
   ASSERT_TRUE(world_->SuctionOn().sealed);
   EXPECT_EQ(world_->item(book).container, "bin_E");  // still resting on the box
   // Pull the box out of the bin.
-  Eigen::Isometry3d X = world_->X_BaseTool();
+  Eigen::Isometry3d X = world_->X_BaseTcp();
   X.translation().x() -= 0.4;
-  world_->SetToolPose(X);
+  world_->SetTcpPose(X);
   const Event& fell = world_->events().back();
   EXPECT_EQ(fell.kind, EventKind::kFell);
   EXPECT_EQ(fell.item_id, book);
@@ -220,7 +220,7 @@ TEST_F(SimWorldTest, ItemOnTopFallsWhenTheItemBelowIsPulledOut) {
 }
 
 TEST_F(SimWorldTest, BadRequestsThrowAndChangeNothing) {
-  ToolAbove(box_id_);
+  CupAbove(box_id_);
   world_->GuardedMove(0.2);
   world_->SuctionOn();
   const SimState before = world_->state();
@@ -228,8 +228,8 @@ TEST_F(SimWorldTest, BadRequestsThrowAndChangeNothing) {
   nan.translation().x() = std::nan("");
   Eigen::Isometry3d scaled = Eigen::Isometry3d::Identity();
   scaled.linear() *= 2.0;
-  EXPECT_THROW(world_->SetToolPose(nan), std::invalid_argument);
-  EXPECT_THROW(world_->SetToolPose(scaled), std::invalid_argument);
+  EXPECT_THROW(world_->SetTcpPose(nan), std::invalid_argument);
+  EXPECT_THROW(world_->SetTcpPose(scaled), std::invalid_argument);
   EXPECT_THROW(world_->SetItemPose(999, Eigen::Isometry3d::Identity()), std::out_of_range);
   EXPECT_THROW(world_->SetItemPose(ball_id_, nan), std::invalid_argument);
   EXPECT_THROW(world_->SetItemPose(box_id_, Eigen::Isometry3d::Identity()), std::invalid_argument);
@@ -264,18 +264,34 @@ TEST_F(SimWorldTest, SceneMeshesFollowTheItems) {
   }
 }
 
-TEST_F(SimWorldTest, JointPositionsPlaceTheToolByForwardKinematics) {
+TEST_F(SimWorldTest, JointPositionsPlaceTheCupByForwardKinematicsAndTheCellsTcp) {
   auto kinematics = std::make_shared<ur10::Ur10Kinematics>(
       ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10"));
-  SimWorld world(*cell_, models_, SimOptions{}, kinematics);
+  // A gripper of its own: the TCP 0.3 m out and turned about the flange's z axis.
+  world::CellModel cell = *cell_;
+  cell.config.gripper.X_ToolTcp =
+      Eigen::Translation3d(0.0, 0.01, 0.3) * Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ());
+  SimWorld world(cell, models_, SimOptions{}, kinematics);
+  EXPECT_TRUE(world.X_ToolTcp().isApprox(cell.config.gripper.X_ToolTcp, 1e-15));
   ur10::JointVector q;
   q << 0.1, -1.2, 1.4, -0.2, 1.5707963, 0.3;
   world.SetJointPositions(q);
-  const Eigen::Isometry3d expected =
-      kinematics->ForwardKinematics(q) * world.options().X_FlangeTool;
-  EXPECT_TRUE(world.X_BaseTool().isApprox(expected, 1e-12));
+  const Eigen::Isometry3d X_BaseTool = kinematics->ForwardKinematics(q);
+  EXPECT_TRUE(world.X_BaseTcp().isApprox(X_BaseTool * cell.config.gripper.X_ToolTcp, 1e-12));
+  EXPECT_TRUE(world.X_BaseTool().isApprox(X_BaseTool, 1e-12));
   ASSERT_TRUE(world.state().q_rad.has_value());
   EXPECT_EQ(*world.state().q_rad, q);
+
+  // The default cell's gripper: the cup 0.35 m along the flange's z axis.
+  SimWorld default_world(*cell_, models_, SimOptions{}, kinematics);
+  default_world.SetJointPositions(q);
+  EXPECT_NEAR((default_world.X_BaseTcp().translation() - X_BaseTool.translation()).norm(), 0.35,
+              1e-12);
+  EXPECT_TRUE(default_world.X_BaseTcp().linear().isApprox(X_BaseTool.linear(), 1e-12));
+
+  world::CellModel bad = *cell_;
+  bad.config.gripper.X_ToolTcp.linear() *= 2.0;
+  EXPECT_THROW(SimWorld(bad, models_, SimOptions{}, kinematics), std::invalid_argument);
 }
 
 }  // namespace
