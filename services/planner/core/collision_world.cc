@@ -34,7 +34,101 @@ float BoxDistance(const Eigen::AlignedBox3f& box, const Eigen::Vector3f& p) {
   return d.norm();
 }
 
+// Squared distance from p to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
+float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
+                             const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
+  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
+  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0.f && d2 <= 0.f) return ap.squaredNorm();
+  const Eigen::Vector3f bp = p - b;
+  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0.f && d4 <= d3) return bp.squaredNorm();
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.f && d1 >= 0.f && d3 <= 0.f) {
+    const float v = d1 / (d1 - d3);
+    return (a + v * ab - p).squaredNorm();
+  }
+  const Eigen::Vector3f cp = p - c;
+  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0.f && d5 <= d6) return cp.squaredNorm();
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.f && d2 >= 0.f && d6 <= 0.f) {
+    const float w = d2 / (d2 - d6);
+    return (a + w * ac - p).squaredNorm();
+  }
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0.f && (d4 - d3) >= 0.f && (d5 - d6) >= 0.f) {
+    const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return (b + w * (c - b) - p).squaredNorm();
+  }
+  const float denom = 1.f / (va + vb + vc);
+  const float v = vb * denom, w = vc * denom;
+  return (a + ab * v + ac * w - p).squaredNorm();
+}
+
 }  // namespace
+
+// The triangles of one static mesh in base, listed per cube of a coarse grid.
+struct StaticCell::Buckets {
+  static constexpr float kCell = 0.05f;
+  Eigen::Vector3f origin;
+  Eigen::Vector3i dims;
+  std::vector<std::array<Eigen::Vector3f, 3>> triangles;
+  std::vector<std::uint32_t> start;  // CSR: bucket b's triangles are index[start[b]..start[b+1])
+  std::vector<std::uint32_t> index;
+
+  Buckets(const world::TriangleMesh& mesh, const Eigen::Isometry3d& X_BaseMesh) {
+    const Eigen::Isometry3f X = X_BaseMesh.cast<float>();
+    Eigen::AlignedBox3f box;
+    for (const auto& t : mesh.triangles) {
+      triangles.push_back(
+          {X * mesh.vertices[t[0]], X * mesh.vertices[t[1]], X * mesh.vertices[t[2]]});
+      for (const auto& v : triangles.back()) box.extend(v);
+    }
+    origin = box.min() - Eigen::Vector3f::Constant(kCell);
+    dims = ((box.max() - origin) / kCell).array().ceil().cast<int>() + 1;
+    const std::size_t n = static_cast<std::size_t>(dims.x()) * dims.y() * dims.z();
+    std::vector<std::vector<std::uint32_t>> lists(n);
+    for (std::uint32_t i = 0; i < triangles.size(); ++i) {
+      Eigen::AlignedBox3f t;
+      for (const auto& v : triangles[i]) t.extend(v);
+      const Eigen::Vector3i lo = Cell(t.min()), hi = Cell(t.max());
+      for (int z = lo.z(); z <= hi.z(); ++z)
+        for (int y = lo.y(); y <= hi.y(); ++y)
+          for (int x = lo.x(); x <= hi.x(); ++x) lists[Index(x, y, z)].push_back(i);
+    }
+    start.assign(n + 1, 0);
+    for (std::size_t b = 0; b < n; ++b) start[b + 1] = start[b] + lists[b].size();
+    index.reserve(start[n]);
+    for (const auto& l : lists) index.insert(index.end(), l.begin(), l.end());
+  }
+  Eigen::Vector3i Cell(const Eigen::Vector3f& p) const {
+    return ((p - origin) / kCell).array().floor().cast<int>().max(0).min(dims.array() - 1);
+  }
+  std::size_t Index(int x, int y, int z) const {
+    return (static_cast<std::size_t>(z) * dims.y() + y) * dims.x() + x;
+  }
+  float Distance(const Eigen::Vector3f& p, float max_m) const {
+    const Eigen::Vector3i lo = Cell(p - Eigen::Vector3f::Constant(max_m));
+    const Eigen::Vector3i hi = Cell(p + Eigen::Vector3f::Constant(max_m));
+    float best2 = max_m * max_m;
+    for (int z = lo.z(); z <= hi.z(); ++z)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int x = lo.x(); x <= hi.x(); ++x) {
+          const std::size_t b = Index(x, y, z);
+          for (std::uint32_t k = start[b]; k < start[b + 1]; ++k) {
+            const auto& t = triangles[index[k]];
+            best2 = std::min(best2, PointTriangleDistance2(p, t[0], t[1], t[2]));
+          }
+        }
+    return std::sqrt(best2);
+  }
+};
+
+float StaticCell::SurfaceDistance(std::size_t index, const Eigen::Vector3f& p_Base,
+                                  float max_m) const {
+  return buckets_[index]->Distance(p_Base, max_m);
+}
 
 std::string CollisionReport::ToString() const {
   if (!in_collision) return {};
@@ -82,8 +176,9 @@ StaticCell::StaticCell(const world::CellModel& cell, const StaticCellOptions& op
     DistanceGridOptions grid_options;
     grid_options.resolution_m = options_.grid_resolution_m;
     grid_options.seed_allowance_m = options_.surface_gap_m;
-    grid_options.margin_m = 0.25;
+    grid_options.margin_m = 0.16;
     grids_.push_back({part.name, DistanceGrid::Build(seeds, grid_options)});
+    buckets_.push_back(std::make_unique<Buckets>(*part.mesh, part.X_BaseMesh));
     fcl_->objects.push_back({part.name, MakeBvh(*part.mesh), part.X_BaseMesh, nullptr});
   }
   fcl_->objects.push_back(
@@ -149,7 +244,9 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
   const auto& grids = cell_.grids();
   // Smallest clearance minus radius over the obstacles; `which` names the worst one
   // (0 floor, 1 pedestal, 2 + i grid i, 2 + grids.size() the scan).
-  auto margin = [&](const Eigen::Vector3f& c, float r, int* which) {
+  // `exact`: where a static grid's bound cannot tell, measure the distance to the mesh's
+  // triangles (done for leaf spheres, which are small).
+  auto margin = [&](const Eigen::Vector3f& c, float r, int* which, bool exact) {
     float worst = c.z() - floor_z - r;
     *which = 0;
     if (has_pedestal) {
@@ -157,7 +254,9 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
       if (d < worst) worst = d, *which = 1;
     }
     for (std::size_t g = 0; g < grids.size(); ++g) {
-      const float d = grids[g].grid.Clearance(c) - r;
+      float d = grids[g].grid.Clearance(c);
+      if (exact && d < r) d = cell_.SurfaceDistance(g, c, r);
+      d -= r;
       if (d < worst) worst = d, *which = 2 + static_cast<int>(g);
     }
     if (scan_) {
@@ -205,10 +304,10 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
       // The base is fixed to the pedestal; it is only checked against the moving bodies.
       if (b == kBodyBase) continue;
       int which = 0;
-      if (margin(c, s.radius_m + padding_m, &which) >= 0.f) continue;
+      if (margin(c, s.radius_m + padding_m, &which, false) >= 0.f) continue;
       const Leaves leaves = LeavesOf(*trees[b], s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-        const float m = margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, &which);
+        const float m = margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, &which, true);
         if (m < 0.f) {
           hit(b, which, nullptr, m);
           if constexpr (!kExplain) return false;

@@ -20,7 +20,7 @@ namespace picking::planner {
 /// Options of StaticCell.
 struct StaticCellOptions {
   /// Distance grid cell of the shelf, tote and table, metres.
-  double grid_resolution_m = 0.01;
+  double grid_resolution_m = 0.005;
   /// Surface sampling gap for the grids' seeds, metres.
   double surface_gap_m = 0.003;
   /// The robot's pedestal below the base, an obstacle for every body but the base (base
@@ -45,6 +45,9 @@ class StaticCell final {
     std::string name;  ///< "shelf", "tote", "table".
     DistanceGrid grid;
   };
+  /// Exact distance from `p_Base` to mesh `index`'s triangles (its grid's order), or
+  /// `max_m` if none is closer: the fallback where a grid's bound is too loose to decide.
+  float SurfaceDistance(std::size_t index, const Eigen::Vector3f& p_Base, float max_m) const;
   const std::vector<Grid>& grids() const { return grids_; }
   double floor_z_m() const { return floor_z_m_; }
   const Eigen::AlignedBox3d& pedestal_Base() const { return options_.pedestal_Base; }
@@ -58,6 +61,8 @@ class StaticCell final {
   StaticCellOptions options_;
   double floor_z_m_ = 0.0;
   std::vector<Grid> grids_;
+  struct Buckets;
+  std::vector<std::unique_ptr<Buckets>> buckets_;  // one per grid
   std::unique_ptr<Fcl> fcl_;
 };
 

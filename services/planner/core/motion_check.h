@@ -12,7 +12,7 @@ struct MotionCheckOptions {
   /// Largest distance any point of the arm, gripper or item may travel between two checked
   /// states, metres. Each check grows the spheres by half of it, so the swept volume between
   /// the states is covered.
-  double max_travel_m = 0.01;
+  double max_travel_m = 0.006;
 };
 
 /// Where a checked motion first collides.

@@ -238,6 +238,7 @@ PlanningScene MotionPlanner::BuildScene(const std::string& container, const floa
   region.min().array() -= options_.scene_region_margin_m;
   region.max().array() += options_.scene_region_margin_m;
   scene_options.region_Base = region;
+  for (const auto& g : cell_->grids()) scene_options.known_surfaces.push_back(&g.grid);
   std::vector<SceneCutOut> cuts;
   if (!item.empty()) {
     if (!IsRigid(X_BaseItem)) throw std::invalid_argument("X_base_item must be a rigid pose");
@@ -328,7 +329,27 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
   // exact polyline instead (it stops at each corner).
   for (const double deviation : {options_.blend_deviation_rad, 0.0}) {
     timing.max_deviation_rad = deviation;
-    const TimeOptimalResult timed = TimeParametrizeTimeOptimal(path_rad, timing);
+    timing.max_velocity_rad_s = model.max_velocity_rad_s() * speed_fraction;
+    timing.max_acceleration_rad_s2 = model.max_acceleration_rad_s2() * speed_fraction;
+    TimeOptimalResult timed = TimeParametrizeTimeOptimal(path_rad, timing);
+    // The robot also limits the tcp's speed: slow the whole motion down (speeds by k,
+    // accelerations by k^2 keep the path and its timing law's shape) until it holds.
+    for (int round = 0; round < 4; ++round) {
+      double v_max = 0.0;
+      for (std::size_t i = 1; i < timed.samples.size(); ++i) {
+        const double dt = timed.samples[i].time_s - timed.samples[i - 1].time_s;
+        if (dt <= 0.0) continue;
+        const double d = (robot_->X_BaseTcp(timed.samples[i].q_rad).translation() -
+                          robot_->X_BaseTcp(timed.samples[i - 1].q_rad).translation())
+                             .norm();
+        v_max = std::max(v_max, d / dt);
+      }
+      if (v_max <= options_.max_tcp_speed_m_s) break;
+      const double k = 0.95 * options_.max_tcp_speed_m_s / v_max;
+      timing.max_velocity_rad_s *= k;
+      timing.max_acceleration_rad_s2 *= k * k;
+      timed = TimeParametrizeTimeOptimal(path_rad, timing);
+    }
     if (!timed.ok) fail("timing", timed.reason, nullptr);
     std::vector<JointVector> samples;
     samples.reserve(timed.samples.size());
@@ -452,17 +473,29 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
       container.X_BaseContainer.translation() +
       0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
   const double back_per_m = (-a).dot(o);  // opening-normal distance per metre of back-off
-  if (back_per_m < 0.1)
-    return fail("pre-grasp", "ik unreachable", "approach runs along the opening");
+  if (back_per_m < 0.1) {
+    return fail("pre-grasp", "ik unreachable", "the approach runs along the opening");
+  }
   const double to_opening = std::max(0.0, (p_opening - X_grasp.translation()).dot(o)) / back_per_m;
   const double clearance = tote ? options_.tote_pregrasp_height_m : options_.pregrasp_clearance_m;
   const double back_m = to_opening + clearance / back_per_m;
-  if (back_m > 0.6) {
-    return fail("pre-grasp", "ik unreachable",
-                "the approach leaves the container " + std::to_string(back_m) +
-                    " m from the grasp (too oblique to the opening)");
+  Eigen::Isometry3d X_pre = translated(X_grasp, -a * back_m);
+  if (!tote && back_m > options_.max_pregrasp_back_m) {
+    // Too oblique to come in along the approach line (a top face deep in a bin): start
+    // straight in front of the opening, the cup pointing into the bin, at the grasp's side
+    // position and a height the tube fits through; the descent turns the cup onto the face.
+    const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+    const double half_height =
+        0.5 * std::abs(up.dot(container.X_BaseContainer.linear() * container.inner_size_m));
+    const double z_mid = container.X_BaseContainer.translation().z();
+    Eigen::Vector3d p = X_grasp.translation();
+    p += ((p_opening - p).dot(o) + clearance) * o;
+    p.z() = std::clamp(X_grasp.translation().z() + 0.05, z_mid - half_height + 0.06,
+                       z_mid + half_height - 0.06);
+    X_pre.translation() = p;
+    X_pre.linear() =
+        Eigen::Quaterniond::FromTwoVectors(a, -o).toRotationMatrix() * X_grasp.linear();
   }
-  const Eigen::Isometry3d X_pre = translated(X_grasp, -a * back_m);
   std::string reason;
   const auto q_pre = FreeIk(X_pre, request.start_rad, fast, nullptr, &reason);
   if (!q_pre) return fail("pre-grasp", "ik unreachable", reason);
@@ -495,21 +528,43 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   // Lift straight up off the support first: the item rests on the floor or other items, so
   // its check starts where the lift ends.
   const Eigen::Vector3d lift_direction = Eigen::Vector3d::UnitZ();
-  const auto ik_lift = robot_->kinematics().NearestSolution(
-      translated(X_grasp, lift_direction * options_.lift_m) * X_TcpTool, *q_grasp, branch);
-  if (!ik_lift) return fail("retreat", "ik unreachable", "the lift pose has no IK solution");
-  const JointVector* q_lift = &ik_lift->q_rad;
-  if (const MotionCheckResult m = motion.CheckSegment(*q_grasp, *q_lift); !m.free) {
-    failure->body = BodyName(m.report.body);
-    failure->obstacle = m.report.obstacle;
-    return fail("retreat", "collision", "the lift collides: " + m.report.ToString());
-  }
-
-  // Retreat carrying the item, from the lift to the pre-grasp pose.
+  // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
-  const Eigen::Isometry3d X_exit =
-      tote ? X_pre : translated(X_pre, lift_direction * options_.lift_m);
+  // The highest lift (up to lift_m) whose end leaves the item free of the scene: a tall item
+  // has little room below a bin's ceiling.
+  std::optional<JointVector> lifted;
+  double lift_m = 0.0;
+  std::string lift_reason;
+  for (const double fraction : {1.0, 0.8, 0.6}) {
+    lift_m = fraction * options_.lift_m;
+    const auto ik_lift = robot_->kinematics().NearestSolution(
+        translated(X_grasp, lift_direction * lift_m) * X_TcpTool, *q_grasp, branch);
+    if (!ik_lift) {
+      lift_reason = "the lift pose has no IK solution";
+      continue;
+    }
+    if (const MotionCheckResult m = motion.CheckSegment(*q_grasp, ik_lift->q_rad); !m.free) {
+      failure->body = BodyName(m.report.body);
+      failure->obstacle = m.report.obstacle;
+      lift_reason = "the lift collides: " + m.report.ToString();
+      continue;
+    }
+    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried); r.in_collision) {
+      failure->body = BodyName(r.body);
+      failure->obstacle = r.obstacle;
+      lift_reason = "after a lift of " + std::to_string(lift_m) + " m " + r.ToString() +
+                    " (clearance " + std::to_string(r.clearance_m) + " m)";
+      continue;
+    }
+    lifted = ik_lift->q_rad;
+    break;
+  }
+  if (!lifted) return fail("retreat", "collision", lift_reason);
+  const JointVector* q_lift = &*lifted;
+
+  // Retreat carrying the item, from the lift to the pre-grasp pose.
+  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_direction * lift_m);
   const CartesianSearchResult retreat =
       SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
   plan->nodes_expanded += retreat.nodes_expanded;

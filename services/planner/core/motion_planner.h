@@ -46,11 +46,16 @@ struct MotionPlannerOptions {
   /// or this far above the tote's rim.
   double pregrasp_clearance_m = 0.10;
   double tote_pregrasp_height_m = 0.20;
+  /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
+  /// is straight in front of the opening instead, the cup pointing in (metres).
+  double max_pregrasp_back_m = 0.45;
   /// Grasps tried, best first, before the pick is given up.
   int max_grasps_tried = 8;
   /// Trajectory timing: the blend tolerance at corners and the output sample period.
   double blend_deviation_rad = 0.02;
   double sample_period_s = 0.008;
+  /// The tcp's speed limit of the robot service's safety settings, m/s.
+  double max_tcp_speed_m_s = 0.45;
   /// Exact (FCL) validation: every path node, and trajectory samples at this spacing.
   int exact_sample_stride = 8;
 };

@@ -163,12 +163,13 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
   item.name = name;
   item.box_Item = box_Item;
   item.X_TcpItem = X_TcpItem;
-  // The solid box as cubes of at most 3 cm, each in the sphere through its corners (it sticks
-  // out of the box's faces by at most 0.37 of a cube's edge, 1.1 cm), under one coarse sphere
-  // through the box's corners.
+  // The box's surface layer as cubes of at most 1.5 cm, each in the sphere through its
+  // corners (it sticks out of the box's faces by at most 0.37 of a cube's edge, 5.5 mm), under
+  // one coarse sphere through the box's corners. Inner cubes are left out: an obstacle meets
+  // the surface layer before it could lie inside (scan voxels inside the item are cut out).
   const Eigen::Vector3d size = box_Item.sizes();
   Eigen::Array3i n;
-  for (int i = 0; i < 3; ++i) n[i] = std::max(1, static_cast<int>(std::ceil(size[i] / 0.03)));
+  for (int i = 0; i < 3; ++i) n[i] = std::max(1, static_cast<int>(std::ceil(size[i] / 0.015)));
   const Eigen::Vector3d cube = size.array() / n.cast<double>();
   const float cube_radius = static_cast<float>(0.5 * cube.norm() * (1.0 + 1e-6) + 1e-6);
   Sphere coarse;
@@ -177,6 +178,9 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
   for (int i = 0; i < n.x(); ++i) {
     for (int j = 0; j < n.y(); ++j) {
       for (int k = 0; k < n.z(); ++k) {
+        const bool surface =
+            i == 0 || j == 0 || k == 0 || i == n.x() - 1 || j == n.y() - 1 || k == n.z() - 1;
+        if (!surface) continue;
         const Eigen::Vector3d centre =
             box_Item.min() + (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(cube);
         item.spheres_Item.fine.push_back({centre.cast<float>(), cube_radius, 0, 0});

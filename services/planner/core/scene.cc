@@ -136,6 +136,13 @@ ScanScene::ScanScene(const ScanSceneOptions& options) : options_(options) {
   }
 }
 
+bool ScanScene::OnKnownSurface(const Eigen::Vector3f& p) const {
+  for (const DistanceGrid* grid : options_.known_surfaces) {
+    if (grid->Clearance(p) < options_.known_surface_distance_m) return true;
+  }
+  return false;
+}
+
 SceneUpdateStats ScanScene::Insert(const float* xyz_Base, std::size_t count,
                                    const std::vector<SceneCutOut>& cut_outs) {
   SceneUpdateStats stats;
@@ -177,6 +184,10 @@ SceneUpdateStats ScanScene::Insert(const float* xyz_Base, std::size_t count,
       }
       if (!cuts.empty() && InsideAny(cuts, q)) {
         ++stats.points_cut;
+        continue;
+      }
+      if (OnKnownSurface(q.cast<float>())) {
+        ++stats.points_static;
         continue;
       }
       const Eigen::Array3i k = (q.array() / h).floor().cast<int>() - lo;

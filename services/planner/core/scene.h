@@ -54,6 +54,13 @@ struct ScanSceneOptions {
   double grid_margin_m = 0.2;
   /// Also build the OctoMap for the exact check.
   bool build_octree = true;
+  /// Surfaces the planner knows already (the static cell's distance grids; must outlive the
+  /// scene): a point whose distance bound to one of them is below
+  /// `known_surface_distance_m` is the cell itself and is left out, so the shelf's walls are
+  /// not doubled by coarser voxels. With the bound's slack a point up to about a grid cell
+  /// from the surface goes (1.2 cm on a 5 mm grid).
+  std::vector<const DistanceGrid*> known_surfaces;
+  double known_surface_distance_m = 0.0;
 };
 
 /// Counts of one ScanScene::Insert.
@@ -62,6 +69,7 @@ struct SceneUpdateStats {
   std::size_t points_invalid = 0;  ///< NaN / infinite (the scanner's holes).
   std::size_t points_outside = 0;  ///< Outside the region.
   std::size_t points_cut = 0;      ///< Inside a cut-out.
+  std::size_t points_static = 0;   ///< On the static cell's surfaces.
   std::size_t voxels_added = 0;    ///< New occupied voxels.
   std::size_t voxels_cleared = 0;  ///< Occupied voxels freed by the cut-outs.
   std::size_t voxels_total = 0;    ///< Occupied voxels after the update.
@@ -96,6 +104,8 @@ class ScanScene final {
   std::vector<Eigen::Vector3f> VoxelCentres() const;
 
  private:
+  bool OnKnownSurface(const Eigen::Vector3f& p_Base) const;
+
   ScanSceneOptions options_;
   std::vector<std::uint64_t> keys_;  // sorted, unique: (kz << 32) | (ky << 16) | kx
 };

@@ -131,7 +131,8 @@ TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
   const Eigen::Vector3d to_grasp = plan.grasp.X_BaseTcp.translation() - X_end.translation();
   EXPECT_NEAR(to_grasp.norm(), planner_->options().guarded_distance_m, 1e-4);
   EXPECT_GT(to_grasp.normalized().dot(plan.guarded_direction_Base), 0.999);
-  // The retreat ends outside the bin, above the pre-grasp pose by the lift.
+  // The retreat ends outside the bin, above the pre-grasp pose by the lift (the full lift
+  // here: the tissue box has room above it).
   const Eigen::Isometry3d X_out = planner_->robot().X_BaseTcp(plan.retreat.samples.back().q_rad);
   const Eigen::Vector3d p_pre =
       planner_->robot().X_BaseTcp(plan.approach.samples.back().q_rad).translation();

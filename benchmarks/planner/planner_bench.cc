@@ -1,0 +1,326 @@
+// Planner speed figures beside their peers, in one run (benchmarks/RESULTS.md, "Planner"):
+//   - scene build from a 1.3-million-point scan of a bin with the target's hull cut out,
+//     against OctoMap's insertPointCloud (ray casting, and with `discretize`);
+//   - state checks per second on one core, fast check against FCL, on the same states;
+//   - exact validation of a whole pick's trajectories;
+//   - PlanPick into and out of the bins of pick_layout_1..3 (median, p95);
+//   - joint motions between named poses (roadmap), and the refusal of an infeasible pick.
+// The scans are the simulator's ground-truth depth from the planner's scan poses.
+#include <octomap/OcTree.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "libs/apc/task.h"
+#include "libs/camera/pinhole_camera.h"
+#include "libs/world/cell_config.h"
+#include "libs/world/item_models.h"
+#include "services/planner/core/motion_planner.h"
+#include "services/simulator/core/renderer.h"
+#include "services/simulator/core/sim_world.h"
+
+namespace picking::planner {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double Ms(Clock::time_point since) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - since).count();
+}
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
+}
+
+Deadline Far() { return Clock::now() + std::chrono::seconds(30); }
+
+struct Setup {
+  std::shared_ptr<ur10::Ur10Kinematics> kinematics;
+  world::CellModel cell;
+  std::shared_ptr<world::ItemModelLibrary> items;
+  std::unique_ptr<MotionPlanner> planner;
+  Eigen::Isometry3d X_ToolCamera = Eigen::Isometry3d(Eigen::Translation3d(-0.075, 0.06, 0.04));
+};
+
+const NamedPose& Named(const MotionPlanner& planner, const std::string& name) {
+  for (const auto& p : planner.named_poses()) {
+    if (p.name == name) return p;
+  }
+  throw std::runtime_error("no named pose " + name);
+}
+
+// The simulator's depth from a camera, as points in base.
+std::vector<float> Scan(const simulator::StructuredLightRenderer& renderer,
+                        const camera::PinholeCamera& camera,
+                        const Eigen::Isometry3d& X_BaseCamera) {
+  const simulator::DepthImage depth = renderer.RenderDepth(camera, X_BaseCamera);
+  std::vector<float> xyz;
+  xyz.reserve(depth.size() * 3);
+  for (int v = 0; v < depth.height; ++v) {
+    for (int u = 0; u < depth.width; ++u) {
+      const float d = depth.at(u, v);
+      if (!std::isfinite(d) || d <= 0.f) continue;
+      const Eigen::Vector3d ray((u + 0.5 - camera.cx()) / camera.fx(),
+                                (v + 0.5 - camera.cy()) / camera.fy(), 1.0);
+      const Eigen::Vector3d p = X_BaseCamera * (ray * d);
+      xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+    }
+  }
+  return xyz;
+}
+
+void SceneBuild(const Setup& s, const std::vector<float>& xyz, const std::string& bin,
+                const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+                const Eigen::Vector3d& p_BaseSensor) {
+  const std::size_t n = xyz.size() / 3;
+  std::vector<double> ours;
+  PlanningScene scene;
+  for (int i = 0; i < 10; ++i) {
+    const auto t = Clock::now();
+    scene = s.planner->BuildScene(bin, xyz.data(), n, item, X_BaseItem);
+    ours.push_back(Ms(t));
+  }
+  octomap::Pointcloud cloud;
+  for (std::size_t i = 0; i < n; ++i) cloud.push_back(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+  const octomap::point3d origin(p_BaseSensor.x(), p_BaseSensor.y(), p_BaseSensor.z());
+  std::vector<double> rays, discretized;
+  for (int i = 0; i < 2; ++i) {
+    octomap::OcTree tree(0.01);
+    auto t = Clock::now();
+    tree.insertPointCloud(cloud, origin, -1.0, false, false);
+    rays.push_back(Ms(t));
+    octomap::OcTree tree2(0.01);
+    t = Clock::now();
+    tree2.insertPointCloud(cloud, origin, -1.0, false, true);
+    discretized.push_back(Ms(t));
+  }
+  std::printf("scene build, %zu points (%zu kept in the region, %zu cut), %zu voxels at 1 cm:\n", n,
+              n - scene.stats.points_outside - scene.stats.points_invalid, scene.stats.points_cut,
+              scene.stats.voxels_total);
+  std::printf(
+      "  ours (voxels, hull cut-out, distance grid, OctoMap): median %.1f ms, min %.1f ms\n",
+      Percentile(ours, 0.5), Percentile(ours, 0.0));
+  std::printf("  OctoMap insertPointCloud, ray casting:  median %.1f ms\n", Percentile(rays, 0.5));
+  std::printf("  OctoMap insertPointCloud, discretize:   median %.1f ms\n",
+              Percentile(discretized, 0.5));
+}
+
+void StateChecks(const Setup& s, const PlanningScene& scene, const std::string& bin) {
+  const FastChecker fast(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
+  const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
+  // States with the tcp in and in front of the bin, the tool pointing in, tilted at random.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> tilt(0.0, 0.3);
+  const world::BinGeometry& geometry = s.cell.bin(bin);
+  std::vector<JointVector> states;
+  const JointVector seed = Named(*s.planner, "scan/" + bin + "/0").q_rad;
+  while (states.size() < 200000) {
+    Eigen::Vector3d p_S = geometry.inner_S.min() + geometry.inner_S.sizes().cwiseProduct(
+                                                       Eigen::Vector3d(u(rng), u(rng), u(rng)));
+    p_S.x() += 0.2 * u(rng);
+    Eigen::Vector3d z = s.cell.config.X_BaseShelf.linear() * -Eigen::Vector3d::UnitX();
+    z = (z + Eigen::Vector3d(tilt(rng), tilt(rng), tilt(rng))).normalized();
+    const Eigen::Vector3d x = (Eigen::Vector3d::UnitZ().cross(z)).normalized();
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() << x, z.cross(x), z;
+    X.translation() = s.cell.config.X_BaseShelf * p_S;
+    const auto ik =
+        s.kinematics->NearestSolution(X * s.planner->robot().gripper().X_ToolTcp.inverse(), seed);
+    if (ik) states.push_back(ik->q_rad);
+  }
+  const CarriedItem item = MakeCarriedItem(
+      "box",
+      Eigen::AlignedBox3d(Eigen::Vector3d(-0.06, -0.05, -0.1), Eigen::Vector3d(0.06, 0.05, 0.0)),
+      Eigen::Isometry3d::Identity());
+  for (const CarriedItem* carried : {static_cast<const CarriedItem*>(nullptr), &item}) {
+    int free = 0;
+    auto t = Clock::now();
+    for (const auto& q : states) free += fast.IsFree(q, carried);
+    const double fast_ms = Ms(t);
+    const std::size_t n_exact = 5000;
+    int exact_free = 0;
+    t = Clock::now();
+    for (std::size_t i = 0; i < n_exact; ++i)
+      exact_free += !exact.Check(states[i], carried).in_collision;
+    const double exact_ms = Ms(t);
+    std::printf("state checks, arm + gripper%s, tcp in and before %s (%zu voxels):\n",
+                carried ? " + carried item" : "", bin.c_str(),
+                scene.obstacles->num_occupied_voxels);
+    std::printf("  fast (sphere trees, distance grids): %.2f M states/s (%.1f%% free)\n",
+                states.size() / fast_ms / 1e3, 100.0 * free / states.size());
+    std::printf("  FCL (meshes, OcTree):                %.0f states/s (%.1f%% free)\n",
+                n_exact / exact_ms * 1e3, 100.0 * exact_free / n_exact);
+  }
+}
+
+void Picks(const Setup& s, simulator::SimWorld* world) {
+  std::vector<double> times, validation;
+  int tried = 0, planned = 0;
+  for (int layout = 1; layout <= 3; ++layout) {
+    const std::string path = std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_" +
+                             std::to_string(layout) + ".json";
+    const apc::Task task = apc::ReadTaskFile(path, s.items->catalogue());
+    world->LoadTask(task, 7);
+    const simulator::StructuredLightRenderer renderer(world->SceneMeshes());
+    const camera::PinholeCamera camera(480, 384, 460.0, 460.0, 240.0, 192.0);
+    for (const auto& entry : task.work_order) {
+      const auto in_bin = world->ItemsIn(entry.bin);
+      const auto it = std::find_if(in_bin.begin(), in_bin.end(),
+                                   [&](const auto& st) { return st.name == entry.item; });
+      if (it == in_bin.end()) continue;
+      std::vector<float> xyz;
+      for (int k = 0; k < 3; ++k) {
+        const JointVector q =
+            Named(*s.planner, "scan/" + entry.bin + "/" + std::to_string(k)).q_rad;
+        const auto view =
+            Scan(renderer, camera, s.kinematics->ForwardKinematics(q) * s.X_ToolCamera);
+        xyz.insert(xyz.end(), view.begin(), view.end());
+      }
+      const PlanningScene scene =
+          s.planner->BuildScene(entry.bin, xyz.data(), xyz.size() / 3, entry.item, it->X_BaseItem);
+      PickRequest request;
+      request.item = entry.item;
+      request.X_BaseItem = it->X_BaseItem;
+      request.container = entry.bin;
+      request.start_rad = Named(*s.planner, "scan/" + entry.bin + "/0").q_rad;
+      ++tried;
+      const auto t = Clock::now();
+      try {
+        const PickPlan plan = s.planner->PlanPick(request, &scene, Far());
+        times.push_back(Ms(t));
+        ++planned;
+        // Exact validation of the pick's three trajectories, as PlanPick does it.
+        const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
+        const auto v = Clock::now();
+        for (const Trajectory* tr : {&plan.approach, &plan.descend, &plan.retreat}) {
+          for (std::size_t i = 0; i < tr->samples.size(); i += 8) exact.Check(tr->samples[i].q_rad);
+        }
+        validation.push_back(Ms(v));
+      } catch (const PlanFailedError& e) {
+        std::printf("  no plan: layout %d %s %s: %s\n", layout, entry.bin.c_str(),
+                    entry.item.c_str(), e.what());
+      }
+    }
+  }
+  std::printf(
+      "PlanPick (pre-grasp, descend, lift, retreat with the item, approach; timed and\n"
+      "validated), pick_layout_1..3: %d of %d planned\n",
+      planned, tried);
+  std::printf("  median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(times, 0.5),
+              Percentile(times, 0.95), Percentile(times, 1.0));
+  std::printf("exact validation of a pick's trajectories (FCL, every 8th sample):\n");
+  std::printf("  median %.1f ms, p95 %.1f ms\n", Percentile(validation, 0.5),
+              Percentile(validation, 0.95));
+}
+
+void JointMotions(const Setup& s) {
+  const auto& named = s.planner->named_poses();
+  std::mt19937 rng(5);
+  std::vector<double> first, again;
+  std::vector<std::pair<int, int>> pairs;
+  for (int i = 0; i < 60; ++i) {
+    pairs.emplace_back(std::uniform_int_distribution<int>(0, named.size() - 1)(rng),
+                       std::uniform_int_distribution<int>(0, named.size() - 1)(rng));
+  }
+  int failed = 0;
+  for (int round = 0; round < 2; ++round) {
+    for (const auto& [a, b] : pairs) {
+      if (a == b) continue;
+      const auto t = Clock::now();
+      try {
+        s.planner->PlanJointMotion(named[a].q_rad, named[b].q_rad, 1.0, Far());
+        (round == 0 ? first : again).push_back(Ms(t));
+      } catch (const std::exception&) {
+        failed += round == 0;
+      }
+    }
+  }
+  std::printf(
+      "PlanJointMotion between named poses (roadmap, timed, validated), %zu pairs, %d failed:\n",
+      first.size(), failed);
+  std::printf("  first time: median %.2f ms, p95 %.2f ms; cached path: median %.2f ms\n",
+              Percentile(first, 0.5), Percentile(first, 0.95), Percentile(again, 0.5));
+}
+
+void Infeasible(const Setup& s) {
+  const auto& d = s.cell.bin("bin_D");
+  const auto& e = s.cell.bin("bin_E");
+  Eigen::Isometry3d X_ShelfItem = Eigen::Isometry3d::Identity();
+  X_ShelfItem.translation() =
+      Eigen::Vector3d(d.opening_x_m - 0.2, 0.5 * (d.inner_S.max().y() + e.inner_S.min().y()),
+                      d.floor_max_z_m + 0.05);
+  PickRequest request;
+  request.item = "dove_beauty_bar";
+  request.X_BaseItem = s.cell.config.X_BaseShelf * X_ShelfItem;
+  request.container = "bin_E";
+  request.start_rad = Named(*s.planner, "scan/bin_E/0").q_rad;
+  std::vector<double> times;
+  for (int i = 0; i < 5; ++i) {
+    const auto t = Clock::now();
+    try {
+      s.planner->PlanPick(request, nullptr, Far());
+    } catch (const std::exception&) {
+    }
+    times.push_back(Ms(t));
+  }
+  std::printf("an infeasible pick (the item inside a shelf wall) refused in: median %.1f ms\n",
+              Percentile(times, 0.5));
+}
+
+}  // namespace
+}  // namespace picking::planner
+
+int main() {
+  using namespace picking;
+  using namespace picking::planner;
+  Setup s;
+  s.kinematics =
+      std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
+  const world::CellConfig config =
+      world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
+  s.cell = world::LoadCellModel(config);
+  apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
+  auto grasps = std::make_shared<const GraspTable>(
+      GraspTable::FromYamlFile(DefaultGraspTablePath(), catalogue));
+  s.items = std::make_shared<world::ItemModelLibrary>(catalogue);
+  GripperGeometry gripper;
+  gripper.X_ToolTcp = config.gripper.X_ToolTcp;
+  gripper.tube_radius_m = config.gripper.tube_radius_m;
+  gripper.cup_length_m = config.gripper.cup_length_m;
+  auto t = Clock::now();
+  s.planner = std::make_unique<MotionPlanner>(*s.kinematics, s.cell, gripper, s.X_ToolCamera,
+                                              grasps, s.items);
+  std::printf(
+      "planner set-up (grids, self-collision pairs and table, named poses, roadmap): %.0f ms\n",
+      Ms(t));
+
+  simulator::SimWorld world(s.cell, s.items, simulator::SimOptions{}, s.kinematics);
+  const apc::Task task = apc::ReadTaskFile(
+      std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json", s.items->catalogue());
+  world.LoadTask(task, 7);
+  // A 1.3-million-point scan of bin_E: the middle view at 1420 x 920 pixels.
+  const std::string bin = "bin_E";
+  const auto in_bin = world.ItemsIn(bin);
+  const simulator::StructuredLightRenderer renderer(world.SceneMeshes());
+  const camera::PinholeCamera camera(1420, 920, 1100.0, 1100.0, 710.0, 460.0);
+  const Eigen::Isometry3d X_BaseCamera =
+      s.kinematics->ForwardKinematics(Named(*s.planner, "scan/" + bin + "/0").q_rad) *
+      s.X_ToolCamera;
+  const std::vector<float> xyz = Scan(renderer, camera, X_BaseCamera);
+  SceneBuild(s, xyz, bin, in_bin.front().name, in_bin.front().X_BaseItem,
+             X_BaseCamera.translation());
+  const PlanningScene scene = s.planner->BuildScene(bin, xyz.data(), xyz.size() / 3,
+                                                    in_bin.front().name, in_bin.front().X_BaseItem);
+  StateChecks(s, scene, bin);
+  JointMotions(s);
+  Infeasible(s);
+  Picks(s, &world);
+  return 0;
+}
