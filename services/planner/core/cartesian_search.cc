@@ -94,161 +94,204 @@ std::string CartesianSearchResult::Describe() const {
   return out.str();
 }
 
+namespace {
+
+// One search: the lattice's nodes, the queue, and the result being filled in.
+class Search {
+ public:
+  Search(const MotionChecker& checker, const CarriedItem* carried,
+         const CartesianSearchOptions& options, const Lattice& lattice, const JointVector& q_start)
+      : checker_(checker),
+        kinematics_(checker.checker().robot().kinematics()),
+        X_TcpTool_(checker.checker().robot().gripper().X_ToolTcp.inverse()),
+        carried_(carried),
+        options_(options),
+        lattice_(lattice),
+        branch_(kinematics_.BranchOf(q_start)) {
+    nodes_.reserve(options.node_budget * 8 + 16);
+    Node root;
+    root.evaluated = true;
+    root.q = q_start;
+    root.h = lattice_.StepsToGo(root);
+    nodes_.push_back(root);
+    seen_.insert(Key(0, 0, 0, 0, 0));
+  }
+
+  CartesianSearchResult Run() {
+    Expand(0);
+    int goal = -1;
+    while (!open_.empty() && !OutOfBudgetOrTime()) {
+      const int index = open_.top().second;
+      open_.pop();
+      if (!nodes_[index].evaluated && !Evaluate(index)) continue;
+      const Node& node = nodes_[index];
+      if (node.i == lattice_.n && node.j == 0 && node.k == 0 && node.a == 0 && node.b == 0) {
+        goal = index;
+        break;
+      }
+      Expand(index);
+    }
+    result_.fraction_achieved = double(nodes_[best_].i) / lattice_.n;
+    if (goal < 0) {
+      if (open_.empty() && result_.failure == CartesianFailureKind::kNone) {
+        result_.failure = CartesianFailureKind::kBudget;
+        result_.detail = "no free node left within the lattice";
+      }
+      return result_;
+    }
+    return Path(goal);
+  }
+
+ private:
+  using Entry = std::pair<double, int>;  // (steps to go, node); ties: older first
+
+  bool OutOfBudgetOrTime() {
+    if (result_.nodes_evaluated >= options_.node_budget) {
+      if (result_.failure == CartesianFailureKind::kNone) {
+        result_.failure = CartesianFailureKind::kBudget;
+      }
+      result_.detail += (result_.detail.empty() ? "" : "; ") + std::string("node budget of ") +
+                        std::to_string(options_.node_budget) + " spent";
+      return true;
+    }
+    if (std::chrono::steady_clock::now() > options_.deadline) {
+      result_.failure = CartesianFailureKind::kDeadline;
+      result_.detail =
+          "the call's deadline passed after " + std::to_string(result_.nodes_evaluated) + " nodes";
+      return true;
+    }
+    return false;
+  }
+
+  // Queues the unseen neighbours of node `index` within the lattice's bounds: a step along,
+  // across (both ways, both axes) or both, or a tilt in place or while advancing.
+  void Expand(int index) {
+    ++result_.nodes_expanded;
+    const Node parent = nodes_[index];
+    for (int di = 0; di <= 1; ++di) {
+      for (int dj = -1; dj <= 1; ++dj) {
+        for (int dk = -1; dk <= 1; ++dk) {
+          for (int t = 0; t < 5; ++t) {
+            if (di == 0 && dj == 0 && dk == 0 && t == 0) continue;
+            if (t != 0 && (dj != 0 || dk != 0)) continue;
+            Node child = parent;
+            child.i += di;
+            child.j += dj;
+            child.k += dk;
+            child.a += t == 1 ? 1 : t == 2 ? -1 : 0;
+            child.b += t == 3 ? 1 : t == 4 ? -1 : 0;
+            if (child.i > lattice_.n || std::abs(child.j) > options_.max_lateral_steps ||
+                std::abs(child.k) > options_.max_lateral_steps ||
+                std::abs(child.a) > options_.max_tilt_steps ||
+                std::abs(child.b) > options_.max_tilt_steps) {
+              continue;
+            }
+            if (!seen_.insert(Key(child.i, child.j, child.k, child.a, child.b)).second) continue;
+            child.parent = index;
+            child.evaluated = false;
+            child.h = lattice_.StepsToGo(child);
+            nodes_.push_back(child);
+            open_.emplace(child.h, static_cast<int>(nodes_.size()) - 1);
+          }
+        }
+      }
+    }
+  }
+
+  // IK continuous with the parent and a free motion from it; false (with the failure kept
+  // if it is the furthest so far) when the node is unusable.
+  bool Evaluate(int index) {
+    ++result_.nodes_evaluated;
+    Node& node = nodes_[index];
+    const Node& parent = nodes_[node.parent];
+    std::string reason;
+    const auto ik =
+        kinematics_.NearestSolution(lattice_.Pose(node) * X_TcpTool_, parent.q, branch_, &reason);
+    if (!ik) {
+      return Fail(
+          node, index, CartesianFailureKind::kIkUnreachable,
+          "no IK solution on branch " + branch_.ToString() + (reason.empty() ? "" : ": " + reason),
+          nullptr);
+    }
+    const JointVector dq = (ik->q_rad - parent.q).cwiseAbs();
+    int joint = 0;
+    if (dq.maxCoeff(&joint) > options_.max_joint_step_rad) {
+      return Fail(node, index, CartesianFailureKind::kJointJump,
+                  std::string(ur10::kJointNames[joint]) + " would jump " +
+                      std::to_string(dq[joint]) + " rad",
+                  nullptr);
+    }
+    const MotionCheckResult motion = checker_.CheckSegment(parent.q, ik->q_rad, carried_);
+    if (!motion.free) {
+      return Fail(node, index, CartesianFailureKind::kCollision, motion.report.ToString(),
+                  &motion.report);
+    }
+    node.q = ik->q_rad;
+    node.evaluated = true;
+    if (node.i > nodes_[best_].i) best_ = index;
+    return true;
+  }
+
+  bool Fail(const Node& node, int index, CartesianFailureKind kind, std::string detail,
+            const CollisionReport* report) {
+    if (node.i >= best_failure_i_) {
+      best_failure_i_ = node.i;
+      result_.failure = kind;
+      result_.failed_node = index;
+      result_.detail = std::move(detail);
+      result_.collision = report ? *report : CollisionReport{};
+    }
+    return false;
+  }
+
+  CartesianSearchResult Path(int goal) {
+    for (int n = goal; n >= 0; n = nodes_[n].parent) {
+      result_.path_rad.push_back(nodes_[n].q);
+      result_.X_BaseTcp.push_back(lattice_.Pose(nodes_[n]));
+    }
+    std::reverse(result_.path_rad.begin(), result_.path_rad.end());
+    std::reverse(result_.X_BaseTcp.begin(), result_.X_BaseTcp.end());
+    result_.ok = true;
+    result_.failure = CartesianFailureKind::kNone;
+    result_.detail.clear();
+    result_.fraction_achieved = 1.0;
+    return result_;
+  }
+
+  const MotionChecker& checker_;
+  const ur10::Ur10Kinematics& kinematics_;
+  const Eigen::Isometry3d X_TcpTool_;
+  const CarriedItem* carried_;
+  const CartesianSearchOptions& options_;
+  const Lattice& lattice_;
+  const ur10::Branch branch_;
+  std::vector<Node> nodes_;
+  std::unordered_set<std::uint64_t> seen_;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> open_;
+  CartesianSearchResult result_;
+  int best_ = 0;             // evaluated node furthest along
+  int best_failure_i_ = -1;  // how far along the kept failure is
+};
+
+}  // namespace
+
 CartesianSearchResult SearchCartesianPath(const MotionChecker& checker,
                                           const JointVector& q_start_rad,
                                           const Eigen::Isometry3d& X_BaseTcp_goal,
                                           const CarriedItem* carried,
                                           const CartesianSearchOptions& options) {
-  const RobotGeometry& robot = checker.checker().robot();
-  const ur10::Ur10Kinematics& kinematics = robot.kinematics();
-  const Eigen::Isometry3d X_TcpTool = robot.gripper().X_ToolTcp.inverse();
-  CartesianSearchResult result;
   const CollisionReport start_report = checker.checker().Check(q_start_rad, carried);
   if (start_report.in_collision) {
+    CartesianSearchResult result;
     result.failure = CartesianFailureKind::kStartInCollision;
     result.failed_node = 0;
     result.collision = start_report;
     result.detail = start_report.ToString();
     return result;
   }
-  const Lattice lattice = MakeLattice(robot.X_BaseTcp(q_start_rad), X_BaseTcp_goal, options);
-  const ur10::Branch branch = kinematics.BranchOf(q_start_rad);
-
-  std::vector<Node> nodes;
-  nodes.reserve(options.node_budget * 8 + 16);
-  std::unordered_set<std::uint64_t> seen;
-  using Entry = std::pair<double, int>;  // (steps to go, node); ties: older first
-  std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> open;
-  Node root;
-  root.evaluated = true;
-  root.q = q_start_rad;
-  root.h = lattice.StepsToGo(root);
-  nodes.push_back(root);
-  seen.insert(Key(0, 0, 0, 0, 0));
-  open.emplace(root.h, 0);
-
-  int best = 0;  // evaluated node furthest along
-  int best_failure_i = -1;
-  auto fail = [&](const Node& node, int index, CartesianFailureKind kind, std::string detail,
-                  const CollisionReport* report) {
-    if (node.i < best_failure_i) return;
-    best_failure_i = node.i;
-    result.failure = kind;
-    result.failed_node = index;
-    result.detail = std::move(detail);
-    result.collision = report ? *report : CollisionReport{};
-  };
-  auto expand = [&](int index) {
-    const Node parent = nodes[index];
-    for (int di = 0; di <= 1; ++di) {
-      for (int dj = -1; dj <= 1; ++dj) {
-        for (int dk = -1; dk <= 1; ++dk) {
-          for (int t = 0; t < 5; ++t) {
-            const int da = t == 1 ? 1 : t == 2 ? -1 : 0, db = t == 3 ? 1 : t == 4 ? -1 : 0;
-            if (di == 0 && dj == 0 && dk == 0 && t == 0) continue;
-            if (t != 0 && (dj != 0 || dk != 0)) continue;  // tilt in place or while advancing
-            Node child = parent;
-            child.i += di;
-            child.j += dj;
-            child.k += dk;
-            child.a += da;
-            child.b += db;
-            if (child.i > lattice.n || std::abs(child.j) > options.max_lateral_steps ||
-                std::abs(child.k) > options.max_lateral_steps ||
-                std::abs(child.a) > options.max_tilt_steps ||
-                std::abs(child.b) > options.max_tilt_steps) {
-              continue;
-            }
-            if (!seen.insert(Key(child.i, child.j, child.k, child.a, child.b)).second) continue;
-            child.parent = index;
-            child.evaluated = false;
-            child.h = lattice.StepsToGo(child);
-            nodes.push_back(child);
-            open.emplace(child.h, static_cast<int>(nodes.size()) - 1);
-          }
-        }
-      }
-    }
-  };
-
-  int goal = -1;
-  expand(0);
-  ++result.nodes_expanded;
-  while (!open.empty()) {
-    if (result.nodes_evaluated >= options.node_budget) {
-      if (result.failure == CartesianFailureKind::kNone)
-        result.failure = CartesianFailureKind::kBudget;
-      result.detail += (result.detail.empty() ? "" : "; ") + std::string("node budget of ") +
-                       std::to_string(options.node_budget) + " spent";
-      break;
-    }
-    if (std::chrono::steady_clock::now() > options.deadline) {
-      result.failure = CartesianFailureKind::kDeadline;
-      result.detail =
-          "the call's deadline passed after " + std::to_string(result.nodes_evaluated) + " nodes";
-      break;
-    }
-    const int index = open.top().second;
-    open.pop();
-    Node& node = nodes[index];
-    if (!node.evaluated) {
-      ++result.nodes_evaluated;
-      const Node& parent = nodes[node.parent];
-      const Eigen::Isometry3d X_BaseTcp = lattice.Pose(node);
-      std::string reason;
-      const auto ik = kinematics.NearestSolution(X_BaseTcp * X_TcpTool, parent.q, branch, &reason);
-      if (!ik) {
-        fail(
-            node, index, CartesianFailureKind::kIkUnreachable,
-            "no IK solution on branch " + branch.ToString() + (reason.empty() ? "" : ": " + reason),
-            nullptr);
-        continue;
-      }
-      const JointVector dq = (ik->q_rad - parent.q).cwiseAbs();
-      int joint = 0;
-      if (dq.maxCoeff(&joint) > options.max_joint_step_rad) {
-        fail(node, index, CartesianFailureKind::kJointJump,
-             std::string(ur10::kJointNames[joint]) + " would jump " + std::to_string(dq[joint]) +
-                 " rad",
-             nullptr);
-        continue;
-      }
-      const MotionCheckResult motion = checker.CheckSegment(parent.q, ik->q_rad, carried);
-      if (!motion.free) {
-        fail(node, index, CartesianFailureKind::kCollision, motion.report.ToString(),
-             &motion.report);
-        continue;
-      }
-      node.q = ik->q_rad;
-      node.evaluated = true;
-      if (node.i > nodes[best].i) best = index;
-    }
-    if (node.i == lattice.n && node.j == 0 && node.k == 0 && node.a == 0 && node.b == 0) {
-      goal = index;
-      break;
-    }
-    expand(index);
-    ++result.nodes_expanded;
-  }
-  result.fraction_achieved = double(nodes[best].i) / lattice.n;
-  if (goal < 0) {
-    if (open.empty() && result.failure == CartesianFailureKind::kNone) {
-      result.failure = CartesianFailureKind::kBudget;
-      result.detail = "no free node left within the lattice";
-    }
-    return result;
-  }
-  for (int n = goal; n >= 0; n = nodes[n].parent) {
-    result.path_rad.push_back(nodes[n].q);
-    result.X_BaseTcp.push_back(lattice.Pose(nodes[n]));
-  }
-  std::reverse(result.path_rad.begin(), result.path_rad.end());
-  std::reverse(result.X_BaseTcp.begin(), result.X_BaseTcp.end());
-  result.ok = true;
-  result.failure = CartesianFailureKind::kNone;
-  result.detail.clear();
-  result.fraction_achieved = 1.0;
-  return result;
+  const Lattice lattice =
+      MakeLattice(checker.checker().robot().X_BaseTcp(q_start_rad), X_BaseTcp_goal, options);
+  return Search(checker, carried, options, lattice, q_start_rad).Run();
 }
 
 }  // namespace picking::planner

@@ -1,6 +1,5 @@
 #include "services/planner/core/collision_world.h"
 
-#include <fcl/fcl.h>
 #include <octomap/OcTree.h>
 
 #include <algorithm>
@@ -8,25 +7,10 @@
 #include <stdexcept>
 
 #include "libs/world/mesh_utils.h"
+#include "services/planner/core/fcl_mesh.h"
 
 namespace picking::planner {
 namespace {
-
-using Bvh = fcl::BVHModel<fcl::OBBRSSd>;
-
-std::shared_ptr<Bvh> MakeBvh(const world::TriangleMesh& mesh) {
-  auto bvh = std::make_shared<Bvh>();
-  std::vector<fcl::Vector3d> vertices;
-  vertices.reserve(mesh.vertices.size());
-  for (const auto& v : mesh.vertices) vertices.push_back(v.cast<double>());
-  std::vector<fcl::Triangle> triangles;
-  triangles.reserve(mesh.triangles.size());
-  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
-  bvh->beginModel(static_cast<int>(triangles.size()), static_cast<int>(vertices.size()));
-  bvh->addSubModel(vertices, triangles);
-  bvh->endModel();
-  return bvh;
-}
 
 // Distance from p to an axis-aligned box (0 inside).
 float BoxDistance(const Eigen::AlignedBox3f& box, const Eigen::Vector3f& p) {
@@ -67,6 +51,20 @@ float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
 }
 
 }  // namespace
+
+std::shared_ptr<MeshBvh> MakeMeshBvh(const world::TriangleMesh& mesh) {
+  auto bvh = std::make_shared<MeshBvh>();
+  std::vector<fcl::Vector3d> vertices;
+  vertices.reserve(mesh.vertices.size());
+  for (const auto& v : mesh.vertices) vertices.push_back(v.cast<double>());
+  std::vector<fcl::Triangle> triangles;
+  triangles.reserve(mesh.triangles.size());
+  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
+  bvh->beginModel(static_cast<int>(triangles.size()), static_cast<int>(vertices.size()));
+  bvh->addSubModel(vertices, triangles);
+  bvh->endModel();
+  return bvh;
+}
 
 // The triangles of one static mesh in base, listed per cube of a coarse grid.
 struct StaticCell::Buckets {
@@ -179,7 +177,7 @@ StaticCell::StaticCell(const world::CellModel& cell, const StaticCellOptions& op
     grid_options.margin_m = 0.16;
     grids_.push_back({part.name, DistanceGrid::Build(seeds, grid_options)});
     buckets_.push_back(std::make_unique<Buckets>(*part.mesh, part.X_BaseMesh));
-    fcl_->objects.push_back({part.name, MakeBvh(*part.mesh), part.X_BaseMesh, nullptr});
+    fcl_->objects.push_back({part.name, MakeMeshBvh(*part.mesh), part.X_BaseMesh, nullptr});
   }
   fcl_->objects.push_back(
       {"floor",
@@ -389,7 +387,7 @@ ExactChecker::ExactChecker(const RobotGeometry& robot, const StaticCell& cell,
                            const ScanObstacles* scan)
     : impl_(std::make_unique<Impl>(robot, cell)) {
   for (int i = 0; i < 7; ++i) {
-    impl_->bodies[i] = std::make_unique<fcl::CollisionObjectd>(MakeBvh(robot.link_mesh(i)));
+    impl_->bodies[i] = std::make_unique<fcl::CollisionObjectd>(MakeMeshBvh(robot.link_mesh(i)));
   }
   if (robot.tube_length_m() > 1e-6) {
     impl_->bodies[kBodyTool] = std::make_unique<fcl::CollisionObjectd>(

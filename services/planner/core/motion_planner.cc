@@ -446,6 +446,83 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
   return std::nullopt;
 }
 
+std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContainer& container,
+                                                             const GraspCandidate& grasp,
+                                                             std::string* reason) const {
+  const bool tote = container.kind == GraspContainerKind::kTote;
+  const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
+  const Eigen::Vector3d a = grasp.approach_Base;
+  // Back along the approach line until outside the opening (or above the rim).
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  const Eigen::Vector3d p_opening =
+      container.X_BaseContainer.translation() +
+      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  const double back_per_m = (-a).dot(o);  // opening-normal distance per metre of back-off
+  if (back_per_m < 0.1) {
+    *reason = "the approach runs along the opening";
+    return std::nullopt;
+  }
+  const double to_opening = std::max(0.0, (p_opening - X_grasp.translation()).dot(o)) / back_per_m;
+  const double clearance = tote ? options_.tote_pregrasp_height_m : options_.pregrasp_clearance_m;
+  const double back_m = to_opening + clearance / back_per_m;
+  Eigen::Isometry3d X_pre = X_grasp;
+  X_pre.translation() -= a * back_m;
+  if (!tote && back_m > options_.max_pregrasp_back_m) {
+    // Too oblique to come in along the approach line (a top face deep in a bin): start
+    // straight in front of the opening, the cup pointing into the bin, at the grasp's side
+    // position and a height the tube fits through; the descent turns the cup onto the face.
+    const double half_height =
+        0.5 * std::abs(Eigen::Vector3d::UnitZ().dot(container.X_BaseContainer.linear() *
+                                                    container.inner_size_m));
+    const double z_mid = container.X_BaseContainer.translation().z();
+    Eigen::Vector3d p = X_grasp.translation();
+    p += ((p_opening - p).dot(o) + clearance) * o;
+    p.z() = std::clamp(X_grasp.translation().z() + 0.05, z_mid - half_height + 0.06,
+                       z_mid + half_height - 0.06);
+    X_pre.translation() = p;
+    X_pre.linear() =
+        Eigen::Quaterniond::FromTwoVectors(a, -o).toRotationMatrix() * X_grasp.linear();
+  }
+  return X_pre;
+}
+
+bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+                            const CarriedItem& carried, const FastChecker& fast,
+                            const MotionChecker& motion, JointVector* q_lift, double* lift_m,
+                            PlanFailure* failure, std::string* reason) const {
+  // Straight up off the support: the item rests on the floor or other items, so its check
+  // starts where the lift ends. The highest lift (up to lift_m) whose end leaves the item
+  // free of the scene: a tall item has little room below a bin's ceiling.
+  const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
+  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  for (const double fraction : {1.0, 0.8, 0.6}) {
+    *lift_m = fraction * options_.lift_m;
+    Eigen::Isometry3d X_lift = X_grasp;
+    X_lift.translation().z() += *lift_m;
+    const auto ik_lift = robot_->kinematics().NearestSolution(X_lift * X_TcpTool, q_grasp, branch);
+    if (!ik_lift) {
+      *reason = "the lift pose has no IK solution";
+      continue;
+    }
+    if (const MotionCheckResult m = motion.CheckSegment(q_grasp, ik_lift->q_rad); !m.free) {
+      failure->body = BodyName(m.report.body);
+      failure->obstacle = m.report.obstacle;
+      *reason = "the lift collides: " + m.report.ToString();
+      continue;
+    }
+    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried); r.in_collision) {
+      failure->body = BodyName(r.body);
+      failure->obstacle = r.obstacle;
+      *reason = "after a lift of " + std::to_string(*lift_m) + " m " + r.ToString() +
+                " (clearance " + std::to_string(r.clearance_m) + " m)";
+      continue;
+    }
+    *q_lift = ik_lift->q_rad;
+    return true;
+  }
+  return false;
+}
+
 bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                              const std::shared_ptr<const world::ItemModel>& model,
                              const FastChecker& fast, const MotionChecker& motion,
@@ -467,36 +544,10 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     failure->message = stage + " for grasp '" + grasp.surface + "': " + message;
     return false;
   };
-  // Pre-grasp: back along the approach line until outside the opening (or above the rim).
-  const Eigen::Vector3d o = container.opening_direction_Base;
-  const Eigen::Vector3d p_opening =
-      container.X_BaseContainer.translation() +
-      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
-  const double back_per_m = (-a).dot(o);  // opening-normal distance per metre of back-off
-  if (back_per_m < 0.1) {
-    return fail("pre-grasp", "ik unreachable", "the approach runs along the opening");
-  }
-  const double to_opening = std::max(0.0, (p_opening - X_grasp.translation()).dot(o)) / back_per_m;
-  const double clearance = tote ? options_.tote_pregrasp_height_m : options_.pregrasp_clearance_m;
-  const double back_m = to_opening + clearance / back_per_m;
-  Eigen::Isometry3d X_pre = translated(X_grasp, -a * back_m);
-  if (!tote && back_m > options_.max_pregrasp_back_m) {
-    // Too oblique to come in along the approach line (a top face deep in a bin): start
-    // straight in front of the opening, the cup pointing into the bin, at the grasp's side
-    // position and a height the tube fits through; the descent turns the cup onto the face.
-    const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
-    const double half_height =
-        0.5 * std::abs(up.dot(container.X_BaseContainer.linear() * container.inner_size_m));
-    const double z_mid = container.X_BaseContainer.translation().z();
-    Eigen::Vector3d p = X_grasp.translation();
-    p += ((p_opening - p).dot(o) + clearance) * o;
-    p.z() = std::clamp(X_grasp.translation().z() + 0.05, z_mid - half_height + 0.06,
-                       z_mid + half_height - 0.06);
-    X_pre.translation() = p;
-    X_pre.linear() =
-        Eigen::Quaterniond::FromTwoVectors(a, -o).toRotationMatrix() * X_grasp.linear();
-  }
   std::string reason;
+  const std::optional<Eigen::Isometry3d> pre = PreGraspPose(container, grasp, &reason);
+  if (!pre) return fail("pre-grasp", "ik unreachable", reason);
+  const Eigen::Isometry3d& X_pre = *pre;
   const auto q_pre = FreeIk(X_pre, request.start_rad, fast, nullptr, &reason);
   if (!q_pre) return fail("pre-grasp", "ik unreachable", reason);
 
@@ -525,43 +576,17 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     failure->obstacle = m.report.obstacle;
     return fail("descend", "collision", "the guarded move collides: " + m.report.ToString());
   }
-  // Lift straight up off the support first: the item rests on the floor or other items, so
-  // its check starts where the lift ends.
   const Eigen::Vector3d lift_direction = Eigen::Vector3d::UnitZ();
   // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
-  // The highest lift (up to lift_m) whose end leaves the item free of the scene: a tall item
-  // has little room below a bin's ceiling.
-  std::optional<JointVector> lifted;
+  JointVector lifted;
   double lift_m = 0.0;
   std::string lift_reason;
-  for (const double fraction : {1.0, 0.8, 0.6}) {
-    lift_m = fraction * options_.lift_m;
-    const auto ik_lift = robot_->kinematics().NearestSolution(
-        translated(X_grasp, lift_direction * lift_m) * X_TcpTool, *q_grasp, branch);
-    if (!ik_lift) {
-      lift_reason = "the lift pose has no IK solution";
-      continue;
-    }
-    if (const MotionCheckResult m = motion.CheckSegment(*q_grasp, ik_lift->q_rad); !m.free) {
-      failure->body = BodyName(m.report.body);
-      failure->obstacle = m.report.obstacle;
-      lift_reason = "the lift collides: " + m.report.ToString();
-      continue;
-    }
-    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried); r.in_collision) {
-      failure->body = BodyName(r.body);
-      failure->obstacle = r.obstacle;
-      lift_reason = "after a lift of " + std::to_string(lift_m) + " m " + r.ToString() +
-                    " (clearance " + std::to_string(r.clearance_m) + " m)";
-      continue;
-    }
-    lifted = ik_lift->q_rad;
-    break;
+  if (!LiftOff(X_grasp, *q_grasp, carried, fast, motion, &lifted, &lift_m, failure, &lift_reason)) {
+    return fail("retreat", "collision", lift_reason);
   }
-  if (!lifted) return fail("retreat", "collision", lift_reason);
-  const JointVector* q_lift = &*lifted;
+  const JointVector* q_lift = &lifted;
 
   // Retreat carrying the item, from the lift to the pre-grasp pose.
   const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_direction * lift_m);

@@ -208,6 +208,13 @@ class MotionPlanner final {
   std::optional<JointVector> FreeIk(const Eigen::Isometry3d& X_BaseTcp, const JointVector& seed,
                                     const FastChecker& checker, const CarriedItem* carried,
                                     std::string* reason) const;
+  std::optional<Eigen::Isometry3d> PreGraspPose(const GraspContainer& container,
+                                                const GraspCandidate& grasp,
+                                                std::string* reason) const;
+  bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+               const CarriedItem& carried, const FastChecker& fast, const MotionChecker& motion,
+               JointVector* q_lift, double* lift_m, PlanFailure* failure,
+               std::string* reason) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                 const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
                 const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,

@@ -1,31 +1,14 @@
 // RobotGeometry's choice of self-collision pairs: it samples configurations and checks the
 // link meshes with FCL, so it lives beside the other FCL code of the library.
-#include <fcl/fcl.h>
 
 #include <algorithm>
 #include <cmath>
 #include <random>
 
+#include "services/planner/core/fcl_mesh.h"
 #include "services/planner/core/robot_geometry.h"
 
 namespace picking::planner {
-namespace {
-
-using Bvh = fcl::BVHModel<fcl::OBBRSSd>;
-
-std::shared_ptr<Bvh> MakeBvh(const world::TriangleMesh& mesh) {
-  auto bvh = std::make_shared<Bvh>();
-  std::vector<fcl::Vector3d> vertices;
-  for (const auto& v : mesh.vertices) vertices.push_back(v.cast<double>());
-  std::vector<fcl::Triangle> triangles;
-  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
-  bvh->beginModel(static_cast<int>(triangles.size()), static_cast<int>(vertices.size()));
-  bvh->addSubModel(vertices, triangles);
-  bvh->endModel();
-  return bvh;
-}
-
-}  // namespace
 
 float PairDistanceTable::LowerBound(double q_u, double q_v) const {
   const double step = 2.0 * M_PI / n;
@@ -97,7 +80,7 @@ void RobotGeometry::ChooseSelfPairs() {
   std::array<std::shared_ptr<fcl::CollisionGeometryd>, kNumArmBodies> geometry;
   std::array<Eigen::Isometry3d, kNumArmBodies> X_BodyGeometry;
   for (int i = 0; i < 7; ++i) {
-    geometry[i] = MakeBvh(link_meshes_[i]);
+    geometry[i] = MakeMeshBvh(link_meshes_[i]);
     X_BodyGeometry[i] = Eigen::Isometry3d::Identity();
   }
   if (tube_length_m_ > 1e-6) {
