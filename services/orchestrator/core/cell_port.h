@@ -1,0 +1,117 @@
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+
+namespace picking::orchestrator {
+
+/// A service of the cell did not answer as it should (it is down, timed out, or refused the
+/// request for a reason that is not the item's). `retryable` failures (the service did not
+/// answer: UNAVAILABLE, DEADLINE_EXCEEDED) are retried with backoff by the task.
+class CellError final : public std::runtime_error {
+ public:
+  CellError(std::string service, bool retryable, const std::string& what)
+      : std::runtime_error(service + ": " + what), service_(std::move(service)),
+        retryable_(retryable) {}
+  const std::string& service() const { return service_; }
+  bool retryable() const { return retryable_; }
+
+ private:
+  std::string service_;
+  bool retryable_;
+};
+
+/// A physical step: ok, or why not, and the robot time it took (seconds).
+struct StepOutcome {
+  bool ok = true;
+  std::string message;
+  double robot_s = 0.0;
+};
+
+/// One view of a scan: an organised cloud in the base frame and where its camera was.
+struct ScanView {
+  std::shared_ptr<const geometry::PointCloud> cloud_Base;
+  Eigen::Isometry3d X_BaseCamera = Eigen::Isometry3d::Identity();
+  double capture_s = 0.0;  ///< Robot time the capture held the arm still.
+};
+
+struct Detection {
+  bool found = false;
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  double score = 0.0;
+  std::string method;
+  std::string replica;  ///< Which detector answered.
+  std::string message;  ///< Why not found, when not.
+};
+
+/// A planned pick; `handle` lets the port find its trajectories again.
+struct PlannedPick {
+  bool ok = false;
+  std::string message;  ///< Why there is no plan.
+  std::string grasp;    ///< The grasp's surface.
+  int handle = -1;
+  double approach_s = 0.0, descend_s = 0.0, retreat_s = 0.0;
+};
+
+struct TouchOutcome {
+  bool contact = false;
+  double distance_m = 0.0;
+  double robot_s = 0.0;
+};
+
+/// The gripper's reading: is the cup sealed on something.
+struct SealReading {
+  bool attached = false;
+  double vacuum_kpa = 0.0;
+};
+
+struct PlaceOutcome {
+  bool ok = true;
+  std::string message;
+  double drop_height_m = 0.0;
+  double robot_s = 0.0;
+};
+
+/// What a task needs from the cell: each operation one step of the paper's sequence, done by
+/// the cell's services (scanner, detector pool, planner, robot, gripper). Operations throw
+/// CellError when a service fails; an item-level "no" (not found, no plan, no contact) is an
+/// outcome. Used from one task thread at a time.
+class CellPort {
+ public:
+  virtual ~CellPort() = default;
+  /// The named scan poses of a container ("scan/bin_A/0" ...), in capture order.
+  virtual std::vector<std::string> ScanPoses(const std::string& container) = 0;
+  /// Plans a joint motion from the current joints to a named pose and executes it.
+  virtual StepOutcome MoveToNamed(const std::string& name) = 0;
+  /// Captures one view at the current pose.
+  virtual ScanView Scan() = 0;
+  /// Finds `item` in `container` from the views (merged by the detector).
+  virtual Detection Detect(const std::string& container, const std::string& item,
+                           const std::vector<ScanView>& views) = 0;
+  /// Builds the planner's scene from the views with the item cut out and plans the pick from
+  /// the current joints.
+  virtual PlannedPick PlanPick(const std::string& container, const std::string& item,
+                               const Eigen::Isometry3d& X_BaseItem,
+                               const std::vector<ScanView>& views) = 0;
+  /// Executes the approach and the descent to a few centimetres short of contact.
+  virtual StepOutcome ExecuteApproach(const PlannedPick& pick) = 0;
+  /// The guarded move along the approach until the force threshold.
+  virtual TouchOutcome Touch(const PlannedPick& pick) = 0;
+  /// Vacuum on; returns once sealed or after the seal wait.
+  virtual SealReading VacuumOn() = 0;
+  virtual SealReading ReadSeal() = 0;
+  /// Back to the planned grasp joints and out of the container along the retreat.
+  virtual StepOutcome ExecuteRetreat(const PlannedPick& pick) = 0;
+  /// Plans from the current joints to the drop pose over `container` and moves there.
+  virtual PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
+                                   const PlannedPick& pick) = 0;
+  virtual void VacuumOff() = 0;
+};
+
+}  // namespace picking::orchestrator

@@ -1,0 +1,331 @@
+#include "services/orchestrator/core/pick_task.h"
+
+#include <algorithm>
+#include <chrono>
+#include <thread>
+
+namespace picking::orchestrator {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::time_point since) {
+  return std::chrono::duration<double>(Clock::now() - since).count();
+}
+
+void RemoveOne(std::vector<std::string>& items, const std::string& item) {
+  const auto it = std::find(items.begin(), items.end(), item);
+  if (it != items.end()) items.erase(it);
+}
+
+}  // namespace
+
+std::string StepName(Step step) {
+  switch (step) {
+    case Step::kScan: return "scan";
+    case Step::kDetect: return "detect";
+    case Step::kPlan: return "plan";
+    case Step::kGrasp: return "grasp";
+    case Step::kVerify: return "verify";
+    case Step::kPlace: return "place";
+    case Step::kNone: break;
+  }
+  return "";
+}
+
+apc::ScoreReport ScoreBelief(const apc::Task& initial, const std::vector<apc::Event>& events,
+                             const apc::Task& contents, const apc::Catalogue& catalogue) {
+  apc::ScoringInput input;
+  input.initial = initial;
+  input.events = events;
+  input.reported = apc::ToOutput(contents);
+  input.true_final = contents;
+  return apc::Score(input, catalogue);
+}
+
+PickTaskRunner::PickTaskRunner(apc::Task task, std::vector<Target> order,
+                               const apc::Catalogue& catalogue, PickTaskOptions options,
+                               CellPort& cell, Journal& journal,
+                               std::function<void(const TaskEvent&)> emit,
+                               const std::atomic<bool>& cancel)
+    : task_(std::move(task)), contents_(task_), order_(std::move(order)), catalogue_(catalogue),
+      options_(std::move(options)), cell_(cell), journal_(journal), emit_(std::move(emit)),
+      cancel_(cancel) {}
+
+std::string PickTaskRunner::Key(const Target& target, const std::string& action) const {
+  return "pick/" + target.bin + "/" + target.item + "/" + std::to_string(target.attempts) + "/" +
+         action;
+}
+
+void PickTaskRunner::Emit(const Target* target, Step step, bool ok, const std::string& message,
+                          const std::string& to) {
+  TaskEvent event;
+  event.time_s = clock_s_;
+  if (target != nullptr) event.item = target->item, event.from = target->bin;
+  event.to = to;
+  event.step = step;
+  event.ok = ok;
+  event.message = message;
+  event.items_done = done_;
+  event.items_total = static_cast<int>(order_.size());
+  journal_.Append(
+      "event", "", clock_s_,
+      {{"item", event.item}, {"from", event.from}, {"to", event.to}, {"step", StepName(step)},
+       {"ok", ok}, {"message", message}, {"done", done_}, {"total", event.items_total}});
+  event.sequence = next_event_++;
+  if (emit_) emit_(event);
+}
+
+template <typename F>
+auto PickTaskRunner::WithRetries(const std::string& what, F&& operation) -> decltype(operation()) {
+  double wait_s = options_.backoff_s;
+  for (int attempt = 0;; ++attempt) {
+    try {
+      return operation();
+    } catch (const CellError& e) {
+      if (!e.retryable() || attempt >= options_.service_retries || TimeLeft() < wait_s) throw;
+      Emit(nullptr, Step::kNone, false,
+           what + ": " + e.what() + "; retrying in " + std::to_string(wait_s) + " s");
+      std::this_thread::sleep_for(std::chrono::duration<double>(wait_s));
+      clock_s_ += wait_s;
+      wait_s *= 2.0;
+    }
+  }
+}
+
+void PickTaskRunner::AddTime(TargetReport& report, const std::string& step, double seconds) {
+  clock_s_ += seconds;
+  for (auto& [name, total] : report.step_times_s) {
+    if (name == step) {
+      total += seconds;
+      return;
+    }
+  }
+  report.step_times_s.emplace_back(step, seconds);
+}
+
+void PickTaskRunner::RecordPlaced(const Target& target, double drop_height_m) {
+  RemoveOne(contents_.bin_contents[target.bin], target.item);
+  contents_.tote_contents.push_back(target.item);
+  events_.push_back(apc::MoveEvent(target.item, target.bin, apc::kToteLocation));
+  if (drop_height_m > 0.0) events_.push_back(apc::DropEvent(target.item, drop_height_m));
+  ++done_;
+}
+
+// Actions the journal shows as done are not repeated: placed targets count as picked, and an
+// attempt that grasped but never placed may still hold its item (FinishCarriedItem).
+void PickTaskRunner::ResumeFromJournal() {
+  for (Target& target : order_) {
+    for (int attempt = 1; attempt <= options_.max_attempts + 1; ++attempt) {
+      target.attempts = attempt;
+      if (journal_.Has("done", Key(target, "place"))) {
+        target.done = true;
+        double drop = 0.0;
+        for (const JournalRecord& r : journal_.Records()) {
+          if (r.type == "done" && r.key == Key(target, "place")) {
+            drop = r.data.value("drop_height_m", 0.0);
+            clock_s_ = std::max(clock_s_, r.time_s);
+          }
+        }
+        RecordPlaced(target, drop);
+        break;
+      }
+      if (journal_.Has("begin", Key(target, "grasp")) &&
+          !journal_.Has("failed", Key(target, "grasp"))) {
+        carried_key_ = Key(target, "");
+      }
+      if (!journal_.Has("begin", Key(target, "scan"))) {
+        target.attempts = attempt - 1;
+        break;
+      }
+    }
+  }
+  for (const JournalRecord& r : journal_.Records()) {
+    clock_s_ = std::max(clock_s_, r.time_s);
+    if (r.type == "event") ++next_event_;  // a resumed task's events continue its numbering
+  }
+}
+
+// At resume the gripper may still hold the item of an interrupted attempt: carry it on to the
+// tote if the vacuum still holds it, else it fell back (the attempt counts as failed).
+void PickTaskRunner::FinishCarriedItem() {
+  if (carried_key_.empty()) return;
+  for (Target& target : order_) {
+    if (target.done || Key(target, "") != carried_key_) continue;
+    const SealReading seal = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+    if (!seal.attached) {
+      journal_.Append("failed", Key(target, "grasp"), clock_s_,
+                      {{"reason", "not held after the restart"}});
+      return;
+    }
+    journal_.Append("begin", Key(target, "place"), clock_s_);
+    const PlaceOutcome placed = WithRetries(
+        "place", [&] { return cell_.MoveToPlace(target.item, apc::kToteLocation, {}); });
+    clock_s_ += placed.robot_s;
+    cell_.VacuumOff();
+    if (!placed.ok) return;
+    journal_.Append("done", Key(target, "place"), clock_s_, {{"drop_height_m", placed.drop_height_m}});
+    target.done = true;
+    RecordPlaced(target, placed.drop_height_m);
+    Emit(&target, Step::kPlace, true, "placed in the tote after the restart", apc::kToteLocation);
+  }
+}
+
+bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
+                                   std::vector<ScanView>& views) {
+  Emit(&target, Step::kScan, true, "scanning " + target.bin);
+  journal_.Append("begin", Key(target, "scan"), clock_s_);
+  for (const std::string& pose : cell_.ScanPoses(target.bin)) {
+    const StepOutcome moved = WithRetries("move", [&] { return cell_.MoveToNamed(pose); });
+    AddTime(report, "scan", moved.robot_s);
+    if (!moved.ok) {
+      target.last_failure = "cannot reach scan pose " + pose + ": " + moved.message;
+      return false;
+    }
+    const auto start = Clock::now();
+    views.push_back(WithRetries("scan", [&] { return cell_.Scan(); }));
+    AddTime(report, "scan", std::max(views.back().capture_s, Seconds(start)));
+  }
+  Emit(&target, Step::kDetect, true, "detecting in " + std::to_string(views.size()) + " views");
+  const auto start = Clock::now();
+  const Detection found =
+      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views); });
+  AddTime(report, "detect", Seconds(start));
+  if (!found.found) {
+    target.last_failure = "not detected: " + found.message;
+    return false;
+  }
+  report.detected = true;
+  report.method = found.method;
+  report.detection_score = found.score;
+  report.X_BaseItem_detected = found.X_BaseItem;
+  Emit(&target, Step::kDetect, true,
+       "found by " + found.method + " (score " + std::to_string(found.score) + ")");
+  return true;
+}
+
+PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetReport& report,
+                                                      const PlannedPick& plan) {
+  Emit(&target, Step::kGrasp, true, "approaching grasp '" + plan.grasp + "'");
+  journal_.Append("begin", Key(target, "grasp"), clock_s_, {{"grasp", plan.grasp}});
+  const StepOutcome approached = WithRetries("approach", [&] { return cell_.ExecuteApproach(plan); });
+  AddTime(report, "grasp", approached.robot_s);
+  if (!approached.ok) {
+    target.last_failure = "approach: " + approached.message;
+    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kFailed;
+  }
+  const TouchOutcome touched = WithRetries("touch", [&] { return cell_.Touch(plan); });
+  AddTime(report, "grasp", touched.robot_s);
+  const SealReading seal = WithRetries("vacuum", [&] { return cell_.VacuumOn(); });
+  if (!seal.attached) {
+    cell_.VacuumOff();
+    const StepOutcome out = WithRetries("retreat", [&] { return cell_.ExecuteRetreat(plan); });
+    AddTime(report, "grasp", out.robot_s);
+    target.last_failure = std::string("no seal (") + (touched.contact ? "touched" : "no contact") +
+                          ", vacuum " + std::to_string(seal.vacuum_kpa) + " kPa)";
+    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kFailed;
+  }
+  journal_.Append("done", Key(target, "grasp"), clock_s_, {{"vacuum_kpa", seal.vacuum_kpa}});
+  const StepOutcome out = WithRetries("retreat", [&] { return cell_.ExecuteRetreat(plan); });
+  AddTime(report, "grasp", out.robot_s);
+  // The vacuum level after the lift is the first sign of a held item; a seal lost on the way
+  // out leaves the item in (or fallen inside) its bin.
+  const SealReading lifted = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+  if (!out.ok || !lifted.attached) {
+    cell_.VacuumOff();
+    target.last_failure = !out.ok ? "retreat: " + out.message : "seal lost during the lift";
+    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kFailed;
+  }
+  Emit(&target, Step::kPlace, true, "carrying to the tote");
+  journal_.Append("begin", Key(target, "place"), clock_s_);
+  const PlaceOutcome placed = WithRetries(
+      "place", [&] { return cell_.MoveToPlace(target.item, apc::kToteLocation, plan); });
+  AddTime(report, "place", placed.robot_s);
+  const SealReading over_tote = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+  cell_.VacuumOff();
+  if (!placed.ok || !over_tote.attached) {
+    target.last_failure = !placed.ok ? "place: " + placed.message : "dropped on the way to the tote";
+    journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kLostCarried;
+  }
+  journal_.Append("done", Key(target, "place"), clock_s_,
+                  {{"drop_height_m", placed.drop_height_m}});
+  report.drop_height_m = placed.drop_height_m;
+  RecordPlaced(target, placed.drop_height_m);
+  return Attempt::kPicked;
+}
+
+PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report) {
+  ++target.attempts;
+  report.attempts = target.attempts;
+  std::vector<ScanView> views;
+  if (!ScanAndDetect(target, report, views)) return Attempt::kFailed;
+  Emit(&target, Step::kPlan, true, "planning the pick");
+  const auto start = Clock::now();
+  const PlannedPick plan = WithRetries("plan", [&] {
+    return cell_.PlanPick(target.bin, target.item, report.X_BaseItem_detected, views);
+  });
+  AddTime(report, "plan", Seconds(start));
+  if (!plan.ok) {
+    target.last_failure = "no plan: " + plan.message;
+    return Attempt::kFailed;
+  }
+  report.grasp = plan.grasp;
+  return GraspAndPlace(target, report, plan);
+}
+
+PickTaskResult PickTaskRunner::Run() {
+  PickTaskResult result;
+  ResumeFromJournal();
+  std::vector<TargetReport> reports;
+  for (const Target& t : order_) reports.push_back({t.item, t.bin, t.ease, t.attempts, t.done});
+  try {
+    FinishCarriedItem();
+    for (std::size_t i = 0; i < order_.size(); ++i) reports[i].picked = order_[i].done;
+    // Rounds over the targets: a failed one is retried after the others, up to max_attempts.
+    for (int round = 0; round < options_.max_attempts; ++round) {
+      for (std::size_t i = 0; i < order_.size(); ++i) {
+        Target& target = order_[i];
+        if (target.done || target.given_up || target.attempts > round) continue;
+        if (cancel_.load()) break;
+        if (TimeLeft() < options_.min_time_per_item_s) {
+          target.given_up = true;
+          target.last_failure = "skipped: " + std::to_string(TimeLeft()) + " s left on the clock";
+          Emit(&target, Step::kNone, false, target.last_failure);
+          continue;
+        }
+        const Attempt attempt = TryTarget(target, reports[i]);
+        target.done = attempt == Attempt::kPicked;
+        reports[i].picked = target.done;
+        reports[i].failure = target.done ? "" : target.last_failure;
+        if (attempt == Attempt::kLostCarried) target.given_up = true;  // its place is unknown
+        Emit(&target, target.done ? Step::kPlace : Step::kNone, target.done,
+             target.done ? "in the tote" : target.last_failure,
+             target.done ? apc::kToteLocation : "");
+      }
+    }
+    if (!cancel_.load()) {
+      clock_s_ += WithRetries("move", [&] { return cell_.MoveToNamed(options_.home_pose); }).robot_s;
+    }
+    result.state = cancel_.load() ? TaskState::kCancelled : TaskState::kSucceeded;
+  } catch (const std::exception& e) {
+    result.state = TaskState::kFailed;
+    result.error = e.what();
+  }
+  for (std::size_t i = 0; i < order_.size(); ++i) {
+    if (!order_[i].done) reports[i].failure = order_[i].last_failure;
+  }
+  result.final_contents = contents_;
+  result.events = events_;
+  result.score = ScoreBelief(task_, events_, contents_, catalogue_);
+  result.targets = reports;
+  result.items_moved = done_;
+  result.items_failed = static_cast<int>(order_.size()) - done_;
+  result.duration_s = clock_s_;
+  return result;
+}
+
+}  // namespace picking::orchestrator

@@ -1,0 +1,128 @@
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "libs/apc/catalogue.h"
+#include "libs/apc/scoring.h"
+#include "libs/apc/task.h"
+#include "services/orchestrator/core/cell_port.h"
+#include "services/orchestrator/core/journal.h"
+#include "services/orchestrator/core/work_list.h"
+
+namespace picking::orchestrator {
+
+/// The steps of the contract's TaskEvent.
+enum class Step { kNone, kScan, kDetect, kPlan, kGrasp, kVerify, kPlace };
+enum class TaskState { kRunning, kSucceeded, kFailed, kCancelled };
+
+/// One progress event of a task (journaled, replayed to watchers).
+struct TaskEvent {
+  std::uint64_t sequence = 0;
+  double time_s = 0.0;  ///< Task clock.
+  std::string item, from, to;
+  Step step = Step::kNone;
+  bool ok = true;
+  std::string message;
+  int items_done = 0, items_total = 0;
+  TaskState state = TaskState::kRunning;
+};
+
+struct PickTaskOptions {
+  /// The rules' 15 minutes, in robot time (motion and capture durations as the robot reports
+  /// them, plus the wall time of computation the arm waits for).
+  double time_limit_s = 900.0;
+  /// Attempts per target before it is given up.
+  int max_attempts = 2;
+  /// A target is skipped when less task time than this is left (about one pick).
+  double min_time_per_item_s = 25.0;
+  /// A service that does not answer is retried this many times, waiting backoff_s, 2 x, ...
+  int service_retries = 3;
+  double backoff_s = 0.5;
+  /// Where the arm waits at the start and the end.
+  std::string home_pose = "home";
+};
+
+/// What happened to one target.
+struct TargetReport {
+  std::string item, bin;
+  double ease = 0.0;
+  int attempts = 0;
+  bool picked = false;
+  std::string failure;  ///< Last failure, when not picked.
+  std::string method;   ///< Detection method that found it.
+  double detection_score = 0.0;
+  Eigen::Isometry3d X_BaseItem_detected = Eigen::Isometry3d::Identity();
+  bool detected = false;
+  std::string grasp;
+  double drop_height_m = 0.0;
+  /// Task-clock seconds per step name ("scan", "detect", "plan", "grasp", "place").
+  std::vector<std::pair<std::string, double>> step_times_s;
+};
+
+struct PickTaskResult {
+  TaskState state = TaskState::kSucceeded;
+  std::string error;  ///< For kFailed.
+  apc::Task final_contents;  ///< Where the orchestrator believes the items are.
+  std::vector<apc::Event> events;  ///< Moves made, for the score.
+  apc::ScoreReport score;  ///< By the rules, from what the orchestrator believes.
+  std::vector<TargetReport> targets;
+  int items_moved = 0, items_failed = 0;
+  double duration_s = 0.0;  ///< Task clock at the end.
+};
+
+/// Runs a pick task: the targets in `order`, each scanned from its bin's views, detected,
+/// planned, grasped with the guarded move and the vacuum, checked for attachment after the
+/// lift, and dropped into the tote. Every physical step is journaled before it starts
+/// ("begin") and after ("done"); actions the journal records as done are not repeated (a
+/// resumed task). `emit` receives every progress event; `cancel` is polled between steps.
+class PickTaskRunner final {
+ public:
+  PickTaskRunner(apc::Task task, std::vector<Target> order, const apc::Catalogue& catalogue,
+                 PickTaskOptions options, CellPort& cell, Journal& journal,
+                 std::function<void(const TaskEvent&)> emit, const std::atomic<bool>& cancel);
+
+  PickTaskResult Run();
+
+ private:
+  enum class Attempt { kPicked, kFailed, kLostCarried };
+  Attempt TryTarget(Target& target, TargetReport& report);
+  bool ScanAndDetect(Target& target, TargetReport& report, std::vector<ScanView>& views);
+  Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan);
+  void ResumeFromJournal();
+  void FinishCarriedItem();
+  void RecordPlaced(const Target& target, double drop_height_m);
+  void Emit(const Target* target, Step step, bool ok, const std::string& message,
+            const std::string& to = "");
+  /// Runs a cell operation, retrying a service that does not answer; rethrows the last error.
+  template <typename F>
+  auto WithRetries(const std::string& what, F&& operation) -> decltype(operation());
+  void AddTime(TargetReport& report, const std::string& step, double seconds);
+  double TimeLeft() const { return options_.time_limit_s - clock_s_; }
+  std::string Key(const Target& target, const std::string& action) const;
+
+  apc::Task task_;
+  apc::Task contents_;
+  std::vector<Target> order_;
+  const apc::Catalogue& catalogue_;
+  PickTaskOptions options_;
+  CellPort& cell_;
+  Journal& journal_;
+  std::function<void(const TaskEvent&)> emit_;
+  const std::atomic<bool>& cancel_;
+  std::vector<apc::Event> events_;
+  double clock_s_ = 0.0;
+  int done_ = 0;
+  std::uint64_t next_event_ = 0;
+  std::string carried_key_;  ///< Journal key prefix of an attempt holding an item at resume.
+};
+
+/// The rules' score of what the orchestrator believes happened, with `output` as reported.
+apc::ScoreReport ScoreBelief(const apc::Task& initial, const std::vector<apc::Event>& events,
+                             const apc::Task& contents, const apc::Catalogue& catalogue);
+
+std::string StepName(Step step);
+
+}  // namespace picking::orchestrator

@@ -1,0 +1,257 @@
+#include "services/orchestrator/core/task_manager.h"
+
+#include <chrono>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "libs/errors/errors.h"
+
+namespace picking::orchestrator {
+namespace fs = std::filesystem;
+namespace {
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+void WriteText(const fs::path& path, const std::string& text) {
+  const fs::path temp = path.string() + ".tmp";
+  {
+    std::ofstream out(temp);
+    out << text;
+    if (!out) throw std::runtime_error(temp.string() + ": write failed");
+  }
+  fs::rename(temp, path);
+}
+
+Step StepFromName(const std::string& name) {
+  for (Step s : {Step::kScan, Step::kDetect, Step::kPlan, Step::kGrasp, Step::kVerify,
+                 Step::kPlace}) {
+    if (StepName(s) == name) return s;
+  }
+  return Step::kNone;
+}
+
+TaskEvent EventFromRecord(const JournalRecord& r) {
+  TaskEvent e;
+  e.sequence = r.sequence;
+  e.time_s = r.time_s;
+  e.item = r.data.value("item", "");
+  e.from = r.data.value("from", "");
+  e.to = r.data.value("to", "");
+  e.step = StepFromName(r.data.value("step", ""));
+  e.ok = r.data.value("ok", true);
+  e.message = r.data.value("message", "");
+  e.items_done = r.data.value("done", 0);
+  e.items_total = r.data.value("total", 0);
+  return e;
+}
+
+}  // namespace
+
+TaskManager::TaskManager(TaskManagerOptions options, const apc::Catalogue& catalogue,
+                         CellFactory cell)
+    : options_(std::move(options)), catalogue_(catalogue), cell_factory_(std::move(cell)) {
+  fs::create_directories(options_.data_dir);
+  LoadFromDisk();
+}
+
+TaskManager::~TaskManager() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto& [id, entry] : tasks_) entry->cancel = true;
+  }
+  if (worker_.joinable()) worker_.join();
+}
+
+// Tasks of an earlier process: their journal says how far they got; one without an "end"
+// record was interrupted and can be resumed.
+void TaskManager::LoadFromDisk() {
+  std::vector<fs::path> dirs;
+  for (const auto& d : fs::directory_iterator(options_.data_dir)) {
+    if (d.is_directory() && fs::exists(d.path() / "journal.jsonl")) dirs.push_back(d.path());
+  }
+  std::sort(dirs.begin(), dirs.end());
+  for (const fs::path& dir : dirs) {
+    auto entry = std::make_shared<Entry>();
+    entry->dir = dir.string();
+    entry->info.task_id = dir.filename().string();
+    entry->info.state = TaskState::kFailed;
+    entry->info.error = "interrupted (the orchestrator stopped); resume it with resume_task_id";
+    for (const JournalRecord& r : Journal::Read((dir / "journal.jsonl").string())) {
+      if (r.type == "event") entry->events.push_back(EventFromRecord(r));
+      if (r.type == "end") {
+        entry->info.state = static_cast<TaskState>(r.data.value("state", 3));
+        entry->info.error = r.data.value("error", "");
+      }
+    }
+    if (!entry->events.empty()) {
+      entry->info.items_done = entry->events.back().items_done;
+      entry->info.items_total = entry->events.back().items_total;
+    }
+    if (fs::exists(dir / "output.json")) {
+      entry->info.output_json = ReadText(dir / "output.json");
+      entry->info.output_file = (dir / "output.json").string();
+      entry->info.report_file = (dir / "report.html").string();
+    }
+    tasks_[entry->info.task_id] = entry;
+    order_.push_back(entry->info.task_id);
+  }
+}
+
+std::string TaskManager::NewTaskId() {
+  const std::time_t now = std::time(nullptr);
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  char stamp[32];
+  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &utc);
+  std::string id;
+  do {
+    id = std::string("task-") + stamp + "-" + std::to_string(++counter_);
+  } while (tasks_.count(id) > 0 || fs::exists(fs::path(options_.data_dir) / id));
+  return id;
+}
+
+std::string TaskManager::Start(const StartSpec& spec) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  if (running_) throw PreconditionError("a task is running; one task at a time per cell");
+  std::string task_json = spec.task_json;
+  std::shared_ptr<Entry> entry;
+  if (!spec.resume_task_id.empty()) {
+    const auto it = tasks_.find(spec.resume_task_id);
+    if (it == tasks_.end()) throw NotFoundError("no task '" + spec.resume_task_id + "'");
+    entry = it->second;
+    if (entry->info.state == TaskState::kSucceeded || entry->info.state == TaskState::kCancelled) {
+      throw PreconditionError("task '" + spec.resume_task_id + "' has already ended");
+    }
+    task_json = ReadText(fs::path(entry->dir) / "task.json");
+  }
+  const apc::Task task = apc::ParseTask(task_json, catalogue_, "task_json");
+  if (spec.kind == "stow" || task.kind == apc::TaskKind::kStow) {
+    throw std::invalid_argument("kind: stow tasks are not supported by this orchestrator yet");
+  }
+  std::vector<Target> order =
+      OrderTargets(task, catalogue_, options_.ease, options_.preferred_method, spec.ease_order);
+  PickTaskOptions options = options_.pick;
+  if (spec.time_limit_s < 0.0 || !std::isfinite(spec.time_limit_s) || spec.time_limit_s > 86400) {
+    throw std::invalid_argument("time_limit_s: must be in [0, 86400] s");
+  }
+  if (spec.time_limit_s > 0.0) options.time_limit_s = spec.time_limit_s;
+  if (!entry) {
+    entry = std::make_shared<Entry>();
+    entry->info.task_id = NewTaskId();
+    entry->dir = (fs::path(options_.data_dir) / entry->info.task_id).string();
+    fs::create_directories(entry->dir);
+    WriteText(fs::path(entry->dir) / "task.json", task_json);
+    tasks_[entry->info.task_id] = entry;
+    order_.push_back(entry->info.task_id);
+  }
+  entry->info.state = TaskState::kRunning;
+  entry->info.error.clear();
+  entry->info.items_total = static_cast<int>(order.size());
+  entry->cancel = false;
+  if (worker_.joinable()) worker_.join();
+  running_ = true;
+  worker_ = std::thread(&TaskManager::RunTask, this, entry, task, std::move(order), options);
+  return entry->info.task_id;
+}
+
+void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vector<Target> order,
+                          PickTaskOptions options) {
+  PickTaskResult result;
+  try {
+    Journal journal((fs::path(entry->dir) / "journal.jsonl").string());
+    if (journal.Records().empty()) journal.Append("task", "", 0.0, {{"kind", "pick"}});
+    std::unique_ptr<CellPort> cell = cell_factory_();
+    auto emit = [&](const TaskEvent& e) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      entry->events.push_back(e);
+      entry->info.items_done = e.items_done;
+      changed_.notify_all();
+    };
+    PickTaskRunner runner(task, std::move(order), catalogue_, options, *cell, journal, emit,
+                          entry->cancel);
+    result = runner.Run();
+    const auto [output, report] = WriteTaskFiles(entry->dir, entry->info.task_id, result,
+                                                 entry->events);
+    journal.Append("end", "", result.duration_s,
+                   {{"state", static_cast<int>(result.state)}, {"error", result.error}});
+    std::lock_guard<std::mutex> lock(mutex_);
+    entry->info.output_file = output;
+    entry->info.report_file = report;
+    entry->info.output_json = ReadText(output);
+  } catch (const std::exception& e) {
+    result.state = TaskState::kFailed;
+    result.error = e.what();
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  entry->info.state = result.state;
+  entry->info.error = result.error;
+  entry->info.items_done = result.items_moved;
+  entry->info.has_result = true;
+  entry->info.result = result;
+  TaskEvent last;
+  last.sequence = entry->events.empty() ? 0 : entry->events.back().sequence + 1;
+  last.time_s = result.duration_s;
+  last.message = result.state == TaskState::kFailed ? result.error
+                                                    : "score " + std::to_string(result.score.total);
+  last.items_done = result.items_moved;
+  last.items_total = entry->info.items_total;
+  last.state = result.state;
+  entry->events.push_back(last);
+  running_ = false;
+  changed_.notify_all();
+}
+
+std::shared_ptr<TaskManager::Entry> TaskManager::Find(const std::string& task_id) const {
+  const auto it = tasks_.find(task_id);
+  if (it == tasks_.end()) throw NotFoundError("no task '" + task_id + "'");
+  return it->second;
+}
+
+TaskInfo TaskManager::Get(const std::string& task_id) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return Find(task_id)->info;
+}
+
+std::vector<TaskInfo> TaskManager::List() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<TaskInfo> out;
+  for (auto it = order_.rbegin(); it != order_.rend(); ++it) out.push_back(tasks_.at(*it)->info);
+  return out;
+}
+
+void TaskManager::Cancel(const std::string& task_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto entry = Find(task_id);
+  if (entry->info.state != TaskState::kRunning) {
+    throw PreconditionError("task '" + task_id + "' is not running");
+  }
+  entry->cancel = true;
+}
+
+void TaskManager::Watch(const std::string& task_id,
+                        const std::function<void(const TaskEvent&)>& on_event,
+                        const std::function<bool()>& stop, double poll_s) const {
+  std::unique_lock<std::mutex> lock(mutex_);
+  const auto entry = Find(task_id);
+  std::size_t next = 0;
+  for (;;) {
+    while (next < entry->events.size()) {
+      const TaskEvent e = entry->events[next++];
+      lock.unlock();
+      on_event(e);
+      lock.lock();
+    }
+    // The last event and the end state are set under one lock: nothing follows an end.
+    if (entry->info.state != TaskState::kRunning || stop()) return;
+    changed_.wait_for(lock, std::chrono::duration<double>(poll_s));
+  }
+}
+
+}  // namespace picking::orchestrator

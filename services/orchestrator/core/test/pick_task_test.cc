@@ -1,0 +1,237 @@
+// The pick sequence over a scripted cell: order, retries, attachment checks, the clock, and
+// resuming from the journal without repeating a pick.
+#include "services/orchestrator/core/pick_task.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <map>
+#include <set>
+
+namespace picking::orchestrator {
+namespace {
+
+const apc::Catalogue& Catalogue() {
+  static const apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
+  return catalogue;
+}
+
+// What the scripted cell does with each item.
+struct Script {
+  bool found = true;
+  bool plannable = true;
+  int no_seal_attempts = 0;     // the first n vacuum-ons do not seal
+  bool lose_in_lift = false;    // seal lost during the retreat (once)
+  bool drop_on_the_way = false; // seal lost on the way to the tote
+};
+
+class ScriptedCell final : public CellPort {
+ public:
+  std::map<std::string, Script> scripts;
+  int unavailable_scans = 0;  // the scanner answers UNAVAILABLE this many times first
+  std::vector<std::string> placed;  // items released over the tote
+  std::map<std::string, int> vacuum_ons;
+  std::string current;  // item being worked on
+  bool held = false;
+
+  std::vector<std::string> ScanPoses(const std::string& c) override {
+    return {"scan/" + c + "/0", "scan/" + c + "/1", "scan/" + c + "/2"};
+  }
+  StepOutcome MoveToNamed(const std::string&) override { return {true, "", 2.0}; }
+  ScanView Scan() override {
+    if (unavailable_scans > 0) {
+      --unavailable_scans;
+      throw CellError("scanner", true, "connection refused");
+    }
+    ScanView v;
+    v.cloud_Base = std::make_shared<geometry::PointCloud>();
+    v.capture_s = 1.0;
+    return v;
+  }
+  Detection Detect(const std::string&, const std::string& item,
+                   const std::vector<ScanView>& views) override {
+    EXPECT_EQ(views.size(), 3u);
+    current = item;
+    Detection d;
+    d.found = scripts[item].found;
+    d.method = "ppf";
+    d.score = 0.9;
+    d.message = d.found ? "" : "no pose above the threshold";
+    return d;
+  }
+  PlannedPick PlanPick(const std::string&, const std::string& item, const Eigen::Isometry3d&,
+                       const std::vector<ScanView>&) override {
+    PlannedPick p;
+    p.ok = scripts[item].plannable;
+    p.message = p.ok ? "" : "descend: gripper hits shelf";
+    p.grasp = "+x face";
+    return p;
+  }
+  StepOutcome ExecuteApproach(const PlannedPick&) override { return {true, "", 3.0}; }
+  TouchOutcome Touch(const PlannedPick&) override { return {true, 0.04, 1.0}; }
+  SealReading VacuumOn() override {
+    Script& s = scripts[current];
+    held = ++vacuum_ons[current] > s.no_seal_attempts;
+    return {held, held ? 40.0 : 2.0};
+  }
+  SealReading ReadSeal() override { return {held, held ? 40.0 : 1.0}; }
+  StepOutcome ExecuteRetreat(const PlannedPick&) override {
+    if (held && scripts[current].lose_in_lift) {
+      scripts[current].lose_in_lift = false;
+      held = false;
+    }
+    return {true, "", 3.0};
+  }
+  PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
+                           const PlannedPick&) override {
+    EXPECT_EQ(container, "tote");
+    if (scripts[item].drop_on_the_way) held = false;
+    return {true, "", 0.1, 4.0};
+  }
+  void VacuumOff() override {
+    if (held) placed.push_back(current);
+    held = false;
+  }
+};
+
+apc::Task ThreeItemTask() {
+  return apc::ParseTask(R"({"bin_contents": {"bin_A": ["kleenex_tissue_box", "dove_beauty_bar"],
+      "bin_B": ["rawlings_baseball"], "bin_C": ["hanes_tube_socks"], "bin_D": [], "bin_E": [], "bin_F": [],
+      "bin_G": [], "bin_H": [], "bin_I": [], "bin_J": [], "bin_K": [], "bin_L": []},
+      "tote_contents": [], "work_order": [{"bin": "bin_A", "item": "kleenex_tissue_box"},
+      {"bin": "bin_B", "item": "rawlings_baseball"}, {"bin": "bin_C", "item": "hanes_tube_socks"}]})",
+                        Catalogue(), "test");
+}
+
+std::vector<Target> InFileOrder(const apc::Task& task) {
+  std::vector<Target> order;
+  for (const auto& e : task.work_order) order.push_back({e.item, e.bin, 1.0});
+  return order;
+}
+
+class PickTaskTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("pick_task_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::remove_all(dir_);
+    std::filesystem::create_directories(dir_);
+    options_.backoff_s = 0.0;  // the scripted cell needs no wait
+  }
+  PickTaskResult Run(ScriptedCell& cell, std::vector<TaskEvent>* events = nullptr) {
+    Journal journal((dir_ / "journal.jsonl").string());
+    const apc::Task task = ThreeItemTask();
+    PickTaskRunner runner(task, InFileOrder(task), Catalogue(), options_, cell, journal,
+                          [&](const TaskEvent& e) { if (events) events->push_back(e); }, cancel_);
+    return runner.Run();
+  }
+  std::filesystem::path dir_;
+  PickTaskOptions options_;
+  std::atomic<bool> cancel_{false};
+};
+
+TEST_F(PickTaskTest, PicksEveryTargetAndScoresTheRules) {
+  ScriptedCell cell;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(cell.placed, (std::vector<std::string>{"kleenex_tissue_box", "rawlings_baseball",
+                                                   "hanes_tube_socks"}));
+  EXPECT_EQ(result.final_contents.tote_contents.size(), 3u);
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_A"),
+            std::vector<std::string>{"dove_beauty_bar"});
+  EXPECT_GT(result.score.total, 0);
+  // Robot time: per item 3 moves + 3 captures + approach, touch, retreat, place; and home.
+  EXPECT_GE(result.duration_s, 3 * (3 * 2.0 + 3 * 1.0 + 3.0 + 1.0 + 3.0 + 4.0) + 2.0);
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events.back().items_done, 3);
+  for (std::size_t i = 1; i < events.size(); ++i) {
+    EXPECT_EQ(events[i].sequence, events[i - 1].sequence + 1);
+  }
+}
+
+TEST_F(PickTaskTest, AFailedTargetIsRetriedAfterTheOthersAndGivenUpAtTheLimit) {
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].no_seal_attempts = 1;  // seals the second time
+  cell.scripts["rawlings_baseball"].plannable = false;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 2);
+  EXPECT_EQ(cell.placed, (std::vector<std::string>{"hanes_tube_socks", "kleenex_tissue_box"}));
+  EXPECT_EQ(result.targets[1].attempts, 2);
+  EXPECT_NE(result.targets[1].failure.find("descend: gripper hits shelf"), std::string::npos);
+}
+
+TEST_F(PickTaskTest, ASealLostDuringTheLiftIsNoticedAndTheItemRetried) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].lose_in_lift = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(result.targets[1].attempts, 2);
+  EXPECT_EQ(cell.vacuum_ons["rawlings_baseball"], 2);
+}
+
+TEST_F(PickTaskTest, AnItemDroppedOnTheWayIsNotReportedInTheTote) {
+  ScriptedCell cell;
+  cell.scripts["hanes_tube_socks"].drop_on_the_way = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 2);
+  EXPECT_NE(result.targets[2].failure.find("dropped on the way"), std::string::npos);
+  const auto& tote = result.final_contents.tote_contents;
+  EXPECT_EQ(std::count(tote.begin(), tote.end(), "hanes_tube_socks"), 0);
+}
+
+TEST_F(PickTaskTest, AServiceThatDoesNotAnswerIsRetriedWithBackoff) {
+  ScriptedCell cell;
+  cell.unavailable_scans = 2;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  EXPECT_EQ(result.items_moved, 3);
+  cell.unavailable_scans = 100;
+  std::filesystem::remove(dir_ / "journal.jsonl");
+  ScriptedCell down;
+  down.unavailable_scans = 100;
+  const PickTaskResult failed = Run(down);
+  EXPECT_EQ(failed.state, TaskState::kFailed);
+  EXPECT_NE(failed.error.find("scanner"), std::string::npos);
+}
+
+TEST_F(PickTaskTest, TargetsAreSkippedWhenTheClockRunsOut) {
+  options_.time_limit_s = 30.0;  // about one pick
+  ScriptedCell cell;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 1);
+  EXPECT_NE(result.targets[2].failure.find("skipped"), std::string::npos);
+}
+
+TEST_F(PickTaskTest, AResumedTaskRepeatsNoPick) {
+  ScriptedCell first;
+  first.scripts["rawlings_baseball"].found = false;  // ends the first run with two placed
+  options_.max_attempts = 1;
+  EXPECT_EQ(Run(first).items_moved, 2);
+  options_.max_attempts = 2;  // the resumed run may try the missing one again
+  ScriptedCell second;
+  const PickTaskResult result = Run(second);
+  EXPECT_EQ(second.placed, std::vector<std::string>{"rawlings_baseball"});
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(result.final_contents.tote_contents.size(), 3u);
+}
+
+TEST_F(PickTaskTest, AResumeWithTheItemStillOnTheCupCarriesItToTheTote) {
+  {
+    Journal journal((dir_ / "journal.jsonl").string());
+    journal.Append("begin", "pick/bin_A/kleenex_tissue_box/1/scan", 1.0);
+    journal.Append("begin", "pick/bin_A/kleenex_tissue_box/1/grasp", 20.0);
+    journal.Append("done", "pick/bin_A/kleenex_tissue_box/1/grasp", 22.0);
+  }
+  ScriptedCell cell;
+  cell.held = true, cell.current = "kleenex_tissue_box";  // still sealed after the crash
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(cell.vacuum_ons["kleenex_tissue_box"], 0);  // not grasped again
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_GE(result.duration_s, 22.0);
+}
+
+}  // namespace
+}  // namespace picking::orchestrator

@@ -1,0 +1,56 @@
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "libs/apc/catalogue.h"
+#include "libs/apc/task.h"
+
+namespace picking::orchestrator {
+
+/// How easy each item is to pick, in [0, 1]: the order in which a task attempts its targets.
+///
+/// The default for an item is (4 - difficulty) / 3 (the catalogue's 1-3 difficulty) times the
+/// measured success rate of its detection method (the detector's preferred method for it);
+/// `items` overrides single items. The file (data/orchestrator/ease.yaml) is meant to be
+/// edited as a cell's figures change.
+struct EaseTable {
+  std::map<std::string, double> method_success;  ///< "ppf", "sift", "range_templates".
+  std::map<std::string, double> items;           ///< Per-item overrides.
+  double default_method_success = 0.5;           ///< A method without a figure.
+
+  /// Reads the YAML file; throws std::invalid_argument naming the file and key on a value
+  /// outside [0, 1], a non-number or an unknown top-level key.
+  static EaseTable FromYamlFile(const std::string& path);
+  static EaseTable FromYamlText(const std::string& text, const std::string& source_name);
+
+  /// The item's ease; `method` is its preferred detection method.
+  double Ease(const apc::Item& item, const std::string& method) const;
+};
+
+/// Each item's preferred detection method from the detector's model file
+/// (data/detector/models.json: "default".preferred and per model "preferred"). Throws
+/// std::invalid_argument naming the file when it cannot be read.
+std::map<std::string, std::string> ReadPreferredMethods(const std::string& models_json_path);
+
+/// One target of a pick task.
+struct Target {
+  std::string item;
+  std::string bin;
+  double ease = 0.0;
+  int attempts = 0;  ///< Attempts made so far.
+  bool done = false;
+  bool given_up = false;
+  std::string last_failure;  ///< Why the last attempt failed.
+};
+
+/// The work order in the order to attempt it: `ease_order` first (items in that order; an
+/// item it names that is not in the work order is an error), then the rest by falling ease,
+/// ties by bin name. Throws std::invalid_argument naming the item.
+std::vector<Target> OrderTargets(const apc::Task& task, const apc::Catalogue& catalogue,
+                                 const EaseTable& ease,
+                                 const std::map<std::string, std::string>& preferred_method,
+                                 const std::vector<std::string>& ease_order);
+
+}  // namespace picking::orchestrator
