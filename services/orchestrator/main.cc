@@ -7,6 +7,25 @@ int main(int argc, char** argv) {
   spec.program = "picking-orchestrator";
   spec.service = "orchestrator";
   spec.description = "the orchestrator service of the picking cell (gRPC: picking.orchestrator.v1)";
+  spec.settings_help = {
+      "scanner.address=HOST:PORT   the cell's services (default <name>:50051, the compose",
+      "detector.address=...        and Kubernetes service names); likewise planner.address,",
+      "                            robot.address, gripper.address",
+      "tasks_dir=DIR           each task's journal, output file and report (default",
+      "                        ./picking-tasks)",
+      "data_dir=DIR            bundled data (default: $PICKING_DATA_DIR or the source data/)",
+      "cell=FILE               cell description, for the bins (default",
+      "                        <data_dir>/cell/default_cell.yaml)",
+      "ease=FILE               ease of each item, the order of the targets (default",
+      "                        <data_dir>/orchestrator/ease.yaml)",
+      "detector_models=FILE    each item's preferred detection method (default",
+      "                        <data_dir>/detector/models.json)",
+      "time_limit_s=S          task clock, robot time (default 900, the rules' 15 minutes)",
+      "max_attempts=N          attempts per target (default 2)",
+      "min_time_per_item_s=S   skip a target with less task time left (default 25)",
+      "detector.deadline_s=S   per Detect call (default 60)",
+      "shutdown_wait_s=S       how long SIGTERM waits for a task's current step (default 3)",
+  };
   spec.build = picking::orchestrator::BuildOrchestratorServices;
   return picking::runtime::RunServerMain(argc, argv, spec);
 }

@@ -2,6 +2,11 @@
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <sstream>
+
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 #include "tests/harness/server_process.h"
 #include "tests/harness/service_checks.h"
@@ -19,15 +24,85 @@ TEST(OrchestratorServerTest, ServesHealthAndReflectionAndStopsCleanly) {
 
 TEST(OrchestratorServerTest, RejectsBadFlags) { ExpectRejectsBadFlags(ServerBinary(kBinary)); }
 
-TEST(OrchestratorServerTest, UnfinishedRpcAnswersUnimplemented) {
-  ServerProcess server(ServerBinary(kBinary));
-  auto stub = orchestrator::v1::OrchestratorService::NewStub(server.Channel());
+// The orchestrator alone, its peers not started: requests are checked before anything moves.
+class OrchestratorAloneTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = ::testing::TempDir() + "/orchestrator_alone";
+    std::filesystem::remove_all(dir_);
+    // Peers on a port nothing listens on.
+    server_ = std::make_unique<ServerProcess>(
+        ServerBinary(kBinary),
+        std::vector<std::string>{"--tasks_dir=" + dir_, "--scanner.address=127.0.0.1:1",
+                                 "--detector.address=127.0.0.1:1", "--planner.address=127.0.0.1:1",
+                                 "--robot.address=127.0.0.1:1", "--gripper.address=127.0.0.1:1"});
+    stub_ = orchestrator::v1::OrchestratorService::NewStub(server_->Channel());
+  }
+  void TearDown() override { EXPECT_EQ(server_->Stop(), 0); }
+
+  grpc::Status Start(const std::string& json, std::vector<std::string> ease_order = {}) {
+    grpc::ClientContext ctx;
+    orchestrator::v1::StartTaskRequest request;
+    request.set_task_json(json);
+    for (const auto& e : ease_order) request.add_ease_order(e);
+    orchestrator::v1::StartTaskResponse response;
+    return stub_->StartTask(&ctx, request, &response);
+  }
+
+  std::string dir_;
+  std::unique_ptr<ServerProcess> server_;
+  std::unique_ptr<orchestrator::v1::OrchestratorService::Stub> stub_;
+};
+
+std::string Layout1() {
+  std::ifstream in(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json");
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+TEST_F(OrchestratorAloneTest, ListsNoTasksAndDoesNotKnowUnknownOnes) {
   grpc::ClientContext ctx;
-  orchestrator::v1::ListTasksRequest request;
-  orchestrator::v1::ListTasksResponse response;
-  const grpc::Status status = stub->ListTasks(&ctx, request, &response);
-  EXPECT_EQ(status.error_code(), grpc::StatusCode::UNIMPLEMENTED) << status.error_message();
-  EXPECT_EQ(server.Stop(), 0);
+  orchestrator::v1::ListTasksResponse list;
+  ASSERT_TRUE(stub_->ListTasks(&ctx, {}, &list).ok());
+  EXPECT_EQ(list.tasks_size(), 0);
+  grpc::ClientContext get_ctx;
+  orchestrator::v1::GetTaskRequest get;
+  get.set_task_id("task-nope");
+  orchestrator::v1::GetTaskResponse task;
+  EXPECT_EQ(stub_->GetTask(&get_ctx, get, &task).error_code(), grpc::StatusCode::NOT_FOUND);
+  grpc::ClientContext cancel_ctx;
+  orchestrator::v1::CancelTaskRequest cancel;
+  cancel.set_task_id("task-nope");
+  orchestrator::v1::CancelTaskResponse cancelled;
+  EXPECT_EQ(stub_->CancelTask(&cancel_ctx, cancel, &cancelled).error_code(),
+            grpc::StatusCode::NOT_FOUND);
+}
+
+TEST_F(OrchestratorAloneTest, RefusesBadTaskFilesNamingTheField) {
+  grpc::Status s = Start("");
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = Start("{\"bin_contents\": ");
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("malformed JSON"), std::string::npos) << s.error_message();
+  std::string unknown = Layout1();
+  unknown.replace(unknown.find("kleenex_tissue_box"), 18, "no_such_item_at_all");
+  s = Start(unknown);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND) << s.error_message();
+  EXPECT_NE(s.error_message().find("no_such_item_at_all"), std::string::npos);
+  s = Start(Layout1(), {"rawlings_baseball_not_in_the_order"});
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("ease_order[0]"), std::string::npos) << s.error_message();
+}
+
+TEST_F(OrchestratorAloneTest, AValidTaskWithItsServicesDownIsUnavailableAndNothingStarts) {
+  const grpc::Status s = Start(Layout1());
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
+  EXPECT_NE(s.error_message().find("does not answer"), std::string::npos) << s.error_message();
+  grpc::ClientContext ctx;
+  orchestrator::v1::ListTasksResponse list;
+  ASSERT_TRUE(stub_->ListTasks(&ctx, {}, &list).ok());
+  EXPECT_EQ(list.tasks_size(), 0);
 }
 
 }  // namespace

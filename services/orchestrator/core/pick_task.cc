@@ -307,9 +307,8 @@ PickTaskResult PickTaskRunner::Run() {
              target.done ? apc::kToteLocation : "");
       }
     }
-    if (!cancel_.load()) {
-      clock_s_ += WithRetries("move", [&] { return cell_.MoveToNamed(options_.home_pose); }).robot_s;
-    }
+    // The safe pose at the end, also when cancelled (no item is held between targets).
+    clock_s_ += WithRetries("move", [&] { return cell_.MoveToNamed(options_.home_pose); }).robot_s;
     result.state = cancel_.load() ? TaskState::kCancelled : TaskState::kSucceeded;
   } catch (const std::exception& e) {
     result.state = TaskState::kFailed;

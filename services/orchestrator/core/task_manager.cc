@@ -1,6 +1,7 @@
 #include "services/orchestrator/core/task_manager.h"
 
 #include <chrono>
+#include <cmath>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
@@ -61,12 +62,20 @@ TaskManager::TaskManager(TaskManagerOptions options, const apc::Catalogue& catal
   LoadFromDisk();
 }
 
-TaskManager::~TaskManager() {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (auto& [id, entry] : tasks_) entry->cancel = true;
+TaskManager::~TaskManager() { Shutdown(60.0); }
+
+void TaskManager::Shutdown(double wait_s) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  for (auto& [id, entry] : tasks_) entry->cancel = true;
+  changed_.wait_for(lock, std::chrono::duration<double>(wait_s), [&] { return !running_; });
+  const bool stopped = !running_;
+  lock.unlock();
+  if (!worker_.joinable()) return;
+  if (stopped) {
+    worker_.join();
+  } else {
+    worker_.detach();
   }
-  if (worker_.joinable()) worker_.join();
 }
 
 // Tasks of an earlier process: their journal says how far they got; one without an "end"
@@ -117,6 +126,38 @@ std::string TaskManager::NewTaskId() {
   return id;
 }
 
+std::pair<apc::Task, std::vector<Target>> TaskManager::Prepare(const std::string& task_json,
+                                                               const StartSpec& spec) const {
+  apc::Task task;
+  try {
+    task = apc::ParseTask(task_json, catalogue_, "task_json");
+  } catch (const apc::TaskFileError& e) {
+    // The contract: an unknown item is NOT_FOUND, any other fault of the file INVALID_ARGUMENT.
+    if (std::string(e.what()).find("unknown item") != std::string::npos) {
+      throw NotFoundError(e.what());
+    }
+    throw std::invalid_argument(e.what());
+  }
+  if (spec.kind == "stow" || task.kind == apc::TaskKind::kStow) {
+    throw std::invalid_argument("kind: stow tasks are not supported by this orchestrator yet");
+  }
+  if (spec.time_limit_s < 0.0 || !std::isfinite(spec.time_limit_s) || spec.time_limit_s > 86400) {
+    throw std::invalid_argument("time_limit_s: must be in [0, 86400] s");
+  }
+  std::vector<Target> order =
+      OrderTargets(task, catalogue_, options_.ease, options_.preferred_method, spec.ease_order);
+  return {std::move(task), std::move(order)};
+}
+
+void TaskManager::Validate(const StartSpec& spec) const {
+  if (!spec.resume_task_id.empty()) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Find(spec.resume_task_id);
+    return;
+  }
+  Prepare(spec.task_json, spec);
+}
+
 std::string TaskManager::Start(const StartSpec& spec) {
   std::unique_lock<std::mutex> lock(mutex_);
   if (running_) throw PreconditionError("a task is running; one task at a time per cell");
@@ -131,16 +172,8 @@ std::string TaskManager::Start(const StartSpec& spec) {
     }
     task_json = ReadText(fs::path(entry->dir) / "task.json");
   }
-  const apc::Task task = apc::ParseTask(task_json, catalogue_, "task_json");
-  if (spec.kind == "stow" || task.kind == apc::TaskKind::kStow) {
-    throw std::invalid_argument("kind: stow tasks are not supported by this orchestrator yet");
-  }
-  std::vector<Target> order =
-      OrderTargets(task, catalogue_, options_.ease, options_.preferred_method, spec.ease_order);
+  auto [task, order] = Prepare(task_json, spec);
   PickTaskOptions options = options_.pick;
-  if (spec.time_limit_s < 0.0 || !std::isfinite(spec.time_limit_s) || spec.time_limit_s > 86400) {
-    throw std::invalid_argument("time_limit_s: must be in [0, 86400] s");
-  }
   if (spec.time_limit_s > 0.0) options.time_limit_s = spec.time_limit_s;
   if (!entry) {
     entry = std::make_shared<Entry>();

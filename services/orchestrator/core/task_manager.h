@@ -51,13 +51,19 @@ class TaskManager final {
  public:
   using CellFactory = std::function<std::unique_ptr<CellPort>()>;
   TaskManager(TaskManagerOptions options, const apc::Catalogue& catalogue, CellFactory cell);
-  /// Cancels a running task and waits for it to stop at its next step.
+  /// Shutdown(60): cancels a running task and waits for it to stop at its next step.
   ~TaskManager();
+  /// Cancels a running task and waits up to `wait_s` for it to stop; a task still busy then
+  /// (a long motion) is left to end with the process: its journal holds what was done, and it
+  /// is listed as interrupted, resumable, by the next orchestrator.
+  void Shutdown(double wait_s);
 
   /// Validates and starts. Throws std::invalid_argument (malformed task, ease order),
   /// apc::TaskFileError (names the field), NotFoundError (unknown resume id),
   /// PreconditionError (a task is running; resuming a finished task).
   std::string Start(const StartSpec& spec);
+  /// The checks of Start without starting: throws as Start does for a bad request.
+  void Validate(const StartSpec& spec) const;
   /// Throws NotFoundError.
   TaskInfo Get(const std::string& task_id) const;
   std::vector<TaskInfo> List() const;
@@ -78,6 +84,10 @@ class TaskManager final {
   void RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vector<Target> order,
                PickTaskOptions options);
   void LoadFromDisk();
+  /// The task file parsed and the targets ordered; throws std::invalid_argument naming the
+  /// field, NotFoundError for an unknown item.
+  std::pair<apc::Task, std::vector<Target>> Prepare(const std::string& task_json,
+                                                    const StartSpec& spec) const;
   std::shared_ptr<Entry> Find(const std::string& task_id) const;
   std::string NewTaskId();
 

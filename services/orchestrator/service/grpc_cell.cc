@@ -1,0 +1,369 @@
+#include "services/orchestrator/service/grpc_cell.h"
+
+#include <google/rpc/status.pb.h>
+#include <grpcpp/channel.h>
+#include <grpcpp/client_context.h>
+
+#include <algorithm>
+
+#include "libs/proto_convert/proto_convert.h"
+
+namespace picking::orchestrator {
+namespace pc = ::picking::proto_convert;
+namespace sc = ::picking::scanner::v1;
+namespace dt = ::picking::detector::v1;
+namespace pl = ::picking::planner::v1;
+namespace rb = ::picking::robot::v1;
+namespace gr = ::picking::gripper::v1;
+namespace cm = ::picking::common::v1;
+namespace {
+
+void SetDeadline(grpc::ClientContext& ctx, double seconds) {
+  ctx.set_deadline(std::chrono::system_clock::now() +
+                   std::chrono::microseconds(static_cast<long long>(seconds * 1e6)));
+}
+
+double Duration(const cm::JointTrajectory& t) {
+  return t.points_size() == 0 ? 0.0 : t.points(t.points_size() - 1).time_from_start_s();
+}
+
+// The planner's typed failure from the status details, else the status message.
+std::string PlanFailureMessage(const grpc::Status& status) {
+  google::rpc::Status details;
+  if (!status.error_details().empty() && details.ParseFromString(status.error_details())) {
+    for (const auto& any : details.details()) {
+      pl::PlanFailure failure;
+      if (any.UnpackTo(&failure) && !failure.message().empty()) {
+        return failure.stage() + ": " + failure.message();
+      }
+    }
+  }
+  return status.error_message();
+}
+
+// The views' organised clouds stacked row-wise, as the detector takes several views.
+geometry::PointCloud StackViews(const std::vector<ScanView>& views) {
+  geometry::PointCloud out = *views.front().cloud_Base;
+  for (std::size_t i = 1; i < views.size(); ++i) {
+    const geometry::PointCloud& v = *views[i].cloud_Base;
+    if (v.width != out.width || v.has_normals() != out.has_normals() ||
+        v.has_intensities() != out.has_intensities() || v.has_colors() != out.has_colors()) {
+      throw CellError("scanner", false, "the views of one scan differ in size or channels");
+    }
+    out.points.insert(out.points.end(), v.points.begin(), v.points.end());
+    out.normals.insert(out.normals.end(), v.normals.begin(), v.normals.end());
+    out.intensities.insert(out.intensities.end(), v.intensities.begin(), v.intensities.end());
+    out.colors.insert(out.colors.end(), v.colors.begin(), v.colors.end());
+    out.height += v.height;
+  }
+  return out;
+}
+
+}  // namespace
+
+void ThrowIfFailed(const std::string& service, const std::string& what,
+                   const grpc::Status& status) {
+  if (status.ok()) return;
+  const bool retryable = status.error_code() == grpc::StatusCode::UNAVAILABLE ||
+                         status.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED;
+  throw CellError(service, retryable, what + ": " + status.error_message());
+}
+
+GrpcCell::GrpcCell(GrpcCellOptions options)
+    : options_(std::move(options)),
+      scanner_(sc::ScannerService::NewStub(options_.scanner)),
+      planner_(pl::PlannerService::NewStub(options_.planner)),
+      robot_(rb::RobotService::NewStub(options_.robot)),
+      gripper_(gr::GripperService::NewStub(options_.gripper)) {}
+
+std::vector<std::string> GrpcCell::ScanPoses(const std::string& container) {
+  if (scan_poses_.empty()) {
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, options_.plan_deadline_s);
+    pl::ListNamedPosesResponse poses;
+    ThrowIfFailed("planner", "ListNamedPoses", planner_->ListNamedPoses(&ctx, {}, &poses));
+    for (const auto& p : poses.poses()) {
+      const std::string& name = p.name();
+      if (name.rfind("scan/", 0) != 0) continue;
+      const std::size_t slash = name.find('/', 5);
+      if (slash != std::string::npos) scan_poses_[name.substr(5, slash - 5)].push_back(name);
+    }
+    for (auto& [c, names] : scan_poses_) std::sort(names.begin(), names.end());
+  }
+  const auto it = scan_poses_.find(container);
+  if (it == scan_poses_.end()) {
+    throw CellError("planner", false, "no scan poses for '" + container + "'");
+  }
+  return it->second;
+}
+
+rb::GetStateResponse GrpcCell::RobotState() {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, 5.0);
+  rb::GetStateResponse state;
+  ThrowIfFailed("robot", "GetState", robot_->GetState(&ctx, {}, &state));
+  return state;
+}
+
+double GrpcCell::Execute(const cm::JointTrajectory& trajectory) {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.motion_deadline_s);
+  rb::ExecuteTrajectoryRequest request;
+  *request.mutable_trajectory() = trajectory;
+  request.set_start_tolerance_rad(0.01);
+  auto reader = robot_->ExecuteTrajectory(&ctx, request);
+  rb::ExecuteTrajectoryProgress progress;
+  bool done = false;
+  while (reader->Read(&progress)) done = done || progress.done();
+  ThrowIfFailed("robot", "ExecuteTrajectory", reader->Finish());
+  if (!done) throw CellError("robot", false, "the trajectory ended without reaching its end");
+  return Duration(trajectory);
+}
+
+StepOutcome GrpcCell::MoveToNamed(const std::string& name) {
+  const rb::GetStateResponse state = RobotState();
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.plan_deadline_s);
+  pl::PlanJointMotionRequest request;
+  *request.mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
+  request.set_goal_name(name);
+  pl::PlanJointMotionResponse motion;
+  const grpc::Status status = planner_->PlanJointMotion(&ctx, request, &motion);
+  if (status.error_code() == grpc::StatusCode::ABORTED) {
+    return {false, PlanFailureMessage(status), 0.0};
+  }
+  ThrowIfFailed("planner", "PlanJointMotion to " + name, status);
+  return {true, "", Execute(motion.trajectory()) + motion.planning_time_s()};
+}
+
+ScanView GrpcCell::Scan() {
+  const rb::GetStateResponse state = RobotState();
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.scan_deadline_s);
+  sc::ScanRequest request;
+  auto* view = request.add_views();
+  *view->mutable_x_base_tool() = state.x_base_tool();
+  *view->mutable_joints()->mutable_positions_rad() = state.joints().positions_rad();
+  request.set_frame_id("base");
+  request.set_with_normals(true);
+  request.set_with_intensities(true);
+  request.mutable_decode()->set_min_neighbours(3);
+  auto reader = scanner_->Scan(&ctx, request);
+  pc::CloudAssembler assembler;
+  sc::ScanResponse response;
+  sc::ScanSummary summary;
+  while (reader->Read(&response)) {
+    if (response.has_cloud()) assembler.Add(response.cloud());
+    if (response.has_summary()) summary = response.summary();
+  }
+  ThrowIfFailed("scanner", "Scan", reader->Finish());
+  ScanView out;
+  out.cloud_Base = std::make_shared<geometry::PointCloud>(assembler.Finish());
+  if (summary.x_frame_camera_size() > 0) {
+    out.X_BaseCamera = pc::PoseFromProto(summary.x_frame_camera(0), "X_frame_camera");
+  }
+  out.capture_s = summary.capture_time_s();
+  return out;
+}
+
+Detection GrpcCell::Detect(const std::string& container, const std::string& item,
+                           const std::vector<ScanView>& views) {
+  if (views.empty()) throw CellError("scanner", false, "no views to detect in");
+  const world::BinGeometry& bin = options_.cell.bin(container);
+  dt::DetectParams params;
+  auto* query = params.add_queries();
+  query->set_item(item);
+  const Eigen::Isometry3d X_BaseBin =
+      options_.cell.config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center());
+  *params.mutable_region()->mutable_x_frame_region() = pc::PoseToProto(X_BaseBin);
+  *params.mutable_region()->mutable_size_m() = pc::VectorToProto(bin.inner_S.sizes());
+  params.mutable_region()->set_wall_margin_m(options_.wall_margin_m);
+  if (views.size() > 1) {
+    for (const ScanView& v : views) *params.add_view_sensor_poses() = pc::PoseToProto(v.X_BaseCamera);
+  }
+  std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(StackViews(views));
+  *chunks.front().mutable_header()->mutable_sensor_pose() = pc::PoseToProto(views[0].X_BaseCamera);
+  dt::DetectResponse response;
+  Detection out;
+  ThrowIfFailed("detector", "Detect", options_.detect(params, chunks, &response, &out.replica));
+  if (response.results_size() != 1) throw CellError("detector", false, "expected one result");
+  const dt::ItemResult& result = response.results(0);
+  if (result.status().code() != 0) {
+    throw CellError("detector", false, item + ": " + result.status().message());
+  }
+  if (result.detections_size() == 0) {
+    out.message = "no pose above the item's threshold (" +
+                  std::to_string(result.methods_tried_size()) + " methods tried)";
+    return out;
+  }
+  const dt::Detection& best = result.detections(0);
+  out.found = true;
+  out.X_BaseItem = pc::PoseFromProto(best.x_frame_item(), "X_frame_item");
+  out.score = best.score();
+  out.method = dt::Method_Name(best.method());
+  return out;
+}
+
+std::string GrpcCell::UpdateScene(const std::string& container, const std::string& item,
+                                  const Eigen::Isometry3d& X_BaseItem,
+                                  const std::vector<ScanView>& views) {
+  std::string scene_id;
+  for (const ScanView& view : views) {
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, options_.plan_deadline_s);
+    pl::UpdateSceneResponse response;
+    auto writer = planner_->UpdateScene(&ctx, &response);
+    pl::UpdateSceneRequest first;
+    auto* params = first.mutable_params();
+    params->set_scene_id(scene_id);
+    params->set_container(pc::ContainerFromName(container));
+    params->set_item(item);
+    *params->mutable_x_base_item() = pc::PoseToProto(X_BaseItem);
+    writer->Write(first);
+    for (const auto& chunk : pc::CloudToChunks(*view.cloud_Base)) {
+      pl::UpdateSceneRequest message;
+      *message.mutable_cloud() = chunk;
+      if (!writer->Write(message)) break;
+    }
+    writer->WritesDone();
+    ThrowIfFailed("planner", "UpdateScene", writer->Finish());
+    scene_id = response.scene_id();
+  }
+  return scene_id;
+}
+
+PlannedPick GrpcCell::PlanPick(const std::string& container, const std::string& item,
+                               const Eigen::Isometry3d& X_BaseItem,
+                               const std::vector<ScanView>& views) {
+  const std::string scene_id = UpdateScene(container, item, X_BaseItem, views);
+  const rb::GetStateResponse state = RobotState();
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.plan_deadline_s);
+  StoredPick stored;
+  auto writer = planner_->PlanPick(&ctx, &stored.response);
+  pl::PlanPickRequest request;
+  auto* params = request.mutable_params();
+  params->set_item(item);
+  *params->mutable_x_base_item() = pc::PoseToProto(X_BaseItem);
+  params->set_container(pc::ContainerFromName(container));
+  *params->mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
+  params->set_scene_id(scene_id);
+  writer->Write(request);
+  writer->WritesDone();
+  const grpc::Status status = writer->Finish();
+  PlannedPick out;
+  if (status.error_code() == grpc::StatusCode::ABORTED) {
+    out.message = PlanFailureMessage(status);
+    return out;
+  }
+  ThrowIfFailed("planner", "PlanPick", status);
+  const Eigen::Isometry3d X_BaseTcp =
+      pc::PoseFromProto(stored.response.grasp().x_base_tcp(), "grasp.X_base_tcp");
+  stored.X_TcpItem = X_BaseTcp.inverse() * X_BaseItem;
+  out.ok = true;
+  out.grasp = stored.response.grasp().surface();
+  out.handle = next_handle_++;
+  out.approach_s = Duration(stored.response.approach());
+  out.descend_s = Duration(stored.response.descend());
+  out.retreat_s = Duration(stored.response.retreat());
+  picks_[out.handle] = std::move(stored);
+  return out;
+}
+
+const GrpcCell::StoredPick& GrpcCell::Stored(const PlannedPick& pick) const {
+  const auto it = picks_.find(pick.handle);
+  if (it == picks_.end()) throw CellError("orchestrator", false, "unknown pick plan");
+  return it->second;
+}
+
+StepOutcome GrpcCell::ExecuteApproach(const PlannedPick& pick) {
+  const StoredPick& stored = Stored(pick);
+  const double approach_s = Execute(stored.response.approach());
+  return {true, "", approach_s + Execute(stored.response.descend())};
+}
+
+TouchOutcome GrpcCell::Touch(const PlannedPick& pick) {
+  const StoredPick& stored = Stored(pick);
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.motion_deadline_s);
+  rb::GuardedMoveRequest request;
+  *request.mutable_direction() = stored.response.guarded_direction();
+  request.set_max_distance_m(stored.response.guarded_distance_m());
+  request.set_force_threshold_n(options_.guarded_force_n);
+  request.set_speed_m_s(options_.guarded_speed_m_s);
+  rb::GuardedMoveResponse response;
+  ThrowIfFailed("robot", "GuardedMove", robot_->GuardedMove(&ctx, request, &response));
+  TouchOutcome out;
+  out.contact = response.contact();
+  out.distance_m = response.distance_travelled_m();
+  out.robot_s = out.distance_m / options_.guarded_speed_m_s;
+  return out;
+}
+
+SealReading GrpcCell::VacuumOn() {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.seal_wait_s + 5.0);
+  gr::SetVacuumRequest request;
+  request.set_on(true);
+  request.set_wait_for_seal_s(options_.seal_wait_s);
+  gr::SetVacuumResponse response;
+  const grpc::Status status = gripper_->SetVacuum(&ctx, request, &response);
+  // DEADLINE_EXCEEDED from the gripper itself means "no seal in the wait": read the level.
+  if (status.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED) return ReadSeal();
+  ThrowIfFailed("gripper", "SetVacuum", status);
+  return {response.state().item_attached(), response.state().vacuum_kpa()};
+}
+
+SealReading GrpcCell::ReadSeal() {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, 5.0);
+  gr::GetStateResponse state;
+  ThrowIfFailed("gripper", "GetState", gripper_->GetState(&ctx, {}, &state));
+  return {state.item_attached(), state.vacuum_kpa()};
+}
+
+void GrpcCell::VacuumOff() {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, 5.0);
+  gr::SetVacuumRequest request;
+  request.set_on(false);
+  gr::SetVacuumResponse response;
+  ThrowIfFailed("gripper", "SetVacuum off", gripper_->SetVacuum(&ctx, request, &response));
+}
+
+StepOutcome GrpcCell::ExecuteRetreat(const PlannedPick& pick) {
+  const StoredPick& stored = Stored(pick);
+  const cm::JointTrajectory& retreat = stored.response.retreat();
+  if (retreat.points_size() == 0) return {false, "empty retreat", 0.0};
+  // The guarded move stopped where the cup met the item, a little before or after the
+  // planned grasp: join the retreat at its start with a short joint move.
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.motion_deadline_s);
+  rb::MoveJointsRequest request;
+  *request.mutable_target()->mutable_positions_rad() = retreat.points(0).positions_rad();
+  request.mutable_options()->set_speed_fraction(0.1);
+  rb::MoveJointsResponse moved;
+  ThrowIfFailed("robot", "MoveJoints to the retreat", robot_->MoveJoints(&ctx, request, &moved));
+  return {true, "", moved.duration_s() + Execute(retreat)};
+}
+
+PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& container,
+                                   const PlannedPick& pick) {
+  const rb::GetStateResponse state = RobotState();
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, options_.plan_deadline_s);
+  pl::PlanPlaceRequest request;
+  request.set_item(item);
+  request.set_container(pc::ContainerFromName(container));
+  *request.mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
+  if (pick.handle >= 0) *request.mutable_x_tcp_item() = pc::PoseToProto(Stored(pick).X_TcpItem);
+  pl::PlanPlaceResponse response;
+  const grpc::Status status = planner_->PlanPlace(&ctx, request, &response);
+  if (status.error_code() == grpc::StatusCode::ABORTED) {
+    return {false, PlanFailureMessage(status), 0.0, 0.0};
+  }
+  ThrowIfFailed("planner", "PlanPlace", status);
+  return {true, "", response.drop_height_m(), Execute(response.trajectory())};
+}
+
+}  // namespace picking::orchestrator

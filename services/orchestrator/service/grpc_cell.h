@@ -1,0 +1,95 @@
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <grpcpp/channel.h>
+
+#include "libs/world/cell_config.h"
+#include "picking/detector/v1/detector.grpc.pb.h"
+#include "picking/gripper/v1/gripper.grpc.pb.h"
+#include "picking/planner/v1/planner.grpc.pb.h"
+#include "picking/robot/v1/robot.grpc.pb.h"
+#include "picking/scanner/v1/scanner.grpc.pb.h"
+#include "services/orchestrator/core/cell_port.h"
+
+namespace picking::orchestrator {
+
+/// Sends one Detect call (params, then the cloud's chunks) to some detector replica; returns
+/// the status and fills the response and which replica answered.
+using DetectFn = std::function<grpc::Status(
+    const detector::v1::DetectParams& params,
+    const std::vector<common::v1::PointCloudChunk>& chunks, detector::v1::DetectResponse* response,
+    std::string* replica)>;
+
+struct GrpcCellOptions {
+  std::shared_ptr<grpc::Channel> scanner, planner, robot, gripper;
+  DetectFn detect;
+  world::CellModel cell;  ///< For the bins' boxes (the detector's regions).
+  /// Per-call deadlines, seconds.
+  double scan_deadline_s = 120.0;
+  double detect_deadline_s = 60.0;
+  double plan_deadline_s = 30.0;
+  double motion_deadline_s = 120.0;
+  /// Guarded move: the force that ends it and its speed.
+  double guarded_force_n = 10.0;
+  double guarded_speed_m_s = 0.05;
+  /// How long the vacuum may take to seal.
+  double seal_wait_s = 1.0;
+  /// Points within this distance of a bin's walls and floor are left out of detection.
+  double wall_margin_m = 0.01;
+};
+
+/// The cell's operations done by its gRPC services (CellPort). One per task.
+class GrpcCell final : public CellPort {
+ public:
+  explicit GrpcCell(GrpcCellOptions options);
+
+  std::vector<std::string> ScanPoses(const std::string& container) override;
+  StepOutcome MoveToNamed(const std::string& name) override;
+  ScanView Scan() override;
+  Detection Detect(const std::string& container, const std::string& item,
+                   const std::vector<ScanView>& views) override;
+  PlannedPick PlanPick(const std::string& container, const std::string& item,
+                       const Eigen::Isometry3d& X_BaseItem,
+                       const std::vector<ScanView>& views) override;
+  StepOutcome ExecuteApproach(const PlannedPick& pick) override;
+  TouchOutcome Touch(const PlannedPick& pick) override;
+  SealReading VacuumOn() override;
+  SealReading ReadSeal() override;
+  StepOutcome ExecuteRetreat(const PlannedPick& pick) override;
+  PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
+                           const PlannedPick& pick) override;
+  void VacuumOff() override;
+
+ private:
+  struct StoredPick {
+    planner::v1::PlanPickResponse response;
+    Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();
+  };
+  robot::v1::GetStateResponse RobotState();
+  /// Executes a trajectory; returns its duration (robot seconds).
+  double Execute(const common::v1::JointTrajectory& trajectory);
+  std::string UpdateScene(const std::string& container, const std::string& item,
+                          const Eigen::Isometry3d& X_BaseItem, const std::vector<ScanView>& views);
+  const StoredPick& Stored(const PlannedPick& pick) const;
+
+  GrpcCellOptions options_;
+  std::unique_ptr<scanner::v1::ScannerService::Stub> scanner_;
+  std::unique_ptr<planner::v1::PlannerService::Stub> planner_;
+  std::unique_ptr<robot::v1::RobotService::Stub> robot_;
+  std::unique_ptr<gripper::v1::GripperService::Stub> gripper_;
+  std::map<std::string, std::vector<std::string>> scan_poses_;
+  std::map<int, StoredPick> picks_;
+  int next_handle_ = 0;
+};
+
+/// Throws CellError for a failed call: retryable when the service did not answer.
+void ThrowIfFailed(const std::string& service, const std::string& what, const grpc::Status& status);
+
+}  // namespace picking::orchestrator
