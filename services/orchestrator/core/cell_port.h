@@ -112,6 +112,9 @@ class CellPort {
   virtual PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
                                    const PlannedPick& pick) = 0;
   virtual void VacuumOff() = 0;
+  /// Puts a held item back where it was grasped (the retreat backwards), releases it and
+  /// leaves the container again: the way out when no place can be planned.
+  virtual StepOutcome PutBack(const PlannedPick& pick) = 0;
 };
 
 }  // namespace picking::orchestrator

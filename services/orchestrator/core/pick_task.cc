@@ -244,10 +244,19 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   const PlaceOutcome placed = WithRetries(
       "place", [&] { return cell_.MoveToPlace(target.item, apc::kToteLocation, plan); });
   AddTime(report, "place", placed.robot_s);
+  if (!placed.ok) {
+    // No way to the tote with this item on the cup: it goes back where it was, not on the
+    // floor (an item outside the bins and the tote costs points).
+    const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
+    AddTime(report, "place", back.robot_s);
+    target.last_failure = "place: " + placed.message + (back.ok ? "; put back" : "; " + back.message);
+    journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
+    return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
+  }
   const SealReading over_tote = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
   cell_.VacuumOff();
-  if (!placed.ok || !over_tote.attached) {
-    target.last_failure = !placed.ok ? "place: " + placed.message : "dropped on the way to the tote";
+  if (!over_tote.attached) {
+    target.last_failure = "dropped on the way to the tote";
     journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kLostCarried;
   }

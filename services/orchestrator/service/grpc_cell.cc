@@ -41,6 +41,22 @@ std::string PlanFailureMessage(const grpc::Status& status) {
   return status.error_message();
 }
 
+// The trajectory run backwards: the same path, each sample at T - t with its velocity
+// negated (accelerations keep their sign), so it keeps the limits it was timed within.
+cm::JointTrajectory Reversed(const cm::JointTrajectory& t) {
+  cm::JointTrajectory out;
+  const double total = Duration(t);
+  for (int i = t.points_size() - 1; i >= 0; --i) {
+    cm::TrajectoryPoint p = t.points(i);
+    p.set_time_from_start_s(total - t.points(i).time_from_start_s());
+    for (int j = 0; j < p.velocities_rad_s_size(); ++j) {
+      p.set_velocities_rad_s(j, -p.velocities_rad_s(j));
+    }
+    *out.add_points() = p;
+  }
+  return out;
+}
+
 // The views' organised clouds stacked row-wise, as the detector takes several views.
 geometry::PointCloud StackViews(const std::vector<ScanView>& views) {
   geometry::PointCloud out = *views.front().cloud_Base;
@@ -345,6 +361,14 @@ StepOutcome GrpcCell::ExecuteRetreat(const PlannedPick& pick) {
   rb::MoveJointsResponse moved;
   ThrowIfFailed("robot", "MoveJoints to the retreat", robot_->MoveJoints(&ctx, request, &moved));
   return {true, "", moved.duration_s() + Execute(retreat)};
+}
+
+StepOutcome GrpcCell::PutBack(const PlannedPick& pick) {
+  const StoredPick& stored = Stored(pick);
+  // The arm is at the retreat's end (the place was not planned, so it has not moved since).
+  const double back_s = Execute(Reversed(stored.response.retreat()));
+  VacuumOff();
+  return {true, "", back_s + Execute(stored.response.retreat())};
 }
 
 PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& container,

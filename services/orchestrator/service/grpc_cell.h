@@ -66,6 +66,7 @@ class GrpcCell final : public CellPort {
   PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
                            const PlannedPick& pick) override;
   void VacuumOff() override;
+  StepOutcome PutBack(const PlannedPick& pick) override;
 
  private:
   struct StoredPick {

@@ -762,15 +762,15 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
                           "release pose over " + request.container + ": " + reason});
       continue;
     }
-    const JointPathResult path = roadmap_->Plan(request.start_rad, *q_release, nullptr, deadline);
-    // The roadmap checks the arm; the path must also be free carrying the item.
-    std::vector<JointVector> joints = path.ok ? path.path_rad : std::vector<JointVector>{};
-    if (!path.ok || !static_motion_->CheckPath(joints, &carried).free) {
+    // Every motion of the search checked with the item on the cup.
+    const JointPathResult path =
+        roadmap_->Plan(request.start_rad, *q_release, nullptr, deadline, &carried);
+    if (!path.ok) {
       failures.push_back({"place", "no path", "", -1, 0.0, "", "",
-                          "no free motion to the release pose: " +
-                              (path.ok ? std::string("the carried item collides") : path.reason)});
+                          "no free motion to the release pose carrying the item: " + path.reason});
       continue;
     }
+    const std::vector<JointVector>& joints = path.path_rad;
     plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *static_motion_,
                                       *static_exact_, &carried, "place");
     plan.X_BaseTcp_release = X_release;

@@ -81,8 +81,20 @@ std::vector<int> Roadmap::Nearest(const JointVector& q, int count) const {
   return out;
 }
 
-bool Roadmap::EdgeFree(int from, std::size_t edge_index, int* edges_checked) const {
+bool Roadmap::EdgeFree(int from, std::size_t edge_index, int* edges_checked,
+                       const CarriedItem* carried, CarriedEdges* carried_edges) const {
   const Edge& edge = edges_[from][edge_index];
+  if (carried != nullptr) {
+    // Blocked for the bare arm is blocked with the item too; free must be checked again.
+    if (edge.state == EdgeState::kBlocked) return false;
+    const auto key = std::minmax(from, edge.to);
+    const auto it = carried_edges->find(key);
+    if (it != carried_edges->end()) return it->second;
+    ++*edges_checked;
+    const bool free = checker_.CheckSegment(nodes_[from], nodes_[edge.to], carried).free;
+    (*carried_edges)[key] = free;
+    return free;
+  }
   if (edge.state == EdgeState::kUnknown) {
     ++*edges_checked;
     const bool free = checker_.CheckSegment(nodes_[from], nodes_[edge.to]).free;
@@ -95,12 +107,13 @@ bool Roadmap::EdgeFree(int from, std::size_t edge_index, int* edges_checked) con
 }
 
 std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
-                                           const MotionChecker& checker) const {
+                                           const MotionChecker& checker,
+                                           const CarriedItem* carried) const {
   std::mt19937 rng(options_.seed + static_cast<std::uint32_t>(path.size()));
   for (int attempt = 0; attempt < options_.shortcut_attempts && path.size() > 2; ++attempt) {
     const int i = std::uniform_int_distribution<int>(0, path.size() - 3)(rng);
     const int j = std::uniform_int_distribution<int>(i + 2, path.size() - 1)(rng);
-    if (checker.CheckSegment(path[i], path[j]).free) {
+    if (checker.CheckSegment(path[i], path[j], carried).free) {
       path.erase(path.begin() + i + 1, path.begin() + j);
     }
   }
@@ -109,12 +122,13 @@ std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
 
 JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& goal_rad,
                               const MotionChecker* scene_checker,
-                              std::chrono::steady_clock::time_point deadline) const {
+                              std::chrono::steady_clock::time_point deadline,
+                              const CarriedItem* carried) const {
   std::lock_guard<std::mutex> lock(mutex_);
   JointPathResult result;
   const MotionChecker& final_checker = scene_checker ? *scene_checker : checker_;
   auto finish = [&](std::vector<JointVector> path) {
-    const MotionCheckResult check = final_checker.CheckPath(path);
+    const MotionCheckResult check = final_checker.CheckPath(path, carried);
     if (!check.free) {
       result.reason = "the path collides with the scene at " +
                       std::to_string(static_cast<int>(100 * check.fraction_free)) +
@@ -125,11 +139,13 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     result.path_rad = std::move(path);
     return result;
   };
-  if (const CollisionReport r = final_checker.checker().Check(start_rad); r.in_collision) {
+  if (const CollisionReport r = final_checker.checker().Check(start_rad, carried);
+      r.in_collision) {
     result.reason = "the start collides: " + r.ToString();
     return result;
   }
-  if (const CollisionReport r = final_checker.checker().Check(goal_rad); r.in_collision) {
+  if (const CollisionReport r = final_checker.checker().Check(goal_rad, carried);
+      r.in_collision) {
     result.reason = "the goal collides: " + r.ToString();
     return result;
   }
@@ -140,6 +156,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     if (SameJoints(pose.q_rad, start_rad)) from = &pose;
     if (SameJoints(pose.q_rad, goal_rad)) to = &pose;
   }
+  if (carried != nullptr) from = to = nullptr;  // the cache holds bare-arm paths
   if (from && to) {
     const auto it = cache_.find({from->name, to->name});
     if (it != cache_.end()) {
@@ -151,7 +168,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     if (from && to) cache_[{from->name, to->name}] = path;
   };
   ++result.edges_checked;
-  if (checker_.CheckSegment(start_rad, goal_rad).free) {
+  if (checker_.CheckSegment(start_rad, goal_rad, carried).free) {
     remember({start_rad, goal_rad});
     return finish({start_rad, goal_rad});
   }
@@ -161,7 +178,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     std::vector<int> joined;
     for (int n : Nearest(q, 3 * options_.neighbours)) {
       ++result.edges_checked;
-      const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n]);
+      const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n], carried);
       if (check.free) {
         joined.push_back(n);
       } else if (first_block.empty()) {
@@ -181,6 +198,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
   }
   // Lazy A*: search over edges not known to be blocked, check the path's edges, repeat.
   const int n = static_cast<int>(nodes_.size());
+  CarriedEdges carried_edges;
   for (int round = 0; round < 200; ++round) {
     if (std::chrono::steady_clock::now() > deadline) {
       result.reason = "the call's deadline passed during the roadmap search";
@@ -210,6 +228,10 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
       for (std::size_t e = 0; e < edges_[u].size(); ++e) {
         const Edge& edge = edges_[u][e];
         if (edge.state == EdgeState::kBlocked) continue;
+        if (carried != nullptr) {
+          const auto known = carried_edges.find(std::minmax(u, edge.to));
+          if (known != carried_edges.end() && !known->second) continue;
+        }
         const double cost = g[u] + edge.length;
         if (cost < g[edge.to]) {
           g[edge.to] = cost;
@@ -228,7 +250,8 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     std::reverse(chain.begin(), chain.end());
     bool blocked = false;
     for (std::size_t i = 1; i < chain.size(); ++i) {
-      if (!EdgeFree(chain[i - 1], parent_edge[chain[i]], &result.edges_checked)) {
+      if (!EdgeFree(chain[i - 1], parent_edge[chain[i]], &result.edges_checked, carried,
+                    &carried_edges)) {
         blocked = true;
         break;
       }
@@ -237,7 +260,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     std::vector<JointVector> path = {start_rad};
     for (int v : chain) path.push_back(nodes_[v]);
     path.push_back(goal_rad);
-    path = Shortcut(std::move(path), checker_);
+    path = Shortcut(std::move(path), checker_, carried);
     remember(path);
     return finish(std::move(path));
   }

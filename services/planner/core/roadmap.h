@@ -58,11 +58,14 @@ class Roadmap final {
   /// A collision-free path from `start` to `goal`: the straight segment if it is free,
   /// otherwise through the roadmap (start and goal joined to their nearest free nodes), then
   /// shortcut. `scene_checker`, if given, also checks the path (e.g. with a scan); a path it
-  /// rejects is searched again without the rejected edges.
+  /// rejects is searched again without the rejected edges. With `carried`, every motion is
+  /// checked with the item on the cup (edges free for the bare arm are checked again with it,
+  /// for this call only).
   JointPathResult Plan(const JointVector& start_rad, const JointVector& goal_rad,
                        const MotionChecker* scene_checker = nullptr,
                        std::chrono::steady_clock::time_point deadline =
-                           std::chrono::steady_clock::time_point::max()) const;
+                           std::chrono::steady_clock::time_point::max(),
+                       const CarriedItem* carried = nullptr) const;
 
   std::size_t num_nodes() const { return nodes_.size(); }
 
@@ -75,9 +78,12 @@ class Roadmap final {
   };
   double Distance(const JointVector& a, const JointVector& b) const;
   std::vector<int> Nearest(const JointVector& q, int count) const;
-  bool EdgeFree(int from, std::size_t edge_index, int* edges_checked) const;
-  std::vector<JointVector> Shortcut(std::vector<JointVector> path,
-                                    const MotionChecker& checker) const;
+  /// Edge states with a carried item, for one call: (from, to) -> free.
+  using CarriedEdges = std::map<std::pair<int, int>, bool>;
+  bool EdgeFree(int from, std::size_t edge_index, int* edges_checked, const CarriedItem* carried,
+                CarriedEdges* carried_edges) const;
+  std::vector<JointVector> Shortcut(std::vector<JointVector> path, const MotionChecker& checker,
+                                    const CarriedItem* carried) const;
 
   const MotionChecker& checker_;
   std::vector<NamedPose> named_;

@@ -23,6 +23,7 @@ struct Script {
   int no_seal_attempts = 0;     // the first n vacuum-ons do not seal
   bool lose_in_lift = false;    // seal lost during the retreat (once)
   bool drop_on_the_way = false; // seal lost on the way to the tote
+  bool no_place = false;        // no motion to the tote can be planned
 };
 
 class ScriptedCell final : public CellPort {
@@ -30,6 +31,7 @@ class ScriptedCell final : public CellPort {
   std::map<std::string, Script> scripts;
   int unavailable_scans = 0;  // the scanner answers UNAVAILABLE this many times first
   std::vector<std::string> placed;  // items released over the tote
+  std::vector<std::string> put_back;  // items put back where they were grasped
   std::map<std::string, int> vacuum_ons;
   std::string current;  // item being worked on
   bool held = false;
@@ -86,7 +88,13 @@ class ScriptedCell final : public CellPort {
                            const PlannedPick&) override {
     EXPECT_EQ(container, "tote");
     if (scripts[item].drop_on_the_way) held = false;
+    if (scripts[item].no_place) return {false, "no free motion to the release pose", 0.0, 0.0};
     return {true, "", 0.1, 4.0};
+  }
+  StepOutcome PutBack(const PlannedPick&) override {
+    put_back.push_back(current);
+    held = false;
+    return {true, "", 6.0};
   }
   void VacuumOff() override {
     if (held) placed.push_back(current);
@@ -180,6 +188,17 @@ TEST_F(PickTaskTest, AnItemDroppedOnTheWayIsNotReportedInTheTote) {
   EXPECT_NE(result.targets[2].failure.find("dropped on the way"), std::string::npos);
   const auto& tote = result.final_contents.tote_contents;
   EXPECT_EQ(std::count(tote.begin(), tote.end(), "hanes_tube_socks"), 0);
+}
+
+TEST_F(PickTaskTest, AnItemThatCannotBeCarriedToTheToteIsPutBackNotDropped) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].no_place = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 2);
+  EXPECT_EQ(cell.put_back, (std::vector<std::string>{"rawlings_baseball", "rawlings_baseball"}));
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_B"),
+            std::vector<std::string>{"rawlings_baseball"});
+  EXPECT_NE(result.targets[1].failure.find("put back"), std::string::npos);
 }
 
 TEST_F(PickTaskTest, AServiceThatDoesNotAnswerIsRetriedWithBackoff) {

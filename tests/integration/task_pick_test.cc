@@ -1,0 +1,201 @@
+// A whole APC pick task in simulation, every service its own process: the simulator with
+// pick_layout_1, the scanner, detector, planner, robot and gripper on their simulated
+// backends, and the orchestrator running the task file. The output file it writes must say
+// where every item really is (the simulator's ground truth), its score must be the rules'
+// score of what really happened, and the events must tell the story of each target.
+#include <grpcpp/client_context.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include "libs/apc/catalogue.h"
+#include "libs/apc/scoring.h"
+#include "libs/apc/task.h"
+#include "libs/proto_convert/proto_convert.h"
+#include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
+#include "picking/simulator/v1/simulator.grpc.pb.h"
+#include "tests/harness/server_process.h"
+
+namespace picking::testing {
+namespace {
+
+namespace sim = ::picking::simulator::v1;
+namespace orch = ::picking::orchestrator::v1;
+namespace pc = ::picking::proto_convert;
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+class TaskPickTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new std::string(::testing::TempDir() + "/task_pick_test");
+    std::filesystem::remove_all(*dir_);
+    std::filesystem::create_directories(*dir_ + "/calibration");
+    simulator_ = new ServerProcess(ServerBinary("picking-simulator"));
+    const std::string sim = "--sim.address=" + simulator_->address();
+    robot_ = new ServerProcess(ServerBinary("picking-robot"),
+                               {"--backend=sim", sim, "--sim.time_scale=20"});
+    gripper_ = new ServerProcess(ServerBinary("picking-gripper"), {"--backend=sim", sim});
+    scanner_ = new ServerProcess(ServerBinary("picking-scanner"),
+                                 {sim, "--calibration.dir=" + *dir_ + "/calibration"});
+    detector_ = new ServerProcess(ServerBinary("picking-detector"),
+                                  {"--cache_dir=" + *dir_ + "/cache", "--time_budget_scale=10"},
+                                  std::chrono::seconds(300));
+    planner_ = new ServerProcess(ServerBinary("picking-planner"), {}, std::chrono::seconds(120));
+    orchestrator_ = new ServerProcess(
+        ServerBinary("picking-orchestrator"),
+        {"--tasks_dir=" + *dir_ + "/tasks", "--scanner.address=" + scanner_->address(),
+         "--detector.address=" + detector_->address(), "--planner.address=" + planner_->address(),
+         "--robot.address=" + robot_->address(), "--gripper.address=" + gripper_->address()});
+  }
+  static void TearDownTestSuite() {
+    for (ServerProcess* s : {orchestrator_, planner_, detector_, scanner_, gripper_, robot_,
+                             simulator_}) {
+      EXPECT_EQ(s->Stop(), 0);
+      delete s;
+    }
+  }
+
+  static sim::GetGroundTruthResponse Truth() {
+    auto stub = sim::SimulatorService::NewStub(simulator_->Channel());
+    grpc::ClientContext ctx;
+    sim::GetGroundTruthResponse truth;
+    EXPECT_TRUE(stub->GetGroundTruth(&ctx, {}, &truth).ok());
+    return truth;
+  }
+
+  // Where the simulator says every item is, as a task (bins and tote).
+  static apc::Task TrueContents(const sim::GetGroundTruthResponse& truth) {
+    apc::Task contents;
+    for (char b = 'A'; b <= 'L'; ++b) contents.bin_contents[std::string("bin_") + b] = {};
+    for (const auto& item : truth.items()) {
+      const std::string where = pc::ContainerName(item.container());
+      if (where == "tote") {
+        contents.tote_contents.push_back(item.item().name());
+      } else if (contents.bin_contents.count(where)) {
+        contents.bin_contents[where].push_back(item.item().name());
+      }
+    }
+    for (auto& [bin, items] : contents.bin_contents) std::sort(items.begin(), items.end());
+    std::sort(contents.tote_contents.begin(), contents.tote_contents.end());
+    return contents;
+  }
+
+  static std::string* dir_;
+  static ServerProcess *simulator_, *robot_, *gripper_, *scanner_, *detector_, *planner_,
+      *orchestrator_;
+};
+std::string* TaskPickTest::dir_ = nullptr;
+ServerProcess *TaskPickTest::simulator_ = nullptr, *TaskPickTest::robot_ = nullptr,
+              *TaskPickTest::gripper_ = nullptr, *TaskPickTest::scanner_ = nullptr,
+              *TaskPickTest::detector_ = nullptr, *TaskPickTest::planner_ = nullptr,
+              *TaskPickTest::orchestrator_ = nullptr;
+
+TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) {
+  const std::string task_json =
+      ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json");
+  {
+    auto stub = sim::SimulatorService::NewStub(simulator_->Channel());
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest request;
+    request.set_task_json(task_json);
+    request.set_seed(7);
+    sim::LoadLayoutResponse loaded;
+    ASSERT_TRUE(stub->LoadLayout(&ctx, request, &loaded).ok());
+  }
+  auto stub = orch::OrchestratorService::NewStub(orchestrator_->Channel());
+  orch::StartTaskResponse started;
+  {
+    grpc::ClientContext ctx;
+    orch::StartTaskRequest request;
+    request.set_task_json(task_json);
+    const grpc::Status status = stub->StartTask(&ctx, request, &started);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+  }
+  // Watch it to the end; a second StartTask meanwhile is refused.
+  {
+    grpc::ClientContext ctx;
+    orch::StartTaskRequest request;
+    request.set_task_json(task_json);
+    orch::StartTaskResponse second;
+    EXPECT_EQ(stub->StartTask(&ctx, request, &second).error_code(),
+              grpc::StatusCode::FAILED_PRECONDITION);
+  }
+  std::vector<orch::TaskEvent> events;
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::minutes(20));
+    orch::WatchTaskRequest request;
+    request.set_task_id(started.task_id());
+    auto reader = stub->WatchTask(&ctx, request);
+    orch::TaskEvent event;
+    while (reader->Read(&event)) {
+      std::printf("[%7.1f s] %-36s %-7s %s %s\n", event.time_s(), event.item().c_str(),
+                  orch::Step_Name(event.step()).c_str() + 5, event.step_ok() ? "" : "FAIL",
+                  event.message().c_str());
+      events.push_back(event);
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+  }
+  ASSERT_FALSE(events.empty());
+  for (std::size_t i = 0; i < events.size(); ++i) EXPECT_EQ(events[i].sequence(), i);
+  EXPECT_EQ(events.back().state(), orch::TASK_STATE_SUCCEEDED) << events.back().message();
+
+  orch::GetTaskResponse task;
+  {
+    grpc::ClientContext ctx;
+    orch::GetTaskRequest request;
+    request.set_task_id(started.task_id());
+    ASSERT_TRUE(stub->GetTask(&ctx, request, &task).ok());
+  }
+  ASSERT_EQ(task.state(), orch::TASK_STATE_SUCCEEDED) << task.error();
+  const orch::TaskResult& result = task.result();
+  std::printf("%u items moved, %u failed, score %d, %.0f s task clock\n", result.items_moved(),
+              result.items_failed(), result.score(), result.duration_s());
+  EXPECT_EQ(result.items_moved() + result.items_failed(), 12u);
+  EXPECT_GE(result.items_moved(), 1u);
+  EXPECT_TRUE(std::filesystem::exists(result.report_file()));
+
+  // The output file says where every item really is: no misreport penalty.
+  const apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
+  apc::Task reported = apc::ParseTask(ReadText(result.output_file()), catalogue, "output");
+  EXPECT_EQ(ReadText(result.output_file()).empty(), false);
+  for (auto& [bin, items] : reported.bin_contents) std::sort(items.begin(), items.end());
+  std::sort(reported.tote_contents.begin(), reported.tote_contents.end());
+  const sim::GetGroundTruthResponse truth = Truth();
+  const apc::Task true_contents = TrueContents(truth);
+  EXPECT_EQ(reported.tote_contents, true_contents.tote_contents);
+  for (const auto& [bin, items] : true_contents.bin_contents) {
+    EXPECT_EQ(reported.bin_contents[bin], items) << bin;
+  }
+  EXPECT_FALSE(truth.has_attached_item() && !truth.attached_item().name().empty());
+  // The score the orchestrator reports is the rules' score of what is really in the tote.
+  apc::ScoringInput input;
+  input.initial = apc::ParseTask(task_json, catalogue, "task");
+  for (const std::string& item : true_contents.tote_contents) {
+    for (const auto& [bin, items] : input.initial.bin_contents) {
+      if (std::count(items.begin(), items.end(), item) > 0) {
+        input.events.push_back(apc::MoveEvent(item, bin, "tote"));
+        break;
+      }
+    }
+  }
+  input.reported = reported;
+  input.true_final = true_contents;
+  for (auto& [bin, items] : input.true_final.bin_contents) std::sort(items.begin(), items.end());
+  const apc::ScoreReport score = apc::Score(input, catalogue);
+  EXPECT_EQ(result.score(), score.total);
+  EXPECT_GT(score.total, 0);
+}
+
+}  // namespace
+}  // namespace picking::testing
