@@ -105,5 +105,34 @@ TEST_F(OrchestratorAloneTest, AValidTaskWithItsServicesDownIsUnavailableAndNothi
   EXPECT_EQ(list.tasks_size(), 0);
 }
 
+// Runs the `picking` command line; returns its exit status, its output in `out`.
+int RunCli(const std::string& args, std::string* out) {
+  return RunCommand(ServerBinary("picking") + " " + args, out);
+}
+
+TEST_F(OrchestratorAloneTest, TheCommandLineExitCodesTellUsageFromRefusals) {
+  const std::string at = " --address " + server_->address();
+  std::string out;
+  EXPECT_EQ(RunCli("list" + at, &out), 0) << out;
+  EXPECT_EQ(RunCli("list --json" + at, &out), 0) << out;
+  EXPECT_EQ(RunCli("status task-nope" + at, &out), 3) << out;
+  EXPECT_NE(out.find("no task 'task-nope'"), std::string::npos) << out;
+  EXPECT_EQ(RunCli("cancel task-nope" + at, &out), 3) << out;
+  EXPECT_EQ(RunCli("--bogus" + at, &out), 2) << out;
+  EXPECT_EQ(RunCli("" + at, &out), 2) << out;
+  EXPECT_EQ(RunCli("run /no/such/task.json" + at, &out), 2) << out;
+  EXPECT_EQ(RunCli("run --time-limit -3 x.json" + at, &out), 2) << out;
+  EXPECT_NE(out.find("--time-limit"), std::string::npos) << out;
+  // A valid task with the cell's services down: refused, nothing started.
+  EXPECT_EQ(
+      RunCli("run " + std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json" + at,
+             &out),
+      3)
+      << out;
+  EXPECT_NE(out.find("does not answer"), std::string::npos) << out;
+  // No orchestrator at all.
+  EXPECT_EQ(RunCli("list --address 127.0.0.1:1", &out), 3) << out;
+}
+
 }  // namespace
 }  // namespace picking::testing

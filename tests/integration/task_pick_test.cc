@@ -34,6 +34,11 @@ std::string ReadText(const std::string& path) {
   return text.str();
 }
 
+// Runs the `picking` command line; returns its exit status, its output in `out`.
+int RunCli(const std::string& args, std::string* out) {
+  return RunCommand(ServerBinary("picking") + " " + args, out);
+}
+
 class TaskPickTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -58,8 +63,8 @@ class TaskPickTest : public ::testing::Test {
          "--robot.address=" + robot_->address(), "--gripper.address=" + gripper_->address()});
   }
   static void TearDownTestSuite() {
-    for (ServerProcess* s : {orchestrator_, planner_, detector_, scanner_, gripper_, robot_,
-                             simulator_}) {
+    for (ServerProcess* s :
+         {orchestrator_, planner_, detector_, scanner_, gripper_, robot_, simulator_}) {
       EXPECT_EQ(s->Stop(), 0);
       delete s;
     }
@@ -195,6 +200,17 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
   const apc::ScoreReport score = apc::Score(input, catalogue);
   EXPECT_EQ(result.score(), score.total);
   EXPECT_GT(score.total, 0);
+
+  // The command line on the finished task: the replayed events, its status and its score.
+  const std::string at = " --address " + orchestrator_->address() + " ";
+  std::string out;
+  EXPECT_EQ(RunCli("watch --json" + at + started.task_id(), &out), 0) << out;
+  EXPECT_EQ(static_cast<std::size_t>(std::count(out.begin(), out.end(), '\n')), events.size() + 1)
+      << out;
+  EXPECT_EQ(RunCli("status --json" + at + started.task_id(), &out), 0) << out;
+  EXPECT_NE(out.find("\"score\":" + std::to_string(score.total)), std::string::npos) << out;
+  EXPECT_EQ(RunCli("score" + at + started.task_id(), &out), 0) << out;
+  EXPECT_NE(out.find(std::to_string(score.total) + "  total"), std::string::npos) << out;
 }
 
 }  // namespace

@@ -17,7 +17,8 @@ namespace picking::orchestrator {
 class CellError final : public std::runtime_error {
  public:
   CellError(std::string service, bool retryable, const std::string& what)
-      : std::runtime_error(service + ": " + what), service_(std::move(service)),
+      : std::runtime_error(service + ": " + what),
+        service_(std::move(service)),
         retryable_(retryable) {}
   const std::string& service() const { return service_; }
   bool retryable() const { return retryable_; }

@@ -13,8 +13,8 @@ namespace picking::orchestrator {
 /// tell which actions are complete.
 struct JournalRecord {
   std::uint64_t sequence = 0;
-  std::string type;  ///< "task", "begin", "done", "failed", "event", "end".
-  std::string key;   ///< Idempotency key of the action ("" for task-level records).
+  std::string type;     ///< "task", "begin", "done", "failed", "event", "end".
+  std::string key;      ///< Idempotency key of the action ("" for task-level records).
   double time_s = 0.0;  ///< Task clock when written.
   nlohmann::json data = nlohmann::json::object();
 };

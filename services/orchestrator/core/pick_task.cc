@@ -22,13 +22,20 @@ void RemoveOne(std::vector<std::string>& items, const std::string& item) {
 
 std::string StepName(Step step) {
   switch (step) {
-    case Step::kScan: return "scan";
-    case Step::kDetect: return "detect";
-    case Step::kPlan: return "plan";
-    case Step::kGrasp: return "grasp";
-    case Step::kVerify: return "verify";
-    case Step::kPlace: return "place";
-    case Step::kNone: break;
+    case Step::kScan:
+      return "scan";
+    case Step::kDetect:
+      return "detect";
+    case Step::kPlan:
+      return "plan";
+    case Step::kGrasp:
+      return "grasp";
+    case Step::kVerify:
+      return "verify";
+    case Step::kPlace:
+      return "place";
+    case Step::kNone:
+      break;
   }
   return "";
 }
@@ -48,8 +55,14 @@ PickTaskRunner::PickTaskRunner(apc::Task task, std::vector<Target> order,
                                CellPort& cell, Journal& journal,
                                std::function<void(const TaskEvent&)> emit,
                                const std::atomic<bool>& cancel)
-    : task_(std::move(task)), contents_(task_), order_(std::move(order)), catalogue_(catalogue),
-      options_(std::move(options)), cell_(cell), journal_(journal), emit_(std::move(emit)),
+    : task_(std::move(task)),
+      contents_(task_),
+      order_(std::move(order)),
+      catalogue_(catalogue),
+      options_(std::move(options)),
+      cell_(cell),
+      journal_(journal),
+      emit_(std::move(emit)),
       cancel_(cancel) {}
 
 std::string PickTaskRunner::Key(const Target& target, const std::string& action) const {
@@ -68,10 +81,15 @@ void PickTaskRunner::Emit(const Target* target, Step step, bool ok, const std::s
   event.message = message;
   event.items_done = done_;
   event.items_total = static_cast<int>(order_.size());
-  journal_.Append(
-      "event", "", clock_s_,
-      {{"item", event.item}, {"from", event.from}, {"to", event.to}, {"step", StepName(step)},
-       {"ok", ok}, {"message", message}, {"done", done_}, {"total", event.items_total}});
+  journal_.Append("event", "", clock_s_,
+                  {{"item", event.item},
+                   {"from", event.from},
+                   {"to", event.to},
+                   {"step", StepName(step)},
+                   {"ok", ok},
+                   {"message", message},
+                   {"done", done_},
+                   {"total", event.items_total}});
   event.sequence = next_event_++;
   if (emit_) emit_(event);
 }
@@ -164,7 +182,8 @@ void PickTaskRunner::FinishCarriedItem() {
     clock_s_ += placed.robot_s;
     cell_.VacuumOff();
     if (!placed.ok) return;
-    journal_.Append("done", Key(target, "place"), clock_s_, {{"drop_height_m", placed.drop_height_m}});
+    journal_.Append("done", Key(target, "place"), clock_s_,
+                    {{"drop_height_m", placed.drop_height_m}});
     target.done = true;
     RecordPlaced(target, placed.drop_height_m);
     Emit(&target, Step::kPlace, true, "placed in the tote after the restart", apc::kToteLocation);
@@ -208,7 +227,8 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
                                                       const PlannedPick& plan) {
   Emit(&target, Step::kGrasp, true, "approaching grasp '" + plan.grasp + "'");
   journal_.Append("begin", Key(target, "grasp"), clock_s_, {{"grasp", plan.grasp}});
-  const StepOutcome approached = WithRetries("approach", [&] { return cell_.ExecuteApproach(plan); });
+  const StepOutcome approached =
+      WithRetries("approach", [&] { return cell_.ExecuteApproach(plan); });
   AddTime(report, "grasp", approached.robot_s);
   if (!approached.ok) {
     target.last_failure = "approach: " + approached.message;
@@ -249,7 +269,8 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     // floor (an item outside the bins and the tote costs points).
     const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
     AddTime(report, "place", back.robot_s);
-    target.last_failure = "place: " + placed.message + (back.ok ? "; put back" : "; " + back.message);
+    target.last_failure =
+        "place: " + placed.message + (back.ok ? "; put back" : "; " + back.message);
     journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
     return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
   }

@@ -64,10 +64,10 @@ struct TargetReport {
 
 struct PickTaskResult {
   TaskState state = TaskState::kSucceeded;
-  std::string error;  ///< For kFailed.
-  apc::Task final_contents;  ///< Where the orchestrator believes the items are.
+  std::string error;               ///< For kFailed.
+  apc::Task final_contents;        ///< Where the orchestrator believes the items are.
   std::vector<apc::Event> events;  ///< Moves made, for the score.
-  apc::ScoreReport score;  ///< By the rules, from what the orchestrator believes.
+  apc::ScoreReport score;          ///< By the rules, from what the orchestrator believes.
   std::vector<TargetReport> targets;
   int items_moved = 0, items_failed = 0;
   double duration_s = 0.0;  ///< Task clock at the end.

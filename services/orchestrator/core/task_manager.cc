@@ -31,8 +31,8 @@ void WriteText(const fs::path& path, const std::string& text) {
 }
 
 Step StepFromName(const std::string& name) {
-  for (Step s : {Step::kScan, Step::kDetect, Step::kPlan, Step::kGrasp, Step::kVerify,
-                 Step::kPlace}) {
+  for (Step s :
+       {Step::kScan, Step::kDetect, Step::kPlan, Step::kGrasp, Step::kVerify, Step::kPlace}) {
     if (StepName(s) == name) return s;
   }
   return Step::kNone;
@@ -210,8 +210,8 @@ void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vec
     PickTaskRunner runner(task, std::move(order), catalogue_, options, *cell, journal, emit,
                           entry->cancel);
     result = runner.Run();
-    const auto [output, report] = WriteTaskFiles(entry->dir, entry->info.task_id, result,
-                                                 entry->events);
+    const auto [output, report] =
+        WriteTaskFiles(entry->dir, entry->info.task_id, result, entry->events);
     journal.Append("end", "", result.duration_s,
                    {{"state", static_cast<int>(result.state)}, {"error", result.error}});
     std::lock_guard<std::mutex> lock(mutex_);

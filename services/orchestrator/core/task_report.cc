@@ -15,11 +15,20 @@ std::string Escape(const std::string& text) {
   std::string out;
   for (char c : text) {
     switch (c) {
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '&': out += "&amp;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += c;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '&':
+        out += "&amp;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += c;
     }
   }
   return out;
@@ -27,20 +36,24 @@ std::string Escape(const std::string& text) {
 
 std::string StateName(TaskState state) {
   switch (state) {
-    case TaskState::kRunning: return "running";
-    case TaskState::kSucceeded: return "succeeded";
-    case TaskState::kFailed: return "failed";
-    case TaskState::kCancelled: return "cancelled";
+    case TaskState::kRunning:
+      return "running";
+    case TaskState::kSucceeded:
+      return "succeeded";
+    case TaskState::kFailed:
+      return "failed";
+    case TaskState::kCancelled:
+      return "cancelled";
   }
   return "";
 }
 
 nlohmann::json TargetJson(const TargetReport& t) {
-  nlohmann::json j = {{"item", t.item},         {"bin", t.bin},
-                      {"ease", t.ease},         {"attempts", t.attempts},
-                      {"picked", t.picked},     {"failure", t.failure},
-                      {"method", t.method},     {"detection_score", t.detection_score},
-                      {"grasp", t.grasp},       {"drop_height_m", t.drop_height_m}};
+  nlohmann::json j = {{"item", t.item},     {"bin", t.bin},
+                      {"ease", t.ease},     {"attempts", t.attempts},
+                      {"picked", t.picked}, {"failure", t.failure},
+                      {"method", t.method}, {"detection_score", t.detection_score},
+                      {"grasp", t.grasp},   {"drop_height_m", t.drop_height_m}};
   if (t.detected) {
     const Eigen::Vector3d p = t.X_BaseItem_detected.translation();
     const Eigen::Quaterniond q(t.X_BaseItem_detected.rotation());
@@ -60,17 +73,18 @@ std::string Html(const std::string& task_id, const PickTaskResult& result,
     << "</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
        "td,th{border:1px solid #ccc;padding:4px 8px;text-align:left}.ok{color:#080}"
        ".no{color:#b00}</style></head><body>\n";
-  h << "<h1>Task " << Escape(task_id) << "</h1>\n<p>State: <b>" << StateName(result.state)
-    << "</b>" << (result.error.empty() ? "" : " (" + Escape(result.error) + ")") << "; score <b>"
-    << result.score.total << "</b>; " << result.items_moved << " of "
-    << result.targets.size() << " items in the tote; task clock " << result.duration_s
+  h << "<h1>Task " << Escape(task_id) << "</h1>\n<p>State: <b>" << StateName(result.state) << "</b>"
+    << (result.error.empty() ? "" : " (" + Escape(result.error) + ")") << "; score <b>"
+    << result.score.total << "</b>; " << result.items_moved << " of " << result.targets.size()
+    << " items in the tote; task clock " << result.duration_s
     << " s.</p>\n<h2>Items</h2>\n<table><tr><th>item</th><th>bin</th><th>result</th><th>"
        "attempts</th><th>method (score)</th><th>grasp</th><th>time per step (s)</th></tr>\n";
   for (const TargetReport& t : result.targets) {
     h << "<tr><td>" << Escape(t.item) << "</td><td>" << t.bin << "</td><td class=\""
       << (t.picked ? "ok\">picked" : "no\">" + Escape(t.failure)) << "</td><td>" << t.attempts
-      << "</td><td>" << Escape(t.method) << (t.detected ? " (" + std::to_string(t.detection_score) + ")" : "")
-      << "</td><td>" << Escape(t.grasp) << "</td><td>";
+      << "</td><td>" << Escape(t.method)
+      << (t.detected ? " (" + std::to_string(t.detection_score) + ")" : "") << "</td><td>"
+      << Escape(t.grasp) << "</td><td>";
     for (const auto& [name, seconds] : t.step_times_s) h << name << " " << seconds << "; ";
     h << "</td></tr>\n";
   }
@@ -81,9 +95,9 @@ std::string Html(const std::string& task_id, const PickTaskResult& result,
   h << "</table>\n<h2>Events</h2>\n<table><tr><th>t (s)</th><th>item</th><th>step</th><th>"
        "message</th></tr>\n";
   for (const TaskEvent& e : events) {
-    h << "<tr><td>" << e.time_s << "</td><td>" << Escape(e.item) << "</td><td>"
-      << StepName(e.step) << "</td><td class=\"" << (e.ok ? "ok" : "no") << "\">"
-      << Escape(e.message) << "</td></tr>\n";
+    h << "<tr><td>" << e.time_s << "</td><td>" << Escape(e.item) << "</td><td>" << StepName(e.step)
+      << "</td><td class=\"" << (e.ok ? "ok" : "no") << "\">" << Escape(e.message)
+      << "</td></tr>\n";
   }
   h << "</table></body></html>\n";
   return h.str();
@@ -112,7 +126,8 @@ std::pair<std::string, std::string> WriteTaskFiles(const std::string& dir,
                            {"duration_s", result.duration_s}};
   report["score_lines"] = nlohmann::json::array();
   for (const apc::ScoreLine& line : result.score.lines) {
-    report["score_lines"].push_back({{"points", line.points}, {"item", line.item},
+    report["score_lines"].push_back({{"points", line.points},
+                                     {"item", line.item},
                                      {"rule", std::string(apc::ScoreRuleName(line.rule))},
                                      {"reason", line.reason}});
   }

@@ -80,8 +80,8 @@ double EaseTable::Ease(const apc::Item& item, const std::string& method) const {
   const auto override_it = items.find(item.name);
   if (override_it != items.end()) return override_it->second;
   const auto method_it = method_success.find(method);
-  const double success = method_it == method_success.end() ? default_method_success
-                                                           : method_it->second;
+  const double success =
+      method_it == method_success.end() ? default_method_success : method_it->second;
   const int difficulty = std::clamp(item.difficulty, 1, 3);
   return (4.0 - difficulty) / 3.0 * success;
 }

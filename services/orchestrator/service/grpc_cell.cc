@@ -195,7 +195,8 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
   *params.mutable_region()->mutable_size_m() = pc::VectorToProto(bin.inner_S.sizes());
   params.mutable_region()->set_wall_margin_m(options_.wall_margin_m);
   if (views.size() > 1) {
-    for (const ScanView& v : views) *params.add_view_sensor_poses() = pc::PoseToProto(v.X_BaseCamera);
+    for (const ScanView& v : views)
+      *params.add_view_sensor_poses() = pc::PoseToProto(v.X_BaseCamera);
   }
   std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(StackViews(views));
   *chunks.front().mutable_header()->mutable_sensor_pose() = pc::PoseToProto(views[0].X_BaseCamera);

@@ -22,10 +22,10 @@ namespace picking::orchestrator {
 
 /// Sends one Detect call (params, then the cloud's chunks) to some detector replica; returns
 /// the status and fills the response and which replica answered.
-using DetectFn = std::function<grpc::Status(
-    const detector::v1::DetectParams& params,
-    const std::vector<common::v1::PointCloudChunk>& chunks, detector::v1::DetectResponse* response,
-    std::string* replica)>;
+using DetectFn =
+    std::function<grpc::Status(const detector::v1::DetectParams& params,
+                               const std::vector<common::v1::PointCloudChunk>& chunks,
+                               detector::v1::DetectResponse* response, std::string* replica)>;
 
 struct GrpcCellOptions {
   std::shared_ptr<grpc::Channel> scanner, planner, robot, gripper;

@@ -19,23 +19,34 @@ namespace dt = ::picking::detector::v1;
 
 pb::TaskState ToProto(TaskState s) {
   switch (s) {
-    case TaskState::kRunning: return pb::TASK_STATE_RUNNING;
-    case TaskState::kSucceeded: return pb::TASK_STATE_SUCCEEDED;
-    case TaskState::kFailed: return pb::TASK_STATE_FAILED;
-    case TaskState::kCancelled: return pb::TASK_STATE_CANCELLED;
+    case TaskState::kRunning:
+      return pb::TASK_STATE_RUNNING;
+    case TaskState::kSucceeded:
+      return pb::TASK_STATE_SUCCEEDED;
+    case TaskState::kFailed:
+      return pb::TASK_STATE_FAILED;
+    case TaskState::kCancelled:
+      return pb::TASK_STATE_CANCELLED;
   }
   return pb::TASK_STATE_UNSPECIFIED;
 }
 
 pb::Step ToProto(Step s) {
   switch (s) {
-    case Step::kScan: return pb::STEP_SCAN;
-    case Step::kDetect: return pb::STEP_DETECT;
-    case Step::kPlan: return pb::STEP_PLAN;
-    case Step::kGrasp: return pb::STEP_GRASP;
-    case Step::kVerify: return pb::STEP_VERIFY;
-    case Step::kPlace: return pb::STEP_PLACE;
-    case Step::kNone: break;
+    case Step::kScan:
+      return pb::STEP_SCAN;
+    case Step::kDetect:
+      return pb::STEP_DETECT;
+    case Step::kPlan:
+      return pb::STEP_PLAN;
+    case Step::kGrasp:
+      return pb::STEP_GRASP;
+    case Step::kVerify:
+      return pb::STEP_VERIFY;
+    case Step::kPlace:
+      return pb::STEP_PLACE;
+    case Step::kNone:
+      break;
   }
   return pb::STEP_UNSPECIFIED;
 }
@@ -227,11 +238,13 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
       apc::Catalogue::FromCsvFile(data_dir + "/apc2016/items/item_data.csv");
   TaskManagerOptions options;
   options.data_dir = config.GetPath("tasks_dir", "picking-tasks");
-  options.ease = EaseTable::FromYamlFile(config.GetPath("ease", data_dir + "/orchestrator/ease.yaml"));
+  options.ease =
+      EaseTable::FromYamlFile(config.GetPath("ease", data_dir + "/orchestrator/ease.yaml"));
   options.preferred_method =
       ReadPreferredMethods(config.GetPath("detector_models", data_dir + "/detector/models.json"));
   options.pick.time_limit_s = config.GetDouble("time_limit_s", options.pick.time_limit_s);
-  options.pick.max_attempts = static_cast<int>(config.GetInt("max_attempts", options.pick.max_attempts));
+  options.pick.max_attempts =
+      static_cast<int>(config.GetInt("max_attempts", options.pick.max_attempts));
   options.pick.min_time_per_item_s =
       config.GetDouble("min_time_per_item_s", options.pick.min_time_per_item_s);
   if (options.pick.time_limit_s <= 0.0 || options.pick.max_attempts < 1) {
@@ -252,8 +265,8 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
     peers.push_back({name, Address(config, name), Channel(config, name)});
   }
   const double shutdown_wait_s = config.GetDouble("shutdown_wait_s", 3.0);
-  auto tasks = std::make_shared<TaskManager>(
-      options, catalogue, [cell] { return std::make_unique<GrpcCell>(cell); });
+  auto tasks = std::make_shared<TaskManager>(options, catalogue,
+                                             [cell] { return std::make_unique<GrpcCell>(cell); });
   auto service = std::make_shared<OrchestratorServiceImpl>(std::move(tasks), std::move(peers));
   runtime::ServiceSet set;
   set.Add(service, pb::OrchestratorService::service_full_name());

@@ -139,13 +139,11 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     result.path_rad = std::move(path);
     return result;
   };
-  if (const CollisionReport r = final_checker.checker().Check(start_rad, carried);
-      r.in_collision) {
+  if (const CollisionReport r = final_checker.checker().Check(start_rad, carried); r.in_collision) {
     result.reason = "the start collides: " + r.ToString();
     return result;
   }
-  if (const CollisionReport r = final_checker.checker().Check(goal_rad, carried);
-      r.in_collision) {
+  if (const CollisionReport r = final_checker.checker().Check(goal_rad, carried); r.in_collision) {
     result.reason = "the goal collides: " + r.ToString();
     return result;
   }

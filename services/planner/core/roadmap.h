@@ -61,11 +61,11 @@ class Roadmap final {
   /// rejects is searched again without the rejected edges. With `carried`, every motion is
   /// checked with the item on the cup (edges free for the bare arm are checked again with it,
   /// for this call only).
-  JointPathResult Plan(const JointVector& start_rad, const JointVector& goal_rad,
-                       const MotionChecker* scene_checker = nullptr,
-                       std::chrono::steady_clock::time_point deadline =
-                           std::chrono::steady_clock::time_point::max(),
-                       const CarriedItem* carried = nullptr) const;
+  JointPathResult Plan(
+      const JointVector& start_rad, const JointVector& goal_rad,
+      const MotionChecker* scene_checker = nullptr,
+      std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
+      const CarriedItem* carried = nullptr) const;
 
   std::size_t num_nodes() const { return nodes_.size(); }
 

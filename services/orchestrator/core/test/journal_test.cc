@@ -9,8 +9,8 @@ namespace picking::orchestrator {
 namespace {
 
 std::string TempPath(const std::string& name) {
-  const auto dir = std::filesystem::temp_directory_path() /
-                   ("journal_test_" + std::to_string(::getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("journal_test_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const auto path = dir / name;
   std::filesystem::remove(path);
@@ -55,7 +55,9 @@ TEST(Journal, ACorruptRecordBeforeTheEndIsAnError) {
   const std::string path = TempPath("c.jsonl");
   {
     std::ofstream out(path);
-    out << "not json\n" << R"({"seq": 0, "type": "begin", "key": "", "t": 0, "data": {}})" << "\n";
+    out << "not json\n"
+        << R"({"seq": 0, "type": "begin", "key": "", "t": 0, "data": {}})"
+        << "\n";
   }
   EXPECT_THROW(Journal::Read(path), std::runtime_error);
 }

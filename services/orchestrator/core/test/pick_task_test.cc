@@ -20,17 +20,17 @@ const apc::Catalogue& Catalogue() {
 struct Script {
   bool found = true;
   bool plannable = true;
-  int no_seal_attempts = 0;     // the first n vacuum-ons do not seal
-  bool lose_in_lift = false;    // seal lost during the retreat (once)
-  bool drop_on_the_way = false; // seal lost on the way to the tote
-  bool no_place = false;        // no motion to the tote can be planned
+  int no_seal_attempts = 0;      // the first n vacuum-ons do not seal
+  bool lose_in_lift = false;     // seal lost during the retreat (once)
+  bool drop_on_the_way = false;  // seal lost on the way to the tote
+  bool no_place = false;         // no motion to the tote can be planned
 };
 
 class ScriptedCell final : public CellPort {
  public:
   std::map<std::string, Script> scripts;
-  int unavailable_scans = 0;  // the scanner answers UNAVAILABLE this many times first
-  std::vector<std::string> placed;  // items released over the tote
+  int unavailable_scans = 0;          // the scanner answers UNAVAILABLE this many times first
+  std::vector<std::string> placed;    // items released over the tote
   std::vector<std::string> put_back;  // items put back where they were grasped
   std::map<std::string, int> vacuum_ons;
   std::string current;  // item being worked on
@@ -130,8 +130,12 @@ class PickTaskTest : public ::testing::Test {
   PickTaskResult Run(ScriptedCell& cell, std::vector<TaskEvent>* events = nullptr) {
     Journal journal((dir_ / "journal.jsonl").string());
     const apc::Task task = ThreeItemTask();
-    PickTaskRunner runner(task, InFileOrder(task), Catalogue(), options_, cell, journal,
-                          [&](const TaskEvent& e) { if (events) events->push_back(e); }, cancel_);
+    PickTaskRunner runner(
+        task, InFileOrder(task), Catalogue(), options_, cell, journal,
+        [&](const TaskEvent& e) {
+          if (events) events->push_back(e);
+        },
+        cancel_);
     return runner.Run();
   }
   std::filesystem::path dir_;

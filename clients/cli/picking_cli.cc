@@ -1,0 +1,313 @@
+// picking: runs and watches APC tasks on the cell through the orchestrator.
+//
+//   picking run TASK.json [--time-limit S] [--ease item,item,...] [--resume ID]
+//   picking watch ID      picking status [ID]      picking list
+//   picking cancel ID     picking score ID
+// Options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or localhost:50050), --json (one
+// JSON object per event or answer instead of the progress display).
+// Exit codes: 0 the task succeeded (or the command did), 1 the task failed or was cancelled,
+// 2 bad usage, 3 the orchestrator refused the request or could not be reached.
+#include <grpcpp/create_channel.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
+
+namespace {
+
+namespace pb = ::picking::orchestrator::v1;
+
+constexpr int kOk = 0, kTaskFailed = 1, kUsage = 2, kRpcError = 3;
+
+struct Args {
+  std::string command;
+  std::vector<std::string> positional;
+  std::string address;
+  bool json = false;
+  double time_limit_s = 0.0;
+  std::vector<std::string> ease;
+  std::string resume;
+};
+
+int Usage(const std::string& error) {
+  if (!error.empty()) std::cerr << "picking: " << error << "\n";
+  std::cerr << "usage: picking run TASK.json [--time-limit S] [--ease a,b] [--resume ID]\n"
+               "       picking watch ID | status [ID] | list | cancel ID | score ID\n"
+               "options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or "
+               "localhost:50050), --json\n";
+  return kUsage;
+}
+
+std::vector<std::string> Split(const std::string& text) {
+  std::vector<std::string> out;
+  std::stringstream in(text);
+  for (std::string part; std::getline(in, part, ',');) {
+    if (!part.empty()) out.push_back(part);
+  }
+  return out;
+}
+
+// Returns false on a malformed command line (with the reason in `error`).
+bool Parse(int argc, char** argv, Args* args, std::string* error) {
+  const char* env = std::getenv("PICKING_ORCHESTRATOR");
+  args->address = env != nullptr && *env != '\0' ? env : "localhost:50050";
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&](const char* name) -> const char* {
+      if (i + 1 >= argc) {
+        *error = std::string(name) + " needs a value";
+        return nullptr;
+      }
+      return argv[++i];
+    };
+    if (a == "--json") {
+      args->json = true;
+    } else if (a == "--address" || a == "--time-limit" || a == "--ease" || a == "--resume") {
+      const char* v = value(a.c_str());
+      if (v == nullptr) return false;
+      if (a == "--address") args->address = v;
+      if (a == "--ease") args->ease = Split(v);
+      if (a == "--resume") args->resume = v;
+      if (a == "--time-limit") {
+        char* end = nullptr;
+        args->time_limit_s = std::strtod(v, &end);
+        if (end == v || *end != '\0' || !(args->time_limit_s > 0.0)) {
+          *error = "--time-limit: expected seconds > 0, got '" + std::string(v) + "'";
+          return false;
+        }
+      }
+    } else if (a == "-h" || a == "--help") {
+      *error = "";
+      return false;
+    } else if (a.rfind("--", 0) == 0) {
+      *error = "unknown option " + a;
+      return false;
+    } else if (args->command.empty()) {
+      args->command = a;
+    } else {
+      args->positional.push_back(a);
+    }
+  }
+  if (args->command.empty()) {
+    *error = "no command";
+    return false;
+  }
+  return true;
+}
+
+int RpcError(const std::string& what, const grpc::Status& status) {
+  std::cerr << "picking: " << what << ": " << status.error_message() << " (code "
+            << status.error_code() << ")\n";
+  return kRpcError;
+}
+
+const char* StateName(pb::TaskState s) {
+  switch (s) {
+    case pb::TASK_STATE_RUNNING:
+      return "running";
+    case pb::TASK_STATE_SUCCEEDED:
+      return "succeeded";
+    case pb::TASK_STATE_FAILED:
+      return "failed";
+    case pb::TASK_STATE_CANCELLED:
+      return "cancelled";
+    default:
+      return "unknown";
+  }
+}
+
+std::string StepName(pb::Step step) {
+  std::string name = pb::Step_Name(step);
+  return step == pb::STEP_UNSPECIFIED ? "" : name.substr(5);
+}
+
+nlohmann::json EventJson(const pb::TaskEvent& e) {
+  return {{"sequence", e.sequence()},
+          {"time_s", e.time_s()},
+          {"item", e.item()},
+          {"step", StepName(e.step())},
+          {"ok", e.step_ok()},
+          {"message", e.message()},
+          {"items_done", e.items_done()},
+          {"items_total", e.items_total()},
+          {"state", StateName(e.state())}};
+}
+
+nlohmann::json TaskJson(const pb::GetTaskResponse& t) {
+  nlohmann::json j = {{"task_id", t.task_id()},
+                      {"state", StateName(t.state())},
+                      {"items_done", t.items_done()},
+                      {"items_total", t.items_total()},
+                      {"error", t.error()}};
+  if (t.state() != pb::TASK_STATE_RUNNING) {
+    j["score"] = t.result().score();
+    j["items_moved"] = t.result().items_moved();
+    j["duration_s"] = t.result().duration_s();
+    j["output_file"] = t.result().output_file();
+    j["report_file"] = t.result().report_file();
+    j["score_lines"] = nlohmann::json::array();
+    for (const auto& l : t.result().score_lines()) {
+      j["score_lines"].push_back({{"points", l.points()}, {"reason", l.reason()}});
+    }
+  }
+  return j;
+}
+
+// The live display: a line per finished item, and a progress bar kept on the last line.
+class Display {
+ public:
+  explicit Display(double time_limit_s) : time_limit_s_(time_limit_s) {}
+  void Show(const pb::TaskEvent& e) {
+    const bool item_line =
+        !e.item().empty() && (e.step() == pb::STEP_UNSPECIFIED ||
+                              (e.step() == pb::STEP_PLACE && e.message() == "in the tote"));
+    if (e.state() != pb::TASK_STATE_RUNNING) {
+      std::printf("\r\033[K%s: %s\n", StateName(e.state()), e.message().c_str());
+      return;
+    }
+    if (item_line) {
+      std::printf("\r\033[K%s %-36s %s\n", e.step_ok() ? "ok  " : "FAIL", e.item().c_str(),
+                  e.message().c_str());
+    }
+    const int width = 24;
+    const int filled = e.items_total() > 0 ? width * static_cast<int>(e.items_done()) /
+                                                 static_cast<int>(e.items_total())
+                                           : 0;
+    std::printf("\r\033[K[%s%s] %u/%u  %-28.28s %-7s  %4.0f s left",
+                std::string(filled, '#').c_str(), std::string(width - filled, '.').c_str(),
+                e.items_done(), e.items_total(), e.item().c_str(), StepName(e.step()).c_str(),
+                time_limit_s_ - e.time_s());
+    std::fflush(stdout);
+  }
+
+ private:
+  double time_limit_s_;
+};
+
+int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args& args) {
+  grpc::ClientContext ctx;
+  pb::WatchTaskRequest request;
+  request.set_task_id(id);
+  auto reader = stub.WatchTask(&ctx, request);
+  Display display(args.time_limit_s > 0.0 ? args.time_limit_s : 900.0);
+  pb::TaskEvent event;
+  pb::TaskState last = pb::TASK_STATE_RUNNING;
+  while (reader->Read(&event)) {
+    if (args.json) {
+      std::cout << EventJson(event).dump() << "\n" << std::flush;
+    } else {
+      display.Show(event);
+    }
+    last = event.state();
+  }
+  const grpc::Status status = reader->Finish();
+  if (!status.ok()) return RpcError("watch " + id, status);
+  grpc::ClientContext get_ctx;
+  pb::GetTaskRequest get;
+  get.set_task_id(id);
+  pb::GetTaskResponse task;
+  if (grpc::Status s = stub.GetTask(&get_ctx, get, &task); !s.ok()) return RpcError("status", s);
+  if (args.json) {
+    std::cout << TaskJson(task).dump() << "\n";
+  } else {
+    std::printf("score %d, %u of %u items moved, %.0f s task clock\noutput: %s\nreport: %s\n",
+                task.result().score(), task.result().items_moved(), task.items_total(),
+                task.result().duration_s(), task.result().output_file().c_str(),
+                task.result().report_file().c_str());
+  }
+  return last == pb::TASK_STATE_SUCCEEDED ? kOk : kTaskFailed;
+}
+
+int Run(pb::OrchestratorService::Stub& stub, const Args& args) {
+  if (args.positional.size() != 1 && args.resume.empty()) return Usage("run needs a task file");
+  pb::StartTaskRequest request;
+  if (!args.positional.empty()) {
+    std::ifstream in(args.positional[0]);
+    if (!in) return Usage("cannot read " + args.positional[0]);
+    std::stringstream text;
+    text << in.rdbuf();
+    request.set_task_json(text.str());
+  }
+  request.set_time_limit_s(args.time_limit_s);
+  for (const auto& e : args.ease) request.add_ease_order(e);
+  request.set_resume_task_id(args.resume);
+  grpc::ClientContext ctx;
+  pb::StartTaskResponse started;
+  if (grpc::Status s = stub.StartTask(&ctx, request, &started); !s.ok()) return RpcError("run", s);
+  if (!args.json) std::printf("task %s\n", started.task_id().c_str());
+  return Watch(stub, started.task_id(), args);
+}
+
+int Status(pb::OrchestratorService::Stub& stub, const Args& args) {
+  std::vector<pb::GetTaskResponse> tasks;
+  if (args.positional.empty()) {
+    grpc::ClientContext ctx;
+    pb::ListTasksResponse list;
+    if (grpc::Status s = stub.ListTasks(&ctx, {}, &list); !s.ok()) return RpcError("list", s);
+    tasks.assign(list.tasks().begin(), list.tasks().end());
+    if (args.command == "status" && !tasks.empty()) tasks.resize(1);
+  } else {
+    grpc::ClientContext ctx;
+    pb::GetTaskRequest request;
+    request.set_task_id(args.positional[0]);
+    pb::GetTaskResponse task;
+    if (grpc::Status s = stub.GetTask(&ctx, request, &task); !s.ok()) return RpcError("status", s);
+    tasks.push_back(task);
+  }
+  for (const auto& t : tasks) {
+    if (args.json) {
+      std::cout << TaskJson(t).dump() << "\n";
+    } else if (args.command == "score") {
+      for (const auto& l : t.result().score_lines())
+        std::printf("%+4d  %s\n", l.points(), l.reason().c_str());
+      std::printf("%4d  total\n", t.result().score());
+    } else {
+      std::printf("%-28s %-10s %u/%u items  score %d%s%s\n", t.task_id().c_str(),
+                  StateName(t.state()), t.items_done(), t.items_total(), t.result().score(),
+                  t.error().empty() ? "" : "  ", t.error().c_str());
+    }
+  }
+  return kOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  std::string error;
+  if (!Parse(argc, argv, &args, &error)) return Usage(error);
+  auto channel = grpc::CreateChannel(args.address, grpc::InsecureChannelCredentials());
+  auto stub = pb::OrchestratorService::NewStub(channel);
+  const auto& c = args.command;
+  if (c == "run") return Run(*stub, args);
+  if (c == "watch") {
+    if (args.positional.size() != 1) return Usage("watch needs a task id");
+    return Watch(*stub, args.positional[0], args);
+  }
+  if (c == "status" || c == "list") return Status(*stub, args);
+  if (c == "score") {
+    if (args.positional.size() != 1) return Usage("score needs a task id");
+    return Status(*stub, args);
+  }
+  if (c == "cancel") {
+    if (args.positional.size() != 1) return Usage("cancel needs a task id");
+    grpc::ClientContext ctx;
+    pb::CancelTaskRequest request;
+    request.set_task_id(args.positional[0]);
+    pb::CancelTaskResponse response;
+    if (grpc::Status s = stub->CancelTask(&ctx, request, &response); !s.ok()) {
+      return RpcError("cancel", s);
+    }
+    if (!args.json)
+      std::printf("cancelling %s after its current step\n", args.positional[0].c_str());
+    return kOk;
+  }
+  return Usage("unknown command '" + c + "'");
+}
