@@ -87,8 +87,12 @@ std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const Stati
                                          std::vector<std::string>* missing) {
   std::vector<NamedPose> poses;
   const ur10::Ur10Kinematics& kinematics = robot.kinematics();
+  // Named poses are where motions start and end: they keep a margin from everything (and
+  // the arm from itself), so that the continuous check of a motion leaving them, which grows
+  // the spheres by half its state spacing, does not find them touching.
+  constexpr float kNamedPoseMargin_m = 0.01f;
   auto free = [&](const JointVector& q) {
-    return checker.IsFree(q) && !exact.Check(q).in_collision;
+    return checker.IsFree(q, nullptr, kNamedPoseMargin_m) && !exact.Check(q).in_collision;
   };
   if (free(home_rad)) {
     poses.push_back({"home", home_rad});

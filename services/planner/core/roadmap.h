@@ -20,11 +20,11 @@ struct NamedPose {
 struct RoadmapOptions {
   /// Random configurations added to the named poses, drawn within the joint-space box around
   /// the named poses grown by `sample_margin_rad` (and inside the joint limits).
-  int samples = 300;
+  int samples = 800;
   double sample_margin_rad = 0.6;
   /// Each node is joined to this many nearest nodes (edges checked lazily, when a search
   /// first uses them).
-  int neighbours = 10;
+  int neighbours = 12;
   /// Shortcut attempts on a found path (seeded).
   int shortcut_attempts = 40;
   std::uint32_t seed = 2016;

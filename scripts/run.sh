@@ -1,0 +1,131 @@
+#!/usr/bin/env bash
+# Runs the picking cell on this machine with the simulated backends: installs what is
+# missing, builds what is not built, starts every service as a local process, runs a task
+# with the live progress display, and leaves the output file, the score and the report in an
+# output folder it names at the end. Ctrl-C stops everything.
+#
+#   scripts/run.sh                                   # pick_layout_1
+#   scripts/run.sh --task data/apc2016/tasks/pick_layout_2.json --detectors 2
+#   scripts/run.sh --time-scale 1                    # the arm at real speed
+#
+# Options:
+#   --task FILE       APC 2016 task file (default data/apc2016/tasks/pick_layout_1.json)
+#   --stow            a stow task (the task file's tote_contents)
+#   --detectors N     detector replicas (default 1)
+#   --time-scale X    how much faster than real time the simulated arm moves (default 10)
+#   --seed N          layout seed of the simulator (default 7)
+#   --out DIR         output folder (default runs/<date-time>)
+#   --no-install      do not install missing packages
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$(pwd)
+
+task=data/apc2016/tasks/pick_layout_1.json
+detectors=1
+time_scale=10
+seed=7
+out=""
+install=1
+kind=""
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --task) task=$2; shift 2 ;;
+    --stow) kind=stow; shift ;;
+    --detectors) detectors=$2; shift 2 ;;
+    --time-scale) time_scale=$2; shift 2 ;;
+    --seed) seed=$2; shift 2 ;;
+    --out) out=$2; shift 2 ;;
+    --no-install) install=0; shift ;;
+    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
+  esac
+done
+[[ -r "$task" ]] || { echo "run.sh: cannot read task file $task" >&2; exit 2; }
+[[ "$detectors" =~ ^[1-9][0-9]*$ ]] || { echo "run.sh: --detectors must be >= 1" >&2; exit 2; }
+if [[ -n "$kind" ]]; then
+  echo "run.sh: stow tasks are not supported by the orchestrator yet" >&2
+  exit 2
+fi
+task=$(realpath "$task")
+out=${out:-runs/$(date +%Y%m%d-%H%M%S)}
+mkdir -p "$out/logs"
+out=$(realpath "$out")
+
+if [[ $install == 1 ]]; then scripts/install-deps.sh; fi
+build_dir=${BUILD_DIR:-build}
+export CCACHE_DIR=${CCACHE_DIR:-$HOME/.cache/ccache}
+targets=(picking picking-simulator picking-robot picking-gripper picking-scanner picking-detector
+         picking-planner picking-orchestrator)
+if [[ ! -f "$build_dir/build.ninja" ]]; then
+  cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+    ${CMAKE_ARGS:-} > "$out/logs/cmake.log"
+fi
+echo "building the servers (a second run reuses the build) ..."
+cmake --build "$build_dir" -j "$(nproc)" --target "${targets[@]}" > "$out/logs/build.log" || {
+  tail -30 "$out/logs/build.log" >&2; exit 1; }
+bin=$root/$build_dir/bin
+
+pids=()
+cleanup() {
+  trap - INT TERM EXIT
+  if [[ ${#pids[@]} -gt 0 ]]; then
+    echo "stopping the services ..."
+    kill -TERM "${pids[@]}" 2>/dev/null || true
+    # Each server stops within its shutdown grace; anything left after that is killed.
+    for _ in $(seq 100); do
+      alive=0
+      for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
+      [[ $alive == 0 ]] && break
+      sleep 0.1
+    done
+    kill -KILL "${pids[@]}" 2>/dev/null || true
+    wait 2>/dev/null || true
+  fi
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+# Starts a server on a free port; its address lands in the variable named by $1.
+start() {
+  local var=$1 name=$2; shift 2
+  local log=$out/logs/$name.log
+  "$bin/$@" --listen=127.0.0.1:0 > "$log.stdout" 2> "$log" &
+  pids+=($!)
+  for _ in $(seq 3000); do
+    if grep -q '^listening on ' "$log.stdout" 2>/dev/null; then
+      printf -v "$var" '%s' "$(sed -n 's/^listening on //p' "$log.stdout" | head -1)"
+      echo "  $name on ${!var}"
+      return
+    fi
+    kill -0 "${pids[-1]}" 2>/dev/null || { echo "run.sh: $name did not start:" >&2; tail -5 "$log" >&2; exit 1; }
+    sleep 0.1
+  done
+  echo "run.sh: $name did not start within 300 s (see $log)" >&2
+  exit 1
+}
+
+echo "starting the cell (logs in $out/logs):"
+start sim simulator picking-simulator --layout="$task" --seed="$seed"
+start robot robot picking-robot --backend=sim --sim.address="$sim" --sim.time_scale="$time_scale"
+start gripper gripper picking-gripper --backend=sim --sim.address="$sim"
+start scanner scanner picking-scanner --sim.address="$sim" --calibration.dir="$out/calibration"
+detector_list=""
+for i in $(seq "$detectors"); do
+  start det "detector-$i" picking-detector --cache_dir="$root/$build_dir/detector-cache"
+  detector_list=${detector_list:+$detector_list,}$det
+done
+start planner planner picking-planner
+start orch orchestrator picking-orchestrator --tasks_dir="$out/tasks" \
+  --scanner.address="$scanner" --detector.address="${detector_list%%,*}" \
+  --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper"
+
+status=0
+"$bin/picking" run "$task" --address "$orch" | tee "$out/progress.txt" || status=$?
+task_dir=$(ls -d "$out"/tasks/task-* 2>/dev/null | tail -1)
+if [[ -n "$task_dir" ]]; then
+  cp "$task_dir/output.json" "$task_dir/report.html" "$task_dir/report.json" "$out/" 2>/dev/null || true
+fi
+echo
+echo "output folder: $out"
+echo "  output.json (the APC output file), report.html (per item: method, grasp, times, score)"
+exit $status
