@@ -81,7 +81,8 @@ std::chrono::system_clock::duration Seconds(double s) {
 // The first message carries the params, then one message per chunk. A failed Write means the
 // call is already over (the server answered early or the deadline passed): Finish says why.
 template <class Request, class Params, class Writer>
-grpc::Status WriteAll(Writer& writer, const Params& params, const Chunks& chunks) {
+grpc::Status WriteAll(Writer& writer, const Params& params, const Chunks& chunks,
+                      const std::function<void()>& sent) {
   Request first;
   *first.mutable_params() = params;
   bool open = writer.Write(first);
@@ -90,22 +91,22 @@ grpc::Status WriteAll(Writer& writer, const Params& params, const Chunks& chunks
     *request.mutable_cloud() = chunks[i];
     open = writer.Write(request);
   }
-  if (open) writer.WritesDone();
+  if (open && writer.WritesDone()) sent();
   return writer.Finish();
 }
 
 grpc::Status Stream(detpb::DetectorService::Stub& stub, grpc::ClientContext* ctx,
                     const detpb::DetectParams& params, const Chunks& chunks,
-                    detpb::DetectResponse* response) {
+                    detpb::DetectResponse* response, const std::function<void()>& sent) {
   auto writer = stub.Detect(ctx, response);
-  return WriteAll<detpb::DetectRequest>(*writer, params, chunks);
+  return WriteAll<detpb::DetectRequest>(*writer, params, chunks, sent);
 }
 
 grpc::Status Stream(detpb::DetectorService::Stub& stub, grpc::ClientContext* ctx,
                     const detpb::VerifyParams& params, const Chunks& chunks,
-                    detpb::VerifyResponse* response) {
+                    detpb::VerifyResponse* response, const std::function<void()>& sent) {
   auto writer = stub.Verify(ctx, response);
-  return WriteAll<detpb::VerifyRequest>(*writer, params, chunks);
+  return WriteAll<detpb::VerifyRequest>(*writer, params, chunks, sent);
 }
 
 std::shared_ptr<grpc::Channel> MakeChannel(const std::string& endpoint,
@@ -238,7 +239,9 @@ struct DetectorPool::Race {
     std::atomic<bool> cancelled{false};  // Set by the caller before it cancels ctx.
     std::thread thread;
   };
-  std::function<grpc::Status(detpb::DetectorService::Stub&, grpc::ClientContext*, Response*)>
+  // Sends the request on a stub; calls the last argument once the whole request is sent.
+  std::function<grpc::Status(detpb::DetectorService::Stub&, grpc::ClientContext*, Response*,
+                             const std::function<void()>&)>
       stream;
   std::chrono::system_clock::duration deadline{};
   std::vector<std::unique_ptr<Slot>> slots;
@@ -390,7 +393,11 @@ void DetectorPool::Launch(Race<Response>& race, std::size_t replica, bool hedge)
     event.hedge = slot->hedge;
     Emit(event);
     const auto start = Clock::now();
-    slot->status = race.stream(*replicas_[slot->replica]->stub, &slot->ctx, &slot->response);
+    slot->status =
+        race.stream(*replicas_[slot->replica]->stub, &slot->ctx, &slot->response, [this, &event] {
+          event.kind = PoolEvent::Kind::kAttemptSent;
+          Emit(event);
+        });
     slot->duration_s = std::chrono::duration<double>(Clock::now() - start).count();
     slot->peer = slot->ctx.peer();
     Release(slot->replica, slot->status, slot->cancelled);
@@ -427,8 +434,8 @@ CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud&
   if (!cloud) throw std::invalid_argument("detector pool: a call without a cloud");
   Race<Response> race;
   race.stream = [&params, &cloud](detpb::DetectorService::Stub& stub, grpc::ClientContext* ctx,
-                                  Response* response) {
-    return Stream(stub, ctx, params, *cloud, response);
+                                  Response* response, const std::function<void()>& sent) {
+    return Stream(stub, ctx, params, *cloud, response, sent);
   };
   race.deadline = Seconds(deadline_s > 0 ? deadline_s : options_.deadline_s);
   const bool hedging = options_.hedge_delay_s > 0;

@@ -35,6 +35,7 @@ using SharedCloud = std::shared_ptr<const std::vector<picking::common::v1::Point
 struct PoolEvent {
   enum class Kind {
     kAttemptStarted,   ///< An attempt is about to be sent to `replica` (`hedge`: a copy).
+    kAttemptSent,      ///< The whole request (params, cloud) is written to `replica`'s stream.
     kAttemptFinished,  ///< An attempt on `replica` ended with `status`.
     kHealthChanged,    ///< `replica` was taken out (`healthy` false) or brought back.
   };

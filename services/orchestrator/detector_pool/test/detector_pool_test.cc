@@ -112,7 +112,14 @@ class DetectorPoolTest : public ::testing::Test {
 };
 
 TEST_F(DetectorPoolTest, AnswersFromTheFirstReplicaAndReportsIt) {
-  DetectorPool pool(Options());
+  std::mutex mutex;
+  std::vector<PoolEvent::Kind> kinds;
+  DetectorPoolOptions options = Options();
+  options.on_event = [&](const PoolEvent& e) {
+    std::lock_guard<std::mutex> lock(mutex);
+    kinds.push_back(e.kind);
+  };
+  DetectorPool pool(options);
   const DetectOutcome outcome = pool.Detect(Call("milk"));
   ASSERT_TRUE(outcome.ok()) << outcome.status.error_message();
   ASSERT_EQ(outcome.response.results_size(), 1);
@@ -124,6 +131,9 @@ TEST_F(DetectorPoolTest, AnswersFromTheFirstReplicaAndReportsIt) {
   EXPECT_TRUE(outcome.failed_attempts().empty());
   EXPECT_EQ(a_.detector().calls(), std::vector<std::string>{"milk"});
   EXPECT_TRUE(b_.detector().calls().empty());
+  EXPECT_EQ(kinds, (std::vector<PoolEvent::Kind>{PoolEvent::Kind::kAttemptStarted,
+                                                 PoolEvent::Kind::kAttemptSent,
+                                                 PoolEvent::Kind::kAttemptFinished}));
 }
 
 TEST_F(DetectorPoolTest, RetriesOnAnotherReplicaWhenOneIsUnavailable) {
