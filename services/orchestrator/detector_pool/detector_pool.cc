@@ -580,23 +580,16 @@ void DetectorPool::CheckHealthNow() {
     if (stopping_) return;
     for (auto& c : checks) health_checks_.push_back(&c->ctx);
   }
-  std::mutex done_mutex;
-  std::condition_variable done_cv;
-  std::size_t pending = n;
+  // One thread per replica: a dead replica's check waits out its deadline without holding up
+  // the others'. (Blocking calls rather than gRPC's callback API keep the hand-off between
+  // threads visible to ThreadSanitizer.)
+  std::vector<std::thread> threads;
   for (std::size_t i = 0; i < n; ++i) {
-    Check* c = checks[i].get();
-    replicas_[i]->health->async()->Check(&c->ctx, &c->request, &c->response,
-                                         [&, c](grpc::Status status) {
-                                           std::lock_guard<std::mutex> lock(done_mutex);
-                                           c->status = std::move(status);
-                                           --pending;
-                                           done_cv.notify_all();
-                                         });
+    threads.emplace_back([this, i, c = checks[i].get()] {
+      c->status = replicas_[i]->health->Check(&c->ctx, c->request, &c->response);
+    });
   }
-  {
-    std::unique_lock<std::mutex> lock(done_mutex);
-    done_cv.wait(lock, [&] { return pending == 0; });
-  }
+  for (auto& t : threads) t.join();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (auto& c : checks) {

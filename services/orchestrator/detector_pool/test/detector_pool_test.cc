@@ -80,8 +80,10 @@ class HealthEvents final {
 class DetectorPoolTest : public ::testing::Test {
  protected:
   void TearDown() override {
-    a_.detector().Release();
-    b_.detector().Release();
+    for (FakeReplica* replica : {&a_, &b_}) {
+      replica->detector().Release();
+      replica->health().Release();
+    }
   }
 
   // Two replicas, A first; no background health checks, no backoff waits (recorded instead).
@@ -329,6 +331,18 @@ TEST_F(DetectorPoolTest, DestructionStopsTheHealthThreadAtOnce) {
   const auto start = Clock::now();
   pool.reset();
   EXPECT_LT(SecondsSince(start), 1.0);
+}
+
+TEST_F(DetectorPoolTest, DestructionCancelsAHealthCheckInFlight) {
+  a_.health().HoldChecks();  // A's check would take the whole minute.
+  DetectorPoolOptions options = Options();
+  options.health_period_s = 0.01;
+  options.health_timeout_s = 60.0;
+  auto pool = std::make_unique<DetectorPool>(options);
+  ASSERT_TRUE(a_.health().WaitForHeldCheck());
+  const auto start = Clock::now();
+  pool.reset();
+  EXPECT_LT(SecondsSince(start), 5.0);
 }
 
 TEST_F(DetectorPoolTest, DetectAllRunsIndependentJobsOnDifferentReplicasAtOnce) {

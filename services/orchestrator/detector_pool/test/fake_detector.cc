@@ -1,6 +1,5 @@
 #include "services/orchestrator/detector_pool/test/fake_detector.h"
 
-#include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/server_builder.h>
 
@@ -136,29 +135,68 @@ grpc::Status FakeDetector::Verify(grpc::ServerContext* ctx,
   return grpc::Status::OK;
 }
 
+grpc::Status FakeHealth::Check(grpc::ServerContext* ctx,
+                               const grpc::health::v1::HealthCheckRequest* request,
+                               grpc::health::v1::HealthCheckResponse* response) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  if (hold_) {
+    ++held_;
+    cv_.notify_all();
+    cv_.wait(lock, [this] { return released_; });
+  }
+  if (request->service() != "" && request->service() != kService) {
+    return grpc::Status(grpc::StatusCode::NOT_FOUND, "unknown service");
+  }
+  response->set_status(serving_ ? grpc::health::v1::HealthCheckResponse::SERVING
+                                : grpc::health::v1::HealthCheckResponse::NOT_SERVING);
+  return grpc::Status::OK;
+}
+
+void FakeHealth::SetServing(bool serving) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  serving_ = serving;
+}
+
+void FakeHealth::HoldChecks() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  hold_ = true;
+}
+
+void FakeHealth::Release() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  released_ = true;
+  cv_.notify_all();
+}
+
+bool FakeHealth::WaitForHeldCheck() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  return cv_.wait_for(lock, std::chrono::seconds(30), [this] { return held_ > 0; });
+}
+
 FakeReplica::FakeReplica() { Start(0); }
 
 FakeReplica::~FakeReplica() { Shutdown(); }
 
 void FakeReplica::Start(int port) {
   detector_ = std::make_unique<FakeDetector>();
-  grpc::EnableDefaultHealthCheckService(true);
+  health_ = std::make_unique<FakeHealth>();
   grpc::ServerBuilder builder;
   int bound = 0;
   builder.AddListeningPort("127.0.0.1:" + std::to_string(port), grpc::InsecureServerCredentials(),
                            &bound);
   builder.RegisterService(detector_.get());
+  builder.RegisterService(health_.get());
   server_ = builder.BuildAndStart();
   if (!server_ || bound == 0) {
     throw std::runtime_error("fake detector: cannot listen on port " + std::to_string(port));
   }
   port_ = bound;
-  SetServing(true);
 }
 
 void FakeReplica::Shutdown() {
   if (!server_) return;
   detector_->Release();
+  health_->Release();
   server_->Shutdown();
   server_->Wait();
   server_.reset();
@@ -169,8 +207,6 @@ void FakeReplica::Restart() {
   Start(port_);
 }
 
-void FakeReplica::SetServing(bool serving) {
-  server_->GetHealthCheckService()->SetServingStatus(kService, serving);
-}
+void FakeReplica::SetServing(bool serving) { health_->SetServing(serving); }
 
 }  // namespace picking::orchestrator::testing

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "picking/detector/v1/detector.grpc.pb.h"
 
 /// An in-process stand-in for picking-detector that the pool's tests steer: answer, fail with
@@ -75,7 +76,29 @@ class FakeDetector final : public picking::detector::v1::DetectorService::Servic
   int max_running_ = 0;
 };
 
-/// A FakeDetector served on 127.0.0.1 (a free port), with the health service SERVING.
+/// grpc.health.v1 as the real servers answer it ("" and the detector service), which can also
+/// be told to hold checks until released.
+class FakeHealth final : public grpc::health::v1::Health::Service {
+ public:
+  grpc::Status Check(grpc::ServerContext* ctx, const grpc::health::v1::HealthCheckRequest* request,
+                     grpc::health::v1::HealthCheckResponse* response) override;
+  void SetServing(bool serving);
+  /// Later checks wait until Release() (or the client's cancel, seen at release).
+  void HoldChecks();
+  void Release();
+  /// Blocks until a held check has arrived; false after 30 s without one.
+  bool WaitForHeldCheck();
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  bool serving_ = true;
+  bool hold_ = false;
+  bool released_ = false;
+  int held_ = 0;
+};
+
+/// A FakeDetector and a FakeHealth served on 127.0.0.1 (a free port), SERVING.
 class FakeReplica final {
  public:
   FakeReplica();
@@ -91,6 +114,7 @@ class FakeReplica final {
   void SetServing(bool serving);
 
   FakeDetector& detector() { return *detector_; }
+  FakeHealth& health() { return *health_; }
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
   int port() const { return port_; }
 
@@ -98,6 +122,7 @@ class FakeReplica final {
   void Start(int port);
 
   std::unique_ptr<FakeDetector> detector_;
+  std::unique_ptr<FakeHealth> health_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
 };
