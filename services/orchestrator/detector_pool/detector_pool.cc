@@ -503,6 +503,11 @@ DetectOutcome DetectorPool::Detect(const DetectCall& call) {
   return Run<detpb::DetectResponse>(call.params, call.cloud, call.deadline_s);
 }
 
+std::future<DetectOutcome> DetectorPool::DetectAsync(DetectCall call) {
+  if (!call.cloud) throw std::invalid_argument("detector pool: a call without a cloud");
+  return std::async(std::launch::async, [this, call = std::move(call)] { return Detect(call); });
+}
+
 VerifyOutcome DetectorPool::Verify(const VerifyCall& call) {
   return Run<detpb::VerifyResponse>(call.params, call.cloud, call.deadline_s);
 }

@@ -8,6 +8,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
+#include <future>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -186,6 +187,11 @@ class DetectorPool final {
   /// null cloud; every other failure is in the outcome.
   DetectOutcome Detect(const DetectCall& call);
   VerifyOutcome Verify(const VerifyCall& call);
+
+  /// Detect on a thread of its own, for a job that overlaps other work (the next target's
+  /// detection while the arm moves). The future must be waited for before the pool is
+  /// destroyed. Throws std::invalid_argument at once for a null cloud.
+  std::future<DetectOutcome> DetectAsync(DetectCall call);
 
   /// Independent jobs at once on different replicas (at most max_in_flight, see the options);
   /// outcomes in the order of `calls`. Throws std::invalid_argument (before sending anything)

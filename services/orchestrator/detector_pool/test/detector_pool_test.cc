@@ -9,6 +9,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <future>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
@@ -362,6 +363,20 @@ TEST_F(DetectorPoolTest, DetectAllRunsIndependentJobsOnDifferentReplicasAtOnce) 
   EXPECT_NE(outcomes[0].replica, outcomes[1].replica);
   EXPECT_EQ(a_.detector().calls().size(), 1u);
   EXPECT_EQ(b_.detector().calls().size(), 1u);
+}
+
+TEST_F(DetectorPoolTest, DetectAsyncRunsBesideAnotherCall) {
+  auto rendezvous = std::make_shared<Rendezvous>(2);
+  a_.detector().SetRendezvous(rendezvous);
+  b_.detector().SetRendezvous(rendezvous);
+  DetectorPool pool(Options());
+  std::future<DetectOutcome> next_target = pool.DetectAsync(Call("next_target"));
+  const DetectOutcome now = pool.Detect(Call("this_target"));
+  const DetectOutcome later = next_target.get();
+  ASSERT_TRUE(now.ok()) << now.status.error_message();
+  ASSERT_TRUE(later.ok()) << later.status.error_message();
+  EXPECT_EQ(later.response.results(0).item(), "next_target");
+  EXPECT_NE(now.replica, later.replica);
 }
 
 TEST_F(DetectorPoolTest, DetectAllKeepsToTheConcurrencyPerReplica) {
