@@ -140,5 +140,18 @@ TEST_F(DetectorPoolServersTest, TwoViewsRunOnBothServersAtOnce) {
   for (const auto& replica : pool.Snapshot()) EXPECT_EQ(replica.calls_served, 1u);
 }
 
+// A dns:/// target: gRPC's round_robin with client-side health checking (the Watch of the
+// server's grpc.health.v1 for picking.detector.v1.DetectorService) lets the calls through.
+TEST_F(DetectorPoolServersTest, ADnsTargetReachesTheServersBehindIt) {
+  DetectorPoolOptions options = Options();
+  options.endpoints = {"dns:///localhost:" + std::to_string(servers_[0]->port())};
+  DetectorPool pool(options);
+  const DetectOutcome outcome = pool.Detect(FindMilk(MilkScene()));
+  ExpectMilkFound(outcome);
+  EXPECT_NE(outcome.peer.find(servers_[0]->address()), std::string::npos) << outcome.peer;
+  pool.CheckHealthNow();
+  EXPECT_TRUE(pool.Snapshot()[0].healthy);
+}
+
 }  // namespace
 }  // namespace picking::orchestrator
