@@ -164,9 +164,9 @@ struct ReplicaSnapshot {
   std::string last_error;          ///< Message of the last failure or failed health check.
 };
 
-/// The pool. Thread-safe: any number of threads may call Detect, Verify, DetectAll, VerifyAll,
-/// CheckHealthNow and Snapshot at once. The destructor stops the health thread at once (an
-/// in-flight check is cancelled); no call may be running when it starts.
+/// The pool. Thread-safe: any number of threads may call Detect, DetectAsync, Verify,
+/// DetectAll, VerifyAll, CheckHealthNow and Snapshot at once. The destructor stops the health
+/// thread at once (an in-flight check is cancelled); no call may be running when it starts.
 ///
 /// Picking a replica: among healthy ones (every replica when none is healthy: stale flags must
 /// not fail a task), those this call has not tried yet, then the least loaded, round robin
