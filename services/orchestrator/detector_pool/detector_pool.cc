@@ -243,7 +243,8 @@ struct DetectorPool::Race {
   std::function<grpc::Status(detpb::DetectorService::Stub&, grpc::ClientContext*, Response*,
                              const std::function<void()>&)>
       stream;
-  std::chrono::system_clock::duration deadline{};
+  std::chrono::system_clock::duration deadline{};  // Of each attempt.
+  std::chrono::system_clock::time_point budget_end = std::chrono::system_clock::time_point::max();
   std::vector<std::unique_ptr<Slot>> slots;
   int running = 0;
   std::mutex mutex;
@@ -383,7 +384,8 @@ void DetectorPool::Launch(Race<Response>& race, std::size_t replica, bool hedge)
   Slot* slot = owned.get();
   slot->replica = replica;
   slot->hedge = hedge;
-  slot->ctx.set_deadline(std::chrono::system_clock::now() + race.deadline);
+  slot->ctx.set_deadline(
+      std::min(std::chrono::system_clock::now() + race.deadline, race.budget_end));
   const std::size_t index = race.slots.size();
   race.slots.push_back(std::move(owned));
   ++race.running;
@@ -430,7 +432,7 @@ std::optional<std::size_t> DetectorPool::WaitForFinished(Race<Response>& race,
 
 template <class Response, class Params>
 CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud& cloud,
-                                        double deadline_s) {
+                                        double deadline_s, double budget_s) {
   if (!cloud) throw std::invalid_argument("detector pool: a call without a cloud");
   Race<Response> race;
   race.stream = [&params, &cloud](detpb::DetectorService::Stub& stub, grpc::ClientContext* ctx,
@@ -438,6 +440,8 @@ CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud&
     return Stream(stub, ctx, params, *cloud, response, sent);
   };
   race.deadline = Seconds(deadline_s > 0 ? deadline_s : options_.deadline_s);
+  if (budget_s > 0) race.budget_end = std::chrono::system_clock::now() + Seconds(budget_s);
+  auto budget_left = [&race] { return std::chrono::system_clock::now() < race.budget_end; };
   const bool hedging = options_.hedge_delay_s > 0;
 
   std::vector<std::size_t> tried;  // Replicas that failed this call.
@@ -451,6 +455,10 @@ CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud&
       const std::size_t replica =
           *Reserve(tried, tried.empty() ? std::nullopt : std::optional(tried.back()), false);
       if (std::find(tried.begin(), tried.end(), replica) != tried.end()) Backoff(backoffs++);
+      if (started > 0 && !budget_left()) {  // The first attempt always runs.
+        Release(replica, grpc::Status::CANCELLED, /*cancelled=*/true);
+        break;
+      }
       Launch(race, replica, false);
       ++started;
       if (hedging)
@@ -460,7 +468,7 @@ CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud&
     const std::optional<std::size_t> done = WaitForFinished(race, hedge_at);
     if (!done) {  // Still no answer after the hedge delay.
       hedge_at = Clock::time_point::max();
-      if (started < options_.max_attempts) {
+      if (started < options_.max_attempts && budget_left()) {
         if (const auto idle = Reserve(tried, std::nullopt, true)) {
           Launch(race, *idle, true);
           ++started;
@@ -500,7 +508,7 @@ CallOutcome<Response> DetectorPool::Run(const Params& params, const SharedCloud&
 }
 
 DetectOutcome DetectorPool::Detect(const DetectCall& call) {
-  return Run<detpb::DetectResponse>(call.params, call.cloud, call.deadline_s);
+  return Run<detpb::DetectResponse>(call.params, call.cloud, call.deadline_s, call.budget_s);
 }
 
 std::future<DetectOutcome> DetectorPool::DetectAsync(DetectCall call) {
@@ -509,7 +517,7 @@ std::future<DetectOutcome> DetectorPool::DetectAsync(DetectCall call) {
 }
 
 VerifyOutcome DetectorPool::Verify(const VerifyCall& call) {
-  return Run<detpb::VerifyResponse>(call.params, call.cloud, call.deadline_s);
+  return Run<detpb::VerifyResponse>(call.params, call.cloud, call.deadline_s, call.budget_s);
 }
 
 int DetectorPool::ConcurrencyLimit() const {

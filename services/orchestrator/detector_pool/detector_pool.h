@@ -115,6 +115,9 @@ struct DetectCall {
   SharedCloud cloud;  ///< Not null.
   /// Deadline of each attempt of this call, seconds; 0: the pool's deadline_s.
   double deadline_s = 0.0;
+  /// Time the whole call may take, retries and backoffs included, seconds (0: no limit): no
+  /// attempt runs past it and none starts after it (a task's time left).
+  double budget_s = 0.0;
 };
 
 /// One Verify job.
@@ -122,6 +125,7 @@ struct VerifyCall {
   picking::detector::v1::VerifyParams params;
   SharedCloud cloud;        ///< Not null.
   double deadline_s = 0.0;  ///< As in DetectCall.
+  double budget_s = 0.0;    ///< As in DetectCall.
 };
 
 /// One attempt of a call on one replica.
@@ -229,7 +233,8 @@ class DetectorPool final {
   void HealthLoop();
 
   template <class Response, class Params>
-  CallOutcome<Response> Run(const Params& params, const SharedCloud& cloud, double deadline_s);
+  CallOutcome<Response> Run(const Params& params, const SharedCloud& cloud, double deadline_s,
+                            double budget_s);
   template <class Response>
   std::optional<std::size_t> WaitForFinished(Race<Response>& race, Clock::time_point hedge_at);
   template <class Response>

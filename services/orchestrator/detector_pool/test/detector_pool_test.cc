@@ -254,6 +254,27 @@ TEST_F(DetectorPoolTest, EveryAttemptMissingItsDeadlineFailsTheCallInTime) {
   EXPECT_EQ(sleeps().size(), 1u);
 }
 
+TEST_F(DetectorPoolTest, TheCallsBudgetBoundsItsRetries) {
+  a_.detector().SetMode(FakeMode::kHang);
+  b_.detector().SetMode(FakeMode::kHang);
+  DetectorPoolOptions options = Options();
+  options.deadline_s = 0.3;
+  options.max_attempts = 10;
+  DetectorPool pool(options);
+  DetectCall call = Call("milk");
+  call.budget_s = 0.4;  // Room for one full attempt and a third of a second.
+  const auto start = Clock::now();
+  const DetectOutcome outcome = pool.Detect(call);
+  const double elapsed_s = SecondsSince(start);
+  EXPECT_EQ(outcome.status.error_code(), Code::DEADLINE_EXCEEDED);
+  ASSERT_EQ(outcome.attempts.size(), 2u);
+  EXPECT_GE(outcome.attempts[0].duration_s, 0.25);
+  EXPECT_LT(outcome.attempts[1].duration_s, 0.25) << "cut short by the budget";
+  EXPECT_GE(elapsed_s, 0.35);
+  EXPECT_LT(elapsed_s, 3.0);
+  for (const auto& replica : pool.Snapshot()) EXPECT_EQ(replica.in_flight, 0);
+}
+
 TEST_F(DetectorPoolTest, BacksOffBeforeRetryingTheSameReplica) {
   b_.Shutdown();
   a_.detector().SetMode(FakeMode::kUnavailable, 2);
