@@ -477,6 +477,31 @@ TEST_F(DetectorPoolTest, ADnsTargetIsOneRoundRobinReplica) {
   EXPECT_TRUE(pool.Snapshot()[0].healthy);
 }
 
+// gRPC's client-side health checking (the dns:/// channel's healthCheckConfig) keeps calls off
+// an address whose health service does not say SERVING.
+TEST_F(DetectorPoolTest, ADnsTargetSendsNothingToAnAddressNotServing) {
+  a_.SetServing(false);
+  DetectorPoolOptions options = Options();
+  options.endpoints = {"dns:///localhost:" + std::to_string(a_.port())};
+  options.max_attempts = 1;
+  options.health_timeout_s = 0.5;
+  DetectorPool pool(options);
+  // The call waits for the first health answer, NOT_SERVING, and fails without being sent.
+  const DetectOutcome refused = pool.Detect(Call("milk"));
+  EXPECT_EQ(refused.status.error_code(), Code::UNAVAILABLE) << refused.status.error_message();
+  EXPECT_TRUE(a_.detector().calls().empty());
+  pool.CheckHealthNow();
+  EXPECT_FALSE(pool.Snapshot()[0].healthy);
+
+  a_.SetServing(true);
+  // The check goes through once the channel has the address back (it waits for that).
+  pool.CheckHealthNow();
+  EXPECT_TRUE(pool.Snapshot()[0].healthy);
+  const DetectOutcome served = pool.Detect(Call("milk"));
+  EXPECT_TRUE(served.ok()) << served.status.error_message();
+  EXPECT_EQ(a_.detector().calls().size(), 1u);
+}
+
 TEST_F(DetectorPoolTest, ACallWithoutACloudIsRefused) {
   DetectorPool pool(Options());
   DetectCall call = Call("milk");

@@ -3,6 +3,7 @@
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/server_builder.h>
 
+#include <optional>
 #include <stdexcept>
 #include <utility>
 
@@ -152,9 +153,32 @@ grpc::Status FakeHealth::Check(grpc::ServerContext* ctx,
   return grpc::Status::OK;
 }
 
+grpc::Status FakeHealth::Watch(grpc::ServerContext* ctx,
+                               const grpc::health::v1::HealthCheckRequest* request,
+                               grpc::ServerWriter<grpc::health::v1::HealthCheckResponse>* writer) {
+  using Response = grpc::health::v1::HealthCheckResponse;
+  std::unique_lock<std::mutex> lock(mutex_);
+  std::optional<bool> sent;
+  while (!released_) {
+    if (sent != serving_) {
+      const bool serving = serving_;
+      Response response;
+      response.set_status(serving ? Response::SERVING : Response::NOT_SERVING);
+      lock.unlock();
+      const bool open = writer->Write(response);
+      lock.lock();
+      if (!open) break;
+      sent = serving;
+    }
+    cv_.wait(lock, [&] { return released_ || sent != serving_; });
+  }
+  return grpc::Status::OK;
+}
+
 void FakeHealth::SetServing(bool serving) {
   std::lock_guard<std::mutex> lock(mutex_);
   serving_ = serving;
+  cv_.notify_all();
 }
 
 void FakeHealth::HoldChecks() {

@@ -82,8 +82,12 @@ class FakeHealth final : public grpc::health::v1::Health::Service {
  public:
   grpc::Status Check(grpc::ServerContext* ctx, const grpc::health::v1::HealthCheckRequest* request,
                      grpc::health::v1::HealthCheckResponse* response) override;
+  /// Streams the status and every change of it (gRPC's client-side health checking), until
+  /// Release() or the client goes away.
+  grpc::Status Watch(grpc::ServerContext* ctx, const grpc::health::v1::HealthCheckRequest* request,
+                     grpc::ServerWriter<grpc::health::v1::HealthCheckResponse>* writer) override;
   void SetServing(bool serving);
-  /// Later checks wait until Release() (or the client's cancel, seen at release).
+  /// Later Checks wait until Release() (or the client's cancel, seen at release).
   void HoldChecks();
   void Release();
   /// Blocks until a held check has arrived; false after 30 s without one.
