@@ -116,7 +116,7 @@ for i in $(seq "$detectors"); do
 done
 start planner planner picking-planner
 start orch orchestrator picking-orchestrator --tasks_dir="$out/tasks" \
-  --scanner.address="$scanner" --detector.address="${detector_list%%,*}" \
+  --scanner.address="$scanner" --detector.endpoints="$detector_list" \
   --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper"
 
 status=0

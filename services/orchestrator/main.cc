@@ -9,8 +9,11 @@ int main(int argc, char** argv) {
   spec.description = "the orchestrator service of the picking cell (gRPC: picking.orchestrator.v1)";
   spec.settings_help = {
       "scanner.address=HOST:PORT   the cell's services (default <name>:50051, the compose",
-      "detector.address=...        and Kubernetes service names); likewise planner.address,",
+      "                            and Kubernetes service names); likewise planner.address,",
       "                            robot.address, gripper.address",
+      "detector.endpoints=LIST     detector replicas: host:port,... or dns:///name:port",
+      "                            (default dns:///detector:50051); detector.deadline_s,",
+      "                            detector.max_attempts, ... (docs/services.md)",
       "tasks_dir=DIR           each task's journal, output file and report (default",
       "                        ./picking-tasks)",
       "data_dir=DIR            bundled data (default: $PICKING_DATA_DIR or the source data/)",
@@ -23,7 +26,6 @@ int main(int argc, char** argv) {
       "time_limit_s=S          task clock, robot time (default 900, the rules' 15 minutes)",
       "max_attempts=N          attempts per target (default 2)",
       "min_time_per_item_s=S   skip a target with less task time left (default 25)",
-      "detector.deadline_s=S   per Detect call (default 60)",
       "shutdown_wait_s=S       how long SIGTERM waits for a task's current step (default 3)",
   };
   spec.build = picking::orchestrator::BuildOrchestratorServices;

@@ -10,7 +10,6 @@
 #include <unistd.h>
 
 #include <cerrno>
-#include <cstdio>
 #include <cstring>
 #include <stdexcept>
 
@@ -97,18 +96,6 @@ pid_t Spawn(const std::string& binary, const std::vector<std::string>& args, int
 
 std::string ServerBinary(const std::string& name) {
   return std::string(PICKING_BIN_DIR) + "/" + name;
-}
-
-int RunCommand(const std::string& command_line, std::string* output) {
-  FILE* pipe = ::popen((command_line + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) return -1;
-  char buffer[4096];
-  output->clear();
-  for (std::size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) {
-    output->append(buffer, n);
-  }
-  const int status = ::pclose(pipe);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
 ServerProcess::ServerProcess(const std::string& binary, std::vector<std::string> extra_args,

@@ -13,10 +13,6 @@ namespace picking::testing {
 /// Path of a server executable built into build/bin/ (e.g. "picking-robot").
 std::string ServerBinary(const std::string& name);
 
-/// Runs a shell command line to its end; returns its exit status (-1 if it did not exit
-/// normally) with its stdout and stderr in `output`.
-int RunCommand(const std::string& command_line, std::string* output);
-
 /// Runs a real server binary for an integration test: starts it with
 /// `--listen=127.0.0.1:0` and the given extra flags, reads the bound port from its first
 /// stdout line (`listening on HOST:PORT`), and gives a channel to it. The server's stderr

@@ -34,7 +34,7 @@ class OrchestratorAloneTest : public ::testing::Test {
     server_ = std::make_unique<ServerProcess>(
         ServerBinary(kBinary),
         std::vector<std::string>{"--tasks_dir=" + dir_, "--scanner.address=127.0.0.1:1",
-                                 "--detector.address=127.0.0.1:1", "--planner.address=127.0.0.1:1",
+                                 "--detector.endpoints=127.0.0.1:1", "--planner.address=127.0.0.1:1",
                                  "--robot.address=127.0.0.1:1", "--gripper.address=127.0.0.1:1"});
     stub_ = orchestrator::v1::OrchestratorService::NewStub(server_->Channel());
   }
@@ -105,9 +105,15 @@ TEST_F(OrchestratorAloneTest, AValidTaskWithItsServicesDownIsUnavailableAndNothi
   EXPECT_EQ(list.tasks_size(), 0);
 }
 
-// Runs the `picking` command line; returns its exit status, its output in `out`.
+// Runs the `picking` command line with `args` (split at spaces); returns its exit status,
+// its output in `out`.
 int RunCli(const std::string& args, std::string* out) {
-  return RunCommand(ServerBinary("picking") + " " + args, out);
+  std::vector<std::string> words;
+  std::stringstream in(args);
+  for (std::string w; in >> w;) words.push_back(w);
+  const ProgramResult result = RunProgram(ServerBinary("picking"), words);
+  *out = result.output;
+  return result.exit_status;
 }
 
 TEST_F(OrchestratorAloneTest, TheCommandLineExitCodesTellUsageFromRefusals) {

@@ -34,9 +34,15 @@ std::string ReadText(const std::string& path) {
   return text.str();
 }
 
-// Runs the `picking` command line; returns its exit status, its output in `out`.
+// Runs the `picking` command line with `args` (split at spaces); returns its exit status,
+// its output in `out`.
 int RunCli(const std::string& args, std::string* out) {
-  return RunCommand(ServerBinary("picking") + " " + args, out);
+  std::vector<std::string> words;
+  std::stringstream in(args);
+  for (std::string w; in >> w;) words.push_back(w);
+  const ProgramResult result = RunProgram(ServerBinary("picking"), words);
+  *out = result.output;
+  return result.exit_status;
 }
 
 class TaskPickTest : public ::testing::Test {
@@ -59,7 +65,7 @@ class TaskPickTest : public ::testing::Test {
     orchestrator_ = new ServerProcess(
         ServerBinary("picking-orchestrator"),
         {"--tasks_dir=" + *dir_ + "/tasks", "--scanner.address=" + scanner_->address(),
-         "--detector.address=" + detector_->address(), "--planner.address=" + planner_->address(),
+         "--detector.endpoints=" + detector_->address(), "--planner.address=" + planner_->address(),
          "--robot.address=" + robot_->address(), "--gripper.address=" + gripper_->address()});
   }
   static void TearDownTestSuite() {

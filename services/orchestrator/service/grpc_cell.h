@@ -33,7 +33,6 @@ struct GrpcCellOptions {
   world::CellModel cell;  ///< For the bins' boxes (the detector's regions).
   /// Per-call deadlines, seconds.
   double scan_deadline_s = 120.0;
-  double detect_deadline_s = 60.0;
   double plan_deadline_s = 30.0;
   double motion_deadline_s = 120.0;
   /// Guarded move: the force that ends it and its speed.

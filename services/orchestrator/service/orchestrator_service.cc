@@ -9,6 +9,7 @@
 #include "libs/runtime/status.h"
 #include "libs/world/cell_config.h"
 #include "services/orchestrator/core/task_manager.h"
+#include "services/orchestrator/detector_pool/detector_pool.h"
 #include "services/orchestrator/service/grpc_cell.h"
 
 namespace picking::orchestrator {
@@ -116,8 +117,9 @@ grpc::Status CheckPeers(const std::vector<Peer>& peers, double wait_s) {
 
 class OrchestratorServiceImpl final : public pb::OrchestratorService::Service {
  public:
-  OrchestratorServiceImpl(std::shared_ptr<TaskManager> tasks, std::vector<Peer> peers)
-      : tasks_(std::move(tasks)), peers_(std::move(peers)) {}
+  OrchestratorServiceImpl(std::shared_ptr<TaskManager> tasks, std::vector<Peer> peers,
+                          std::shared_ptr<DetectorPool> detectors)
+      : tasks_(std::move(tasks)), peers_(std::move(peers)), detectors_(std::move(detectors)) {}
 
   grpc::Status StartTask(grpc::ServerContext*, const pb::StartTaskRequest* request,
                          pb::StartTaskResponse* response) override {
@@ -136,6 +138,14 @@ class OrchestratorServiceImpl final : public pb::OrchestratorService::Service {
       tasks_->Validate(spec);  // a bad task file is refused before the peers are asked
       const grpc::Status peers = CheckPeers(peers_, 3.0);
       if (!peers.ok()) return peers;
+      // Detection needs one live replica; the pool takes dead ones out and back by itself.
+      detectors_->CheckHealthNow();
+      bool any_detector = false;
+      for (const ReplicaSnapshot& r : detectors_->Snapshot()) any_detector |= r.healthy;
+      if (!any_detector) {
+        return runtime::Unavailable(
+            "no detector replica answers (detector.endpoints); start one or fix the setting");
+      }
       response->set_task_id(tasks_->Start(spec));
       return grpc::Status::OK;
     });
@@ -187,6 +197,7 @@ class OrchestratorServiceImpl final : public pb::OrchestratorService::Service {
  private:
   std::shared_ptr<TaskManager> tasks_;
   std::vector<Peer> peers_;
+  std::shared_ptr<DetectorPool> detectors_;
 };
 
 // A peer's address: `<service>.address`, by default the service's name on port 50051 (the
@@ -205,28 +216,18 @@ std::shared_ptr<grpc::Channel> Channel(const runtime::Config& config, const std:
   return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
 }
 
-// One detector address for now; the orchestrator's detector pool spreads calls over many.
-DetectFn SingleDetector(std::shared_ptr<grpc::Channel> channel, std::string address,
-                        double deadline_s) {
-  auto stub = std::shared_ptr<dt::DetectorService::Stub>(dt::DetectorService::NewStub(channel));
-  return [stub, address, deadline_s](const dt::DetectParams& params,
-                                     const std::vector<common::v1::PointCloudChunk>& chunks,
-                                     dt::DetectResponse* response, std::string* replica) {
-    grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() +
-                     std::chrono::milliseconds(static_cast<long long>(deadline_s * 1000)));
-    auto writer = stub->Detect(&ctx, response);
-    dt::DetectRequest first;
-    *first.mutable_params() = params;
-    writer->Write(first);
-    for (const auto& chunk : chunks) {
-      dt::DetectRequest message;
-      *message.mutable_cloud() = chunk;
-      if (!writer->Write(message)) break;
-    }
-    writer->WritesDone();
-    *replica = address;
-    return writer->Finish();
+// Detect through the pool of replicas: retried on another replica when one does not answer.
+DetectFn PoolDetector(std::shared_ptr<DetectorPool> pool) {
+  return [pool](const dt::DetectParams& params,
+                const std::vector<common::v1::PointCloudChunk>& chunks,
+                dt::DetectResponse* response, std::string* replica) {
+    DetectCall call;
+    call.params = params;
+    call.cloud = std::make_shared<const std::vector<common::v1::PointCloudChunk>>(chunks);
+    DetectOutcome outcome = pool->Detect(call);
+    *replica = outcome.replica;
+    if (outcome.ok()) *response = std::move(outcome.response);
+    return outcome.status;
   };
 }
 
@@ -257,17 +258,17 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   cell.planner = Channel(config, "planner");
   cell.robot = Channel(config, "robot");
   cell.gripper = Channel(config, "gripper");
-  cell.detect_deadline_s = config.GetDouble("detector.deadline_s", cell.detect_deadline_s);
-  cell.detect = SingleDetector(Channel(config, "detector"), Address(config, "detector"),
-                               cell.detect_deadline_s);
+  auto pool = std::make_shared<DetectorPool>(FromConfig(config));
+  cell.detect = PoolDetector(pool);
   std::vector<Peer> peers;
-  for (const std::string name : {"scanner", "detector", "planner", "robot", "gripper"}) {
+  for (const std::string name : {"scanner", "planner", "robot", "gripper"}) {
     peers.push_back({name, Address(config, name), Channel(config, name)});
   }
   const double shutdown_wait_s = config.GetDouble("shutdown_wait_s", 3.0);
   auto tasks = std::make_shared<TaskManager>(options, catalogue,
                                              [cell] { return std::make_unique<GrpcCell>(cell); });
-  auto service = std::make_shared<OrchestratorServiceImpl>(std::move(tasks), std::move(peers));
+  auto service =
+      std::make_shared<OrchestratorServiceImpl>(std::move(tasks), std::move(peers), pool);
   runtime::ServiceSet set;
   set.Add(service, pb::OrchestratorService::service_full_name());
   set.on_shutdown = [service, shutdown_wait_s] { service->Shutdown(shutdown_wait_s); };
