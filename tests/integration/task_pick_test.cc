@@ -11,6 +11,7 @@
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <csignal>
 
 #include "libs/apc/catalogue.h"
 #include "libs/apc/scoring.h"
@@ -111,18 +112,22 @@ ServerProcess *TaskPickTest::simulator_ = nullptr, *TaskPickTest::robot_ = nullp
               *TaskPickTest::detector_ = nullptr, *TaskPickTest::planner_ = nullptr,
               *TaskPickTest::orchestrator_ = nullptr;
 
-TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) {
+// Loads pick_layout_1 into the simulator (seed 7); returns the task file's text.
+std::string LoadLayout1(ServerProcess& simulator) {
   const std::string task_json =
       ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json");
-  {
-    auto stub = sim::SimulatorService::NewStub(simulator_->Channel());
-    grpc::ClientContext ctx;
-    sim::LoadLayoutRequest request;
-    request.set_task_json(task_json);
-    request.set_seed(7);
-    sim::LoadLayoutResponse loaded;
-    ASSERT_TRUE(stub->LoadLayout(&ctx, request, &loaded).ok());
-  }
+  auto stub = sim::SimulatorService::NewStub(simulator.Channel());
+  grpc::ClientContext ctx;
+  sim::LoadLayoutRequest request;
+  request.set_task_json(task_json);
+  request.set_seed(7);
+  sim::LoadLayoutResponse loaded;
+  EXPECT_TRUE(stub->LoadLayout(&ctx, request, &loaded).ok());
+  return task_json;
+}
+
+TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) {
+  const std::string task_json = LoadLayout1(*simulator_);
   auto stub = orch::OrchestratorService::NewStub(orchestrator_->Channel());
   orch::StartTaskResponse started;
   {
@@ -217,6 +222,114 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
   EXPECT_NE(out.find("\"score\":" + std::to_string(score.total)), std::string::npos) << out;
   EXPECT_EQ(RunCli("score" + at + started.task_id(), &out), 0) << out;
   EXPECT_NE(out.find(std::to_string(score.total) + "  total"), std::string::npos) << out;
+}
+
+// Faults mid-task: one of two detector replicas is killed at the first detection, then the
+// orchestrator itself right after its first item lands in the tote. A new orchestrator on the
+// same task folder resumes the task: nothing is lost (the output file matches the truth) and
+// nothing is repeated (the first item was grasped once).
+TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoPick) {
+  const std::string task_json = LoadLayout1(*simulator_);
+  auto second_detector = std::make_unique<ServerProcess>(
+      ServerBinary("picking-detector"),
+      std::vector<std::string>{"--cache_dir=" + *dir_ + "/cache", "--time_budget_scale=10"},
+      std::chrono::seconds(300));
+  const std::vector<std::string> flags = {
+      "--tasks_dir=" + *dir_ + "/fault_tasks",
+      "--detector.endpoints=" + second_detector->address() + "," + detector_->address(),
+      "--detector.health_period_s=1", "--scanner.address=" + scanner_->address(),
+      "--planner.address=" + planner_->address(), "--robot.address=" + robot_->address(),
+      "--gripper.address=" + gripper_->address()};
+  auto orchestrator = std::make_unique<ServerProcess>(ServerBinary("picking-orchestrator"), flags);
+  auto stub = orch::OrchestratorService::NewStub(orchestrator->Channel());
+  orch::StartTaskRequest request;
+  request.set_task_json(task_json);
+  request.set_time_limit_s(240.0);  // the first targets; the clock skips the rest
+  orch::StartTaskResponse started;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(stub->StartTask(&ctx, request, &started).ok());
+  }
+  std::string first_placed;
+  {
+    grpc::ClientContext ctx;
+    orch::WatchTaskRequest watch;
+    watch.set_task_id(started.task_id());
+    auto reader = stub->WatchTask(&ctx, watch);
+    orch::TaskEvent event;
+    while (reader->Read(&event)) {
+      if (event.step() == orch::STEP_DETECT && second_detector) {
+        ::kill(second_detector->pid(), SIGKILL);
+        EXPECT_EQ(second_detector->Stop(), 128 + SIGKILL);
+        second_detector.reset();
+      }
+      if (event.step() == orch::STEP_PLACE && event.message() == "in the tote") {
+        first_placed = event.item();
+        ::kill(orchestrator->pid(), SIGKILL);
+        break;
+      }
+    }
+    ctx.TryCancel();
+  }
+  ASSERT_FALSE(first_placed.empty()) << "no item reached the tote before the time limit";
+  EXPECT_EQ(orchestrator->Stop(), 128 + SIGKILL);
+  orchestrator = std::make_unique<ServerProcess>(ServerBinary("picking-orchestrator"), flags);
+  stub = orch::OrchestratorService::NewStub(orchestrator->Channel());
+  {
+    grpc::ClientContext ctx;
+    orch::ListTasksResponse list;
+    ASSERT_TRUE(stub->ListTasks(&ctx, {}, &list).ok());
+    ASSERT_EQ(list.tasks_size(), 1);
+    EXPECT_EQ(list.tasks(0).task_id(), started.task_id());
+    EXPECT_NE(list.tasks(0).error().find("interrupted"), std::string::npos);
+  }
+  orch::StartTaskRequest resume;
+  resume.set_resume_task_id(started.task_id());
+  resume.set_time_limit_s(240.0);
+  {
+    grpc::ClientContext ctx;
+    orch::StartTaskResponse resumed;
+    const grpc::Status status = stub->StartTask(&ctx, resume, &resumed);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+    EXPECT_EQ(resumed.task_id(), started.task_id());
+  }
+  {
+    grpc::ClientContext ctx;
+    orch::WatchTaskRequest watch;
+    watch.set_task_id(started.task_id());
+    auto reader = stub->WatchTask(&ctx, watch);
+    orch::TaskEvent event;
+    std::uint64_t expected = 0;
+    while (reader->Read(&event)) EXPECT_EQ(event.sequence(), expected++);
+    EXPECT_EQ(event.state(), orch::TASK_STATE_SUCCEEDED) << event.message();
+  }
+  orch::GetTaskResponse task;
+  {
+    grpc::ClientContext ctx;
+    orch::GetTaskRequest get;
+    get.set_task_id(started.task_id());
+    ASSERT_TRUE(stub->GetTask(&ctx, get, &task).ok());
+  }
+  // Nothing lost: the output file says where everything is.
+  const apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
+  apc::Task reported = apc::ParseTask(ReadText(task.result().output_file()), catalogue, "output");
+  for (auto& [bin, items] : reported.bin_contents) std::sort(items.begin(), items.end());
+  std::sort(reported.tote_contents.begin(), reported.tote_contents.end());
+  const sim::GetGroundTruthResponse truth = Truth();
+  const apc::Task true_contents = TrueContents(truth);
+  EXPECT_EQ(reported.tote_contents, true_contents.tote_contents);
+  for (const auto& [bin, items] : true_contents.bin_contents) {
+    EXPECT_EQ(reported.bin_contents[bin], items) << bin;
+  }
+  EXPECT_GE(std::count(reported.tote_contents.begin(), reported.tote_contents.end(), first_placed),
+            1);
+  // Nothing repeated: the first item was attached to the cup once.
+  int attached = 0;
+  for (const auto& e : truth.events()) {
+    attached += e.kind() == sim::EVENT_KIND_ATTACHED && e.item().name() == first_placed;
+  }
+  EXPECT_EQ(attached, 1);
+  EXPECT_EQ(orchestrator->Stop(), 0);
 }
 
 }  // namespace
