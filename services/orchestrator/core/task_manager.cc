@@ -40,7 +40,6 @@ Step StepFromName(const std::string& name) {
 
 TaskEvent EventFromRecord(const JournalRecord& r) {
   TaskEvent e;
-  e.sequence = r.sequence;
   e.time_s = r.time_s;
   e.item = r.data.value("item", "");
   e.from = r.data.value("from", "");
@@ -93,7 +92,10 @@ void TaskManager::LoadFromDisk() {
     entry->info.state = TaskState::kFailed;
     entry->info.error = "interrupted (the orchestrator stopped); resume it with resume_task_id";
     for (const JournalRecord& r : Journal::Read((dir / "journal.jsonl").string())) {
-      if (r.type == "event") entry->events.push_back(EventFromRecord(r));
+      if (r.type == "event") {
+        entry->events.push_back(EventFromRecord(r));
+        entry->events.back().sequence = entry->events.size() - 1;  // events count 0, 1, ...
+      }
       if (r.type == "end") {
         entry->info.state = static_cast<TaskState>(r.data.value("state", 3));
         entry->info.error = r.data.value("error", "");
