@@ -10,7 +10,8 @@
 #
 # Options:
 #   --task FILE       APC 2016 task file (default data/apc2016/tasks/pick_layout_1.json)
-#   --stow            a stow task (the task file's tote_contents)
+#   --stow            the stow task data/apc2016/tasks/stow_layout_1.json (a task file
+#                     without a work order is a stow task)
 #   --detectors N     detector replicas (default 1)
 #   --time-scale X    how much faster than real time the simulated arm moves (default 10)
 #   --seed N          layout seed of the simulator (default 7)
@@ -26,11 +27,10 @@ time_scale=10
 seed=7
 out=""
 install=1
-kind=""
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --task) task=$2; shift 2 ;;
-    --stow) kind=stow; shift ;;
+        --stow) task=data/apc2016/tasks/stow_layout_1.json; shift ;;
     --detectors) detectors=$2; shift 2 ;;
     --time-scale) time_scale=$2; shift 2 ;;
     --seed) seed=$2; shift 2 ;;
@@ -42,10 +42,7 @@ while [[ $# -gt 0 ]]; do
 done
 [[ -r "$task" ]] || { echo "run.sh: cannot read task file $task" >&2; exit 2; }
 [[ "$detectors" =~ ^[1-9][0-9]*$ ]] || { echo "run.sh: --detectors must be >= 1" >&2; exit 2; }
-if [[ -n "$kind" ]]; then
-  echo "run.sh: stow tasks are not supported by the orchestrator yet" >&2
-  exit 2
-fi
+
 task=$(realpath "$task")
 out=${out:-runs/$(date +%Y%m%d-%H%M%S)}
 mkdir -p "$out/logs"

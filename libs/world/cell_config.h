@@ -92,6 +92,8 @@ struct CellModel {
 
   /// The bin called `name`; throws std::invalid_argument naming it if unknown.
   const BinGeometry& bin(const std::string& name) const;
+  /// The tote's free inner box in the tote frame: its mesh bounds less the walls.
+  Eigen::AlignedBox3d tote_inner_T(double wall_m = 0.015) const;
 };
 
 /// Loads the meshes and measures the bins. Throws std::runtime_error on unreadable meshes or a

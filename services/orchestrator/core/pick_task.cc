@@ -66,8 +66,50 @@ PickTaskRunner::PickTaskRunner(apc::Task task, std::vector<Target> order,
       cancel_(cancel) {}
 
 std::string PickTaskRunner::Key(const Target& target, const std::string& action) const {
-  return "pick/" + target.bin + "/" + target.item + "/" + std::to_string(target.attempts) + "/" +
-         action;
+  const std::string kind = task_.kind == apc::TaskKind::kStow ? "stow/" : "pick/";
+  const std::string copy = target.copy == 0 ? "" : "#" + std::to_string(target.copy);
+  return kind + target.bin + "/" + target.item + copy + "/" + std::to_string(target.attempts) +
+         "/" + action;
+}
+
+std::vector<std::string> StowBins(const std::string& item, const apc::Task& initial,
+                                  const apc::Task& contents, const apc::Catalogue& catalogue,
+                                  const std::map<std::string, double>& bin_volume_m3,
+                                  double max_fill) {
+  struct Candidate {
+    std::string bin;
+    int points;
+    double free_m3;
+  };
+  std::vector<Candidate> candidates;
+  const double item_m3 = catalogue.at(item).volume_cm3 * 1e-6;
+  for (const auto& [bin, volume_m3] : bin_volume_m3) {
+    double used_m3 = item_m3;
+    const auto held = contents.bin_contents.find(bin);
+    if (held != contents.bin_contents.end()) {
+      for (const std::string& other : held->second)
+        used_m3 += catalogue.at(other).volume_cm3 * 1e-6;
+    }
+    if (used_m3 > max_fill * volume_m3) continue;
+    const auto at_start = initial.bin_contents.find(bin);
+    const std::size_t n = at_start == initial.bin_contents.end() ? 0 : at_start->second.size();
+    const int points = n >= 5 ? 20 : n >= 3 ? 15 : 10;
+    candidates.push_back({bin, points, volume_m3 - used_m3});
+  }
+  std::sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+    if (a.points != b.points) return a.points > b.points;
+    if (a.free_m3 != b.free_m3) return a.free_m3 > b.free_m3;
+    return a.bin < b.bin;
+  });
+  std::vector<std::string> out;
+  for (const Candidate& c : candidates) out.push_back(c.bin);
+  return out;
+}
+
+std::vector<std::string> PickTaskRunner::Destinations(const Target& target) const {
+  if (task_.kind != apc::TaskKind::kStow) return {apc::kToteLocation};
+  return StowBins(target.item, task_, contents_, catalogue_, options_.bin_volume_m3,
+                  options_.max_bin_fill);
 }
 
 void PickTaskRunner::Emit(const Target* target, Step step, bool ok, const std::string& message,
@@ -122,10 +164,19 @@ void PickTaskRunner::AddTime(TargetReport& report, const std::string& step, doub
   report.step_times_s.emplace_back(step, seconds);
 }
 
-void PickTaskRunner::RecordPlaced(const Target& target, double drop_height_m) {
-  RemoveOne(contents_.bin_contents[target.bin], target.item);
-  contents_.tote_contents.push_back(target.item);
-  events_.push_back(apc::MoveEvent(target.item, target.bin, apc::kToteLocation));
+void PickTaskRunner::RecordPlaced(const Target& target, const std::string& to,
+                                  double drop_height_m) {
+  if (target.bin == apc::kToteLocation) {
+    RemoveOne(contents_.tote_contents, target.item);
+  } else {
+    RemoveOne(contents_.bin_contents[target.bin], target.item);
+  }
+  if (to == apc::kToteLocation) {
+    contents_.tote_contents.push_back(target.item);
+  } else {
+    contents_.bin_contents[to].push_back(target.item);
+  }
+  events_.push_back(apc::MoveEvent(target.item, target.bin, to));
   if (drop_height_m > 0.0) events_.push_back(apc::DropEvent(target.item, drop_height_m));
   ++done_;
 }
@@ -139,13 +190,15 @@ void PickTaskRunner::ResumeFromJournal() {
       if (journal_.Has("done", Key(target, "place"))) {
         target.done = true;
         double drop = 0.0;
+        std::string to = apc::kToteLocation;
         for (const JournalRecord& r : journal_.Records()) {
           if (r.type == "done" && r.key == Key(target, "place")) {
             drop = r.data.value("drop_height_m", 0.0);
+            to = r.data.value("to", to);
             clock_s_ = std::max(clock_s_, r.time_s);
           }
         }
-        RecordPlaced(target, drop);
+        RecordPlaced(target, to, drop);
         break;
       }
       if (journal_.Has("begin", Key(target, "grasp")) &&
@@ -177,16 +230,20 @@ void PickTaskRunner::FinishCarriedItem() {
       return;
     }
     journal_.Append("begin", Key(target, "place"), clock_s_);
-    const PlaceOutcome placed = WithRetries(
-        "place", [&] { return cell_.MoveToPlace(target.item, apc::kToteLocation, {}); });
-    clock_s_ += placed.robot_s;
-    cell_.VacuumOff();
-    if (!placed.ok) return;
-    journal_.Append("done", Key(target, "place"), clock_s_,
-                    {{"drop_height_m", placed.drop_height_m}});
-    target.done = true;
-    RecordPlaced(target, placed.drop_height_m);
-    Emit(&target, Step::kPlace, true, "placed in the tote after the restart", apc::kToteLocation);
+    for (const std::string& to : Destinations(target)) {
+      const PlaceOutcome placed =
+          WithRetries("place", [&] { return cell_.MoveToPlace(target.item, to, {}); });
+      clock_s_ += placed.robot_s;
+      if (!placed.ok) continue;
+      cell_.VacuumOff();
+      journal_.Append("done", Key(target, "place"), clock_s_,
+                      {{"drop_height_m", placed.drop_height_m}, {"to", to}});
+      target.done = true;
+      RecordPlaced(target, to, placed.drop_height_m);
+      Emit(&target, Step::kPlace, true, "placed in " + to + " after the restart", to);
+      return;
+    }
+    cell_.VacuumOff();  // nowhere to go: let go where the arm is; the item counts as lost
   }
 }
 
@@ -259,11 +316,21 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
-  Emit(&target, Step::kPlace, true, "carrying to the tote");
   journal_.Append("begin", Key(target, "place"), clock_s_);
-  const PlaceOutcome placed = WithRetries(
-      "place", [&] { return cell_.MoveToPlace(target.item, apc::kToteLocation, plan); });
-  AddTime(report, "place", placed.robot_s);
+  PlaceOutcome placed{false, "no bin has room for it", 0.0, 0.0};
+  std::string to;
+  for (const std::string& destination : Destinations(target)) {
+    Emit(&target, Step::kPlace, true, "carrying to " + destination);
+    const auto start = Clock::now();
+    placed =
+        WithRetries("place", [&] { return cell_.MoveToPlace(target.item, destination, plan); });
+    // A place that cannot be planned costs the planning time only.
+    AddTime(report, "place", placed.ok ? placed.robot_s : Seconds(start));
+    if (placed.ok) {
+      to = destination;
+      break;
+    }
+  }
   if (!placed.ok) {
     // No way to the tote with this item on the cup: it goes back where it was, not on the
     // floor (an item outside the bins and the tote costs points).
@@ -274,17 +341,18 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
     return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
   }
-  const SealReading over_tote = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+  const SealReading over_destination = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
   cell_.VacuumOff();
-  if (!over_tote.attached) {
-    target.last_failure = "dropped on the way to the tote";
+  if (!over_destination.attached) {
+    target.last_failure = "dropped on the way to " + to;
     journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kLostCarried;
   }
   journal_.Append("done", Key(target, "place"), clock_s_,
-                  {{"drop_height_m", placed.drop_height_m}});
+                  {{"drop_height_m", placed.drop_height_m}, {"to", to}});
   report.drop_height_m = placed.drop_height_m;
-  RecordPlaced(target, placed.drop_height_m);
+  report.placed_in = to;
+  RecordPlaced(target, to, placed.drop_height_m);
   return Attempt::kPicked;
 }
 
@@ -333,8 +401,8 @@ PickTaskResult PickTaskRunner::Run() {
         reports[i].failure = target.done ? "" : target.last_failure;
         if (attempt == Attempt::kLostCarried) target.given_up = true;  // its place is unknown
         Emit(&target, target.done ? Step::kPlace : Step::kNone, target.done,
-             target.done ? "in the tote" : target.last_failure,
-             target.done ? apc::kToteLocation : "");
+             target.done ? "in " + reports[i].placed_in : target.last_failure,
+             target.done ? reports[i].placed_in : "");
       }
     }
     // The safe pose at the end, also when cancelled (no item is held between targets).

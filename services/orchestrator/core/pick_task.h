@@ -2,6 +2,7 @@
 
 #include <atomic>
 #include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,10 @@ struct PickTaskOptions {
   double backoff_s = 0.5;
   /// Where the arm waits at the start and the end.
   std::string home_pose = "home";
+  /// Stow: each bin's free volume when empty (m^3), for choosing where an item goes.
+  std::map<std::string, double> bin_volume_m3;
+  /// Stow: a bin is considered only while its items fill less than this fraction of it.
+  double max_bin_fill = 0.6;
 };
 
 /// What happened to one target.
@@ -58,6 +63,7 @@ struct TargetReport {
   bool detected = false;
   std::string grasp;
   double drop_height_m = 0.0;
+  std::string placed_in;  ///< The tote, or the bin a stowed item went to.
   /// Task-clock seconds per step name ("scan", "detect", "plan", "grasp", "place").
   std::vector<std::pair<std::string, double>> step_times_s;
 };
@@ -73,9 +79,10 @@ struct PickTaskResult {
   double duration_s = 0.0;  ///< Task clock at the end.
 };
 
-/// Runs a pick task: the targets in `order`, each scanned from its bin's views, detected,
-/// planned, grasped with the guarded move and the vacuum, checked for attachment after the
-/// lift, and dropped into the tote. Every physical step is journaled before it starts
+/// Runs a pick or a stow task: the targets in `order`, each scanned from its container's
+/// views, detected, planned, grasped with the guarded move and the vacuum, checked for
+/// attachment after the lift, and released over the tote (pick) or into the best bin that a
+/// place can be planned into (stow: StowBins). Every physical step is journaled before it starts
 /// ("begin") and after ("done"); actions the journal records as done are not repeated (a
 /// resumed task). `emit` receives every progress event; `cancel` is polled between steps.
 class PickTaskRunner final {
@@ -93,7 +100,9 @@ class PickTaskRunner final {
   Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan);
   void ResumeFromJournal();
   void FinishCarriedItem();
-  void RecordPlaced(const Target& target, double drop_height_m);
+  void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
+  /// Where the item goes: the tote, or for a stow the bins in order of preference.
+  std::vector<std::string> Destinations(const Target& target) const;
   void Emit(const Target* target, Step step, bool ok, const std::string& message,
             const std::string& to = "");
   /// Runs a cell operation, retrying a service that does not answer; rethrows the last error.
@@ -124,5 +133,14 @@ apc::ScoreReport ScoreBelief(const apc::Task& initial, const std::vector<apc::Ev
                              const apc::Task& contents, const apc::Catalogue& catalogue);
 
 std::string StepName(Step step);
+
+/// Stow: the bins an item may go to, best first. A bin is a candidate while its items (their
+/// catalogue volumes, the new one included) fill at most `max_fill` of its volume; candidates
+/// are ordered by the points a stowed item scores there (the rules' 10 / 15 / 20 by how many
+/// items the bin held at the start), then by free volume.
+std::vector<std::string> StowBins(const std::string& item, const apc::Task& initial,
+                                  const apc::Task& contents, const apc::Catalogue& catalogue,
+                                  const std::map<std::string, double>& bin_volume_m3,
+                                  double max_fill);
 
 }  // namespace picking::orchestrator

@@ -92,6 +92,7 @@ void TaskManager::LoadFromDisk() {
     entry->info.state = TaskState::kFailed;
     entry->info.error = "interrupted (the orchestrator stopped); resume it with resume_task_id";
     for (const JournalRecord& r : Journal::Read((dir / "journal.jsonl").string())) {
+      if (r.type == "task") entry->info.kind = r.data.value("kind", "pick");
       if (r.type == "event") {
         entry->events.push_back(EventFromRecord(r));
         entry->events.back().sequence = entry->events.size() - 1;  // events count 0, 1, ...
@@ -140,8 +141,10 @@ std::pair<apc::Task, std::vector<Target>> TaskManager::Prepare(const std::string
     }
     throw std::invalid_argument(e.what());
   }
-  if (spec.kind == "stow" || task.kind == apc::TaskKind::kStow) {
-    throw std::invalid_argument("kind: stow tasks are not supported by this orchestrator yet");
+  const bool stow = task.kind == apc::TaskKind::kStow;
+  if ((spec.kind == "stow" && !stow) || (spec.kind == "pick" && stow)) {
+    throw std::invalid_argument("kind: the request says " + spec.kind + ", the task file is a " +
+                                (stow ? "stow task (no work_order)" : "pick task (a work_order)"));
   }
   if (spec.time_limit_s < 0.0 || !std::isfinite(spec.time_limit_s) || spec.time_limit_s > 86400) {
     throw std::invalid_argument("time_limit_s: must be in [0, 86400] s");
@@ -186,6 +189,7 @@ std::string TaskManager::Start(const StartSpec& spec) {
     tasks_[entry->info.task_id] = entry;
     order_.push_back(entry->info.task_id);
   }
+  entry->info.kind = task.kind == apc::TaskKind::kStow ? "stow" : "pick";
   entry->info.state = TaskState::kRunning;
   entry->info.error.clear();
   entry->info.items_total = static_cast<int>(order.size());
@@ -201,7 +205,7 @@ void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vec
   PickTaskResult result;
   try {
     Journal journal((fs::path(entry->dir) / "journal.jsonl").string());
-    if (journal.Records().empty()) journal.Append("task", "", 0.0, {{"kind", "pick"}});
+    if (journal.Records().empty()) journal.Append("task", "", 0.0, {{"kind", entry->info.kind}});
     std::unique_ptr<CellPort> cell = cell_factory_();
     auto emit = [&](const TaskEvent& e) {
       std::lock_guard<std::mutex> lock(mutex_);

@@ -108,13 +108,21 @@ std::vector<Target> OrderTargets(const apc::Task& task, const apc::Catalogue& ca
                                  const EaseTable& ease,
                                  const std::map<std::string, std::string>& preferred_method,
                                  const std::vector<std::string>& ease_order) {
+  std::vector<apc::WorkOrderEntry> entries = task.work_order;
+  if (task.kind == apc::TaskKind::kStow) {
+    entries.clear();
+    for (const std::string& item : task.tote_contents) entries.push_back({"tote", item});
+  }
   std::vector<Target> targets;
-  for (const apc::WorkOrderEntry& entry : task.work_order) {
+  std::map<std::pair<std::string, std::string>, int> copies;
+  for (const apc::WorkOrderEntry& entry : entries) {
     const apc::Item& item = catalogue.at(entry.item);
     auto method = preferred_method.find(entry.item);
     if (method == preferred_method.end()) method = preferred_method.find("");
     const std::string method_name = method == preferred_method.end() ? "ppf" : method->second;
-    targets.push_back({entry.item, entry.bin, ease.Ease(item, method_name)});
+    Target target{entry.item, entry.bin, copies[{entry.bin, entry.item}]++};
+    target.ease = ease.Ease(item, method_name);
+    targets.push_back(target);
   }
   // Rank: position in `ease_order` first, then falling ease, then bin.
   std::map<std::string, int> rank;
@@ -123,7 +131,7 @@ std::vector<Target> OrderTargets(const apc::Task& task, const apc::Catalogue& ca
                                     [&](const Target& t) { return t.item == ease_order[i]; });
     if (!listed) {
       throw std::invalid_argument("ease_order[" + std::to_string(i) + "]: '" + ease_order[i] +
-                                  "' is not in the work order");
+                                  "' is not among the task's targets");
     }
     rank.emplace(ease_order[i], static_cast<int>(i));
   }

@@ -34,10 +34,11 @@ struct EaseTable {
 /// std::invalid_argument naming the file when it cannot be read.
 std::map<std::string, std::string> ReadPreferredMethods(const std::string& models_json_path);
 
-/// One target of a pick task.
+/// One target of a task: an item to move out of its container.
 struct Target {
   std::string item;
-  std::string bin;
+  std::string bin;  ///< Where it is: "bin_A".."bin_L" (pick) or "tote" (stow).
+  int copy = 0;     ///< Which copy of the item in that container (0, 1, ...).
   double ease = 0.0;
   int attempts = 0;  ///< Attempts made so far.
   bool done = false;
@@ -45,7 +46,8 @@ struct Target {
   std::string last_failure;  ///< Why the last attempt failed.
 };
 
-/// The work order in the order to attempt it: `ease_order` first (items in that order; an
+/// The targets in the order to attempt them: a pick task's work order, or every item of a
+/// stow task's tote; `ease_order` first (items in that order; an
 /// item it names that is not in the work order is an error), then the rest by falling ease,
 /// ties by bin name. Throws std::invalid_argument naming the item.
 std::vector<Target> OrderTargets(const apc::Task& task, const apc::Catalogue& catalogue,

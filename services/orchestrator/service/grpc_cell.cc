@@ -185,14 +185,23 @@ ScanView GrpcCell::Scan() {
 Detection GrpcCell::Detect(const std::string& container, const std::string& item,
                            const std::vector<ScanView>& views) {
   if (views.empty()) throw CellError("scanner", false, "no views to detect in");
-  const world::BinGeometry& bin = options_.cell.bin(container);
   dt::DetectParams params;
   auto* query = params.add_queries();
   query->set_item(item);
-  const Eigen::Isometry3d X_BaseBin =
-      options_.cell.config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center());
-  *params.mutable_region()->mutable_x_frame_region() = pc::PoseToProto(X_BaseBin);
-  *params.mutable_region()->mutable_size_m() = pc::VectorToProto(bin.inner_S.sizes());
+  // The region: the bin's or the tote's free inner box.
+  Eigen::Isometry3d X_BaseRegion;
+  Eigen::Vector3d size_m;
+  if (container == "tote") {
+    const Eigen::AlignedBox3d inner = options_.cell.tote_inner_T();
+    X_BaseRegion = options_.cell.config.X_BaseTote * Eigen::Translation3d(inner.center());
+    size_m = inner.sizes();
+  } else {
+    const world::BinGeometry& bin = options_.cell.bin(container);
+    X_BaseRegion = options_.cell.config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center());
+    size_m = bin.inner_S.sizes();
+  }
+  *params.mutable_region()->mutable_x_frame_region() = pc::PoseToProto(X_BaseRegion);
+  *params.mutable_region()->mutable_size_m() = pc::VectorToProto(size_m);
   params.mutable_region()->set_wall_margin_m(options_.wall_margin_m);
   if (views.size() > 1) {
     for (const ScanView& v : views)

@@ -218,17 +218,17 @@ std::shared_ptr<grpc::Channel> Channel(const runtime::Config& config, const std:
 
 // Detect through the pool of replicas: retried on another replica when one does not answer.
 DetectFn PoolDetector(std::shared_ptr<DetectorPool> pool) {
-  return [pool](const dt::DetectParams& params,
-                const std::vector<common::v1::PointCloudChunk>& chunks,
-                dt::DetectResponse* response, std::string* replica) {
-    DetectCall call;
-    call.params = params;
-    call.cloud = std::make_shared<const std::vector<common::v1::PointCloudChunk>>(chunks);
-    DetectOutcome outcome = pool->Detect(call);
-    *replica = outcome.replica;
-    if (outcome.ok()) *response = std::move(outcome.response);
-    return outcome.status;
-  };
+  return
+      [pool](const dt::DetectParams& params, const std::vector<common::v1::PointCloudChunk>& chunks,
+             dt::DetectResponse* response, std::string* replica) {
+        DetectCall call;
+        call.params = params;
+        call.cloud = std::make_shared<const std::vector<common::v1::PointCloudChunk>>(chunks);
+        DetectOutcome outcome = pool->Detect(call);
+        *replica = outcome.replica;
+        if (outcome.ok()) *response = std::move(outcome.response);
+        return outcome.status;
+      };
 }
 
 }  // namespace
@@ -254,6 +254,10 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   GrpcCellOptions cell;
   const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
   cell.cell = world::LoadCellModel(world::ReadCellConfig(cell_path));
+  for (const world::BinGeometry& bin : cell.cell.bins) {
+    options.pick.bin_volume_m3[bin.name] = bin.inner_S.volume();
+  }
+  options.pick.max_bin_fill = config.GetDouble("stow.max_bin_fill", options.pick.max_bin_fill);
   cell.scanner = Channel(config, "scanner");
   cell.planner = Channel(config, "planner");
   cell.robot = Channel(config, "robot");

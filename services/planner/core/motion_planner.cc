@@ -748,14 +748,27 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
           DownAt(centre + dx * x + Eigen::Vector3d(0, 0, rim_z - centre.z() + 0.05 + below_m)));
     }
   } else {
-    const Eigen::Vector3d p =
-        centre + Eigen::Vector3d(0, 0, 0.5 * container.inner_size_m.z() - 0.02 - below_m * 0.0);
-    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    // The cup points into the bin (horizontal); the item hanging from it is let go in the
+    // bin's upper half, the tube clear of the ceiling, first half-way in, then just inside
+    // the opening, each with the cup rolled so that the item's long side lies flat or stands.
     const Eigen::Vector3d z = -container.opening_direction_Base;
-    X.linear() << Eigen::Vector3d::UnitZ().cross(z).normalized().cross(z) * -1.0,
-        z.cross(Eigen::Vector3d::UnitZ().cross(z).normalized() * -1.0), z;
-    X.translation() = p;
-    candidates.push_back(X);
+    const Eigen::Vector3d x = Eigen::Vector3d::UnitZ().cross(z).normalized();
+    Eigen::Isometry3d X_flat = Eigen::Isometry3d::Identity();
+    X_flat.linear().col(0) = x;
+    X_flat.linear().col(1) = z.cross(x);
+    X_flat.linear().col(2) = z;
+    const double half_depth = 0.5 * container.inner_size_m.x();
+    const double below_ceiling = robot_->gripper().tube_radius_m + 0.04;
+    for (const double toward_opening_m : {0.0, half_depth - 0.08}) {
+      for (const double down_m : {below_ceiling, 0.5 * container.inner_size_m.z()}) {
+        for (const double roll_rad : {0.0, 0.5 * M_PI}) {
+          Eigen::Isometry3d X = X_flat * Eigen::AngleAxisd(roll_rad, Eigen::Vector3d::UnitZ());
+          X.translation() = centre + toward_opening_m * container.opening_direction_Base +
+                            Eigen::Vector3d(0, 0, 0.5 * container.inner_size_m.z() - down_m);
+          candidates.push_back(X);
+        }
+      }
+    }
   }
   for (const Eigen::Isometry3d& X_release : candidates) {
     CheckDeadline(deadline, "the place");
