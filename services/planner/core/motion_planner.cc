@@ -486,6 +486,101 @@ std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContaine
   return X_pre;
 }
 
+bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
+                                PlanFailure* failure) const {
+  TubeReachOptions options;
+  options.lip_to_flange_m = robot_->gripper().X_ToolTcp.translation().z();
+  options.cup_length_m = robot_->gripper().cup_length_m;
+  options.tube_radius_m = robot_->gripper().tube_radius_m;
+  const TubeReachResult reach = CheckTubeReach(container, grasp, options);
+  if (reach.reaches) return true;
+  failure->stage = "descend";
+  failure->kind = "tube blocked";
+  failure->grasp = grasp.surface;
+  failure->body = BodyName(kBodyTool);
+  failure->obstacle = "shelf";
+  if (container.kind == GraspContainerKind::kTote) failure->obstacle = "tote";
+  failure->message = "descend for grasp '" + grasp.surface + "': " + reach.message;
+  return false;
+}
+
+std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& X_pre,
+                                                       const Eigen::Isometry3d& X_descend_end,
+                                                       const Eigen::Isometry3d& X_grasp,
+                                                       const JointVector& seed,
+                                                       const FastChecker& fast,
+                                                       PlanFailure* failure) const {
+  // The cartesian search keeps its start's IK branch, so a descent whose end pose collides
+  // (or has no IK) on that branch is hopeless however long it searches: take the free
+  // pre-grasp solution nearest to the start whose branch also holds both ends of the descent
+  // and the guarded move free.
+  const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
+  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  ur10::IkOptions ik_options;
+  ik_options.include_2pi_variants = true;
+  ur10::IkResult ik = kinematics.Solve(X_pre * X_TcpTool, ik_options);
+  if (ik.empty()) {
+    failure->stage = "pre-grasp";
+    failure->kind = "ik unreachable";
+    failure->message = "no IK solution: " + ik.reason;
+    return std::nullopt;
+  }
+  std::sort(ik.solutions.begin(), ik.solutions.end(), [&](const auto& a, const auto& b) {
+    return (a.q_rad - seed).cwiseAbs().sum() < (b.q_rad - seed).cwiseAbs().sum();
+  });
+  std::string first_reason;
+  CollisionReport first_hit;
+  bool any_free_pre = false;
+  for (const auto& s : ik.solutions) {
+    const CollisionReport at_pre = fast.Check(s.q_rad);
+    if (at_pre.in_collision) {
+      if (!first_hit.in_collision) first_hit = at_pre;
+      continue;
+    }
+    any_free_pre = true;
+    const ur10::Branch branch = kinematics.BranchOf(s.q_rad);
+    bool ok = true;
+    for (const auto& [X, what] : {std::pair{&X_descend_end, "the descent's end pose"},
+                                  std::pair{&X_grasp, "the grasp pose"}}) {
+      std::string reason;
+      const auto q = kinematics.NearestSolution(*X * X_TcpTool, s.q_rad, branch, &reason);
+      if (!q) {
+        if (first_reason.empty()) {
+          failure->kind = "ik unreachable";
+          first_reason = std::string(what) + " has no IK solution on branch " + branch.ToString() +
+                         " of the free pre-grasp";
+        }
+        ok = false;
+        break;
+      }
+      if (const CollisionReport r = fast.Check(q->q_rad); r.in_collision) {
+        if (first_reason.empty()) {
+          failure->kind = "collision";
+          failure->body = BodyName(r.body);
+          failure->obstacle = r.obstacle;
+          first_reason = std::string(what) + " itself collides on branch " + branch.ToString() +
+                         " of the free pre-grasp: " + r.ToString();
+        }
+        ok = false;
+        break;
+      }
+    }
+    if (ok) return s.q_rad;
+  }
+  if (!any_free_pre) {
+    failure->stage = "pre-grasp";
+    failure->kind = "collision";
+    failure->body = BodyName(first_hit.body);
+    failure->obstacle = first_hit.obstacle;
+    failure->message = "every IK solution collides (nearest: " + first_hit.ToString() + ")";
+    return std::nullopt;
+  }
+  failure->stage = "descend";
+  failure->message =
+      first_reason + " (checked before the search; no free pre-grasp branch holds it)";
+  return std::nullopt;
+}
+
 bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
                             const CarriedItem& carried, const FastChecker& fast,
                             const MotionChecker& motion, JointVector* q_lift, double* lift_m,
@@ -548,14 +643,19 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const std::optional<Eigen::Isometry3d> pre = PreGraspPose(container, grasp, &reason);
   if (!pre) return fail("pre-grasp", "ik unreachable", reason);
   const Eigen::Isometry3d& X_pre = *pre;
-  const auto q_pre = FreeIk(X_pre, request.start_rad, fast, nullptr, &reason);
-  if (!q_pre) return fail("pre-grasp", "ik unreachable", reason);
+  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
+  PlanFailure start_failure;
+  const auto q_pre =
+      DescentStart(X_pre, X_descend_end, X_grasp, request.start_rad, fast, &start_failure);
+  if (!q_pre) {
+    *failure = start_failure;  // body and obstacle
+    return fail(start_failure.stage, start_failure.kind, start_failure.message);
+  }
 
   // Descend along the approach to guarded_distance short of the grasp.
   CartesianSearchOptions search = options_.search;
   search.deadline = deadline;
   if (tote) search.max_lateral_steps = search.max_tilt_steps = 0;  // tote picks go straight
-  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
   const CartesianSearchResult descend =
       SearchCartesianPath(motion, *q_pre, X_descend_end, nullptr, search);
   plan->nodes_expanded += descend.nodes_expanded;
@@ -659,12 +759,19 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   }
   PickPlan plan;
   std::vector<PlanFailure> failures;
-  const int tries = std::min<int>(options_.max_grasps_tried, grasps.candidates.size());
-  for (int g = 0; g < tries; ++g) {
+  const GraspContainer container = Container(request.container);
+  for (const GraspCandidate& candidate : grasps.candidates) {
+    if (plan.grasps_tried >= options_.max_grasps_tried) break;
+    // The tube's geometry at the grasp does not depend on the arm or the roll: a grasp it
+    // rules out is refused without IK or search, and does not count as tried.
+    PlanFailure blocked;
+    if (!TubeReaches(container, candidate, &blocked)) {
+      failures.push_back(blocked);
+      continue;
+    }
     ++plan.grasps_tried;
     // Suction is symmetric about the cup's axis: the wrist may take the grasp at another
     // roll where the first one runs into a joint limit, a wrist singularity or a wall.
-    const GraspCandidate& candidate = grasps.candidates[g];
     PlanFailure best;
     bool have_best = false;
     for (const double roll : {0.0, M_PI / 2, -M_PI / 2, M_PI}) {

@@ -13,6 +13,7 @@
 #include "libs/world/item_models.h"
 #include "services/planner/core/cartesian_search.h"
 #include "services/planner/core/collision_world.h"
+#include "services/planner/core/grasp_reach.h"
 #include "services/planner/core/grasps.h"
 #include "services/planner/core/roadmap.h"
 #include "services/planner/core/scene.h"
@@ -49,7 +50,9 @@ struct MotionPlannerOptions {
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
   double max_pregrasp_back_m = 0.45;
-  /// Grasps tried, best first, before the pick is given up.
+  /// Grasps searched, best first, before the pick is given up. Grasps refused by the checks
+  /// before the search (the tube through the opening, the descent's end pose) cost
+  /// microseconds and are not counted.
   int max_grasps_tried = 8;
   /// Trajectory timing: the blend tolerance at corners and the output sample period.
   double blend_deviation_rad = 0.02;
@@ -71,7 +74,8 @@ struct PlanFailure {
   std::string stage;  ///< "start", "grasps", "pre-grasp", "descend", "retreat", "approach",
                       ///< "place", "validation".
   std::string kind;   ///< "collision", "ik unreachable", "joint jump", "node budget spent",
-                      ///< "deadline", "no grasp", "no path".
+                      ///< "deadline", "no grasp", "no path", "tube blocked" (the straight
+                      ///< tube at the grasp crosses the container's wall: CheckTubeReach).
   std::string grasp;  ///< The grasp's surface, when one was being tried.
   int node = -1;      ///< Search node where it stopped.
   double fraction_achieved = 0.0;
@@ -211,6 +215,12 @@ class MotionPlanner final {
   std::optional<Eigen::Isometry3d> PreGraspPose(const GraspContainer& container,
                                                 const GraspCandidate& grasp,
                                                 std::string* reason) const;
+  bool TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
+                   PlanFailure* failure) const;
+  std::optional<JointVector> DescentStart(const Eigen::Isometry3d& X_pre,
+                                          const Eigen::Isometry3d& X_descend_end,
+                                          const Eigen::Isometry3d& X_grasp, const JointVector& seed,
+                                          const FastChecker& fast, PlanFailure* failure) const;
   bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
                const CarriedItem& carried, const FastChecker& fast, const MotionChecker& motion,
                JointVector* q_lift, double* lift_m, PlanFailure* failure,

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "services/planner/core/grasp_reach.h"
+
 #include <cstdlib>
 
 #include <cmath>
@@ -786,6 +788,81 @@ TEST(GraspTableGenerator, DefaultRuleWritesAValidTable) {
   const GraspTable table = GraspTable::FromYaml("version: 1\ncup_diameter_m: 0.04\n" + out.str(),
                                                 "generated", catalogue);
   EXPECT_EQ(table.size(), catalogue.size());
+}
+
+// ---------------------------------------------------------------------------------------------
+// The straight tube through the opening.
+
+// A 0.40 m deep, 0.30 m wide, 0.20 m high box with its opening toward +x, and a grasp at
+// `p` whose approach is `angle_deg` from straight in (-x), tilted toward -z (down).
+GraspCandidate GraspAt(const Eigen::Vector3d& p, double angle_deg) {
+  GraspCandidate grasp;
+  grasp.surface = "+z face";
+  grasp.p_BasePoint = p;
+  const double a = angle_deg * kDeg;
+  grasp.approach_Base = Eigen::Vector3d(-std::cos(a), 0.0, -std::sin(a));
+  return grasp;
+}
+
+GraspContainer TestBin() {
+  GraspContainer bin;
+  bin.name = "test bin";
+  bin.inner_size_m = Eigen::Vector3d(0.40, 0.30, 0.20);
+  bin.opening_direction_Base = Eigen::Vector3d::UnitX();
+  return bin;
+}
+
+TEST(TubeReachTest, ATopFaceDeepInALowBinIsOutOfReach) {
+  const GraspContainer bin = TestBin();
+  // 60 deg from the opening, on the floor 0.30 m behind it: the tube rises 0.87 m per metre
+  // and leaves the 0.20 m bin through the ceiling about 0.21 m from the cup.
+  const TubeReachResult deep = CheckTubeReach(bin, GraspAt({-0.10, 0.0, -0.09}, 60.0));
+  EXPECT_FALSE(deep.reaches);
+  EXPECT_EQ(deep.wall, "ceiling");
+  EXPECT_NEAR(deep.depth_m, 0.30, 1e-9);
+  EXPECT_NEAR(deep.container_size_m, 0.20, 1e-9);
+  EXPECT_NEAR(deep.angle_rad, 60.0 * kDeg, 1e-9);
+  // The surface (0.01 m above the axis at 60 deg) meets the ceiling at z = 0.10.
+  EXPECT_NEAR(deep.meets_at_m, (0.19 - 0.02 * std::cos(60.0 * kDeg)) / std::sin(60.0 * kDeg), 1e-9);
+  EXPECT_GT(deep.penetration_m, 0.05);
+  EXPECT_NE(deep.message.find("ceiling"), std::string::npos) << deep.message;
+  EXPECT_NE(deep.message.find("0.30 m deep in a 0.20 m-high bin"), std::string::npos)
+      << deep.message;
+  // The same face 3 cm behind the opening: the tube is out of the bin before it rises.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({0.17, 0.0, -0.09}, 60.0)).reaches);
+  // Straight in at mid height reaches from the back wall.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({-0.19, 0.0, 0.0}, 0.0)).reaches);
+}
+
+TEST(TubeReachTest, WallsFloorAndTolerance) {
+  const GraspContainer bin = TestBin();
+  // Coming up from below toward the opening: the floor.
+  GraspCandidate up = GraspAt({-0.10, 0.0, 0.05}, -40.0);
+  up.surface = "-z face";
+  EXPECT_EQ(CheckTubeReach(bin, up).wall, "floor");
+  // Sideways, 60 deg toward +y: a side wall.
+  GraspCandidate side;
+  side.surface = "side";
+  side.p_BasePoint = Eigen::Vector3d(-0.10, 0.0, 0.0);
+  side.approach_Base = Eigen::Vector3d(-0.5, -std::sqrt(0.75), 0.0);
+  const TubeReachResult wall = CheckTubeReach(bin, side);
+  EXPECT_EQ(wall.wall, "side wall");
+  EXPECT_NE(wall.message.find("m-wide bin"), std::string::npos) << wall.message;
+  // Straight in, the tube's surface 5 mm past the ceiling: within the tolerance; 15 mm: not.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({-0.10, 0.0, 0.085}, 0.0)).reaches);
+  EXPECT_FALSE(CheckTubeReach(bin, GraspAt({-0.10, 0.0, 0.095}, 0.0)).reaches);
+  // A rotated, moved container gives the same answers.
+  GraspContainer moved = bin;
+  moved.X_BaseContainer =
+      Eigen::Translation3d(1.2, -0.3, 0.5) * Eigen::AngleAxisd(EIGEN_PI, Eigen::Vector3d::UnitZ());
+  moved.opening_direction_Base = -Eigen::Vector3d::UnitX();
+  GraspCandidate deep = GraspAt({-0.10, 0.0, -0.09}, 60.0);
+  deep.p_BasePoint = moved.X_BaseContainer * deep.p_BasePoint;
+  deep.approach_Base = moved.X_BaseContainer.linear() * deep.approach_Base;
+  const TubeReachResult turned = CheckTubeReach(moved, deep);
+  EXPECT_FALSE(turned.reaches);
+  EXPECT_EQ(turned.wall, "ceiling");
+  EXPECT_NEAR(turned.depth_m, 0.30, 1e-9);
 }
 
 }  // namespace

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
 #include "libs/errors/errors.h"
 
 namespace picking::planner {
@@ -139,6 +141,66 @@ TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
   EXPECT_LT(
       (X_out.translation() - p_pre - Eigen::Vector3d(0, 0, planner_->options().lift_m)).norm(),
       1e-4);
+}
+
+// The tube test refuses a grasp before any search; it must only refuse what the shelf's
+// mesh really blocks: for seeded random grasps in every bin, a refused one has its tube
+// within the sampling gap of the mesh. The solid cylinder is sampled from the lip (in the
+// bin's free box) to the flange, every 2 mm along and 15 deg around, on its axis, half
+// radius and surface: a tube that ends inside the shelf's solid boards crosses their surface
+// on the way (distances to a mesh are unsigned).
+TEST_F(MotionPlannerTest, ATubeTheReachTestRefusesTouchesTheShelf) {
+  const StaticCell& cell = planner_->cell();
+  std::size_t shelf = 0;
+  while (cell.grids()[shelf].name != "shelf") ++shelf;
+  const GripperGeometry& gripper = planner_->robot().gripper();
+  TubeReachOptions options;
+  options.lip_to_flange_m = gripper.X_ToolTcp.translation().z();
+  options.cup_length_m = gripper.cup_length_m;
+  options.tube_radius_m = gripper.tube_radius_m;
+  const double r = options.tube_radius_m;
+  const float gap = 0.003f;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int refused = 0, reached = 0;
+  for (const world::BinGeometry& bin : cell.cell().bins) {
+    const GraspContainer container = ShelfBinContainer(cell.cell(), bin.name);
+    for (int i = 0; i < 150; ++i) {
+      GraspCandidate grasp;
+      grasp.surface = "random";
+      const Eigen::Vector3d p_Shelf =
+          bin.inner_S.min() +
+          bin.inner_S.sizes().cwiseProduct(Eigen::Vector3d(u(rng), u(rng), u(rng)));
+      grasp.p_BasePoint = cell.cell().config.X_BaseShelf * p_Shelf;
+      // Within 75 deg of straight in, any side.
+      const double tilt = 75.0 * M_PI / 180.0 * u(rng), turn = 2.0 * M_PI * u(rng);
+      const Eigen::Vector3d in_Shelf(-std::cos(tilt), std::sin(tilt) * std::cos(turn),
+                                     std::sin(tilt) * std::sin(turn));
+      const Eigen::Vector3d a = cell.cell().config.X_BaseShelf.linear() * in_Shelf;
+      grasp.approach_Base = a;
+      const TubeReachResult reach = CheckTubeReach(container, grasp, options);
+      if (reach.reaches) {
+        ++reached;
+        continue;
+      }
+      ++refused;
+      const Eigen::Vector3d e1 = a.unitOrthogonal(), e2 = a.cross(e1);
+      bool touches = false;
+      for (double s = 0.0; s <= options.lip_to_flange_m && !touches; s += 0.002) {
+        for (const double rho : {0.0, 0.5 * r, r}) {
+          for (int k = 0; k < (rho > 0.0 ? 24 : 1) && !touches; ++k) {
+            const double phi = k * M_PI / 12.0;
+            const Eigen::Vector3d p =
+                grasp.p_BasePoint - s * a + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
+            touches = cell.SurfaceDistance(shelf, p.cast<float>(), gap) < gap;
+          }
+        }
+      }
+      EXPECT_TRUE(touches) << bin.name << ": " << reach.message;
+    }
+  }
+  EXPECT_GT(refused, 200);
+  EXPECT_GT(reached, 200);
 }
 
 TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
