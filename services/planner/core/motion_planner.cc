@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <optional>
 #include <sstream>
 
@@ -9,6 +10,12 @@
 
 namespace picking::planner {
 namespace {
+
+std::string Fixed(double v, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.*f", digits, v);
+  return buf;
+}
 
 double Seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
@@ -581,19 +588,65 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   return std::nullopt;
 }
 
-bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-                            const CarriedItem& carried, const FastChecker& fast,
-                            const MotionChecker& motion, JointVector* q_lift, double* lift_m,
-                            PlanFailure* failure, std::string* reason) const {
-  // Straight up off the support: the item rests on the floor or other items, so its check
-  // starts where the lift ends. The highest lift (up to lift_m) whose end leaves the item
-  // free of the scene: a tall item has little room below a bin's ceiling.
+Eigen::Vector3d MotionPlanner::WallRelease(const GraspContainer& container,
+                                           const Eigen::Isometry3d& X_grasp,
+                                           const CarriedItem& carried) const {
+  // The item's box in the container frame; a shelf bin's back and side walls near it.
+  if (container.kind != GraspContainerKind::kShelfBin) return Eigen::Vector3d::Zero();
+  const Eigen::Isometry3d X_ContainerItem =
+      container.X_BaseContainer.inverse() * X_grasp * carried.X_TcpItem;
+  Eigen::AlignedBox3d box;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::AlignedBox3d& b = carried.box_Item;
+    box.extend(X_ContainerItem * Eigen::Vector3d((i & 1) ? b.max().x() : b.min().x(),
+                                                 (i & 2) ? b.max().y() : b.min().y(),
+                                                 (i & 4) ? b.max().z() : b.min().z()));
+  }
+  const Eigen::Vector3d o_Container =
+      container.X_BaseContainer.linear().transpose() * container.opening_direction_Base;
+  const Eigen::Vector3d half = 0.5 * container.inner_size_m;
+  const Eigen::Vector3d up_Container =
+      container.X_BaseContainer.linear().transpose() * Eigen::Vector3d::UnitZ();
+  Eigen::Vector3d shift = Eigen::Vector3d::Zero();
+  for (int axis = 0; axis < 3; ++axis) {
+    if (std::abs(up_Container[axis]) > 0.5) continue;  // floor and ceiling: the lift's business
+    const double low_gap = box.min()[axis] + half[axis];
+    const double high_gap = half[axis] - box.max()[axis];
+    // The opening side has no wall.
+    const bool low_wall = o_Container[axis] > -0.5, high_wall = o_Container[axis] < 0.5;
+    const double need = options_.wall_release_m;
+    if (low_wall && low_gap < need && (!high_wall || high_gap > 2.0 * need)) {
+      shift[axis] += need - low_gap;
+    } else if (high_wall && high_gap < need && (!low_wall || low_gap > 2.0 * need)) {
+      shift[axis] -= need - high_gap;
+    }
+  }
+  return container.X_BaseContainer.linear() * shift;
+}
+
+bool MotionPlanner::LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                            const JointVector& q_grasp, const CarriedItem& carried,
+                            const FastChecker& fast, const MotionChecker& motion,
+                            const ExactChecker& exact, JointVector* q_lift,
+                            Eigen::Vector3d* lift_Base, PlanFailure* failure,
+                            std::string* reason) const {
+  // Straight up off the support, and away from a bin wall the item leans against: it rests
+  // on the floor (or other items) and may touch a wall, so the fast check with the item
+  // starts where the lift ends, and must see the item free there by the motion check's
+  // padding (else no move of the retreat could start). The item's spheres stand up to
+  // 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift to
+  // draw it away (WallRelease). On the way, from lift_item_check_m up, the item's box is
+  // checked exactly. The highest lift (up to lift_m) that works: a tall item has little
+  // room below a bin's ceiling.
   const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
   const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
+  const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
   for (const double fraction : {1.0, 0.8, 0.6}) {
-    *lift_m = fraction * options_.lift_m;
+    const double lift_m = fraction * options_.lift_m;
+    *lift_Base = lift_m * Eigen::Vector3d::UnitZ() + release_Base;
     Eigen::Isometry3d X_lift = X_grasp;
-    X_lift.translation().z() += *lift_m;
+    X_lift.translation() += *lift_Base;
     const auto ik_lift = robot_->kinematics().NearestSolution(X_lift * X_TcpTool, q_grasp, branch);
     if (!ik_lift) {
       *reason = "the lift pose has no IK solution";
@@ -605,11 +658,27 @@ bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector&
       *reason = "the lift collides: " + m.report.ToString();
       continue;
     }
-    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried); r.in_collision) {
+    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried, padding); r.in_collision) {
       failure->body = BodyName(r.body);
       failure->obstacle = r.obstacle;
-      *reason = "after a lift of " + std::to_string(*lift_m) + " m " + r.ToString() +
-                " (clearance " + std::to_string(r.clearance_m) + " m)";
+      *reason = "after a lift of " + Fixed(lift_m, 3) + " m (and " + Fixed(release_Base.norm(), 3) +
+                " m away from the walls) " + r.ToString() + " (clearance " +
+                Fixed(r.clearance_m, 4) + " m, " + Fixed(padding, 4) +
+                " m needed to move on): the item is wedged in";
+      continue;
+    }
+    const int steps = std::max(2, static_cast<int>(std::ceil(lift_Base->norm() / 0.002)));
+    std::optional<CollisionReport> hit;
+    for (int k = 1; k <= steps && !hit; ++k) {
+      if (lift_m * k / steps < options_.lift_item_check_m) continue;
+      const JointVector q = q_grasp + (ik_lift->q_rad - q_grasp) * (double(k) / steps);
+      if (const CollisionReport r = exact.Check(q, &carried); r.in_collision) hit = r;
+    }
+    if (hit) {
+      failure->body = BodyName(hit->body);
+      failure->obstacle = hit->obstacle;
+      *reason = "lifting the item " + Fixed(lift_m, 3) + " m: " + hit->ToString() +
+                " (exact check of the item's box)";
       continue;
     }
     *q_lift = ik_lift->q_rad;
@@ -676,20 +745,20 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     failure->obstacle = m.report.obstacle;
     return fail("descend", "collision", "the guarded move collides: " + m.report.ToString());
   }
-  const Eigen::Vector3d lift_direction = Eigen::Vector3d::UnitZ();
   // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
   JointVector lifted;
-  double lift_m = 0.0;
+  Eigen::Vector3d lift_Base = Eigen::Vector3d::Zero();
   std::string lift_reason;
-  if (!LiftOff(X_grasp, *q_grasp, carried, fast, motion, &lifted, &lift_m, failure, &lift_reason)) {
+  if (!LiftOff(container, X_grasp, *q_grasp, carried, fast, motion, exact, &lifted, &lift_Base,
+               failure, &lift_reason)) {
     return fail("retreat", "collision", lift_reason);
   }
   const JointVector* q_lift = &lifted;
 
   // Retreat carrying the item, from the lift to the pre-grasp pose.
-  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_direction * lift_m);
+  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_Base);
   const CartesianSearchResult retreat =
       SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
   plan->nodes_expanded += retreat.nodes_expanded;

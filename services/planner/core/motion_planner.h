@@ -41,8 +41,15 @@ struct MotionPlannerOptions {
   double guarded_distance_m = 0.05;
   double guarded_overshoot_m = 0.04;
   /// The retreat's first straight lift, upward; the carried item is checked against the scene
-  /// from the lift's end on (it rests on its support before).
+  /// by the fast check from the lift's end on (it rests on its support before), exactly (its
+  /// box, FCL) from `lift_item_check_m` of lift on.
   double lift_m = 0.05;
+  double lift_item_check_m = 0.01;
+  /// An item within this of a bin's back or side wall is drawn away from it during the lift,
+  /// to this distance: the fast check's spheres stand up to 5.5 mm proud of the item's box
+  /// and the motion check pads them by max_travel_m / 2, so nearer than that to a wall no
+  /// move with the item could start.
+  double wall_release_m = 0.015;
   /// The pre-grasp pose lies on the approach line this far outside the bin's opening plane,
   /// or this far above the tote's rim.
   double pregrasp_clearance_m = 0.10;
@@ -221,10 +228,12 @@ class MotionPlanner final {
                                           const Eigen::Isometry3d& X_descend_end,
                                           const Eigen::Isometry3d& X_grasp, const JointVector& seed,
                                           const FastChecker& fast, PlanFailure* failure) const;
-  bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-               const CarriedItem& carried, const FastChecker& fast, const MotionChecker& motion,
-               JointVector* q_lift, double* lift_m, PlanFailure* failure,
-               std::string* reason) const;
+  Eigen::Vector3d WallRelease(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                              const CarriedItem& carried) const;
+  bool LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+               const JointVector& q_grasp, const CarriedItem& carried, const FastChecker& fast,
+               const MotionChecker& motion, const ExactChecker& exact, JointVector* q_lift,
+               Eigen::Vector3d* lift_Base, PlanFailure* failure, std::string* reason) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                 const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
                 const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,
