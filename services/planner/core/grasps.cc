@@ -216,8 +216,9 @@ void CheckOptions(const GraspOptions& o) {
           "max_approach_angle_rad must be in (0, pi]");
   require(o.max_tote_approach_angle_rad > 0.0 && o.max_tote_approach_angle_rad <= EIGEN_PI,
           "max_tote_approach_angle_rad must be in (0, pi]");
-  require(o.max_tilt_rad >= 0.0 && o.max_tilt_rad < EIGEN_PI / 2.0,
-          "max_tilt_rad must be in [0, pi/2)");
+  require(o.max_tilt_rad >= 0.0 && o.max_tilt_rad <= kSealAngleToleranceRad,
+          "max_tilt_rad must be in [0, kSealAngleToleranceRad]: the cup seals only on a "
+          "surface within that angle of its axis");
   require(o.tilt_steps >= 0, "tilt_steps must be >= 0");
   require(std::isfinite(o.container_tolerance_m) && o.container_tolerance_m >= 0.0,
           "container_tolerance_m must be >= 0");

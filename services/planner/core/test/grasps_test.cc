@@ -413,7 +413,10 @@ TEST(ComputeGraspsTest, EveryItemInEveryBinAndTheTote) {
   ASSERT_EQ(f.cell.bins.size(), 12u);
   std::mt19937 rng(2016);
   std::uniform_real_distribution<double> jitter(-10.0 * kDeg, 10.0 * kDeg);
-  const GraspOptions options;
+  // Flat items show only their top face, which the seal tolerance's tilt brings no nearer
+  // than 73 deg to the opening direction: allow 80 deg so every item has candidates to check.
+  GraspOptions options;
+  options.max_approach_angle_rad = 80.0 * kDeg;
   for (const apc::Item& item : f.catalogue.items()) {
     const Eigen::Vector3d size = SizeOf(item.name);
     for (const world::BinGeometry& bin : f.cell.bins) {
@@ -457,19 +460,33 @@ TEST(ComputeGraspsTest, ContainersOfTheCell) {
   EXPECT_THROW(ToteContainer(f.cell, 10.0), std::invalid_argument);
 }
 
-// A flat item lying on a bin floor: its top face is approached with the cup tilted toward the
-// opening (straight down is 90 deg from the opening direction).
-TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveWithATilt) {
+// A flat item lying on a bin floor: its top face can only be approached with the cup tilted
+// toward the opening (straight down is 90 deg from the opening direction), and no further
+// than the cup's seal tolerance allows.
+TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance) {
   const Fixture& f = F();
   const std::string item = "jane_eyre_dvd";
   const GraspContainer container = ShelfBinContainer(f.cell, "bin_E");
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
-  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container);
+  const GraspOptions defaults;
+  EXPECT_NEAR(defaults.max_tilt_rad, kSealAngleToleranceRad - kSealAngleMarginRad, 1e-12);
+  // Tilted by the largest tilt the seal allows, the top face is still more than 70 deg from
+  // the opening direction.
+  const GraspResult steep = ComputeGrasps(f.table, item, X_BaseItem, container);
+  for (const GraspCandidate& c : steep.candidates) EXPECT_NE(c.surface, "+z face");
+  // Allowing 80 deg from the opening takes it, tilted by max_tilt_rad.
+  GraspOptions wide;
+  wide.max_approach_angle_rad = 80.0 * kDeg;
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, wide);
   ASSERT_FALSE(result.empty()) << result.reason;
   EXPECT_EQ(result.best().surface, "+z face");
-  EXPECT_NEAR(result.best().tilt_rad, 30.0 * kDeg, 1e-9);
-  EXPECT_NEAR(result.best().approach_angle_rad, 60.0 * kDeg, 1e-9);
+  EXPECT_NEAR(result.best().tilt_rad, defaults.max_tilt_rad, 1e-9);
+  EXPECT_NEAR(result.best().approach_angle_rad, 90.0 * kDeg - defaults.max_tilt_rad, 1e-9);
   EXPECT_GT(result.rejected_approach_angle, 0);  // Straight down, the bottom face, ...
+  // A tilt beyond the seal tolerance is refused: the cup would not seal.
+  GraspOptions too_far;
+  too_far.max_tilt_rad = kSealAngleToleranceRad + 0.01;
+  EXPECT_THROW(ComputeGrasps(f.table, item, X_BaseItem, container, too_far), std::invalid_argument);
   // Without tilting there is nothing, and the reason says what to change.
   GraspOptions no_tilt;
   no_tilt.max_tilt_rad = 0.0;
@@ -610,7 +627,10 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
 
   // The callback is asked from the point backwards along the approach, up to max_clearance_m.
-  GraspOptions options;
+  // 80 deg from the opening admits the tilted top face.
+  GraspOptions wide;
+  wide.max_approach_angle_rad = 80.0 * kDeg;
+  GraspOptions options = wide;
   int calls = 0;
   options.clearance = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& d, double max_m) {
     ++calls;
@@ -643,7 +663,7 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
 
   // Pure geometry: a tilted approach to the top face leaves the bin through its ceiling or its
   // opening; the face toward the opening leaves through the opening (full clearance).
-  const GraspResult g = ComputeGrasps(f.table, item, X_BaseItem, container);
+  const GraspResult g = ComputeGrasps(f.table, item, X_BaseItem, container, wide);
   bool saw_top = false, saw_front = false;
   for (const GraspCandidate& c : g.candidates) {
     if (c.surface == "+z face") {
@@ -663,7 +683,7 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
   Eigen::Isometry3d X_ShelfItem = f.cell.config.X_BaseShelf.inverse() * X_BaseItem;
   X_ShelfItem.translation().z() = bin.inner_S.max().z() - SizeOf(item).z() / 2.0 - 0.005;
   const GraspResult high =
-      ComputeGrasps(f.table, item, f.cell.config.X_BaseShelf * X_ShelfItem, container);
+      ComputeGrasps(f.table, item, f.cell.config.X_BaseShelf * X_ShelfItem, container, wide);
   ASSERT_FALSE(high.empty());
   for (const GraspCandidate& c : high.candidates) EXPECT_NE(c.surface, "+z face");
   EXPECT_GT(high.rejected_blocked, 0);
