@@ -183,6 +183,9 @@ struct GraspOptions {
   /// (CheckOptions refuses more): the cup would not seal.
   double max_tilt_rad = kSealAngleToleranceRad - kSealAngleMarginRad;
   int tilt_steps = 2;
+  /// In a shelf bin, an approach within this angle of horizontal is also tried pitched down
+  /// by the same tilts (the tube rising toward the opening, over the floor's front lip).
+  double max_pitch_from_horizontal_rad = 30.0 * EIGEN_PI / 180.0;
   /// Points further than this outside the container's inner box are rejected.
   double container_tolerance_m = 0.01;
   /// Candidates with less free distance behind the point than this are rejected (blocked).

@@ -14,6 +14,7 @@
 #include <map>
 #include <random>
 #include <sstream>
+#include <tuple>
 
 #include "libs/world/cell_config.h"
 #include "libs/world/item_shapes.h"
@@ -505,6 +506,31 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance
   EXPECT_FALSE(ComputeGrasps(f.table, item, X_BaseItem, container, no_tilt).empty());
 }
 
+// A face toward the opening is also offered pitched down, the tube rising toward the
+// opening over the floor's front lip, by the same tilts (within the seal tolerance).
+TEST(ComputeGraspsTest, AFaceTowardTheOpeningIsAlsoPitchedDown) {
+  const Fixture& f = F();
+  const std::string item = "kleenex_tissue_box";
+  const GraspContainer container = ShelfBinContainer(f.cell, "bin_E");
+  const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
+  const GraspOptions options;
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, options);
+  int straight = 0, pitched = 0;
+  for (const GraspCandidate& c : result.candidates) {
+    if (c.approach_angle_rad > 1e-6 &&
+        c.surface_approach_Base.dot(Eigen::Vector3d::UnitX()) > 0.999) {
+      ++pitched;
+      EXPECT_LT(c.approach_Base.z(), 0.0) << c.surface;  // down into the bin
+      EXPECT_LE(c.tilt_rad, options.max_tilt_rad + 1e-12);
+      EXPECT_NEAR(c.approach_angle_rad, c.tilt_rad, 1e-9);
+    } else if (c.approach_angle_rad < 1e-6) {
+      ++straight;
+    }
+  }
+  EXPECT_GE(straight, 1);
+  EXPECT_EQ(pitched, options.tilt_steps * straight);
+}
+
 // An item standing with a big face toward the opening prefers that face, straight in.
 TEST(ComputeGraspsTest, PrefersABigFaceTowardTheOpening) {
   const Fixture& f = F();
@@ -560,12 +586,17 @@ TEST(ComputeGraspsTest, MovingItemAndContainerMovesTheGrasps) {
       const GraspResult b = ComputeGrasps(f.table, item, T * X_BaseItem, moved);
       ASSERT_EQ(a.candidates.size(), b.candidates.size());
       EXPECT_EQ(a.rejected.size(), b.rejected.size());
-      std::map<std::pair<int, long>, const GraspCandidate*> by_key;
-      for (const GraspCandidate& c : b.candidates) {
-        by_key[{c.point_index, std::lround(c.tilt_rad * 1e6)}] = &c;
-      }
+      // A point's tilts toward the opening and its pitches down may share a tilt angle: the
+      // approach's height in the container tells them apart.
+      auto key = [](const GraspCandidate& c, const GraspContainer& box) {
+        const double height = (box.X_BaseContainer.linear().transpose() * c.approach_Base).z();
+        return std::tuple<int, long, long>{c.point_index, std::lround(c.tilt_rad * 1e6),
+                                           std::lround(height * 1e4)};
+      };
+      std::map<std::tuple<int, long, long>, const GraspCandidate*> by_key;
+      for (const GraspCandidate& c : b.candidates) by_key[key(c, moved)] = &c;
       for (const GraspCandidate& ca : a.candidates) {
-        const auto it = by_key.find({ca.point_index, std::lround(ca.tilt_rad * 1e6)});
+        const auto it = by_key.find(key(ca, container));
         ASSERT_NE(it, by_key.end()) << ca.surface;
         const GraspCandidate& cb = *it->second;
         EXPECT_LT((cb.p_BasePoint - T * ca.p_BasePoint).norm(), 1e-9);
