@@ -172,8 +172,11 @@ inline constexpr double kSealAngleMarginRad = 0.05;
 struct GraspOptions {
   /// The pre-grasp stands this far back from the grasp along -approach.
   double pregrasp_standoff_m = 0.10;
-  /// Shelf bins: largest angle between the reversed approach and the opening direction.
-  double max_approach_angle_rad = 70.0 * EIGEN_PI / 180.0;
+  /// Shelf bins: largest angle between the reversed approach and the opening direction. Wide
+  /// enough for a top face tilted by max_tilt_rad (73 deg): whether the straight tube can
+  /// stand at such a grasp inside the bin is the planner's tube test (CheckTubeReach), which
+  /// says why not in the bin's own measures.
+  double max_approach_angle_rad = 80.0 * EIGEN_PI / 180.0;
   /// Tote: largest angle between the reversed approach and the opening (+z) direction.
   double max_tote_approach_angle_rad = 25.0 * EIGEN_PI / 180.0;
   /// The foam lip seals on a surface met at an angle: besides the surface normal, each point

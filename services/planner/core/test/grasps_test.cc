@@ -415,9 +415,8 @@ TEST(ComputeGraspsTest, EveryItemInEveryBinAndTheTote) {
   std::mt19937 rng(2016);
   std::uniform_real_distribution<double> jitter(-10.0 * kDeg, 10.0 * kDeg);
   // Flat items show only their top face, which the seal tolerance's tilt brings no nearer
-  // than 73 deg to the opening direction: allow 80 deg so every item has candidates to check.
-  GraspOptions options;
-  options.max_approach_angle_rad = 80.0 * kDeg;
+  // than 73 deg to the opening direction: the default 80 deg gives every item candidates.
+  const GraspOptions options;
   for (const apc::Item& item : f.catalogue.items()) {
     const Eigen::Vector3d size = SizeOf(item.name);
     for (const world::BinGeometry& bin : f.cell.bins) {
@@ -471,14 +470,15 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
   const GraspOptions defaults;
   EXPECT_NEAR(defaults.max_tilt_rad, kSealAngleToleranceRad - kSealAngleMarginRad, 1e-12);
-  // Tilted by the largest tilt the seal allows, the top face is still more than 70 deg from
-  // the opening direction.
-  const GraspResult steep = ComputeGrasps(f.table, item, X_BaseItem, container);
+  // Tilted by the largest tilt the seal allows, the top face is still 73 deg from the
+  // opening direction: out with a 70 deg limit, ...
+  GraspOptions narrow;
+  narrow.max_approach_angle_rad = 70.0 * kDeg;
+  const GraspResult steep = ComputeGrasps(f.table, item, X_BaseItem, container, narrow);
   for (const GraspCandidate& c : steep.candidates) EXPECT_NE(c.surface, "+z face");
-  // Allowing 80 deg from the opening takes it, tilted by max_tilt_rad.
-  GraspOptions wide;
-  wide.max_approach_angle_rad = 80.0 * kDeg;
-  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, wide);
+  // ... in with the default 80 deg (the planner's tube test decides whether it can be
+  // reached), tilted by max_tilt_rad.
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, defaults);
   ASSERT_FALSE(result.empty()) << result.reason;
   EXPECT_EQ(result.best().surface, "+z face");
   EXPECT_NEAR(result.best().tilt_rad, defaults.max_tilt_rad, 1e-9);
