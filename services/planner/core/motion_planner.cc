@@ -50,6 +50,18 @@ PlanFailure FromSearch(const std::string& stage, const std::string& grasp,
   return f;
 }
 
+// `first` followed by `second`, which starts where `first` ends.
+Trajectory Joined(const Trajectory& first, const Trajectory& second) {
+  Trajectory joined = first;
+  const double t0 = first.duration_s();
+  for (std::size_t i = 1; i < second.samples.size(); ++i) {
+    TrajectorySample s = second.samples[i];
+    s.time_s += t0;
+    joined.samples.push_back(s);
+  }
+  return joined;
+}
+
 // The camera at `p_Camera` looking at `p_Target`, its x axis horizontal (image rows level).
 Eigen::Isometry3d LookAt(const Eigen::Vector3d& p_Camera, const Eigen::Vector3d& p_Target,
                          const Eigen::Vector3d& up) {
@@ -776,18 +788,12 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
                                    nullptr, "approach");
   plan->descend =
       TimeAndValidate(descend.path_rad, request.speed_fraction, motion, exact, nullptr, "descend");
-  // The lift itself is checked without the item (above); the item from the lift's end on.
+  // The lift is checked here without the item: LiftOff checked the item's box along it
+  // exactly; the fast check takes the item from the lift's end on.
   const Trajectory lift = TimeAndValidate({*q_grasp, *q_lift}, request.speed_fraction, motion,
                                           exact, nullptr, "retreat");
-  const Trajectory out =
-      TimeAndValidate(retreat.path_rad, request.speed_fraction, motion, exact, &carried, "retreat");
-  plan->retreat = lift;
-  const double t0 = lift.duration_s();
-  for (std::size_t i = 1; i < out.samples.size(); ++i) {
-    TrajectorySample s = out.samples[i];
-    s.time_s += t0;
-    plan->retreat.samples.push_back(s);
-  }
+  plan->retreat = Joined(lift, TimeAndValidate(retreat.path_rad, request.speed_fraction, motion,
+                                               exact, &carried, "retreat"));
   plan->guarded_direction_Base = a;
   plan->guarded_distance_m = options_.guarded_distance_m + options_.guarded_overshoot_m;
   return true;

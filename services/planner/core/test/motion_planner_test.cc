@@ -37,12 +37,17 @@ class MotionPlannerTest : public ::testing::Test {
 
   // An item lying on the floor of `bin`, 12 cm behind the opening, and a scan of it: points
   // on the item's box surface and on the bin's floor.
+  // With `wall_gap_m` >= 0 the item lies that far from the bin's side wall at -y instead of
+  // in the middle.
   static std::pair<Eigen::Isometry3d, std::vector<float>> ItemInBin(const std::string& bin,
-                                                                    const std::string& item) {
+                                                                    const std::string& item,
+                                                                    double wall_gap_m = -1.0) {
     const auto& cell = planner_->cell().cell();
     const Eigen::Vector3d size = items_->Get(item)->box_I.sizes();
     const world::BinGeometry& geometry = cell.bin(bin);
-    const Eigen::Vector3d c_S(geometry.opening_x_m - 0.12, geometry.inner_S.center().y(),
+    const double y_S = wall_gap_m < 0.0 ? geometry.inner_S.center().y()
+                                        : geometry.inner_S.min().y() + 0.5 * size.x() + wall_gap_m;
+    const Eigen::Vector3d c_S(geometry.opening_x_m - 0.12, y_S,
                               geometry.floor_max_z_m + 0.5 * size.z() + 0.002);
     // Item frame: long side across the bin (shelf y), middle side along the depth, short
     // side up.
@@ -141,6 +146,34 @@ TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
   EXPECT_LT(
       (X_out.translation() - p_pre - Eigen::Vector3d(0, 0, planner_->options().lift_m)).norm(),
       1e-4);
+}
+
+// An item lying 3 mm from a side wall: its spheres stand up to 5.5 mm proud of its box, so
+// the lift draws it away from the wall before the retreat (which could not start otherwise).
+TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromTheWallItLeansOn) {
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box", 0.003);
+  const PlanningScene scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
+  PickRequest request;
+  request.item = "kleenex_tissue_box";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
+  // The lift's end: the last retreat sample before the tcp heads out toward the opening
+  // (shelf +x); the lift itself goes up and sideways only.
+  const auto& cell = planner_->cell().cell();
+  const Eigen::Isometry3d X_ShelfBase = cell.config.X_BaseShelf.inverse();
+  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
+  double moved_m = 0.0, lifted_m = 0.0;
+  for (const TrajectorySample& s : plan.retreat.samples) {
+    const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
+    if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
+    moved_m = p_S.y() - p0_S.y();  // away from the wall at -y
+    lifted_m = p_S.z() - p0_S.z();
+  }
+  EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
+  EXPECT_NEAR(moved_m, planner_->options().wall_release_m - 0.003, 2e-3);
 }
 
 // The tube test refuses a grasp before any search; it must only refuse what the shelf's
