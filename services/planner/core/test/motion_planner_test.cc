@@ -238,7 +238,7 @@ TEST_F(MotionPlannerTest, ATubeTheReachTestRefusesTouchesTheShelf) {
 
 TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
   // The item pose is inside the shelf's side wall between bins D and E: every grasp fails,
-  // each with a stage and a kind.
+  // each with a stage and a kind, before any search.
   const auto& cell = planner_->cell().cell();
   const auto& d = cell.bin("bin_D");
   const auto& e = cell.bin("bin_E");
@@ -260,6 +260,8 @@ TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
       EXPECT_FALSE(f.stage.empty());
       EXPECT_FALSE(f.kind.empty());
       EXPECT_FALSE(f.message.empty());
+      // Refused before any search (the tube test, the goal poses): no search node.
+      EXPECT_EQ(f.node, -1) << f.message;
     }
   }
 }
