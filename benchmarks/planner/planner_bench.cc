@@ -6,6 +6,12 @@
 //   - PlanPick into and out of the bins of pick_layout_1..3 (median, p95);
 //   - joint motions between named poses (roadmap), and the refusal of an infeasible pick.
 // The scans are the simulator's ground-truth depth from the planner's scan poses.
+//
+// Arguments: `--picks-only` skips the scene, state-check and joint-motion figures (the pick
+// figures and the infeasible refusal only); `--layouts=1,2` plans those layouts only;
+// `--all-failures` lists every grasp's failure of a target without a plan, not just the
+// most advanced one. pick_layout_3 is held out: the planner is developed on layouts 1 and 2
+// and the figures are given per layout.
 #include <octomap/OcTree.h>
 
 #include <algorithm>
@@ -160,10 +166,18 @@ void StateChecks(const Setup& s, const PlanningScene& scene, const std::string& 
   }
 }
 
-void Picks(const Setup& s, simulator::SimWorld* world) {
-  std::vector<double> times, validation;
+struct BenchArgs {
+  bool picks_only = false;
+  bool all_failures = false;
+  std::vector<int> layouts = {1, 2, 3};
+};
+
+void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
+  std::vector<double> times, validation, refusals;
   int tried = 0, planned = 0;
-  for (int layout = 1; layout <= 3; ++layout) {
+  std::vector<std::pair<int, int>> per_layout;  // (planned, tried)
+  for (const int layout : args.layouts) {
+    per_layout.emplace_back(0, 0);
     const std::string path = std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_" +
                              std::to_string(layout) + ".json";
     const apc::Task task = apc::ReadTaskFile(path, s.items->catalogue());
@@ -191,11 +205,16 @@ void Picks(const Setup& s, simulator::SimWorld* world) {
       request.container = entry.bin;
       request.start_rad = Named(*s.planner, "scan/" + entry.bin + "/0").q_rad;
       ++tried;
+      ++per_layout.back().second;
       const auto t = Clock::now();
       try {
         const PickPlan plan = s.planner->PlanPick(request, &scene, Far());
         times.push_back(Ms(t));
         ++planned;
+        ++per_layout.back().first;
+        std::printf("  planned: layout %d %s %s: grasp '%s' in %.1f ms, %d grasps tried\n", layout,
+                    entry.bin.c_str(), entry.item.c_str(), plan.grasp.surface.c_str(), Ms(t),
+                    plan.grasps_tried);
         // Exact validation of the pick's three trajectories, as PlanPick does it.
         const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
         const auto v = Clock::now();
@@ -204,17 +223,31 @@ void Picks(const Setup& s, simulator::SimWorld* world) {
         }
         validation.push_back(Ms(v));
       } catch (const PlanFailedError& e) {
-        std::printf("  no plan: layout %d %s %s: %s\n", layout, entry.bin.c_str(),
-                    entry.item.c_str(), e.what());
+        refusals.push_back(Ms(t));
+        std::printf("  no plan: layout %d %s %s (%.0f ms): %s\n", layout, entry.bin.c_str(),
+                    entry.item.c_str(), Ms(t), e.what());
+        if (args.all_failures) {
+          for (std::size_t i = 1; i < e.failures().size(); ++i) {
+            std::printf("      also: [%s / %s] %s\n", e.failures()[i].stage.c_str(),
+                        e.failures()[i].kind.c_str(), e.failures()[i].message.c_str());
+          }
+        }
       }
     }
   }
   std::printf(
       "PlanPick (pre-grasp, descend, lift, retreat with the item, approach; timed and\n"
-      "validated), pick_layout_1..3: %d of %d planned\n",
+      "validated): %d of %d planned\n",
       planned, tried);
-  std::printf("  median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(times, 0.5),
+  for (std::size_t i = 0; i < args.layouts.size(); ++i) {
+    std::printf("  pick_layout_%d%s: %d of %d planned\n", args.layouts[i],
+                args.layouts[i] == 3 ? " (held out)" : "", per_layout[i].first,
+                per_layout[i].second);
+  }
+  std::printf("  planned: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(times, 0.5),
               Percentile(times, 0.95), Percentile(times, 1.0));
+  std::printf("  refused: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(refusals, 0.5),
+              Percentile(refusals, 0.95), Percentile(refusals, 1.0));
   std::printf("exact validation of a pick's trajectories (FCL, every 8th sample):\n");
   std::printf("  median %.1f ms, p95 %.1f ms\n", Percentile(validation, 0.5),
               Percentile(validation, 0.95));
@@ -277,9 +310,27 @@ void Infeasible(const Setup& s) {
 }  // namespace
 }  // namespace picking::planner
 
-int main() {
+int main(int argc, char** argv) {
   using namespace picking;
   using namespace picking::planner;
+  BenchArgs args;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--picks-only") {
+      args.picks_only = true;
+    } else if (arg == "--all-failures") {
+      args.all_failures = true;
+    } else if (arg.rfind("--layouts=", 0) == 0) {
+      args.layouts.clear();
+      for (char c : arg.substr(10)) {
+        if (c >= '1' && c <= '3') args.layouts.push_back(c - '0');
+      }
+    } else {
+      std::fprintf(stderr, "usage: %s [--picks-only] [--layouts=1,2,3] [--all-failures]\n",
+                   argv[0]);
+      return 2;
+    }
+  }
   Setup s;
   s.kinematics =
       std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
@@ -302,6 +353,11 @@ int main() {
       Ms(t));
 
   simulator::SimWorld world(s.cell, s.items, simulator::SimOptions{}, s.kinematics);
+  if (args.picks_only) {
+    Infeasible(s);
+    Picks(s, &world, args);
+    return 0;
+  }
   const apc::Task task = apc::ReadTaskFile(
       std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_1.json", s.items->catalogue());
   world.LoadTask(task, 7);
@@ -321,6 +377,6 @@ int main() {
   StateChecks(s, scene, bin);
   JointMotions(s);
   Infeasible(s);
-  Picks(s, &world);
+  Picks(s, &world, args);
   return 0;
 }

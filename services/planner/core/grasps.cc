@@ -216,8 +216,9 @@ void CheckOptions(const GraspOptions& o) {
           "max_approach_angle_rad must be in (0, pi]");
   require(o.max_tote_approach_angle_rad > 0.0 && o.max_tote_approach_angle_rad <= EIGEN_PI,
           "max_tote_approach_angle_rad must be in (0, pi]");
-  require(o.max_tilt_rad >= 0.0 && o.max_tilt_rad < EIGEN_PI / 2.0,
-          "max_tilt_rad must be in [0, pi/2)");
+  require(o.max_tilt_rad >= 0.0 && o.max_tilt_rad <= kSealAngleToleranceRad,
+          "max_tilt_rad must be in [0, kSealAngleToleranceRad]: the cup seals only on a "
+          "surface within that angle of its axis");
   require(o.tilt_steps >= 0, "tilt_steps must be >= 0");
   require(std::isfinite(o.container_tolerance_m) && o.container_tolerance_m >= 0.0,
           "container_tolerance_m must be >= 0");
@@ -579,6 +580,20 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
         if (tilt >= to_ideal) break;
       }
     }
+    // A near-horizontal approach low in a bin runs the tube over the floor's front lip, which
+    // stands above the inner box's floor: the same tilts pitching the cup down (the tube up
+    // and out over the lip).
+    const Eigen::Vector3d up = container.X_BaseContainer.linear().col(2);  // the bin's up
+    const Eigen::Vector3d down_across = -(up - up.dot(normal_Base) * normal_Base);
+    if (container.kind == GraspContainerKind::kShelfBin && options.max_tilt_rad > 0.0 &&
+        std::abs(normal_Base.dot(up)) < std::sin(options.max_pitch_from_horizontal_rad) &&
+        down_across.norm() > 1e-6) {
+      const Eigen::Vector3d axis = normal_Base.cross(down_across.normalized()).normalized();
+      for (int k = 1; k <= options.tilt_steps; ++k) {
+        const double tilt = options.max_tilt_rad * k / options.tilt_steps;
+        approaches.emplace_back(Eigen::AngleAxisd(tilt, axis) * normal_Base, tilt);
+      }
+    }
 
     for (std::size_t v = 0; v < approaches.size(); ++v) {
       const Eigen::Vector3d approach = approaches[v].first.normalized();
@@ -662,7 +677,9 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
              "opening): re-detect or turn the item, allow a larger "
           << (container.kind == GraspContainerKind::kTote ? "max_tote_approach_angle_rad"
                                                           : "max_approach_angle_rad")
-          << " or max_tilt_rad, or add points in the grasp table '" << table.source() << "';";
+          << " (max_tilt_rad cannot pass the cup's seal tolerance, "
+          << Fixed(kSealAngleToleranceRad / kDeg, 0) << " deg), or add points in the grasp table '"
+          << table.source() << "';";
     }
     if (result.rejected_blocked > 0) {
       msg << " " << result.rejected_blocked << " approaches have less than "

@@ -158,20 +158,37 @@ GraspContainer ToteContainer(const world::CellModel& cell, double wall_m = 0.015
 using ClearanceFunction = std::function<double(
     const Eigen::Vector3d& p_Base, const Eigen::Vector3d& direction_Base, double max_m)>;
 
+/// The suction cup seals on a flat surface met at up to this angle between the surface's
+/// normal and the cup's axis. It is the cell's value, which the simulator enforces
+/// (SimOptions::seal_angle_tolerance_rad in services/simulator/core/sim_world.h);
+/// test_planner_pick fails if the two differ. Radians.
+inline constexpr double kSealAngleToleranceRad = 0.35;
+/// What the planner keeps in hand below kSealAngleToleranceRad when it tilts the cup off a
+/// surface's normal: the item's detected orientation is a few degrees off at worst, and a
+/// plan whose cup cannot seal is worse than a refusal. Radians.
+inline constexpr double kSealAngleMarginRad = 0.05;
+
 /// Options of ComputeGrasps. Angles in radians, lengths in metres.
 struct GraspOptions {
   /// The pre-grasp stands this far back from the grasp along -approach.
   double pregrasp_standoff_m = 0.10;
-  /// Shelf bins: largest angle between the reversed approach and the opening direction.
-  double max_approach_angle_rad = 70.0 * EIGEN_PI / 180.0;
+  /// Shelf bins: largest angle between the reversed approach and the opening direction. Wide
+  /// enough for a top face tilted by max_tilt_rad (73 deg): whether the straight tube can
+  /// stand at such a grasp inside the bin is the planner's tube test (CheckTubeReach), which
+  /// says why not in the bin's own measures.
+  double max_approach_angle_rad = 80.0 * EIGEN_PI / 180.0;
   /// Tote: largest angle between the reversed approach and the opening (+z) direction.
   double max_tote_approach_angle_rad = 25.0 * EIGEN_PI / 180.0;
   /// The foam lip seals on a surface met at an angle: besides the surface normal, each point
   /// is tried with the approach tilted toward the ideal approach (-opening direction) by
   /// max_tilt_rad * k / tilt_steps, k = 1..tilt_steps, never past the ideal approach
-  /// (max_tilt_rad = 0 or tilt_steps = 0 disable tilting).
-  double max_tilt_rad = 30.0 * EIGEN_PI / 180.0;
+  /// (max_tilt_rad = 0 or tilt_steps = 0 disable tilting). At most kSealAngleToleranceRad
+  /// (CheckOptions refuses more): the cup would not seal.
+  double max_tilt_rad = kSealAngleToleranceRad - kSealAngleMarginRad;
   int tilt_steps = 2;
+  /// In a shelf bin, an approach within this angle of horizontal is also tried pitched down
+  /// by the same tilts (the tube rising toward the opening, over the floor's front lip).
+  double max_pitch_from_horizontal_rad = 30.0 * EIGEN_PI / 180.0;
   /// Points further than this outside the container's inner box are rejected.
   double container_tolerance_m = 0.01;
   /// Candidates with less free distance behind the point than this are rejected (blocked).

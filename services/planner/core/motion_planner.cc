@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <optional>
 #include <sstream>
 
@@ -9,6 +10,12 @@
 
 namespace picking::planner {
 namespace {
+
+std::string Fixed(double v, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.*f", digits, v);
+  return buf;
+}
 
 double Seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
@@ -41,6 +48,18 @@ PlanFailure FromSearch(const std::string& stage, const std::string& grasp,
   }
   f.message = stage + " for grasp '" + grasp + "': " + search.Describe();
   return f;
+}
+
+// `first` followed by `second`, which starts where `first` ends.
+Trajectory Joined(const Trajectory& first, const Trajectory& second) {
+  Trajectory joined = first;
+  const double t0 = first.duration_s();
+  for (std::size_t i = 1; i < second.samples.size(); ++i) {
+    TrajectorySample s = second.samples[i];
+    s.time_s += t0;
+    joined.samples.push_back(s);
+  }
+  return joined;
 }
 
 // The camera at `p_Camera` looking at `p_Target`, its x axis horizontal (image rows level).
@@ -490,19 +509,160 @@ std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContaine
   return X_pre;
 }
 
-bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-                            const CarriedItem& carried, const FastChecker& fast,
-                            const MotionChecker& motion, JointVector* q_lift, double* lift_m,
-                            PlanFailure* failure, std::string* reason) const {
-  // Straight up off the support: the item rests on the floor or other items, so its check
-  // starts where the lift ends. The highest lift (up to lift_m) whose end leaves the item
-  // free of the scene: a tall item has little room below a bin's ceiling.
+bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
+                                PlanFailure* failure) const {
+  TubeReachOptions options;
+  options.lip_to_flange_m = robot_->gripper().X_ToolTcp.translation().z();
+  options.cup_length_m = robot_->gripper().cup_length_m;
+  options.tube_radius_m = robot_->gripper().tube_radius_m;
+  const TubeReachResult reach = CheckTubeReach(container, grasp, options);
+  if (reach.reaches) return true;
+  failure->stage = "descend";
+  failure->kind = "tube blocked";
+  failure->grasp = grasp.surface;
+  failure->body = BodyName(kBodyTool);
+  failure->obstacle = "shelf";
+  if (container.kind == GraspContainerKind::kTote) failure->obstacle = "tote";
+  failure->message = "descend for grasp '" + grasp.surface + "': " + reach.message;
+  return false;
+}
+
+std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& X_pre,
+                                                       const Eigen::Isometry3d& X_descend_end,
+                                                       const Eigen::Isometry3d& X_grasp,
+                                                       const JointVector& seed,
+                                                       const FastChecker& fast,
+                                                       PlanFailure* failure) const {
+  // The cartesian search keeps its start's IK branch, so a descent whose end pose collides
+  // (or has no IK) on that branch is hopeless however long it searches: take the free
+  // pre-grasp solution nearest to the start whose branch also holds both ends of the descent
+  // and the guarded move free.
+  const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
+  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  ur10::IkOptions ik_options;
+  ik_options.include_2pi_variants = true;
+  ur10::IkResult ik = kinematics.Solve(X_pre * X_TcpTool, ik_options);
+  if (ik.empty()) {
+    failure->stage = "pre-grasp";
+    failure->kind = "ik unreachable";
+    failure->message = "no IK solution: " + ik.reason;
+    return std::nullopt;
+  }
+  std::sort(ik.solutions.begin(), ik.solutions.end(), [&](const auto& a, const auto& b) {
+    return (a.q_rad - seed).cwiseAbs().sum() < (b.q_rad - seed).cwiseAbs().sum();
+  });
+  std::string first_reason;
+  CollisionReport first_hit;
+  bool any_free_pre = false;
+  for (const auto& s : ik.solutions) {
+    const CollisionReport at_pre = fast.Check(s.q_rad);
+    if (at_pre.in_collision) {
+      if (!first_hit.in_collision) first_hit = at_pre;
+      continue;
+    }
+    any_free_pre = true;
+    const ur10::Branch branch = kinematics.BranchOf(s.q_rad);
+    bool ok = true;
+    for (const auto& [X, what] : {std::pair{&X_descend_end, "the descent's end pose"},
+                                  std::pair{&X_grasp, "the grasp pose"}}) {
+      std::string reason;
+      const auto q = kinematics.NearestSolution(*X * X_TcpTool, s.q_rad, branch, &reason);
+      if (!q) {
+        if (first_reason.empty()) {
+          failure->kind = "ik unreachable";
+          first_reason = std::string(what) + " has no IK solution on branch " + branch.ToString() +
+                         " of the free pre-grasp";
+        }
+        ok = false;
+        break;
+      }
+      if (const CollisionReport r = fast.Check(q->q_rad); r.in_collision) {
+        if (first_reason.empty()) {
+          failure->kind = "collision";
+          failure->body = BodyName(r.body);
+          failure->obstacle = r.obstacle;
+          first_reason = std::string(what) + " itself collides on branch " + branch.ToString() +
+                         " of the free pre-grasp: " + r.ToString();
+        }
+        ok = false;
+        break;
+      }
+    }
+    if (ok) return s.q_rad;
+  }
+  if (!any_free_pre) {
+    failure->stage = "pre-grasp";
+    failure->kind = "collision";
+    failure->body = BodyName(first_hit.body);
+    failure->obstacle = first_hit.obstacle;
+    failure->message = "every IK solution collides (nearest: " + first_hit.ToString() + ")";
+    return std::nullopt;
+  }
+  failure->stage = "descend";
+  failure->message =
+      first_reason + " (checked before the search; no free pre-grasp branch holds it)";
+  return std::nullopt;
+}
+
+Eigen::Vector3d MotionPlanner::WallRelease(const GraspContainer& container,
+                                           const Eigen::Isometry3d& X_grasp,
+                                           const CarriedItem& carried) const {
+  // The item's box in the container frame; a shelf bin's back and side walls near it.
+  if (container.kind != GraspContainerKind::kShelfBin) return Eigen::Vector3d::Zero();
+  const Eigen::Isometry3d X_ContainerItem =
+      container.X_BaseContainer.inverse() * X_grasp * carried.X_TcpItem;
+  Eigen::AlignedBox3d box;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::AlignedBox3d& b = carried.box_Item;
+    box.extend(X_ContainerItem * Eigen::Vector3d((i & 1) ? b.max().x() : b.min().x(),
+                                                 (i & 2) ? b.max().y() : b.min().y(),
+                                                 (i & 4) ? b.max().z() : b.min().z()));
+  }
+  const Eigen::Vector3d o_Container =
+      container.X_BaseContainer.linear().transpose() * container.opening_direction_Base;
+  const Eigen::Vector3d half = 0.5 * container.inner_size_m;
+  const Eigen::Vector3d up_Container =
+      container.X_BaseContainer.linear().transpose() * Eigen::Vector3d::UnitZ();
+  Eigen::Vector3d shift = Eigen::Vector3d::Zero();
+  for (int axis = 0; axis < 3; ++axis) {
+    if (std::abs(up_Container[axis]) > 0.5) continue;  // floor and ceiling: the lift's business
+    const double low_gap = box.min()[axis] + half[axis];
+    const double high_gap = half[axis] - box.max()[axis];
+    // The opening side has no wall.
+    const bool low_wall = o_Container[axis] > -0.5, high_wall = o_Container[axis] < 0.5;
+    const double need = options_.wall_release_m;
+    if (low_wall && low_gap < need && (!high_wall || high_gap > 2.0 * need)) {
+      shift[axis] += need - low_gap;
+    } else if (high_wall && high_gap < need && (!low_wall || low_gap > 2.0 * need)) {
+      shift[axis] -= need - high_gap;
+    }
+  }
+  return container.X_BaseContainer.linear() * shift;
+}
+
+bool MotionPlanner::LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                            const JointVector& q_grasp, const CarriedItem& carried,
+                            const FastChecker& fast, const MotionChecker& motion,
+                            const ExactChecker& exact, JointVector* q_lift,
+                            Eigen::Vector3d* lift_Base, PlanFailure* failure,
+                            std::string* reason) const {
+  // Straight up off the support, and away from a bin wall the item leans against: it rests
+  // on the floor (or other items) and may touch a wall, so the fast check with the item
+  // starts where the lift ends, and must see the item free there by the motion check's
+  // padding (else no move of the retreat could start). The item's spheres stand up to
+  // 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift to
+  // draw it away (WallRelease). On the way, from lift_item_check_m up, the item's box is
+  // checked exactly. The highest lift (up to lift_m) that works: a tall item has little
+  // room below a bin's ceiling.
   const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
   const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
+  const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
   for (const double fraction : {1.0, 0.8, 0.6}) {
-    *lift_m = fraction * options_.lift_m;
+    const double lift_m = fraction * options_.lift_m;
+    *lift_Base = lift_m * Eigen::Vector3d::UnitZ() + release_Base;
     Eigen::Isometry3d X_lift = X_grasp;
-    X_lift.translation().z() += *lift_m;
+    X_lift.translation() += *lift_Base;
     const auto ik_lift = robot_->kinematics().NearestSolution(X_lift * X_TcpTool, q_grasp, branch);
     if (!ik_lift) {
       *reason = "the lift pose has no IK solution";
@@ -514,11 +674,27 @@ bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector&
       *reason = "the lift collides: " + m.report.ToString();
       continue;
     }
-    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried); r.in_collision) {
+    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried, padding); r.in_collision) {
       failure->body = BodyName(r.body);
       failure->obstacle = r.obstacle;
-      *reason = "after a lift of " + std::to_string(*lift_m) + " m " + r.ToString() +
-                " (clearance " + std::to_string(r.clearance_m) + " m)";
+      *reason = "after a lift of " + Fixed(lift_m, 3) + " m (and " + Fixed(release_Base.norm(), 3) +
+                " m away from the walls) " + r.ToString() + " (clearance " +
+                Fixed(r.clearance_m, 4) + " m, " + Fixed(padding, 4) +
+                " m needed to move on): the item is wedged in";
+      continue;
+    }
+    const int steps = std::max(2, static_cast<int>(std::ceil(lift_Base->norm() / 0.002)));
+    std::optional<CollisionReport> hit;
+    for (int k = 1; k <= steps && !hit; ++k) {
+      if (lift_m * k / steps < options_.lift_item_check_m) continue;
+      const JointVector q = q_grasp + (ik_lift->q_rad - q_grasp) * (double(k) / steps);
+      if (const CollisionReport r = exact.Check(q, &carried); r.in_collision) hit = r;
+    }
+    if (hit) {
+      failure->body = BodyName(hit->body);
+      failure->obstacle = hit->obstacle;
+      *reason = "lifting the item " + Fixed(lift_m, 3) + " m: " + hit->ToString() +
+                " (exact check of the item's box)";
       continue;
     }
     *q_lift = ik_lift->q_rad;
@@ -552,14 +728,19 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const std::optional<Eigen::Isometry3d> pre = PreGraspPose(container, grasp, &reason);
   if (!pre) return fail("pre-grasp", "ik unreachable", reason);
   const Eigen::Isometry3d& X_pre = *pre;
-  const auto q_pre = FreeIk(X_pre, request.start_rad, fast, nullptr, &reason);
-  if (!q_pre) return fail("pre-grasp", "ik unreachable", reason);
+  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
+  PlanFailure start_failure;
+  const auto q_pre =
+      DescentStart(X_pre, X_descend_end, X_grasp, request.start_rad, fast, &start_failure);
+  if (!q_pre) {
+    *failure = start_failure;  // body and obstacle
+    return fail(start_failure.stage, start_failure.kind, start_failure.message);
+  }
 
   // Descend along the approach to guarded_distance short of the grasp.
   CartesianSearchOptions search = options_.search;
   search.deadline = deadline;
   if (tote) search.max_lateral_steps = search.max_tilt_steps = 0;  // tote picks go straight
-  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
   const CartesianSearchResult descend =
       SearchCartesianPath(motion, *q_pre, X_descend_end, nullptr, search);
   plan->nodes_expanded += descend.nodes_expanded;
@@ -580,20 +761,20 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     failure->obstacle = m.report.obstacle;
     return fail("descend", "collision", "the guarded move collides: " + m.report.ToString());
   }
-  const Eigen::Vector3d lift_direction = Eigen::Vector3d::UnitZ();
   // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
   JointVector lifted;
-  double lift_m = 0.0;
+  Eigen::Vector3d lift_Base = Eigen::Vector3d::Zero();
   std::string lift_reason;
-  if (!LiftOff(X_grasp, *q_grasp, carried, fast, motion, &lifted, &lift_m, failure, &lift_reason)) {
+  if (!LiftOff(container, X_grasp, *q_grasp, carried, fast, motion, exact, &lifted, &lift_Base,
+               failure, &lift_reason)) {
     return fail("retreat", "collision", lift_reason);
   }
   const JointVector* q_lift = &lifted;
 
   // Retreat carrying the item, from the lift to the pre-grasp pose.
-  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_direction * lift_m);
+  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_Base);
   const CartesianSearchResult retreat =
       SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
   plan->nodes_expanded += retreat.nodes_expanded;
@@ -611,18 +792,12 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
                                    nullptr, "approach");
   plan->descend =
       TimeAndValidate(descend.path_rad, request.speed_fraction, motion, exact, nullptr, "descend");
-  // The lift itself is checked without the item (above); the item from the lift's end on.
+  // The lift is checked here without the item: LiftOff checked the item's box along it
+  // exactly; the fast check takes the item from the lift's end on.
   const Trajectory lift = TimeAndValidate({*q_grasp, *q_lift}, request.speed_fraction, motion,
                                           exact, nullptr, "retreat");
-  const Trajectory out =
-      TimeAndValidate(retreat.path_rad, request.speed_fraction, motion, exact, &carried, "retreat");
-  plan->retreat = lift;
-  const double t0 = lift.duration_s();
-  for (std::size_t i = 1; i < out.samples.size(); ++i) {
-    TrajectorySample s = out.samples[i];
-    s.time_s += t0;
-    plan->retreat.samples.push_back(s);
-  }
+  plan->retreat = Joined(lift, TimeAndValidate(retreat.path_rad, request.speed_fraction, motion,
+                                               exact, &carried, "retreat"));
   plan->guarded_direction_Base = a;
   plan->guarded_distance_m = options_.guarded_distance_m + options_.guarded_overshoot_m;
   return true;
@@ -663,12 +838,19 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   }
   PickPlan plan;
   std::vector<PlanFailure> failures;
-  const int tries = std::min<int>(options_.max_grasps_tried, grasps.candidates.size());
-  for (int g = 0; g < tries; ++g) {
+  const GraspContainer container = Container(request.container);
+  for (const GraspCandidate& candidate : grasps.candidates) {
+    if (plan.grasps_tried >= options_.max_grasps_tried) break;
+    // The tube's geometry at the grasp does not depend on the arm or the roll: a grasp it
+    // rules out is refused without IK or search, and does not count as tried.
+    PlanFailure blocked;
+    if (!TubeReaches(container, candidate, &blocked)) {
+      failures.push_back(blocked);
+      continue;
+    }
     ++plan.grasps_tried;
     // Suction is symmetric about the cup's axis: the wrist may take the grasp at another
     // roll where the first one runs into a joint limit, a wrist singularity or a wall.
-    const GraspCandidate& candidate = grasps.candidates[g];
     PlanFailure best;
     bool have_best = false;
     for (const double roll : {0.0, M_PI / 2, -M_PI / 2, M_PI}) {

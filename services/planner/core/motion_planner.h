@@ -13,6 +13,7 @@
 #include "libs/world/item_models.h"
 #include "services/planner/core/cartesian_search.h"
 #include "services/planner/core/collision_world.h"
+#include "services/planner/core/grasp_reach.h"
 #include "services/planner/core/grasps.h"
 #include "services/planner/core/roadmap.h"
 #include "services/planner/core/scene.h"
@@ -40,8 +41,15 @@ struct MotionPlannerOptions {
   double guarded_distance_m = 0.05;
   double guarded_overshoot_m = 0.04;
   /// The retreat's first straight lift, upward; the carried item is checked against the scene
-  /// from the lift's end on (it rests on its support before).
+  /// by the fast check from the lift's end on (it rests on its support before), exactly (its
+  /// box, FCL) from `lift_item_check_m` of lift on.
   double lift_m = 0.05;
+  double lift_item_check_m = 0.01;
+  /// An item within this of a bin's back or side wall is drawn away from it during the lift,
+  /// to this distance: the fast check's spheres stand up to 5.5 mm proud of the item's box
+  /// and the motion check pads them by max_travel_m / 2, so nearer than that to a wall no
+  /// move with the item could start.
+  double wall_release_m = 0.015;
   /// The pre-grasp pose lies on the approach line this far outside the bin's opening plane,
   /// or this far above the tote's rim.
   double pregrasp_clearance_m = 0.10;
@@ -49,7 +57,9 @@ struct MotionPlannerOptions {
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
   double max_pregrasp_back_m = 0.45;
-  /// Grasps tried, best first, before the pick is given up.
+  /// Grasps searched, best first, before the pick is given up. Grasps refused by the checks
+  /// before the search (the tube through the opening, the descent's end pose) cost
+  /// microseconds and are not counted.
   int max_grasps_tried = 8;
   /// Trajectory timing: the blend tolerance at corners and the output sample period.
   double blend_deviation_rad = 0.02;
@@ -71,7 +81,8 @@ struct PlanFailure {
   std::string stage;  ///< "start", "grasps", "pre-grasp", "descend", "retreat", "approach",
                       ///< "place", "validation".
   std::string kind;   ///< "collision", "ik unreachable", "joint jump", "node budget spent",
-                      ///< "deadline", "no grasp", "no path".
+                      ///< "deadline", "no grasp", "no path", "tube blocked" (the straight
+                      ///< tube at the grasp crosses the container's wall: CheckTubeReach).
   std::string grasp;  ///< The grasp's surface, when one was being tried.
   int node = -1;      ///< Search node where it stopped.
   double fraction_achieved = 0.0;
@@ -211,10 +222,18 @@ class MotionPlanner final {
   std::optional<Eigen::Isometry3d> PreGraspPose(const GraspContainer& container,
                                                 const GraspCandidate& grasp,
                                                 std::string* reason) const;
-  bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-               const CarriedItem& carried, const FastChecker& fast, const MotionChecker& motion,
-               JointVector* q_lift, double* lift_m, PlanFailure* failure,
-               std::string* reason) const;
+  bool TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
+                   PlanFailure* failure) const;
+  std::optional<JointVector> DescentStart(const Eigen::Isometry3d& X_pre,
+                                          const Eigen::Isometry3d& X_descend_end,
+                                          const Eigen::Isometry3d& X_grasp, const JointVector& seed,
+                                          const FastChecker& fast, PlanFailure* failure) const;
+  Eigen::Vector3d WallRelease(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                              const CarriedItem& carried) const;
+  bool LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+               const JointVector& q_grasp, const CarriedItem& carried, const FastChecker& fast,
+               const MotionChecker& motion, const ExactChecker& exact, JointVector* q_lift,
+               Eigen::Vector3d* lift_Base, PlanFailure* failure, std::string* reason) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                 const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
                 const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "services/planner/core/grasp_reach.h"
+
 #include <cstdlib>
 
 #include <cmath>
@@ -12,6 +14,7 @@
 #include <map>
 #include <random>
 #include <sstream>
+#include <tuple>
 
 #include "libs/world/cell_config.h"
 #include "libs/world/item_shapes.h"
@@ -411,6 +414,8 @@ TEST(ComputeGraspsTest, EveryItemInEveryBinAndTheTote) {
   ASSERT_EQ(f.cell.bins.size(), 12u);
   std::mt19937 rng(2016);
   std::uniform_real_distribution<double> jitter(-10.0 * kDeg, 10.0 * kDeg);
+  // Flat items show only their top face, which the seal tolerance's tilt brings no nearer
+  // than 73 deg to the opening direction: the default 80 deg gives every item candidates.
   const GraspOptions options;
   for (const apc::Item& item : f.catalogue.items()) {
     const Eigen::Vector3d size = SizeOf(item.name);
@@ -455,19 +460,34 @@ TEST(ComputeGraspsTest, ContainersOfTheCell) {
   EXPECT_THROW(ToteContainer(f.cell, 10.0), std::invalid_argument);
 }
 
-// A flat item lying on a bin floor: its top face is approached with the cup tilted toward the
-// opening (straight down is 90 deg from the opening direction).
-TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveWithATilt) {
+// A flat item lying on a bin floor: its top face can only be approached with the cup tilted
+// toward the opening (straight down is 90 deg from the opening direction), and no further
+// than the cup's seal tolerance allows.
+TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance) {
   const Fixture& f = F();
   const std::string item = "jane_eyre_dvd";
   const GraspContainer container = ShelfBinContainer(f.cell, "bin_E");
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
-  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container);
+  const GraspOptions defaults;
+  EXPECT_NEAR(defaults.max_tilt_rad, kSealAngleToleranceRad - kSealAngleMarginRad, 1e-12);
+  // Tilted by the largest tilt the seal allows, the top face is still 73 deg from the
+  // opening direction: out with a 70 deg limit, ...
+  GraspOptions narrow;
+  narrow.max_approach_angle_rad = 70.0 * kDeg;
+  const GraspResult steep = ComputeGrasps(f.table, item, X_BaseItem, container, narrow);
+  for (const GraspCandidate& c : steep.candidates) EXPECT_NE(c.surface, "+z face");
+  // ... in with the default 80 deg (the planner's tube test decides whether it can be
+  // reached), tilted by max_tilt_rad.
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, defaults);
   ASSERT_FALSE(result.empty()) << result.reason;
   EXPECT_EQ(result.best().surface, "+z face");
-  EXPECT_NEAR(result.best().tilt_rad, 30.0 * kDeg, 1e-9);
-  EXPECT_NEAR(result.best().approach_angle_rad, 60.0 * kDeg, 1e-9);
+  EXPECT_NEAR(result.best().tilt_rad, defaults.max_tilt_rad, 1e-9);
+  EXPECT_NEAR(result.best().approach_angle_rad, 90.0 * kDeg - defaults.max_tilt_rad, 1e-9);
   EXPECT_GT(result.rejected_approach_angle, 0);  // Straight down, the bottom face, ...
+  // A tilt beyond the seal tolerance is refused: the cup would not seal.
+  GraspOptions too_far;
+  too_far.max_tilt_rad = kSealAngleToleranceRad + 0.01;
+  EXPECT_THROW(ComputeGrasps(f.table, item, X_BaseItem, container, too_far), std::invalid_argument);
   // Without tilting there is nothing, and the reason says what to change.
   GraspOptions no_tilt;
   no_tilt.max_tilt_rad = 0.0;
@@ -484,6 +504,31 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveWithATilt) {
   // Allowing 90 deg accepts the straight approach from above, but the tilted one still wins.
   no_tilt.max_approach_angle_rad = 90.0 * kDeg;
   EXPECT_FALSE(ComputeGrasps(f.table, item, X_BaseItem, container, no_tilt).empty());
+}
+
+// A face toward the opening is also offered pitched down, the tube rising toward the
+// opening over the floor's front lip, by the same tilts (within the seal tolerance).
+TEST(ComputeGraspsTest, AFaceTowardTheOpeningIsAlsoPitchedDown) {
+  const Fixture& f = F();
+  const std::string item = "kleenex_tissue_box";
+  const GraspContainer container = ShelfBinContainer(f.cell, "bin_E");
+  const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
+  const GraspOptions options;
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, options);
+  int straight = 0, pitched = 0;
+  for (const GraspCandidate& c : result.candidates) {
+    if (c.approach_angle_rad > 1e-6 &&
+        c.surface_approach_Base.dot(Eigen::Vector3d::UnitX()) > 0.999) {
+      ++pitched;
+      EXPECT_LT(c.approach_Base.z(), 0.0) << c.surface;  // down into the bin
+      EXPECT_LE(c.tilt_rad, options.max_tilt_rad + 1e-12);
+      EXPECT_NEAR(c.approach_angle_rad, c.tilt_rad, 1e-9);
+    } else if (c.approach_angle_rad < 1e-6) {
+      ++straight;
+    }
+  }
+  EXPECT_GE(straight, 1);
+  EXPECT_EQ(pitched, options.tilt_steps * straight);
 }
 
 // An item standing with a big face toward the opening prefers that face, straight in.
@@ -541,12 +586,17 @@ TEST(ComputeGraspsTest, MovingItemAndContainerMovesTheGrasps) {
       const GraspResult b = ComputeGrasps(f.table, item, T * X_BaseItem, moved);
       ASSERT_EQ(a.candidates.size(), b.candidates.size());
       EXPECT_EQ(a.rejected.size(), b.rejected.size());
-      std::map<std::pair<int, long>, const GraspCandidate*> by_key;
-      for (const GraspCandidate& c : b.candidates) {
-        by_key[{c.point_index, std::lround(c.tilt_rad * 1e6)}] = &c;
-      }
+      // A point's tilts toward the opening and its pitches down may share a tilt angle: the
+      // approach's height in the container tells them apart.
+      auto key = [](const GraspCandidate& c, const GraspContainer& box) {
+        const double height = (box.X_BaseContainer.linear().transpose() * c.approach_Base).z();
+        return std::tuple<int, long, long>{c.point_index, std::lround(c.tilt_rad * 1e6),
+                                           std::lround(height * 1e4)};
+      };
+      std::map<std::tuple<int, long, long>, const GraspCandidate*> by_key;
+      for (const GraspCandidate& c : b.candidates) by_key[key(c, moved)] = &c;
       for (const GraspCandidate& ca : a.candidates) {
-        const auto it = by_key.find({ca.point_index, std::lround(ca.tilt_rad * 1e6)});
+        const auto it = by_key.find(key(ca, container));
         ASSERT_NE(it, by_key.end()) << ca.surface;
         const GraspCandidate& cb = *it->second;
         EXPECT_LT((cb.p_BasePoint - T * ca.p_BasePoint).norm(), 1e-9);
@@ -608,7 +658,10 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
 
   // The callback is asked from the point backwards along the approach, up to max_clearance_m.
-  GraspOptions options;
+  // 80 deg from the opening admits the tilted top face.
+  GraspOptions wide;
+  wide.max_approach_angle_rad = 80.0 * kDeg;
+  GraspOptions options = wide;
   int calls = 0;
   options.clearance = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& d, double max_m) {
     ++calls;
@@ -641,7 +694,7 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
 
   // Pure geometry: a tilted approach to the top face leaves the bin through its ceiling or its
   // opening; the face toward the opening leaves through the opening (full clearance).
-  const GraspResult g = ComputeGrasps(f.table, item, X_BaseItem, container);
+  const GraspResult g = ComputeGrasps(f.table, item, X_BaseItem, container, wide);
   bool saw_top = false, saw_front = false;
   for (const GraspCandidate& c : g.candidates) {
     if (c.surface == "+z face") {
@@ -661,7 +714,7 @@ TEST(ComputeGraspsTest, ClearanceCallbackAndGeometry) {
   Eigen::Isometry3d X_ShelfItem = f.cell.config.X_BaseShelf.inverse() * X_BaseItem;
   X_ShelfItem.translation().z() = bin.inner_S.max().z() - SizeOf(item).z() / 2.0 - 0.005;
   const GraspResult high =
-      ComputeGrasps(f.table, item, f.cell.config.X_BaseShelf * X_ShelfItem, container);
+      ComputeGrasps(f.table, item, f.cell.config.X_BaseShelf * X_ShelfItem, container, wide);
   ASSERT_FALSE(high.empty());
   for (const GraspCandidate& c : high.candidates) EXPECT_NE(c.surface, "+z face");
   EXPECT_GT(high.rejected_blocked, 0);
@@ -786,6 +839,81 @@ TEST(GraspTableGenerator, DefaultRuleWritesAValidTable) {
   const GraspTable table = GraspTable::FromYaml("version: 1\ncup_diameter_m: 0.04\n" + out.str(),
                                                 "generated", catalogue);
   EXPECT_EQ(table.size(), catalogue.size());
+}
+
+// ---------------------------------------------------------------------------------------------
+// The straight tube through the opening.
+
+// A 0.40 m deep, 0.30 m wide, 0.20 m high box with its opening toward +x, and a grasp at
+// `p` whose approach is `angle_deg` from straight in (-x), tilted toward -z (down).
+GraspCandidate GraspAt(const Eigen::Vector3d& p, double angle_deg) {
+  GraspCandidate grasp;
+  grasp.surface = "+z face";
+  grasp.p_BasePoint = p;
+  const double a = angle_deg * kDeg;
+  grasp.approach_Base = Eigen::Vector3d(-std::cos(a), 0.0, -std::sin(a));
+  return grasp;
+}
+
+GraspContainer TestBin() {
+  GraspContainer bin;
+  bin.name = "test bin";
+  bin.inner_size_m = Eigen::Vector3d(0.40, 0.30, 0.20);
+  bin.opening_direction_Base = Eigen::Vector3d::UnitX();
+  return bin;
+}
+
+TEST(TubeReachTest, ATopFaceDeepInALowBinIsOutOfReach) {
+  const GraspContainer bin = TestBin();
+  // 60 deg from the opening, on the floor 0.30 m behind it: the tube rises 0.87 m per metre
+  // and leaves the 0.20 m bin through the ceiling about 0.21 m from the cup.
+  const TubeReachResult deep = CheckTubeReach(bin, GraspAt({-0.10, 0.0, -0.09}, 60.0));
+  EXPECT_FALSE(deep.reaches);
+  EXPECT_EQ(deep.wall, "ceiling");
+  EXPECT_NEAR(deep.depth_m, 0.30, 1e-9);
+  EXPECT_NEAR(deep.container_size_m, 0.20, 1e-9);
+  EXPECT_NEAR(deep.angle_rad, 60.0 * kDeg, 1e-9);
+  // The surface (0.01 m above the axis at 60 deg) meets the ceiling at z = 0.10.
+  EXPECT_NEAR(deep.meets_at_m, (0.19 - 0.02 * std::cos(60.0 * kDeg)) / std::sin(60.0 * kDeg), 1e-9);
+  EXPECT_GT(deep.penetration_m, 0.05);
+  EXPECT_NE(deep.message.find("ceiling"), std::string::npos) << deep.message;
+  EXPECT_NE(deep.message.find("0.30 m deep in a 0.20 m-high bin"), std::string::npos)
+      << deep.message;
+  // The same face 3 cm behind the opening: the tube is out of the bin before it rises.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({0.17, 0.0, -0.09}, 60.0)).reaches);
+  // Straight in at mid height reaches from the back wall.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({-0.19, 0.0, 0.0}, 0.0)).reaches);
+}
+
+TEST(TubeReachTest, WallsFloorAndTolerance) {
+  const GraspContainer bin = TestBin();
+  // Coming up from below toward the opening: the floor.
+  GraspCandidate up = GraspAt({-0.10, 0.0, 0.05}, -40.0);
+  up.surface = "-z face";
+  EXPECT_EQ(CheckTubeReach(bin, up).wall, "floor");
+  // Sideways, 60 deg toward +y: a side wall.
+  GraspCandidate side;
+  side.surface = "side";
+  side.p_BasePoint = Eigen::Vector3d(-0.10, 0.0, 0.0);
+  side.approach_Base = Eigen::Vector3d(-0.5, -std::sqrt(0.75), 0.0);
+  const TubeReachResult wall = CheckTubeReach(bin, side);
+  EXPECT_EQ(wall.wall, "side wall");
+  EXPECT_NE(wall.message.find("m-wide bin"), std::string::npos) << wall.message;
+  // Straight in, the tube's surface 5 mm past the ceiling: within the tolerance; 15 mm: not.
+  EXPECT_TRUE(CheckTubeReach(bin, GraspAt({-0.10, 0.0, 0.085}, 0.0)).reaches);
+  EXPECT_FALSE(CheckTubeReach(bin, GraspAt({-0.10, 0.0, 0.095}, 0.0)).reaches);
+  // A rotated, moved container gives the same answers.
+  GraspContainer moved = bin;
+  moved.X_BaseContainer =
+      Eigen::Translation3d(1.2, -0.3, 0.5) * Eigen::AngleAxisd(EIGEN_PI, Eigen::Vector3d::UnitZ());
+  moved.opening_direction_Base = -Eigen::Vector3d::UnitX();
+  GraspCandidate deep = GraspAt({-0.10, 0.0, -0.09}, 60.0);
+  deep.p_BasePoint = moved.X_BaseContainer * deep.p_BasePoint;
+  deep.approach_Base = moved.X_BaseContainer.linear() * deep.approach_Base;
+  const TubeReachResult turned = CheckTubeReach(moved, deep);
+  EXPECT_FALSE(turned.reaches);
+  EXPECT_EQ(turned.wall, "ceiling");
+  EXPECT_NEAR(turned.depth_m, 0.30, 1e-9);
 }
 
 }  // namespace

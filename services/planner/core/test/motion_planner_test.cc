@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
 #include "libs/errors/errors.h"
 
 namespace picking::planner {
@@ -35,12 +37,17 @@ class MotionPlannerTest : public ::testing::Test {
 
   // An item lying on the floor of `bin`, 12 cm behind the opening, and a scan of it: points
   // on the item's box surface and on the bin's floor.
+  // With `wall_gap_m` >= 0 the item lies that far from the bin's side wall at -y instead of
+  // in the middle.
   static std::pair<Eigen::Isometry3d, std::vector<float>> ItemInBin(const std::string& bin,
-                                                                    const std::string& item) {
+                                                                    const std::string& item,
+                                                                    double wall_gap_m = -1.0) {
     const auto& cell = planner_->cell().cell();
     const Eigen::Vector3d size = items_->Get(item)->box_I.sizes();
     const world::BinGeometry& geometry = cell.bin(bin);
-    const Eigen::Vector3d c_S(geometry.opening_x_m - 0.12, geometry.inner_S.center().y(),
+    const double y_S = wall_gap_m < 0.0 ? geometry.inner_S.center().y()
+                                        : geometry.inner_S.min().y() + 0.5 * size.x() + wall_gap_m;
+    const Eigen::Vector3d c_S(geometry.opening_x_m - 0.12, y_S,
                               geometry.floor_max_z_m + 0.5 * size.z() + 0.002);
     // Item frame: long side across the bin (shelf y), middle side along the depth, short
     // side up.
@@ -141,9 +148,97 @@ TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
       1e-4);
 }
 
+// An item lying 3 mm from a side wall: its spheres stand up to 5.5 mm proud of its box, so
+// the lift draws it away from the wall before the retreat (which could not start otherwise).
+TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromTheWallItLeansOn) {
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box", 0.003);
+  const PlanningScene scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
+  PickRequest request;
+  request.item = "kleenex_tissue_box";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
+  // The lift's end: the last retreat sample before the tcp heads out toward the opening
+  // (shelf +x); the lift itself goes up and sideways only.
+  const auto& cell = planner_->cell().cell();
+  const Eigen::Isometry3d X_ShelfBase = cell.config.X_BaseShelf.inverse();
+  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
+  double moved_m = 0.0, lifted_m = 0.0;
+  for (const TrajectorySample& s : plan.retreat.samples) {
+    const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
+    if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
+    moved_m = p_S.y() - p0_S.y();  // away from the wall at -y
+    lifted_m = p_S.z() - p0_S.z();
+  }
+  EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
+  EXPECT_NEAR(moved_m, planner_->options().wall_release_m - 0.003, 2e-3);
+}
+
+// The tube test refuses a grasp before any search; it must only refuse what the shelf's
+// mesh really blocks: for seeded random grasps in every bin, a refused one has its tube
+// within the sampling gap of the mesh. The solid cylinder is sampled from the lip (in the
+// bin's free box) to the flange, every 2 mm along and 15 deg around, on its axis, half
+// radius and surface: a tube that ends inside the shelf's solid boards crosses their surface
+// on the way (distances to a mesh are unsigned).
+TEST_F(MotionPlannerTest, ATubeTheReachTestRefusesTouchesTheShelf) {
+  const StaticCell& cell = planner_->cell();
+  std::size_t shelf = 0;
+  while (cell.grids()[shelf].name != "shelf") ++shelf;
+  const GripperGeometry& gripper = planner_->robot().gripper();
+  TubeReachOptions options;
+  options.lip_to_flange_m = gripper.X_ToolTcp.translation().z();
+  options.cup_length_m = gripper.cup_length_m;
+  options.tube_radius_m = gripper.tube_radius_m;
+  const double r = options.tube_radius_m;
+  const float gap = 0.003f;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int refused = 0, reached = 0;
+  for (const world::BinGeometry& bin : cell.cell().bins) {
+    const GraspContainer container = ShelfBinContainer(cell.cell(), bin.name);
+    for (int i = 0; i < 150; ++i) {
+      GraspCandidate grasp;
+      grasp.surface = "random";
+      const Eigen::Vector3d p_Shelf =
+          bin.inner_S.min() +
+          bin.inner_S.sizes().cwiseProduct(Eigen::Vector3d(u(rng), u(rng), u(rng)));
+      grasp.p_BasePoint = cell.cell().config.X_BaseShelf * p_Shelf;
+      // Within 75 deg of straight in, any side.
+      const double tilt = 75.0 * M_PI / 180.0 * u(rng), turn = 2.0 * M_PI * u(rng);
+      const Eigen::Vector3d in_Shelf(-std::cos(tilt), std::sin(tilt) * std::cos(turn),
+                                     std::sin(tilt) * std::sin(turn));
+      const Eigen::Vector3d a = cell.cell().config.X_BaseShelf.linear() * in_Shelf;
+      grasp.approach_Base = a;
+      const TubeReachResult reach = CheckTubeReach(container, grasp, options);
+      if (reach.reaches) {
+        ++reached;
+        continue;
+      }
+      ++refused;
+      const Eigen::Vector3d e1 = a.unitOrthogonal(), e2 = a.cross(e1);
+      bool touches = false;
+      for (double s = 0.0; s <= options.lip_to_flange_m && !touches; s += 0.002) {
+        for (const double rho : {0.0, 0.5 * r, r}) {
+          for (int k = 0; k < (rho > 0.0 ? 24 : 1) && !touches; ++k) {
+            const double phi = k * M_PI / 12.0;
+            const Eigen::Vector3d p =
+                grasp.p_BasePoint - s * a + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
+            touches = cell.SurfaceDistance(shelf, p.cast<float>(), gap) < gap;
+          }
+        }
+      }
+      EXPECT_TRUE(touches) << bin.name << ": " << reach.message;
+    }
+  }
+  EXPECT_GT(refused, 200);
+  EXPECT_GT(reached, 200);
+}
+
 TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
   // The item pose is inside the shelf's side wall between bins D and E: every grasp fails,
-  // each with a stage and a kind.
+  // each with a stage and a kind, before any search.
   const auto& cell = planner_->cell().cell();
   const auto& d = cell.bin("bin_D");
   const auto& e = cell.bin("bin_E");
@@ -165,6 +260,8 @@ TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
       EXPECT_FALSE(f.stage.empty());
       EXPECT_FALSE(f.kind.empty());
       EXPECT_FALSE(f.message.empty());
+      // Refused before any search (the tube test, the goal poses): no search node.
+      EXPECT_EQ(f.node, -1) << f.message;
     }
   }
 }
