@@ -7,11 +7,11 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
-#include <csignal>
 
 #include "libs/apc/catalogue.h"
 #include "libs/apc/scoring.h"
@@ -224,6 +224,65 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
   EXPECT_NE(out.find(std::to_string(score.total) + "  total"), std::string::npos) << out;
 }
 
+// A stow task: stow_layout_1's tote items into the bins. The output file must say where
+// every item really is; each stowed item is in a bin by the simulator's truth.
+TEST_F(TaskPickTest, StowLayout1TheOutputFileMatchesTheSimulatorsTruth) {
+  const std::string task_json =
+      ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/stow_layout_1.json");
+  {
+    auto sim_stub = sim::SimulatorService::NewStub(simulator_->Channel());
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest request;
+    request.set_task_json(task_json);
+    request.set_seed(7);
+    sim::LoadLayoutResponse loaded;
+    ASSERT_TRUE(sim_stub->LoadLayout(&ctx, request, &loaded).ok());
+  }
+  auto stub = orch::OrchestratorService::NewStub(orchestrator_->Channel());
+  orch::StartTaskResponse started;
+  {
+    grpc::ClientContext ctx;
+    orch::StartTaskRequest request;
+    request.set_task_json(task_json);
+    request.set_kind(orch::TASK_KIND_STOW);
+    request.set_time_limit_s(300.0);
+    const grpc::Status status = stub->StartTask(&ctx, request, &started);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    orch::WatchTaskRequest request;
+    request.set_task_id(started.task_id());
+    auto reader = stub->WatchTask(&ctx, request);
+    orch::TaskEvent event;
+    while (reader->Read(&event)) {
+      std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
+                  event.message().c_str());
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+  }
+  orch::GetTaskResponse task;
+  {
+    grpc::ClientContext ctx;
+    orch::GetTaskRequest request;
+    request.set_task_id(started.task_id());
+    ASSERT_TRUE(stub->GetTask(&ctx, request, &task).ok());
+  }
+  ASSERT_EQ(task.state(), orch::TASK_STATE_SUCCEEDED) << task.error();
+  EXPECT_EQ(task.kind(), orch::TASK_KIND_STOW);
+  std::printf("stowed %u of %u, score %d\n", task.result().items_moved(), task.items_total(),
+              task.result().score());
+  const apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
+  apc::Task reported = apc::ParseTask(ReadText(task.result().output_file()), catalogue, "output");
+  for (auto& [bin, items] : reported.bin_contents) std::sort(items.begin(), items.end());
+  std::sort(reported.tote_contents.begin(), reported.tote_contents.end());
+  const apc::Task true_contents = TrueContents(Truth());
+  EXPECT_EQ(reported.tote_contents, true_contents.tote_contents);
+  for (const auto& [bin, items] : true_contents.bin_contents) {
+    EXPECT_EQ(reported.bin_contents[bin], items) << bin;
+  }
+}
+
 // Faults mid-task: one of two detector replicas is killed at the first detection, then the
 // orchestrator itself right after its first item lands in the tote. A new orchestrator on the
 // same task folder resumes the task: nothing is lost (the output file matches the truth) and
@@ -237,8 +296,10 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
   const std::vector<std::string> flags = {
       "--tasks_dir=" + *dir_ + "/fault_tasks",
       "--detector.endpoints=" + second_detector->address() + "," + detector_->address(),
-      "--detector.health_period_s=1", "--scanner.address=" + scanner_->address(),
-      "--planner.address=" + planner_->address(), "--robot.address=" + robot_->address(),
+      "--detector.health_period_s=1",
+      "--scanner.address=" + scanner_->address(),
+      "--planner.address=" + planner_->address(),
+      "--robot.address=" + robot_->address(),
       "--gripper.address=" + gripper_->address()};
   auto orchestrator = std::make_unique<ServerProcess>(ServerBinary("picking-orchestrator"), flags);
   auto stub = orch::OrchestratorService::NewStub(orchestrator->Channel());

@@ -316,6 +316,15 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
+  if (options_.verify_after_lift && !TargetLeftItsPlace(target, report)) {
+    const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
+    AddTime(report, "verify", back.robot_s);
+    target.last_failure =
+        "verification: the target is still where it was found, the cup held "
+        "another item (put back)";
+    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
+    return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
+  }
   journal_.Append("begin", Key(target, "place"), clock_s_);
   PlaceOutcome placed{false, "no bin has room for it", 0.0, 0.0};
   std::string to;
@@ -354,6 +363,24 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   report.placed_in = to;
   RecordPlaced(target, to, placed.drop_height_m);
   return Attempt::kPicked;
+}
+
+// The vacuum says something is held, not what: a second sign from the wrist camera, which
+// looks into the container from the end of the retreat.
+bool PickTaskRunner::TargetLeftItsPlace(Target& target, TargetReport& report) {
+  Emit(&target, Step::kVerify, true, "looking back into " + target.bin);
+  const auto start = Clock::now();
+  const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
+  const Detection seen =
+      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, {view}); });
+  AddTime(report, "verify", std::max(view.capture_s, 0.0) + Seconds(start));
+  const bool still_there =
+      seen.found &&
+      (seen.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm() <
+          options_.verify_same_pose_m;
+  Emit(&target, Step::kVerify, !still_there,
+       still_there ? "the target is still there" : "the target has left its place");
+  return !still_there;
 }
 
 PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report) {

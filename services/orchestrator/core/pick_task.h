@@ -48,6 +48,11 @@ struct PickTaskOptions {
   std::map<std::string, double> bin_volume_m3;
   /// Stow: a bin is considered only while its items fill less than this fraction of it.
   double max_bin_fill = 0.6;
+  /// After the lift, one view from where the arm is (the wrist camera looks into the
+  /// container) and a detection of the target: if it is still where it was found (within
+  /// `verify_same_pose_m`), the cup holds something else and it is put back.
+  bool verify_after_lift = true;
+  double verify_same_pose_m = 0.03;
 };
 
 /// What happened to one target.
@@ -98,6 +103,8 @@ class PickTaskRunner final {
   Attempt TryTarget(Target& target, TargetReport& report);
   bool ScanAndDetect(Target& target, TargetReport& report, std::vector<ScanView>& views);
   Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan);
+  /// True when the look back into the container does not see the target where it was.
+  bool TargetLeftItsPlace(Target& target, TargetReport& report);
   void ResumeFromJournal();
   void FinishCarriedItem();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
