@@ -165,9 +165,11 @@ class Display {
  public:
   explicit Display(double time_limit_s) : time_limit_s_(time_limit_s) {}
   void Show(const pb::TaskEvent& e) {
+    // A line per finished attempt: placed (the event names where to) or failed.
     const bool item_line =
-        !e.item().empty() && (e.step() == pb::STEP_UNSPECIFIED ||
-                              (e.step() == pb::STEP_PLACE && e.message() == "in the tote"));
+        !e.item().empty() &&
+        (e.step() == pb::STEP_UNSPECIFIED ||
+         (e.step() == pb::STEP_PLACE && e.to() != picking::common::v1::CONTAINER_UNSPECIFIED));
     if (e.state() != pb::TASK_STATE_RUNNING) {
       std::printf("\r\033[K%s: %s\n", StateName(e.state()), e.message().c_str());
       return;

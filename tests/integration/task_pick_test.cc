@@ -324,7 +324,7 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
         EXPECT_EQ(second_detector->Stop(), 128 + SIGKILL);
         second_detector.reset();
       }
-      if (event.step() == orch::STEP_PLACE && event.message() == "in the tote") {
+      if (event.step() == orch::STEP_PLACE && event.to() == common::v1::CONTAINER_TOTE) {
         first_placed = event.item();
         ::kill(orchestrator->pid(), SIGKILL);
         break;

@@ -116,6 +116,10 @@ class CellPort {
   /// Puts a held item back where it was grasped (the retreat backwards), releases it and
   /// leaves the container again: the way out when no place can be planned.
   virtual StepOutcome PutBack(const PlannedPick& pick) = 0;
+  /// How well `item`, hanging from the cup as grasped, is supported by `view` (the detector's
+  /// Verify score in [0, 1]); -1 when the view shows too little of it to tell.
+  virtual double VerifyHeld(const std::string& item, const PlannedPick& pick,
+                            const ScanView& view) = 0;
 };
 
 }  // namespace picking::orchestrator

@@ -316,12 +316,11 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
-  if (options_.verify_after_lift && !TargetLeftItsPlace(target, report)) {
+  const std::string wrong = options_.verify_after_lift ? LookBack(target, report, plan) : "";
+  if (!wrong.empty()) {
     const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
     AddTime(report, "verify", back.robot_s);
-    target.last_failure =
-        "verification: the target is still where it was found, the cup held "
-        "another item (put back)";
+    target.last_failure = "verification: " + wrong + " (put back)";
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
   }
@@ -366,21 +365,36 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
 }
 
 // The vacuum says something is held, not what: a second sign from the wrist camera, which
-// looks into the container from the end of the retreat.
-bool PickTaskRunner::TargetLeftItsPlace(Target& target, TargetReport& report) {
+// looks into the container from the end of the retreat. If the target is still where it was
+// found, or the held item does not look like it, the cup holds something else. A look back
+// that fails (nothing decodable in view, a service refusing) cannot tell: the vacuum decides.
+std::string PickTaskRunner::LookBack(Target& target, TargetReport& report,
+                                     const PlannedPick& plan) {
   Emit(&target, Step::kVerify, true, "looking back into " + target.bin);
   const auto start = Clock::now();
-  const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
-  const Detection seen =
-      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, {view}); });
-  AddTime(report, "verify", std::max(view.capture_s, 0.0) + Seconds(start));
-  const bool still_there =
-      seen.found &&
-      (seen.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm() <
-          options_.verify_same_pose_m;
-  Emit(&target, Step::kVerify, !still_there,
-       still_there ? "the target is still there" : "the target has left its place");
-  return !still_there;
+  std::string wrong;
+  try {
+    const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
+    clock_s_ += view.capture_s;  // the arm holds still for the capture
+    const Detection seen =
+        WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, {view}); });
+    const double score =
+        WithRetries("verify", [&] { return cell_.VerifyHeld(target.item, plan, view); });
+    if (seen.found &&
+        (seen.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm() <
+            options_.verify_same_pose_m) {
+      wrong = "the target is still where it was found; the cup holds another item";
+    } else if (score >= 0.0 && score < options_.verify_min_score) {
+      wrong = "the held item does not look like " + target.item + " (verify score " +
+              std::to_string(score) + ")";
+    }
+    Emit(&target, Step::kVerify, wrong.empty(),
+         wrong.empty() ? "the held item may be the target" : wrong);
+  } catch (const CellError& e) {
+    Emit(&target, Step::kVerify, true, std::string("look back inconclusive: ") + e.what());
+  }
+  AddTime(report, "verify", Seconds(start));
+  return wrong;
 }
 
 PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report) {
@@ -428,7 +442,10 @@ PickTaskResult PickTaskRunner::Run() {
         reports[i].failure = target.done ? "" : target.last_failure;
         if (attempt == Attempt::kLostCarried) target.given_up = true;  // its place is unknown
         Emit(&target, target.done ? Step::kPlace : Step::kNone, target.done,
-             target.done ? "in " + reports[i].placed_in : target.last_failure,
+             target.done
+                 ? (reports[i].placed_in == apc::kToteLocation ? "in the tote"
+                                                               : "in " + reports[i].placed_in)
+                 : target.last_failure,
              target.done ? reports[i].placed_in : "");
       }
     }

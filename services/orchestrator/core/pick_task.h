@@ -53,6 +53,9 @@ struct PickTaskOptions {
   /// `verify_same_pose_m`), the cup holds something else and it is put back.
   bool verify_after_lift = true;
   double verify_same_pose_m = 0.03;
+  /// ... and the held item, at its grasp, must be supported by that view at least this much
+  /// (the detector's Verify score) when the view shows it.
+  double verify_min_score = 0.3;
 };
 
 /// What happened to one target.
@@ -103,8 +106,9 @@ class PickTaskRunner final {
   Attempt TryTarget(Target& target, TargetReport& report);
   bool ScanAndDetect(Target& target, TargetReport& report, std::vector<ScanView>& views);
   Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan);
-  /// True when the look back into the container does not see the target where it was.
-  bool TargetLeftItsPlace(Target& target, TargetReport& report);
+  /// The look back after the lift: "" when the held item may be the target (or the view
+  /// cannot tell), else why it is not.
+  std::string LookBack(Target& target, TargetReport& report, const PlannedPick& plan);
   void ResumeFromJournal();
   void FinishCarriedItem();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);

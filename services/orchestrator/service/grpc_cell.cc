@@ -373,6 +373,23 @@ StepOutcome GrpcCell::ExecuteRetreat(const PlannedPick& pick) {
   return {true, "", moved.duration_s() + Execute(retreat)};
 }
 
+double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,
+                            const ScanView& view) {
+  const Eigen::Isometry3d X_BaseTcp =
+      pc::PoseFromProto(RobotState().x_base_tcp(), "robot X_base_tcp");
+  dt::VerifyParams params;
+  params.set_item(item);
+  *params.mutable_x_frame_item() = pc::PoseToProto(X_BaseTcp * Stored(pick).X_TcpItem);
+  *params.mutable_x_frame_sensor() = pc::PoseToProto(view.X_BaseCamera);
+  std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(*view.cloud_Base);
+  dt::VerifyResponse response;
+  ThrowIfFailed("detector", "Verify", options_.verify(params, chunks, &response));
+  if (static_cast<int>(response.visible_model_points()) < options_.min_visible_points_to_verify) {
+    return -1.0;
+  }
+  return response.score();
+}
+
 StepOutcome GrpcCell::PutBack(const PlannedPick& pick) {
   const StoredPick& stored = Stored(pick);
   // The arm is at the retreat's end (the place was not planned, so it has not moved since).

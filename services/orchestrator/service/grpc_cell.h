@@ -27,9 +27,17 @@ using DetectFn =
                                const std::vector<common::v1::PointCloudChunk>& chunks,
                                detector::v1::DetectResponse* response, std::string* replica)>;
 
+/// Sends one Verify call to some detector replica.
+using VerifyFn = std::function<grpc::Status(const detector::v1::VerifyParams& params,
+                                            const std::vector<common::v1::PointCloudChunk>& chunks,
+                                            detector::v1::VerifyResponse* response)>;
+
 struct GrpcCellOptions {
   std::shared_ptr<grpc::Channel> scanner, planner, robot, gripper;
   DetectFn detect;
+  VerifyFn verify;
+  /// A held item's Verify needs this many of its model points in view to tell.
+  int min_visible_points_to_verify = 200;
   world::CellModel cell;  ///< For the bins' boxes (the detector's regions).
   /// Per-call deadlines, seconds.
   double scan_deadline_s = 120.0;
@@ -66,6 +74,8 @@ class GrpcCell final : public CellPort {
                            const PlannedPick& pick) override;
   void VacuumOff() override;
   StepOutcome PutBack(const PlannedPick& pick) override;
+  double VerifyHeld(const std::string& item, const PlannedPick& pick,
+                    const ScanView& view) override;
 
  private:
   struct StoredPick {

@@ -231,6 +231,20 @@ DetectFn PoolDetector(std::shared_ptr<DetectorPool> pool) {
       };
 }
 
+// Verify through the pool, as Detect.
+VerifyFn PoolVerifier(std::shared_ptr<DetectorPool> pool) {
+  return
+      [pool](const dt::VerifyParams& params, const std::vector<common::v1::PointCloudChunk>& chunks,
+             dt::VerifyResponse* response) {
+        VerifyCall call;
+        call.params = params;
+        call.cloud = std::make_shared<const std::vector<common::v1::PointCloudChunk>>(chunks);
+        VerifyOutcome outcome = pool->Verify(call);
+        if (outcome.ok()) *response = std::move(outcome.response);
+        return outcome.status;
+      };
+}
+
 }  // namespace
 
 runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
@@ -264,6 +278,7 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   cell.gripper = Channel(config, "gripper");
   auto pool = std::make_shared<DetectorPool>(FromConfig(config));
   cell.detect = PoolDetector(pool);
+  cell.verify = PoolVerifier(pool);
   std::vector<Peer> peers;
   for (const std::string name : {"scanner", "planner", "robot", "gripper"}) {
     peers.push_back({name, Address(config, name), Channel(config, name)});

@@ -35,6 +35,7 @@ class ScriptedCell final : public CellPort {
   std::vector<std::string> put_back;      // items put back where they were grasped
   std::vector<std::string> destinations;  // every MoveToPlace's container
   std::set<std::string> refused_destinations;  // no place can be planned there
+  bool held_looks_wrong = false;               // Verify of the held item scores low (once)
   std::map<std::string, int> vacuum_ons;
   std::string current;  // item being worked on
   bool held = false;
@@ -100,6 +101,9 @@ class ScriptedCell final : public CellPort {
     if (scripts[item].drop_on_the_way) held = false;
     if (scripts[item].no_place) return {false, "no free motion to the release pose", 0.0, 0.0};
     return {true, "", 0.1, 4.0};
+  }
+  double VerifyHeld(const std::string&, const PlannedPick&, const ScanView&) override {
+    return held_looks_wrong ? 0.05 : -1.0;
   }
   StepOutcome PutBack(const PlannedPick&) override {
     put_back.push_back(current);
@@ -265,6 +269,17 @@ TEST_F(PickTaskTest, TheLookBackCatchesTheWrongItemOnTheCupAndPutsItBack) {
   EXPECT_EQ(result.targets[1].attempts, 2);
   const auto& tote = result.final_contents.tote_contents;
   EXPECT_EQ(std::count(tote.begin(), tote.end(), "rawlings_baseball"), 1);
+}
+
+TEST_F(PickTaskTest, AHeldItemThatDoesNotLookLikeTheTargetIsPutBack) {
+  ScriptedCell cell;
+  cell.held_looks_wrong = true;
+  const PickTaskResult result = Run(cell);
+  // Every look back scores low: nothing is carried to the tote, everything is put back.
+  EXPECT_EQ(result.items_moved, 0);
+  EXPECT_EQ(cell.put_back.size(), 6u);
+  EXPECT_NE(result.targets[0].failure.find("does not look like"), std::string::npos);
+  EXPECT_EQ(result.state, TaskState::kSucceeded);
 }
 
 TEST_F(PickTaskTest, AServiceThatDoesNotAnswerIsRetriedWithBackoff) {
