@@ -127,7 +127,12 @@ pb::Container ContainerFromName(std::string_view name) {
   if (name == "gripper") return pb::CONTAINER_GRIPPER;
   if (name == "table") return pb::CONTAINER_TABLE;
   if (name == "outside") return pb::CONTAINER_OUTSIDE;
-  throw std::invalid_argument("unknown container '" + std::string(name) +
+  // The name is the caller's and may be any length: quote a short prefix.
+  constexpr std::size_t kMaxQuoted = 64;
+  const std::string quoted = name.size() <= kMaxQuoted
+                                 ? std::string(name)
+                                 : std::string(name.substr(0, kMaxQuoted)) + "...";
+  throw std::invalid_argument("unknown container '" + quoted +
                               "' (expected bin_A..bin_L, tote, gripper, table or outside)");
 }
 

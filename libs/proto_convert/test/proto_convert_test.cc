@@ -88,6 +88,17 @@ TEST(ProtoConvertTest, ContainerNamesRoundTrip) {
   EXPECT_THROW(ContainerName(pb::CONTAINER_UNSPECIFIED), std::invalid_argument);
 }
 
+// A 10 kB container name used to be quoted in full in the error.
+TEST(ProtoConvertTest, AnUnknownContainerIsQuotedCut) {
+  try {
+    ContainerFromName("bin_" + std::string(10000, 'Z'));
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("unknown container 'bin_ZZZ"), std::string::npos);
+    EXPECT_LT(std::string(e.what()).size(), 200u) << e.what();
+  }
+}
+
 geometry::PointCloud MakeCloud(std::size_t n, bool organised) {
   geometry::PointCloud c;
   c.frame_id = "base";
