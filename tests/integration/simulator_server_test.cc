@@ -1,7 +1,9 @@
 // Integration test of the picking-simulator server binary through its generated client.
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
+#include <signal.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -597,6 +599,36 @@ TEST_F(SimulatorRpcTest, RenderPatternsRefusesRequestsBeyondItsLimits) {
   const Rendered r = Render(stub_.get(), req);
   EXPECT_TRUE(r.status.ok()) << r.status.error_message();
   EXPECT_EQ(r.headers.size(), 1u);
+}
+
+// A render used to run to its end whatever happened: after SIGTERM the server waited the
+// whole grace period for it. It now ends at the next group of images with UNAVAILABLE.
+TEST(SimulatorServerTest, ALongRenderEndsWhenTheServerIsAskedToStop) {
+  ServerProcess server(ServerBinary(kBinary), {"--shutdown-grace-s=300"});
+  auto stub = sim::SimulatorService::NewStub(server.Channel());
+  sim::RenderPatternsRequest req = ShelfView();
+  auto resize = [](sim::PinholeModel* m, int w, int h, double f) {
+    m->set_width(w), m->set_height(h), m->set_fx(f), m->set_fy(f);
+    m->set_cx(0.5 * (w - 1)), m->set_cy(0.5 * (h - 1));
+  };
+  resize(req.mutable_camera(), 2048, 2048, 1900.0);
+  resize(req.mutable_projector(), 1024, 1024, 880.0);
+  constexpr int kPatterns = 64;
+  for (int i = 0; i < kPatterns; ++i) req.add_patterns()->set_solid_level((i % 2) ? 1.0 : 0.5);
+  req.mutable_options()->set_projector_blur_sigma_px(5.0);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
+  auto reader = stub->RenderPatterns(&ctx, req);
+  common::ImageChunk chunk;
+  ASSERT_TRUE(reader->Read(&chunk));  // the render is under way
+  ASSERT_EQ(::kill(server.pid(), SIGTERM), 0);
+  int images = chunk.has_header() ? 1 : 0;
+  while (reader->Read(&chunk)) images += chunk.has_header() ? 1 : 0;
+  const grpc::Status s = reader->Finish();
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
+  EXPECT_NE(s.error_message().find("shutting down"), std::string::npos) << s.error_message();
+  EXPECT_LT(images, kPatterns);
+  EXPECT_EQ(server.Stop(), 0);
 }
 
 // ---------------------------------------------------------------------------------------
