@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <sstream>
 #include <stdexcept>
 
 namespace picking::proto_convert {
@@ -43,8 +44,15 @@ pb::Vector3 VectorToProto(const Eigen::Vector3d& v) {
   return out;
 }
 
-Eigen::Isometry3d PoseFromProto(const pb::Pose& pose, std::string_view field) {
+Eigen::Isometry3d PoseFromProto(const pb::Pose& pose, std::string_view field,
+                                double max_position_m) {
   const Eigen::Vector3d p = VectorFromProto(pose.position(), Field(field, "position"));
+  if (!(p.norm() <= max_position_m)) {
+    std::ostringstream os;
+    os << Field(field, "position") << " is " << p.norm() << " m from the origin, more than the "
+       << max_position_m << " m limit";
+    throw std::invalid_argument(os.str());
+  }
   const auto& q = pose.orientation();
   const std::string qf = Field(field, "orientation");
   const Eigen::Quaterniond quat(Finite(q.w(), qf, "w"), Finite(q.x(), qf, "x"),
@@ -119,7 +127,12 @@ pb::Container ContainerFromName(std::string_view name) {
   if (name == "gripper") return pb::CONTAINER_GRIPPER;
   if (name == "table") return pb::CONTAINER_TABLE;
   if (name == "outside") return pb::CONTAINER_OUTSIDE;
-  throw std::invalid_argument("unknown container '" + std::string(name) +
+  // The name is the caller's and may be any length: quote a short prefix.
+  constexpr std::size_t kMaxQuoted = 64;
+  const std::string quoted = name.size() <= kMaxQuoted
+                                 ? std::string(name)
+                                 : std::string(name.substr(0, kMaxQuoted)) + "...";
+  throw std::invalid_argument("unknown container '" + quoted +
                               "' (expected bin_A..bin_L, tote, gripper, table or outside)");
 }
 

@@ -24,9 +24,16 @@ namespace picking::proto_convert {
 
 namespace pb = ::picking::common::v1;
 
-/// Pose <-> Eigen::Isometry3d. Rejects NaN/inf and quaternions whose norm is not within
-/// 1e-3 of 1 (the quaternion is then normalised exactly).
-Eigen::Isometry3d PoseFromProto(const pb::Pose& pose, std::string_view field);
+/// Largest distance of a pose's position from its frame's origin accepted from a request,
+/// metres. The cell is a few metres across; a finite but huge position (e.g. 2e18 m) has
+/// no meaning and broke the ray casters downstream (Embree asserts on such rays).
+constexpr double kMaxPositionM = 1e3;
+
+/// Pose <-> Eigen::Isometry3d. Rejects NaN/inf, positions with |p| > `max_position_m`
+/// (default kMaxPositionM) and quaternions whose norm is not within 1e-3 of 1 (the
+/// quaternion is then normalised exactly).
+Eigen::Isometry3d PoseFromProto(const pb::Pose& pose, std::string_view field,
+                                double max_position_m = kMaxPositionM);
 pb::Pose PoseToProto(const Eigen::Isometry3d& X);
 
 Eigen::Vector3d VectorFromProto(const pb::Vector3& v, std::string_view field);

@@ -4,6 +4,24 @@
 
 namespace picking::runtime {
 
+std::string CutMessage(std::string_view message, std::size_t max_bytes) {
+  if (message.size() <= max_bytes) return std::string(message);
+  constexpr std::string_view kEllipsis = "...";
+  if (max_bytes <= kEllipsis.size()) return std::string(kEllipsis.substr(0, max_bytes));
+  std::size_t keep = max_bytes - kEllipsis.size();
+  // Never split a UTF-8 sequence: back up over continuation bytes (10xxxxxx).
+  while (keep > 0 && (static_cast<unsigned char>(message[keep]) & 0xC0) == 0x80) --keep;
+  std::string out(message.substr(0, keep));
+  out += kEllipsis;
+  return out;
+}
+
+grpc::Status CutStatus(const grpc::Status& status) {
+  if (status.error_message().size() <= kMaxStatusMessageBytes) return status;
+  return grpc::Status(status.error_code(), CutMessage(status.error_message()),
+                      status.error_details());
+}
+
 grpc::Status StatusFromCurrentException() {
   try {
     throw;

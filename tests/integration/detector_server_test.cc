@@ -453,6 +453,17 @@ TEST_F(DetectorSceneTest, VerifyScoresTheTruePoseHighAndAShiftedPoseLow) {
   EXPECT_LT(wrong.score(), truth.score() - 0.4);
 }
 
+// A 10 kB item name was quoted in full: a client with gRPC's default 8 KB metadata limit
+// saw RESOURCE_EXHAUSTED instead of NOT_FOUND.
+TEST_F(DetectorSceneTest, ALongUnknownItemNameGetsAReadableNotFound) {
+  pb::VerifyResponse response;
+  const grpc::Status s =
+      StreamVerify(*Stub(), std::string(10000, 'm'), *X_BaseScene_, *chunks_, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND) << s.error_message();
+  EXPECT_NE(s.error_message().find("unknown item 'mmm"), std::string::npos);
+  EXPECT_LT(s.error_message().size(), 400u) << s.error_message();
+}
+
 TEST_F(DetectorSceneTest, ListModelsListsTheManifest) {
   pb::VerifyResponse verified;  // Verifying the milk builds its model.
   ASSERT_TRUE(Verify(*X_BaseScene_, &verified).ok());

@@ -543,6 +543,88 @@ TEST_F(SimRobotTest, ProtectiveStopBlocksMovesUntilReset) {
   EXPECT_EQ(client_.Reset().error_code(), grpc::StatusCode::FAILED_PRECONDITION);
 }
 
+// Motions slow enough to last hours were planned sample by sample before the deadline was
+// looked at: the server wedged (memory growing, every later motion refused, no exit on
+// SIGTERM). They are refused up front now.
+TEST_F(SimRobotTest, TinySpeedsAreRefusedAndTheServerStaysUsable) {
+  auto deadline = [] { return std::chrono::system_clock::now() + std::chrono::seconds(20); };
+  JointVector target = StartJoints();
+  target[0] += 1.5;
+  for (double fraction : {1e-6, 1e-300}) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(deadline());
+    rb::MoveJointsRequest request;
+    SetJoints(target, request.mutable_target());
+    request.mutable_options()->set_speed_fraction(fraction);
+    rb::MoveJointsResponse response;
+    const grpc::Status s = client_.stub().MoveJoints(&ctx, request, &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("speed_fraction"), std::string::npos) << s.error_message();
+  }
+  {
+    // Allowed fractions, but 1.5 rad at 0.1 % of the joint speed takes over 600 s.
+    grpc::ClientContext ctx;
+    ctx.set_deadline(deadline());
+    rb::MoveJointsRequest request;
+    SetJoints(target, request.mutable_target());
+    request.mutable_options()->set_speed_fraction(1e-3);
+    rb::MoveJointsResponse response;
+    const grpc::Status s = client_.stub().MoveJoints(&ctx, request, &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("600 s"), std::string::npos) << s.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(deadline());
+    rb::MoveLinearRequest request;
+    *request.mutable_x_base_tcp_target() = client_.State().x_base_tcp();
+    request.mutable_x_base_tcp_target()->mutable_position()->set_z(
+        request.x_base_tcp_target().position().z() - 0.1);
+    request.mutable_options()->set_speed_fraction(1e-6);
+    rb::MoveLinearResponse response;
+    const grpc::Status s = client_.stub().MoveLinear(&ctx, request, &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(deadline());
+    rb::GuardedMoveRequest request;
+    request.mutable_direction()->set_z(1.0);
+    request.set_in_tool_frame(true);
+    request.set_max_distance_m(0.1);
+    request.set_force_threshold_n(5.0);
+    request.set_speed_m_s(1e-300);
+    rb::GuardedMoveResponse response;
+    const grpc::Status s = client_.stub().GuardedMove(&ctx, request, &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("speed_m_s"), std::string::npos) << s.error_message();
+  }
+  EXPECT_EQ(sim_.placements(), 0);
+  EXPECT_EQ(client_.State().status(), rb::ROBOT_STATUS_IDLE);
+  target = StartJoints();
+  target[0] += 0.2;
+  rb::MoveJointsResponse response;
+  const grpc::Status s = client_.MoveJoints(target, &response);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+}
+
+// A 10 kB reason used to be quoted in full by every refused motion, beyond the client's
+// default 8 KB metadata limit (RESOURCE_EXHAUSTED instead of FAILED_PRECONDITION).
+TEST_F(SimRobotTest, ALongProtectiveStopReasonIsStoredCut) {
+  ASSERT_TRUE(client_.ProtectiveStop("door " + std::string(10000, 'd')).ok());
+  const rb::GetStateResponse state = client_.State();
+  EXPECT_EQ(state.status(), rb::ROBOT_STATUS_PROTECTIVE_STOP);
+  EXPECT_NE(state.status_detail().find("door ddd"), std::string::npos);
+  EXPECT_LT(state.status_detail().size(), 400u);
+  JointVector target = StartJoints();
+  target[0] += 0.2;
+  rb::MoveJointsResponse response;
+  const grpc::Status s = client_.MoveJoints(target, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
+  EXPECT_NE(s.error_message().find("door ddd"), std::string::npos);
+  EXPECT_LE(s.error_message().size(), 1024u);
+}
+
 TEST_F(SimRobotTest, CollisionIsAProtectiveStopNamingWhatHit) {
   JointVector mid = StartJoints();
   mid[0] += 0.3;

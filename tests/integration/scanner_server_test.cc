@@ -438,6 +438,51 @@ TEST_F(ScannerReplayTest, BadScanRequestsAreInvalidArguments) {
   }
 }
 
+// A finite but huge tool pose (2e18 m) reached the simulator's ray caster and aborted it;
+// the scanner answered UNAVAILABLE. The scanner refuses it as the first service.
+TEST_F(ScannerReplayTest, HugeToolPositionsAreInvalidArguments) {
+  {
+    grpc::ClientContext ctx;
+    pb::ScanRequest request;
+    request.set_frame_id("camera");
+    auto* view = request.add_views();
+    view->mutable_x_base_tool()->mutable_position()->set_x(2e18);
+    view->mutable_x_base_tool()->mutable_orientation()->set_w(1.0);
+    auto reader = stub_->Scan(&ctx, request);
+    pb::ScanResponse response;
+    while (reader->Read(&response)) {
+    }
+    const grpc::Status status = reader->Finish();
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+    EXPECT_NE(status.error_message().find("views[0].X_base_tool.position"), std::string::npos)
+        << status.error_message();
+  }
+  grpc::ClientContext ctx;
+  pb::CaptureCalibrationViewRequest request;
+  request.set_session("huge_pose");
+  request.mutable_x_base_tool()->mutable_position()->set_z(-5e18);
+  request.mutable_x_base_tool()->mutable_orientation()->set_w(1.0);
+  pb::CaptureCalibrationViewResponse response;
+  const grpc::Status status = stub_->CaptureCalibrationView(&ctx, request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("X_base_tool.position"), std::string::npos)
+      << status.error_message();
+  EXPECT_FALSE(fs::exists(dir_->path() / "calibration" / "sessions" / "huge_pose" / "view_000"));
+}
+
+// A 10 kB session name was quoted in full: past a client's 8 KB metadata limit the caller saw
+// RESOURCE_EXHAUSTED instead of the real status.
+TEST_F(ScannerReplayTest, ALongSessionNameGetsAReadableInvalidArgument) {
+  grpc::ClientContext ctx;
+  pb::CaptureCalibrationViewRequest request;
+  request.set_session(std::string(10000, 's'));
+  pb::CaptureCalibrationViewResponse response;
+  const grpc::Status status = stub_->CaptureCalibrationView(&ctx, request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("session 'sss"), std::string::npos);
+  EXPECT_LT(status.error_message().size(), 200u) << status.error_message();
+}
+
 TEST_F(ScannerReplayTest, CaptureImagesStreamsTheNamedSequence) {
   grpc::ClientContext ctx;
   auto reader = stub_->CaptureImages(&ctx, pb::CaptureImagesRequest());
@@ -599,6 +644,32 @@ TEST_F(ScannerCalibrationTest, CameraCalibrationFromAnImageDirectory) {
   status = CalibrateCamera(few.string(), &response);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_EQ(Current().SerializeAsString(), after.SerializeAsString());
+}
+
+// A too-long image_directory was INTERNAL "filesystem error: File name too long", and a
+// file given as the directory NOT_FOUND "does not exist": both are the caller's mistake.
+TEST_F(ScannerCalibrationTest, AnImageDirectoryTooLongOrAFileIsAnInvalidArgument) {
+  pb::CalibrateResponse response;
+  grpc::Status status = CalibrateCamera("/tmp/" + std::string(10000, 'd'), &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("too long"), std::string::npos) << status.error_message();
+  EXPECT_LT(status.error_message().size(), 300u);
+  status = CalibrateCamera("/tmp/" + std::string(300, 'c'), &response);  // one name > NAME_MAX
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("too long"), std::string::npos) << status.error_message();
+
+  const fs::path file = fs::path(PICKING_TEST_DATA_DIR) / "calibration" / "left01.jpg";
+  ASSERT_TRUE(fs::is_regular_file(file));
+  status = CalibrateCamera(file.string(), &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("not a directory"), std::string::npos)
+      << status.error_message();
+  status = CalibrateCamera((file / "views").string(), &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+  EXPECT_NE(status.error_message().find("a file where a directory"), std::string::npos)
+      << status.error_message();
+  // Nothing was calibrated.
+  EXPECT_FALSE(fs::exists(dir_.path() / "calibration" / "camera_intrinsics.json"));
 }
 
 TEST_F(ScannerCalibrationTest, ARestartedServerLoadsTheCalibratedFile) {

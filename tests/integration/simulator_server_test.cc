@@ -1,7 +1,9 @@
 // Integration test of the picking-simulator server binary through its generated client.
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
+#include <signal.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -372,6 +374,7 @@ struct Rendered {
 Rendered Render(sim::SimulatorService::Stub* stub, const sim::RenderPatternsRequest& req) {
   Rendered out;
   grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
   auto reader = stub->RenderPatterns(&ctx, req);
   common::ImageChunk chunk;
   while (reader->Read(&chunk)) {
@@ -497,6 +500,135 @@ TEST_F(SimulatorRpcTest, RefusedRequestsNameTheProblemAndChangeNothing) {
   EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
 
   EXPECT_EQ(Truth().SerializeAsString(), before) << "a refused request changed the world";
+}
+
+// A 10 kB item name was quoted in full: a client with gRPC's default 8 KB metadata limit
+// saw RESOURCE_EXHAUSTED instead of NOT_FOUND.
+TEST_F(SimulatorRpcTest, ALongUnknownItemNameGetsAReadableNotFound) {
+  const std::string name(10000, 'i');
+  grpc::Status s = Load(TaskWithBinA("[\"" + name + "\"]"), 1);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND) << s.error_message();
+  EXPECT_NE(s.error_message().find("unknown item \"iii"), std::string::npos);
+  EXPECT_LT(s.error_message().size(), 400u) << s.error_message();
+  // Any other message quoting it is cut by the runtime to 1 kB.
+  s = Load("{\"bin_contents\": {\"" + name + "\": []}}", 1);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_LE(s.error_message().size(), 1024u);
+}
+
+// A finite but huge position (2e18 m) reached Embree and aborted the simulator
+// (SIGABRT on ray.valid()); every later call was UNAVAILABLE.
+TEST_F(SimulatorRpcTest, HugePositionsAreRefusedAndTheSimulatorLivesOn) {
+  ASSERT_TRUE(Load(TaskWithBinA("[\"kleenex_tissue_box\"]"), 2).ok());
+  sim::ProbeContactRequest probe;
+  probe.mutable_x_base_tool()->mutable_position()->set_x(2e18);
+  probe.mutable_x_base_tool()->mutable_orientation()->set_w(1.0);
+  probe.mutable_direction_tcp()->set_z(1.0);
+  probe.set_max_distance_m(1.0);
+  sim::ProbeContactResponse contact;
+  grpc::Status s;
+  {
+    grpc::ClientContext ctx;
+    s = stub_->ProbeContact(&ctx, probe, &contact);
+  }
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("X_base_tool.position"), std::string::npos) << s.error_message();
+
+  sim::RenderPatternsRequest render = ShelfView();
+  render.add_patterns()->set_solid_level(1.0);
+  render.mutable_x_base_camera()->mutable_position()->set_z(-3e18);
+  Rendered r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << r.status.error_message();
+  EXPECT_NE(r.status.error_message().find("X_base_camera"), std::string::npos);
+  render = ShelfView();
+  render.add_patterns()->set_solid_level(1.0);
+  render.mutable_x_base_projector()->mutable_position()->set_y(1e19);
+  r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << r.status.error_message();
+  EXPECT_NE(r.status.error_message().find("X_base_projector"), std::string::npos);
+
+  // The simulator still renders.
+  render = ShelfView();
+  render.add_patterns()->set_solid_level(1.0);
+  r = Render(stub_.get(), render);
+  EXPECT_TRUE(r.status.ok()) << r.status.error_message();
+  EXPECT_EQ(r.headers.size(), 1u);
+}
+
+// A 16384 x 16384 render ran 84 s against a 20 s deadline holding ~4 GB, and a blur of
+// sigma 1e6 ran for minutes: both are refused before any work now.
+TEST_F(SimulatorRpcTest, RenderPatternsRefusesRequestsBeyondItsLimits) {
+  auto expect_refused = [&](const sim::RenderPatternsRequest& req, const std::string& field) {
+    const auto start = std::chrono::steady_clock::now();
+    const Rendered r = Render(stub_.get(), req);
+    EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT)
+        << field << ": " << r.status.error_message();
+    EXPECT_NE(r.status.error_message().find(field), std::string::npos) << r.status.error_message();
+    EXPECT_TRUE(r.headers.empty());
+    EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(10)) << field;
+  };
+  auto resize = [](sim::PinholeModel* m, int w, int h) {
+    m->set_width(w);
+    m->set_height(h);
+    m->set_cx(0.5 * (w - 1));
+    m->set_cy(0.5 * (h - 1));
+  };
+  sim::RenderPatternsRequest req = ShelfView();
+  req.add_patterns()->set_solid_level(1.0);
+  resize(req.mutable_camera(), 16384, 16384);
+  expect_refused(req, "camera");
+  req = ShelfView();
+  req.add_patterns()->set_solid_level(1.0);
+  resize(req.mutable_camera(), 3000, 3000);  // each side allowed, 9 Mpx is not
+  expect_refused(req, "camera");
+  req = ShelfView();
+  req.add_patterns()->set_solid_level(1.0);
+  resize(req.mutable_projector(), 16384, 16384);
+  expect_refused(req, "projector");
+  req = ShelfView();
+  resize(req.mutable_projector(), 2048, 2048);
+  for (int i = 0; i < 65; ++i) req.add_patterns()->set_solid_level(1.0);  // 2^28 + 4 Mpx
+  expect_refused(req, "patterns");
+  req = ShelfView();
+  req.add_patterns()->set_solid_level(1.0);
+  req.mutable_options()->set_projector_blur_sigma_px(1e6);
+  expect_refused(req, "projector_blur_sigma_px");
+
+  // The largest blur is still rendered.
+  req.mutable_options()->set_projector_blur_sigma_px(20.0);
+  const Rendered r = Render(stub_.get(), req);
+  EXPECT_TRUE(r.status.ok()) << r.status.error_message();
+  EXPECT_EQ(r.headers.size(), 1u);
+}
+
+// A render used to run to its end whatever happened: after SIGTERM the server waited the
+// whole grace period for it. It now ends at the next group of images with UNAVAILABLE.
+TEST(SimulatorServerTest, ALongRenderEndsWhenTheServerIsAskedToStop) {
+  ServerProcess server(ServerBinary(kBinary), {"--shutdown-grace-s=300"});
+  auto stub = sim::SimulatorService::NewStub(server.Channel());
+  sim::RenderPatternsRequest req = ShelfView();
+  auto resize = [](sim::PinholeModel* m, int w, int h, double f) {
+    m->set_width(w), m->set_height(h), m->set_fx(f), m->set_fy(f);
+    m->set_cx(0.5 * (w - 1)), m->set_cy(0.5 * (h - 1));
+  };
+  resize(req.mutable_camera(), 2048, 2048, 1900.0);
+  resize(req.mutable_projector(), 1024, 1024, 880.0);
+  constexpr int kPatterns = 64;
+  for (int i = 0; i < kPatterns; ++i) req.add_patterns()->set_solid_level((i % 2) ? 1.0 : 0.5);
+  req.mutable_options()->set_projector_blur_sigma_px(5.0);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
+  auto reader = stub->RenderPatterns(&ctx, req);
+  common::ImageChunk chunk;
+  ASSERT_TRUE(reader->Read(&chunk));  // the render is under way
+  ASSERT_EQ(::kill(server.pid(), SIGTERM), 0);
+  int images = chunk.has_header() ? 1 : 0;
+  while (reader->Read(&chunk)) images += chunk.has_header() ? 1 : 0;
+  const grpc::Status s = reader->Finish();
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
+  EXPECT_NE(s.error_message().find("shutting down"), std::string::npos) << s.error_message();
+  EXPECT_LT(images, kPatterns);
+  EXPECT_EQ(server.Stop(), 0);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -675,6 +807,13 @@ TEST_F(SimulatorRpcTest, RenderDepthRefusesBadRequests) {
   req = good;
   req.mutable_camera()->set_width(20000);
   expect_refused(req, "camera");
+  req = good;
+  req.mutable_camera()->set_width(4096);
+  req.mutable_camera()->set_height(4096);  // 16 Mpx: over the 4 Mpx limit
+  expect_refused(req, "camera");
+  req = good;
+  req.mutable_x_base_camera()->mutable_position()->set_x(2e18);
+  expect_refused(req, "X_base_camera");
   req = good;
   req.mutable_camera()->set_fx(-1.0);
   expect_refused(req, "camera");

@@ -47,6 +47,25 @@ TEST(ProtoConvertTest, PoseRejectsNanAndNonUnitQuaternionNamingTheField) {
   }
 }
 
+// A finite but huge position made the simulator's ray caster abort (SIGABRT in Embree).
+TEST(ProtoConvertTest, PoseRejectsPositionsBeyondTheBoundNamingTheField) {
+  pb::Pose pose = PoseToProto(Eigen::Isometry3d::Identity());
+  pose.mutable_position()->set_x(2e18);
+  try {
+    PoseFromProto(pose, "X_base_camera");
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("X_base_camera.position"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("1000 m limit"), std::string::npos) << e.what();
+  }
+  pose.mutable_position()->set_x(kMaxPositionM * 0.6);
+  pose.mutable_position()->set_y(kMaxPositionM * 0.6);  // |p| = 0.85 * the bound
+  EXPECT_NO_THROW(PoseFromProto(pose, "pose"));
+  pose.mutable_position()->set_z(kMaxPositionM * 0.6);  // |p| = 1.04 * the bound
+  EXPECT_THROW(PoseFromProto(pose, "pose"), std::invalid_argument);
+  EXPECT_NO_THROW(PoseFromProto(pose, "pose", 2.0 * kMaxPositionM));
+}
+
 TEST(ProtoConvertTest, JointsNeedSixFiniteValues) {
   pb::JointPositions j;
   for (int i = 0; i < 5; ++i) j.add_positions_rad(0.1 * i);
@@ -67,6 +86,17 @@ TEST(ProtoConvertTest, ContainerNamesRoundTrip) {
   EXPECT_EQ(ContainerName(pb::CONTAINER_BIN_C), "bin_C");
   EXPECT_THROW(ContainerFromName("bin_M"), std::invalid_argument);
   EXPECT_THROW(ContainerName(pb::CONTAINER_UNSPECIFIED), std::invalid_argument);
+}
+
+// A 10 kB container name used to be quoted in full in the error.
+TEST(ProtoConvertTest, AnUnknownContainerIsQuotedCut) {
+  try {
+    ContainerFromName("bin_" + std::string(10000, 'Z'));
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("unknown container 'bin_ZZZ"), std::string::npos);
+    EXPECT_LT(std::string(e.what()).size(), 200u) << e.what();
+  }
 }
 
 geometry::PointCloud MakeCloud(std::size_t n, bool organised) {

@@ -393,6 +393,16 @@ ModelLibrary::ModelLibrary(ModelManifest manifest, ModelLibraryOptions options)
 
 ModelLibrary::~ModelLibrary() = default;
 
+namespace {
+// The error for an item the manifest does not name. The name is the caller's and may be
+// any length: it is quoted cut, so that the status stays readable.
+NotFoundError UnknownItem(const std::string& item, const std::string& manifest) {
+  constexpr std::size_t kMaxQuoted = 64;
+  const std::string quoted = item.size() <= kMaxQuoted ? item : item.substr(0, kMaxQuoted) + "...";
+  return NotFoundError("unknown item '" + quoted + "': not in the model manifest " + manifest);
+}
+}  // namespace
+
 ObjectConfig ModelLibrary::ConfigFor(const std::string& item) const {
   return manifest_.config().ForItem(item);
 }
@@ -400,8 +410,7 @@ ObjectConfig ModelLibrary::ConfigFor(const std::string& item) const {
 std::shared_ptr<const LoadedModel> ModelLibrary::GetIfLoaded(const std::string& item) const {
   const auto it = slots_.find(item);
   if (it == slots_.end()) {
-    throw NotFoundError("unknown item '" + item + "': not in the model manifest " +
-                        manifest_.source_name());
+    throw UnknownItem(item, manifest_.source_name());
   }
   std::unique_lock<std::mutex> lock(it->second->mutex, std::try_to_lock);
   if (!lock.owns_lock()) return nullptr;  // Being built right now.
@@ -411,8 +420,7 @@ std::shared_ptr<const LoadedModel> ModelLibrary::GetIfLoaded(const std::string& 
 std::shared_ptr<const LoadedModel> ModelLibrary::Get(const std::string& item) const {
   const auto it = slots_.find(item);
   if (it == slots_.end()) {
-    throw NotFoundError("unknown item '" + item + "': not in the model manifest " +
-                        manifest_.source_name());
+    throw UnknownItem(item, manifest_.source_name());
   }
   std::lock_guard<std::mutex> lock(it->second->mutex);
   if (!it->second->model) {

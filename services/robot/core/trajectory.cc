@@ -24,6 +24,20 @@ void ValidateLimits(const JointVector& v, const JointVector& a, double rate_hz, 
   }
 }
 
+// Why a profile of `duration_s` sampled at `rate_hz` is refused, or "" if it is not.
+std::string DurationProblem(double duration_s, double rate_hz, double max_duration_s,
+                            std::size_t max_samples) {
+  std::ostringstream os;
+  if (!(duration_s <= max_duration_s)) {
+    os << "the motion would take " << duration_s << " s, more than the " << max_duration_s
+       << " s limit (raise the speed or acceleration)";
+  } else if (!(duration_s * rate_hz < static_cast<double>(max_samples))) {
+    os << "the motion would need " << duration_s * rate_hz << " samples, more than the "
+       << max_samples << " limit";
+  }
+  return os.str();
+}
+
 // Sample times k / rate in [0, duration] plus the exact end.
 std::vector<double> SampleTimes(double duration_s, double rate_hz) {
   std::vector<double> times;
@@ -149,6 +163,11 @@ JointTrajectory TimeParametrizePath(const std::vector<JointVector>& path_rad,
     t += segments.back().profile.duration_s();
   }
 
+  if (const std::string why =
+          DurationProblem(t, options.sample_rate_hz, options.max_duration_s, options.max_samples);
+      !why.empty()) {
+    throw std::invalid_argument("TimeParametrizePath: " + why);
+  }
   JointTrajectory trajectory;
   if (segments.empty()) {
     trajectory.points.push_back({0.0, corners.front(), JointVector::Zero(), JointVector::Zero()});
@@ -290,6 +309,12 @@ LinearMoveResult PlanLinearMove(const ur10::Ur10Kinematics& kinematics,
   result.branch = dense.branch;
   for (int attempt = 0; attempt < 40; ++attempt) {
     const TrapezoidProfile profile(u_speed, u_accel);
+    if (std::string why = DurationProblem(profile.duration_s(), options.sample_rate_hz,
+                                          options.max_duration_s, options.max_samples);
+        !why.empty()) {
+      result.reason = std::move(why);
+      return result;
+    }
     JointTrajectory trajectory;
     JointVector previous = q_start_rad;
     bool failed = false;

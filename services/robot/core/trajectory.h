@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -10,6 +11,13 @@
 namespace picking::robot {
 
 using ur10::JointVector;
+
+/// Longest motion the planners produce, s. A slower motion (a tiny speed or acceleration)
+/// is refused: at 125 Hz a day-long motion is millions of samples held in memory, and a
+/// motion nobody waits for ties up the arm.
+constexpr double kMaxTrajectoryDuration_s = 600.0;
+/// Most samples a planned trajectory may have (600 s at 1 kHz).
+constexpr std::size_t kMaxTrajectorySamples = 600'000;
 
 /// One sample of a joint trajectory. Time from the trajectory start in s, positions in rad,
 /// velocities in rad/s, accelerations in rad/s^2.
@@ -34,6 +42,9 @@ struct TimeParametrizationOptions {
   JointVector max_acceleration_rad_s2 = JointVector::Constant(1.0);
   /// Output sample rate, Hz (> 0). 125 Hz is the CB3 controller's servo rate.
   double sample_rate_hz = 125.0;
+  /// Longest accepted profile, s, and most samples; a path needing more is refused.
+  double max_duration_s = kMaxTrajectoryDuration_s;
+  std::size_t max_samples = kMaxTrajectorySamples;
 };
 
 /// Time-optimal rest-to-rest parametrisation of a piecewise-linear joint path.
@@ -44,7 +55,9 @@ struct TimeParametrizationOptions {
 /// and acceleration are limited by the joint with the tightest limit relative to its
 /// displacement. Collinear consecutive segments are merged and repeated waypoints dropped.
 /// Samples are at k / sample_rate_hz plus the exact end point.
-/// @throws std::invalid_argument for an empty path, non-finite values or bad limits.
+/// @throws std::invalid_argument for an empty path, non-finite values or bad limits, and
+/// when the profile lasts longer than options.max_duration_s or needs more than
+/// options.max_samples samples (checked before any sample is made).
 JointTrajectory TimeParametrizePath(const std::vector<JointVector>& path_rad,
                                     const TimeParametrizationOptions& options);
 
@@ -66,6 +79,9 @@ struct LinearMoveOptions {
   /// Largest joint change allowed between two consecutive samples, rad. A bigger jump means
   /// the path passes (near) a singularity or needs a branch change.
   double max_joint_step_rad = 0.2;
+  /// Longest accepted motion, s, and most samples; a slower line is refused.
+  double max_duration_s = kMaxTrajectoryDuration_s;
+  std::size_t max_samples = kMaxTrajectorySamples;
 };
 
 /// Result of PlanLinearMove / SampleLinearPath.
@@ -92,7 +108,8 @@ LinearMoveResult SampleLinearPath(const ur10::Ur10Kinematics& kinematics,
 /// A time-parametrised straight TCP line: a trapezoidal profile along the line within the
 /// tool speed/acceleration limits, IK at every sample (seed continuity, start branch), then
 /// uniformly slowed down until the finite-difference joint speeds and accelerations are
-/// within the joint limits.
+/// within the joint limits. Not ok (with the reason) when the motion would last longer than
+/// options.max_duration_s or need more than options.max_samples samples.
 LinearMoveResult PlanLinearMove(const ur10::Ur10Kinematics& kinematics,
                                 const JointVector& q_start_rad,
                                 const Eigen::Isometry3d& X_BaseTcp_goal,

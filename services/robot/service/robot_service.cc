@@ -38,12 +38,20 @@ std::string Num(double v) {
   return os.str();
 }
 
-// A fraction of MotionOptions: 0 means the default, otherwise (0, 1].
+// Smallest speed / acceleration fraction of MotionOptions and smallest guarded-move speed.
+// Slower motions take hours and millions of samples; planning them wedged the server.
+constexpr double kMinFraction = 1e-3;
+constexpr double kMinGuardedSpeed_m_s = 1e-3;
+// Longest ProtectiveStop reason kept: every refused motion quotes it.
+constexpr std::size_t kMaxReasonBytes = 256;
+
+// A fraction of MotionOptions: 0 means the default, otherwise [kMinFraction, 1].
 double Fraction(double value, double default_value, const char* field) {
   if (value == 0.0) return default_value;
-  if (!std::isfinite(value) || value <= 0.0 || value > 1.0) {
-    throw std::invalid_argument(std::string("options.") + field + " must be in (0, 1] (or 0 for " +
-                                "the default), got " + Num(value));
+  if (!std::isfinite(value) || value < kMinFraction || value > 1.0) {
+    throw std::invalid_argument(std::string("options.") + field + " must be in [" +
+                                Num(kMinFraction) + ", 1] (or 0 for the default), got " +
+                                Num(value));
   }
   return value;
 }
@@ -105,22 +113,29 @@ class MotionWatch final {
   void Run() {
     std::unique_lock<std::mutex> lock(mutex_);
     while (!done_) {
-      wake_.wait_for(lock, std::chrono::milliseconds(10));
+      // Poll fast for the first stop; afterwards only repeat it now and then, since a real
+      // controller gets a script per Stop.
+      wake_.wait_for(lock, std::chrono::milliseconds(stopping() ? 100 : 10));
       if (done_) return;
-      if (std::chrono::system_clock::now() >= context_->deadline()) {
-        deadline_passed_ = true;
-      } else if (context_->IsCancelled()) {
-        cancelled_ = true;
-      } else if (runtime::ShuttingDown()) {
-        shutting_down_ = true;
-      } else {
-        continue;
+      if (!stopping()) {
+        if (std::chrono::system_clock::now() >= context_->deadline()) {
+          deadline_passed_ = true;
+        } else if (context_->IsCancelled()) {
+          cancelled_ = true;
+        } else if (runtime::ShuttingDown()) {
+          shutting_down_ = true;
+        } else {
+          continue;
+        }
       }
+      // Repeated until the motion returns: a stop that lands before the backend has begun
+      // the motion would otherwise be lost and the motion run on unobserved.
       lock.unlock();
       backend_->Stop();
-      return;
+      lock.lock();
     }
   }
+  bool stopping() const { return deadline_passed_ || cancelled_ || shutting_down_; }
 
   grpc::ServerContext* context_;
   RobotBackend* backend_;
@@ -368,9 +383,10 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       double speed = request->speed_m_s();
       if (speed == 0.0) speed = 0.05;
       const double max_speed = std::min(0.25, checker_.limits().max_tool_speed_m_s);
-      if (!std::isfinite(speed) || speed <= 0.0 || speed > max_speed) {
-        return runtime::InvalidArgument("speed_m_s must be in (0, " + Num(max_speed) +
-                                        "] (or 0 for 0.05), got " + Num(speed));
+      if (!std::isfinite(speed) || speed < kMinGuardedSpeed_m_s || speed > max_speed) {
+        return runtime::InvalidArgument("speed_m_s must be in [" + Num(kMinGuardedSpeed_m_s) +
+                                        ", " + Num(max_speed) + "] (or 0 for 0.05), got " +
+                                        Num(speed));
       }
       std::unique_lock<std::mutex> slot = MotionSlot();
       const RobotState start = ReadyState();
@@ -423,8 +439,11 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       {
         std::lock_guard<std::mutex> lock(mutex_);
         latched_ = true;
-        detail_ = request->reason().empty() ? "protective stop requested"
-                                            : "protective stop requested: " + request->reason();
+        // Stored cut: every refused motion quotes it until the reset.
+        detail_ = request->reason().empty()
+                      ? "protective stop requested"
+                      : "protective stop requested: " +
+                            runtime::CutMessage(request->reason(), kMaxReasonBytes);
       }
       backend_->ProtectiveStop();
       // A controller applies the stop asynchronously: answer once it reports it.
@@ -617,6 +636,11 @@ class RobotServiceImpl final : public pb::RobotService::Service {
     if (std::abs(out.points.front().time_s) > 1e-9) {
       throw std::invalid_argument("trajectory.points[0].time_from_start_s must be 0, got " +
                                   Num(out.points.front().time_s));
+    }
+    if (!(out.duration_s() <= kMaxTrajectoryDuration_s)) {
+      throw std::invalid_argument("trajectory lasts " + Num(out.duration_s()) +
+                                  " s, more than the " + Num(kMaxTrajectoryDuration_s) +
+                                  " s limit");
     }
     return out;
   }

@@ -124,7 +124,8 @@ std::string PatternName(const PatternImage& p) {
 void CheckSessionName(const std::string& name) {
   static const std::regex kPattern("[A-Za-z0-9_-]{1,64}");
   if (!std::regex_match(name, kPattern)) {
-    throw std::invalid_argument("session '" + name + "' must match [A-Za-z0-9_-]{1,64}");
+    throw std::invalid_argument("session '" + runtime::Quoted(name) +
+                                "' must match [A-Za-z0-9_-]{1,64}");
   }
 }
 
@@ -517,6 +518,31 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     return board;
   }
 
+  // The image directory of a Calibrate request. A path the OS refuses (too long) or that
+  // names a file is the caller's mistake, INVALID_ARGUMENT; only a path that does not exist
+  // is NOT_FOUND. The error_code overloads keep filesystem errors from becoming INTERNAL.
+  static fs::path CheckedImageDirectory(const std::string& text) {
+    const std::string quoted = "image_directory '" + runtime::Quoted(text) + "'";
+    if (text.empty()) throw std::invalid_argument("image_directory is empty");
+    std::error_code ec;
+    const fs::file_status status = fs::status(text, ec);
+    if (ec == std::errc::filename_too_long) {
+      throw std::invalid_argument(quoted + " is too long for the scanner host (" +
+                                  std::to_string(text.size()) + " bytes)");
+    }
+    if (ec == std::errc::not_a_directory) {
+      throw std::invalid_argument(quoted + " has a file where a directory is expected");
+    }
+    if (status.type() == fs::file_type::not_found) {
+      throw NotFoundError(quoted + " does not exist on the scanner host");
+    }
+    if (ec) throw std::invalid_argument(quoted + " cannot be read: " + ec.message());
+    if (status.type() != fs::file_type::directory) {
+      throw std::invalid_argument(quoted + " is not a directory");
+    }
+    return text;
+  }
+
   // The views of the request's source: a session's views, or one view per image / per
   // subfolder of an image directory.
   std::vector<StoredView> ViewsOf(const pb::CalibrateRequest& request, bool sequences) const {
@@ -532,11 +558,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
         views.push_back({v.filename().string(), v, ReadPoseFile((v / "X_base_tool.txt").string())});
       }
     } else if (request.source_case() == pb::CalibrateRequest::kImageDirectory) {
-      const fs::path dir = request.image_directory();
-      if (dir.empty() || !fs::is_directory(dir)) {
-        throw NotFoundError("image_directory '" + request.image_directory() +
-                            "' does not exist on the scanner host");
-      }
+      const fs::path dir = CheckedImageDirectory(request.image_directory());
       if (sequences) {
         for (const auto& v : SortedEntries(dir, true)) {
           views.push_back(

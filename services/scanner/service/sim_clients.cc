@@ -67,9 +67,10 @@ SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSett
   if (!(settings_.electrons_per_dn >= 0) || !std::isfinite(settings_.electrons_per_dn)) {
     throw std::invalid_argument("setting 'sim.electrons_per_dn' must be finite and >= 0");
   }
-  if (!(settings_.projector_blur_sigma_px >= 0) ||
-      !std::isfinite(settings_.projector_blur_sigma_px)) {
-    throw std::invalid_argument("setting 'sim.projector_blur_sigma_px' must be finite and >= 0");
+  // The simulator's limit (simulator.proto, RenderOptions): a larger blur would fail every
+  // scan, so it is refused at start.
+  if (!(settings_.projector_blur_sigma_px >= 0) || !(settings_.projector_blur_sigma_px <= 20)) {
+    throw std::invalid_argument("setting 'sim.projector_blur_sigma_px' must be in [0, 20]");
   }
   stub_ = simpb::SimulatorService::NewStub(MakeChannel(address_));
 }

@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -11,6 +12,7 @@
 #include <limits>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <type_traits>
@@ -21,6 +23,7 @@
 #include "libs/camera/pinhole_camera.h"
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/server.h"
 #include "libs/runtime/status.h"
 #include "libs/ur10/ur10_model.h"
 #include "libs/world/mesh_utils.h"
@@ -32,7 +35,16 @@ namespace pb = ::picking::simulator::v1;
 namespace common = ::picking::common::v1;
 namespace pc = ::picking::proto_convert;
 
-constexpr std::uint32_t kMaxImageSide = 16384;
+// Largest camera or projector image: a side of 4096 pixels and 4 Mpx (the cell's camera
+// has 1.3 Mpx). A 16384 x 16384 render held about 4 GB for over a minute.
+constexpr std::uint32_t kMaxImageSide = 4096;
+constexpr std::uint64_t kMaxImagePixels = std::uint64_t{1} << 22;
+// Most projector pixels of one RenderPatterns call (patterns x projector pixels): every
+// pattern is built up front so that all are validated before the first image is sent.
+constexpr std::uint64_t kMaxPatternPixels = std::uint64_t{1} << 28;
+// Largest projector defocus: the blur kernel spans 6 sigma, so a sigma of 1e6 ran for
+// minutes; a real projector is out of focus by a few pixels.
+constexpr double kMaxProjectorBlurSigmaPx = 20.0;
 constexpr std::uint32_t kMaxGrayBits = 16;
 
 std::string Num(double v) {
@@ -50,8 +62,8 @@ std::string FindUnknownItem(const std::string& json_text, const apc::Catalogue& 
     if (!list.is_array()) return {};
     for (std::size_t i = 0; i < list.size(); ++i) {
       if (list[i].is_string() && !catalogue.contains(list[i].get<std::string>())) {
-        return field + "[" + std::to_string(i) + "]: unknown item \"" + list[i].get<std::string>() +
-               "\"";
+        return field + "[" + std::to_string(i) + "]: unknown item \"" +
+               runtime::Quoted(list[i].get<std::string>()) + "\"";
       }
     }
     return {};
@@ -70,7 +82,7 @@ std::string FindUnknownItem(const std::string& json_text, const apc::Catalogue& 
       if (entry.is_object() && entry.contains("item") && entry["item"].is_string() &&
           !catalogue.contains(entry["item"].get<std::string>())) {
         return "work_order[" + std::to_string(i) + "].item: unknown item \"" +
-               entry["item"].get<std::string>() + "\"";
+               runtime::Quoted(entry["item"].get<std::string>()) + "\"";
       }
     }
   }
@@ -160,6 +172,11 @@ camera::PinholeCamera PinholeFromProto(const pb::PinholeModel& m, const std::str
     throw std::invalid_argument(field + ": width and height must be in [1, " +
                                 std::to_string(kMaxImageSide) + "], got " +
                                 std::to_string(m.width()) + " x " + std::to_string(m.height()));
+  }
+  if (std::uint64_t{m.width()} * m.height() > kMaxImagePixels) {
+    throw std::invalid_argument(field + ": at most " + std::to_string(kMaxImagePixels) +
+                                " pixels, got " + std::to_string(m.width()) + " x " +
+                                std::to_string(m.height()));
   }
   if (m.distortion_size() > 5) {
     throw std::invalid_argument(field + ".distortion: at most 5 coefficients (k1, k2, p1, p2, k3)");
@@ -267,6 +284,11 @@ RenderOptions RenderOptionsFromProto(const pb::RenderOptions& o) {
   check(o.exposure(), "exposure", true);
   check(o.electrons_per_dn(), "electrons_per_dn", true);
   check(o.projector_blur_sigma_px(), "projector_blur_sigma_px", true);
+  if (o.projector_blur_sigma_px() > kMaxProjectorBlurSigmaPx) {
+    throw std::invalid_argument("options.projector_blur_sigma_px must be at most " +
+                                Num(kMaxProjectorBlurSigmaPx) + ", got " +
+                                Num(o.projector_blur_sigma_px()));
+  }
   RenderOptions r;
   r.ambient = o.ambient();
   r.read_noise_dn = o.noise_sigma();
@@ -277,6 +299,18 @@ RenderOptions RenderOptionsFromProto(const pb::RenderOptions& o) {
   r.seed = o.seed();
   r.Validate();
   return r;
+}
+
+// Why a render should end now (the call's deadline passed, the client cancelled, the server
+// is stopping), or OK. Checked between images, so a long render ends within one part.
+grpc::Status Interruption(const grpc::ServerContext& context) {
+  if (std::chrono::system_clock::now() >= context.deadline()) {
+    return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                        "the render did not finish within the call's deadline");
+  }
+  if (context.IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+  if (runtime::ShuttingDown()) return runtime::Unavailable("the simulator is shutting down");
+  return grpc::Status::OK;
 }
 
 class SimulatorServiceImpl final : public pb::SimulatorService::Service {
@@ -511,6 +545,15 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
                                     " per call, got " + std::to_string(request->patterns_size()));
       }
       const RenderOptions render_options = RenderOptionsFromProto(request->options());
+      const std::uint64_t pattern_pixels = std::uint64_t{projector_model.width()} *
+                                           projector_model.height() *
+                                           static_cast<std::uint64_t>(request->patterns_size());
+      if (pattern_pixels > kMaxPatternPixels) {
+        throw std::invalid_argument("patterns: " + std::to_string(request->patterns_size()) +
+                                    " patterns of the projector's size are " +
+                                    std::to_string(pattern_pixels) + " pixels, more than " +
+                                    std::to_string(kMaxPatternPixels) + " per call");
+      }
       std::vector<PatternImage> patterns;
       for (int i = 0; i < request->patterns_size(); ++i) {
         patterns.push_back(PatternFromProto(request->patterns(i), projector_model.width(),
@@ -518,6 +561,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
                                             "patterns[" + std::to_string(i) + "]"));
       }
       const ScanPose pose{camera_model, X_BaseCamera, projector_model, X_BaseProjector};
+      if (grpc::Status why = Interruption(*context); !why.ok()) return why;
       const ScanGeometry geometry =
           WithSceneRenderer([&](const StructuredLightRenderer& r) { return r.Prepare(pose); });
       // A few frames per RenderSequence call share its per-block shading tables and threads,
@@ -526,7 +570,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       std::vector<GrayImage> part;
       std::vector<GrayImage> images;
       for (std::size_t first = 0; first < patterns.size(); first += kFramesPerPart) {
-        if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
+        if (grpc::Status why = Interruption(*context); !why.ok()) return why;
         const std::size_t count = std::min(kFramesPerPart, patterns.size() - first);
         part.resize(count);
         for (std::size_t k = 0; k < count; ++k) part[k] = std::move(patterns[first + k].image);
@@ -550,16 +594,23 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
     });
   }
 
-  grpc::Status RenderDepth(grpc::ServerContext*, const pb::RenderDepthRequest* request,
+  grpc::Status RenderDepth(grpc::ServerContext* context, const pb::RenderDepthRequest* request,
                            grpc::ServerWriter<common::ImageChunk>* writer) override {
     return runtime::Guard([&] {
       const camera::PinholeCamera camera_model = PinholeFromProto(request->camera(), "camera");
       if (!request->has_x_base_camera()) throw std::invalid_argument("X_base_camera is unset");
       const Eigen::Isometry3d X_BaseCamera =
           pc::PoseFromProto(request->x_base_camera(), "X_base_camera");
-      const DepthImage depth = WithSceneRenderer([&](const StructuredLightRenderer& r) {
-        return r.RenderDepth(camera_model, X_BaseCamera);
+      // The wait for the renderer (another call may hold it) can outlast the deadline.
+      std::optional<DepthImage> depth_or;
+      grpc::Status interrupted;
+      WithSceneRenderer([&](const StructuredLightRenderer& r) {
+        interrupted = Interruption(*context);
+        if (interrupted.ok()) depth_or = r.RenderDepth(camera_model, X_BaseCamera);
+        return 0;
       });
+      if (!interrupted.ok()) return interrupted;
+      const DepthImage& depth = *depth_or;
       pc::Image out;
       out.width = static_cast<std::uint32_t>(depth.width);
       out.height = static_cast<std::uint32_t>(depth.height);

@@ -99,6 +99,27 @@ TEST(TimeParametrizePathTest, RejectsBadInput) {
       1u);
 }
 
+TEST(TimeParametrizePathTest, RefusesTooLongOrTooDenseProfilesBeforeSampling) {
+  // 1e-6 rad/s over 1 rad is ~11.6 days: millions of samples, refused up front.
+  TimeParametrizationOptions options;
+  options.max_velocity_rad_s = JointVector::Constant(1e-6);
+  try {
+    TimeParametrizePath({JointVector::Zero(), JointVector::Ones()}, options);
+    ADD_FAILURE() << "a 1e6 s profile was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("600 s limit"), std::string::npos) << e.what();
+  }
+  options = TimeParametrizationOptions{};
+  options.sample_rate_hz = 1e9;  // a 2 s profile at 1 GHz
+  EXPECT_THROW(TimeParametrizePath({JointVector::Zero(), JointVector::Ones()}, options),
+               std::invalid_argument);
+  // Just inside the limit is fine.
+  options = TimeParametrizationOptions{};
+  options.max_velocity_rad_s = JointVector::Constant(1.0 / 500.0);
+  EXPECT_LT(TimeParametrizePath({JointVector::Zero(), JointVector::Ones()}, options).duration_s(),
+            kMaxTrajectoryDuration_s);
+}
+
 class LinearMoveTest : public ::testing::Test {
  protected:
   LinearMoveTest() : model_(Model()), kin_(model_) {
@@ -158,6 +179,16 @@ TEST_F(LinearMoveTest, SlowsDownForJointLimits) {
     const JointVector v = (p[i].q_rad - p[i - 1].q_rad) / (p[i].time_s - p[i - 1].time_s);
     ASSERT_LE(v.cwiseAbs().maxCoeff(), 0.05 * (1 + 1e-9));
   }
+}
+
+TEST_F(LinearMoveTest, RefusesATinyToolSpeed) {
+  Eigen::Isometry3d X_goal = kin_.ForwardKinematics(q_start_);
+  X_goal.translation() += Eigen::Vector3d(0.0, 0.0, -0.1);
+  options_.max_tool_speed_m_s = 1e-300;
+  const LinearMoveResult r = PlanLinearMove(kin_, q_start_, X_goal, options_);
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.reason.find("600 s limit"), std::string::npos) << r.reason;
+  EXPECT_TRUE(r.trajectory.points.empty());
 }
 
 TEST_F(LinearMoveTest, UnreachableLineFailsWithSample) {
