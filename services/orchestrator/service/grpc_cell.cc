@@ -302,10 +302,40 @@ const GrpcCell::StoredPick& GrpcCell::Stored(const PlannedPick& pick) const {
   return it->second;
 }
 
+// A motion the robot stopped (a protective stop: it touched something the plan did not
+// expect) is the item's failure, not the task's: the stop is reset, the vacuum let go, and the
+// arm backs out of the container along the descent, so that the next target starts clear.
+StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped) {
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, 10.0);
+  rb::ResetProtectiveStopResponse reset;
+  ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
+  VacuumOff();
+  const cm::JointTrajectory& descend = stored.response.descend();
+  double backed_s = 0.0;
+  if (descend.points_size() > 0) {
+    grpc::ClientContext move_ctx;
+    SetDeadline(move_ctx, options_.motion_deadline_s);
+    rb::MoveJointsRequest request;
+    *request.mutable_target()->mutable_positions_rad() =
+        descend.points(descend.points_size() - 1).positions_rad();
+    request.mutable_options()->set_speed_fraction(0.1);
+    rb::MoveJointsResponse moved;
+    ThrowIfFailed("robot", "MoveJoints out", robot_->MoveJoints(&move_ctx, request, &moved));
+    backed_s = moved.duration_s() + Execute(Reversed(descend));
+  }
+  return {false, std::string(stopped.what()) + "; backed out", backed_s};
+}
+
 StepOutcome GrpcCell::ExecuteApproach(const PlannedPick& pick) {
   const StoredPick& stored = Stored(pick);
   const double approach_s = Execute(stored.response.approach());
-  return {true, "", approach_s + Execute(stored.response.descend())};
+  try {
+    return {true, "", approach_s + Execute(stored.response.descend())};
+  } catch (const CellError& e) {
+    if (e.retryable()) throw;
+    return Recover(stored, e);
+  }
 }
 
 TouchOutcome GrpcCell::Touch(const PlannedPick& pick) {
@@ -363,14 +393,19 @@ StepOutcome GrpcCell::ExecuteRetreat(const PlannedPick& pick) {
   if (retreat.points_size() == 0) return {false, "empty retreat", 0.0};
   // The guarded move stopped where the cup met the item, a little before or after the
   // planned grasp: join the retreat at its start with a short joint move.
-  grpc::ClientContext ctx;
-  SetDeadline(ctx, options_.motion_deadline_s);
-  rb::MoveJointsRequest request;
-  *request.mutable_target()->mutable_positions_rad() = retreat.points(0).positions_rad();
-  request.mutable_options()->set_speed_fraction(0.1);
-  rb::MoveJointsResponse moved;
-  ThrowIfFailed("robot", "MoveJoints to the retreat", robot_->MoveJoints(&ctx, request, &moved));
-  return {true, "", moved.duration_s() + Execute(retreat)};
+  try {
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, options_.motion_deadline_s);
+    rb::MoveJointsRequest request;
+    *request.mutable_target()->mutable_positions_rad() = retreat.points(0).positions_rad();
+    request.mutable_options()->set_speed_fraction(0.1);
+    rb::MoveJointsResponse moved;
+    ThrowIfFailed("robot", "MoveJoints to the retreat", robot_->MoveJoints(&ctx, request, &moved));
+    return {true, "", moved.duration_s() + Execute(retreat)};
+  } catch (const CellError& e) {
+    if (e.retryable()) throw;
+    return Recover(stored, e);
+  }
 }
 
 double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,

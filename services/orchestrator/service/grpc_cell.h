@@ -88,6 +88,7 @@ class GrpcCell final : public CellPort {
   std::string UpdateScene(const std::string& container, const std::string& item,
                           const Eigen::Isometry3d& X_BaseItem, const std::vector<ScanView>& views);
   const StoredPick& Stored(const PlannedPick& pick) const;
+  StepOutcome Recover(const StoredPick& stored, const CellError& stopped);
 
   GrpcCellOptions options_;
   std::unique_ptr<scanner::v1::ScannerService::Stub> scanner_;
