@@ -34,8 +34,9 @@ class OrchestratorAloneTest : public ::testing::Test {
     server_ = std::make_unique<ServerProcess>(
         ServerBinary(kBinary),
         std::vector<std::string>{"--tasks_dir=" + dir_, "--scanner.address=127.0.0.1:1",
-                                 "--detector.endpoints=127.0.0.1:1", "--planner.address=127.0.0.1:1",
-                                 "--robot.address=127.0.0.1:1", "--gripper.address=127.0.0.1:1"});
+                                 "--detector.endpoints=127.0.0.1:1",
+                                 "--planner.address=127.0.0.1:1", "--robot.address=127.0.0.1:1",
+                                 "--gripper.address=127.0.0.1:1"});
     stub_ = orchestrator::v1::OrchestratorService::NewStub(server_->Channel());
   }
   void TearDown() override { EXPECT_EQ(server_->Stop(), 0); }
