@@ -303,14 +303,16 @@ const GrpcCell::StoredPick& GrpcCell::Stored(const PlannedPick& pick) const {
 }
 
 // A motion the robot stopped (a protective stop: it touched something the plan did not
-// expect) is the item's failure, not the task's: the stop is reset, the vacuum let go, and the
+// expect) is the item's failure, not the task's: the vacuum is let go, the stop reset, and the
 // arm backs out of the container along the descent, so that the next target starts clear.
 StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped) {
+  // The item first: while it hangs from the cup in contact with the shelf, the arm counts as
+  // in collision and the stop cannot be reset.
+  VacuumOff();
   grpc::ClientContext ctx;
   SetDeadline(ctx, 10.0);
   rb::ResetProtectiveStopResponse reset;
   ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
-  VacuumOff();
   const cm::JointTrajectory& descend = stored.response.descend();
   double backed_s = 0.0;
   if (descend.points_size() > 0) {
