@@ -77,6 +77,8 @@ struct PlaceOutcome {
   std::string message;
   double drop_height_m = 0.0;
   double robot_s = 0.0;
+  /// The robot stopped on the way (it touched something): the item was let go there.
+  bool item_lost = false;
 };
 
 /// What a task needs from the cell: each operation one step of the paper's sequence, done by

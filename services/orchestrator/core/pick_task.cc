@@ -338,6 +338,11 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
       to = destination;
       break;
     }
+    if (placed.item_lost) {
+      target.last_failure = "place: " + placed.message + "; the item was let go there";
+      journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
+      return Attempt::kLostCarried;
+    }
   }
   if (!placed.ok) {
     // No way to the tote with this item on the cup: it goes back where it was, not on the

@@ -451,7 +451,19 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
     return {false, PlanFailureMessage(status), 0.0, 0.0};
   }
   ThrowIfFailed("planner", "PlanPlace", status);
-  return {true, "", response.drop_height_m(), Execute(response.trajectory())};
+  try {
+    return {true, "", response.drop_height_m(), Execute(response.trajectory())};
+  } catch (const CellError& e) {
+    if (e.retryable()) throw;
+    // Stopped with the item on the cup: it is let go where the arm stopped (the stop cannot
+    // be reset while the item touches the cell), and the stop reset.
+    VacuumOff();
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, 10.0);
+    rb::ResetProtectiveStopResponse reset;
+    ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
+    return {false, e.what(), 0.0, 0.0, true};
+  }
 }
 
 }  // namespace picking::orchestrator
