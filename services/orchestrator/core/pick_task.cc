@@ -184,36 +184,33 @@ void PickTaskRunner::RecordPlaced(const Target& target, const std::string& to,
 // Actions the journal shows as done are not repeated: placed targets count as picked, and an
 // attempt that grasped but never placed may still hold its item (FinishCarriedItem).
 void PickTaskRunner::ResumeFromJournal() {
+  // The journal read once, its action records by (type, key).
+  std::map<std::pair<std::string, std::string>, const JournalRecord*> actions;
+  const std::vector<JournalRecord> records = journal_.Records();
+  for (const JournalRecord& r : records) {
+    clock_s_ = std::max(clock_s_, r.time_s);
+    if (r.type == "event") ++next_event_;  // a resumed task's events continue its numbering
+    if (!r.key.empty()) actions[{r.type, r.key}] = &r;
+  }
+  auto has = [&](const char* type, const std::string& key) { return actions.count({type, key}); };
   for (Target& target : order_) {
     for (int attempt = 1; attempt <= options_.max_attempts + 1; ++attempt) {
       target.attempts = attempt;
-      if (journal_.Has("done", Key(target, "place"))) {
+      if (const auto placed = actions.find({"done", Key(target, "place")});
+          placed != actions.end()) {
         target.done = true;
-        double drop = 0.0;
-        std::string to = apc::kToteLocation;
-        for (const JournalRecord& r : journal_.Records()) {
-          if (r.type == "done" && r.key == Key(target, "place")) {
-            drop = r.data.value("drop_height_m", 0.0);
-            to = r.data.value("to", to);
-            clock_s_ = std::max(clock_s_, r.time_s);
-          }
-        }
-        RecordPlaced(target, to, drop);
+        RecordPlaced(target, placed->second->data.value("to", std::string(apc::kToteLocation)),
+                     placed->second->data.value("drop_height_m", 0.0));
         break;
       }
-      if (journal_.Has("begin", Key(target, "grasp")) &&
-          !journal_.Has("failed", Key(target, "grasp"))) {
+      if (has("begin", Key(target, "grasp")) && !has("failed", Key(target, "grasp"))) {
         carried_key_ = Key(target, "");
       }
-      if (!journal_.Has("begin", Key(target, "scan"))) {
+      if (!has("begin", Key(target, "scan"))) {
         target.attempts = attempt - 1;
         break;
       }
     }
-  }
-  for (const JournalRecord& r : journal_.Records()) {
-    clock_s_ = std::max(clock_s_, r.time_s);
-    if (r.type == "event") ++next_event_;  // a resumed task's events continue its numbering
   }
 }
 

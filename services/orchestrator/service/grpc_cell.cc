@@ -305,14 +305,18 @@ const GrpcCell::StoredPick& GrpcCell::Stored(const PlannedPick& pick) const {
 // A motion the robot stopped (a protective stop: it touched something the plan did not
 // expect) is the item's failure, not the task's: the vacuum is let go, the stop reset, and the
 // arm backs out of the container along the descent, so that the next target starts clear.
-StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped) {
-  // The item first: while it hangs from the cup in contact with the shelf, the arm counts as
+void GrpcCell::ReleaseAndResetStop() {
+  // The item first: while it hangs from the cup in contact with the cell, the arm counts as
   // in collision and the stop cannot be reset.
   VacuumOff();
   grpc::ClientContext ctx;
   SetDeadline(ctx, 10.0);
   rb::ResetProtectiveStopResponse reset;
   ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
+}
+
+StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped) {
+  ReleaseAndResetStop();
   const cm::JointTrajectory& descend = stored.response.descend();
   double backed_s = 0.0;
   if (descend.points_size() > 0) {
@@ -455,13 +459,8 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
     return {true, "", response.drop_height_m(), Execute(response.trajectory())};
   } catch (const CellError& e) {
     if (e.retryable()) throw;
-    // Stopped with the item on the cup: it is let go where the arm stopped (the stop cannot
-    // be reset while the item touches the cell), and the stop reset.
-    VacuumOff();
-    grpc::ClientContext ctx;
-    SetDeadline(ctx, 10.0);
-    rb::ResetProtectiveStopResponse reset;
-    ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
+    // Stopped with the item on the cup: it is let go where the arm stopped.
+    ReleaseAndResetStop();
     return {false, e.what(), 0.0, 0.0, true};
   }
 }

@@ -89,6 +89,8 @@ class GrpcCell final : public CellPort {
                           const Eigen::Isometry3d& X_BaseItem, const std::vector<ScanView>& views);
   const StoredPick& Stored(const PlannedPick& pick) const;
   StepOutcome Recover(const StoredPick& stored, const CellError& stopped);
+  /// Vacuum off, then the robot's protective stop reset.
+  void ReleaseAndResetStop();
 
   GrpcCellOptions options_;
   std::unique_ptr<scanner::v1::ScannerService::Stub> scanner_;
