@@ -120,6 +120,72 @@ std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
   return path;
 }
 
+std::vector<int> Roadmap::JoinNodes(const JointVector& q, const CarriedItem* carried,
+                                    int* edges_checked, std::string* first_block) const {
+  std::vector<int> joined;
+  for (int n : Nearest(q, 3 * options_.neighbours)) {
+    ++*edges_checked;
+    const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n], carried);
+    if (check.free) {
+      joined.push_back(n);
+    } else if (first_block->empty()) {
+      *first_block = check.report.ToString() + " at " +
+                     std::to_string(static_cast<int>(100 * check.fraction_free)) + "% of the way";
+    }
+  }
+  return joined;
+}
+
+std::vector<std::pair<int, int>> Roadmap::ShortestChain(const JointVector& start_rad,
+                                                        const JointVector& goal_rad,
+                                                        const std::vector<int>& start_nodes,
+                                                        const std::vector<int>& goal_nodes,
+                                                        const CarriedItem* carried,
+                                                        const CarriedEdges& carried_edges) const {
+  const int n = static_cast<int>(nodes_.size());
+  std::vector<double> g(n, 1e18);
+  std::vector<int> parent(n, -1), parent_edge(n, -1);
+  using Entry = std::pair<double, int>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> open;
+  for (int s : start_nodes) {
+    g[s] = Distance(start_rad, nodes_[s]);
+    open.emplace(g[s] + Distance(nodes_[s], goal_rad), s);
+  }
+  int reached = -1;
+  std::vector<bool> is_goal(n, false);
+  for (int t : goal_nodes) is_goal[t] = true;
+  std::vector<bool> closed(n, false);
+  while (!open.empty()) {
+    const int u = open.top().second;
+    open.pop();
+    if (closed[u]) continue;
+    closed[u] = true;
+    if (is_goal[u]) {
+      reached = u;
+      break;
+    }
+    for (std::size_t e = 0; e < edges_[u].size(); ++e) {
+      const Edge& edge = edges_[u][e];
+      if (edge.state == EdgeState::kBlocked) continue;
+      if (carried != nullptr) {
+        const auto known = carried_edges.find(std::minmax(u, edge.to));
+        if (known != carried_edges.end() && !known->second) continue;
+      }
+      const double cost = g[u] + edge.length;
+      if (cost < g[edge.to]) {
+        g[edge.to] = cost;
+        parent[edge.to] = u;
+        parent_edge[edge.to] = static_cast<int>(e);
+        open.emplace(cost + Distance(nodes_[edge.to], goal_rad), edge.to);
+      }
+    }
+  }
+  std::vector<std::pair<int, int>> chain;
+  for (int v = reached; v >= 0; v = parent[v]) chain.emplace_back(v, parent_edge[v]);
+  std::reverse(chain.begin(), chain.end());
+  return chain;
+}
+
 JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& goal_rad,
                               const MotionChecker* scene_checker,
                               std::chrono::steady_clock::time_point deadline,
@@ -172,22 +238,10 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
   }
   // Join start and goal to their nearest nodes with free edges.
   std::string first_block;
-  auto join = [&](const JointVector& q) {
-    std::vector<int> joined;
-    for (int n : Nearest(q, 3 * options_.neighbours)) {
-      ++result.edges_checked;
-      const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n], carried);
-      if (check.free) {
-        joined.push_back(n);
-      } else if (first_block.empty()) {
-        first_block = check.report.ToString() + " at " +
-                      std::to_string(static_cast<int>(100 * check.fraction_free)) + "% of the way";
-      }
-    }
-    return joined;
-  };
-  const std::vector<int> start_nodes = join(start_rad);
-  const std::vector<int> goal_nodes = join(goal_rad);
+  const std::vector<int> start_nodes =
+      JoinNodes(start_rad, carried, &result.edges_checked, &first_block);
+  const std::vector<int> goal_nodes =
+      JoinNodes(goal_rad, carried, &result.edges_checked, &first_block);
   if (start_nodes.empty() || goal_nodes.empty()) {
     result.reason = std::string("no free straight motion joins the ") +
                     (start_nodes.empty() ? "start" : "goal") +
@@ -195,60 +249,21 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     return result;
   }
   // Lazy A*: search over edges not known to be blocked, check the path's edges, repeat.
-  const int n = static_cast<int>(nodes_.size());
   CarriedEdges carried_edges;
   for (int round = 0; round < 200; ++round) {
     if (std::chrono::steady_clock::now() > deadline) {
       result.reason = "the call's deadline passed during the roadmap search";
       return result;
     }
-    std::vector<double> g(n, 1e18);
-    std::vector<int> parent(n, -1), parent_edge(n, -1);
-    using Entry = std::pair<double, int>;
-    std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> open;
-    for (int s : start_nodes) {
-      g[s] = Distance(start_rad, nodes_[s]);
-      open.emplace(g[s] + Distance(nodes_[s], goal_rad), s);
-    }
-    int reached = -1;
-    std::vector<bool> is_goal(n, false);
-    for (int t : goal_nodes) is_goal[t] = true;
-    std::vector<bool> closed(n, false);
-    while (!open.empty()) {
-      const int u = open.top().second;
-      open.pop();
-      if (closed[u]) continue;
-      closed[u] = true;
-      if (is_goal[u]) {
-        reached = u;
-        break;
-      }
-      for (std::size_t e = 0; e < edges_[u].size(); ++e) {
-        const Edge& edge = edges_[u][e];
-        if (edge.state == EdgeState::kBlocked) continue;
-        if (carried != nullptr) {
-          const auto known = carried_edges.find(std::minmax(u, edge.to));
-          if (known != carried_edges.end() && !known->second) continue;
-        }
-        const double cost = g[u] + edge.length;
-        if (cost < g[edge.to]) {
-          g[edge.to] = cost;
-          parent[edge.to] = u;
-          parent_edge[edge.to] = static_cast<int>(e);
-          open.emplace(cost + Distance(nodes_[edge.to], goal_rad), edge.to);
-        }
-      }
-    }
-    if (reached < 0) {
+    const std::vector<std::pair<int, int>> chain =
+        ShortestChain(start_rad, goal_rad, start_nodes, goal_nodes, carried, carried_edges);
+    if (chain.empty()) {
       result.reason = "the roadmap has no free path between start and goal";
       return result;
     }
-    std::vector<int> chain;
-    for (int v = reached; v >= 0; v = parent[v]) chain.push_back(v);
-    std::reverse(chain.begin(), chain.end());
     bool blocked = false;
     for (std::size_t i = 1; i < chain.size(); ++i) {
-      if (!EdgeFree(chain[i - 1], parent_edge[chain[i]], &result.edges_checked, carried,
+      if (!EdgeFree(chain[i - 1].first, chain[i].second, &result.edges_checked, carried,
                     &carried_edges)) {
         blocked = true;
         break;
@@ -256,7 +271,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     }
     if (blocked) continue;
     std::vector<JointVector> path = {start_rad};
-    for (int v : chain) path.push_back(nodes_[v]);
+    for (const auto& [v, edge] : chain) path.push_back(nodes_[v]);
     path.push_back(goal_rad);
     path = Shortcut(std::move(path), checker_, carried);
     remember(path);

@@ -84,6 +84,18 @@ class Roadmap final {
                 CarriedEdges* carried_edges) const;
   std::vector<JointVector> Shortcut(std::vector<JointVector> path, const MotionChecker& checker,
                                     const CarriedItem* carried) const;
+  /// The nearest nodes a free straight motion from `q` reaches; the first blocked motion's
+  /// reason lands in `first_block` if it is empty.
+  std::vector<int> JoinNodes(const JointVector& q, const CarriedItem* carried, int* edges_checked,
+                             std::string* first_block) const;
+  /// A* over the edges not known to be blocked: (node, index of the edge from the previous
+  /// node) from a start node to a goal node; empty when none is reachable.
+  std::vector<std::pair<int, int>> ShortestChain(const JointVector& start_rad,
+                                                 const JointVector& goal_rad,
+                                                 const std::vector<int>& start_nodes,
+                                                 const std::vector<int>& goal_nodes,
+                                                 const CarriedItem* carried,
+                                                 const CarriedEdges& carried_edges) const;
 
   const MotionChecker& checker_;
   std::vector<NamedPose> named_;
