@@ -21,6 +21,8 @@ packages=(
   opencv-doc
   # the Python client example and its test (Debian's python3, not a PATH-first build)
   python3 python3-grpcio python3-grpc-tools python3-pkg-resources
+  # the offline check of the Kubernetes manifests (deploy/k8s/test/validate.py)
+  python3-yaml python3-jsonschema
   # style check
   clang-format
 )

@@ -155,9 +155,18 @@ def _config_map(gen, directory):
     return obj, Generated("ConfigMap", gen["name"], name)
 
 
+def _kustomize_base64(raw):
+    """Base64 as kustomize writes a Secret's value: from 70 characters on, in lines of 70,
+    each ended by a newline (kyaml's encodeBase64)."""
+    text = base64.b64encode(raw).decode("ascii")
+    if len(text) < 70:
+        return text
+    return "".join(text[i:i + 70] + "\n" for i in range(0, len(text), 70))
+
+
 def _secret(gen, directory):
     data = _generator_data(gen, directory, binary_ok=True)
-    b64 = {k: base64.b64encode(v if isinstance(v, bytes) else v.encode("utf-8")).decode("ascii")
+    b64 = {k: _kustomize_base64(v if isinstance(v, bytes) else v.encode("utf-8"))
            for k, v in data.items()}
     kind_type = gen.get("type", "Opaque")
     encoded = _go_json({"kind": "Secret", "type": kind_type, "name": "", "data": b64})
