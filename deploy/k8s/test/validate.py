@@ -50,6 +50,12 @@ IMAGE_DATA = "/opt/picking/data/"
 # --key=value is a setting.
 RUNTIME_FLAGS = {"listen", "config", "log-level", "shutdown-grace-s", "max-message-mb"}
 TLS_FLAGS = {"tls.cert", "tls.key", "tls.ca"}
+# The command line's (clients/cli): an option and its value as two arguments.
+CLI_TLS_OPTIONS = {"--tls-cert", "--tls-key", "--tls-ca"}
+# The certificates scripts/make-certs.sh makes for overlays/tls: one per Service, and the
+# command line's.
+CERT_NAMES = ["simulator", "robot", "gripper", "scanner", "detector", "planner",
+              "orchestrator", "picking"]
 DEFAULT_GRACE_S = 5.0
 # Servers that own something single (the world, the arm, the vacuum, the camera, the tasks
 # volume): one replica.
@@ -271,15 +277,43 @@ def check_data_paths(value, fail, where):
 
 
 def mounted_file(spec, container, path, volume_kind):
-    """The (volume, key) that puts `path` into the container, for a configMap or secret volume."""
+    """The (volume, key) that puts the file `path` into the container from a configMap or
+    secret volume (the key of the ConfigMap or Secret, through the volume's items if any)."""
     volumes = {v["name"]: v for v in spec.get("volumes", []) or []}
     for m in container.get("volumeMounts", []) or []:
         mount = m["mountPath"].rstrip("/")
         if os.path.dirname(path) == mount and m["name"] in volumes:
             vol = volumes[m["name"]]
-            if volume_kind in vol:
+            if volume_kind not in vol:
+                continue
+            items = vol[volume_kind].get("items")
+            if not items:
                 return vol, os.path.basename(path)
+            for item in items:
+                if item["path"] == os.path.basename(path):
+                    return vol, item["key"]
     return None, None
+
+
+def check_tls_files(pod, container, files, owner, find, ns, fail, where):
+    """`files`: {option: path} of the certificate, key and CA; each must come from a mounted
+    Secret, the certificate and key being `owner`'s (its DNS name: what the clients dial)."""
+    for option, path in sorted(files.items()):
+        vol, key = mounted_file(pod, container, path, "secret")
+        if vol is None:
+            fail(where, f"{option} {path}: not in a mounted Secret")
+            continue
+        secret = find("Secret", vol["secret"]["secretName"], ns)
+        if secret is None:
+            fail(where, f"Secret {vol['secret']['secretName']} does not exist")
+            continue
+        if key not in (secret.get("data") or {}):
+            fail(where, f"Secret {vol['secret']['secretName']} has no key {key}")
+        role = "cert" if "cert" in option else "key" if "key" in option else "ca"
+        wanted = {"cert": f"{owner}.crt", "key": f"{owner}.key", "ca": "ca.crt"}[role]
+        if key != wanted:
+            fail(where, f"{option} {path} holds the Secret's {key}, not {wanted}: the "
+                        f"certificate must name {owner}, the name its peers dial")
 
 
 def check_objects(objects, fail, label, binaries, full_names, documented):
@@ -370,16 +404,8 @@ def check_objects(objects, fail, label, binaries, full_names, documented):
             fail(where, f"TLS needs all of {sorted(TLS_FLAGS)}, has {sorted(tls)}")
         if tls:
             tls_servers += 1
-            for k in sorted(tls):
-                vol, key = mounted_file(pod, c, flags[k], "secret")
-                if vol is None:
-                    fail(where, f"--{k}={flags[k]}: not in a mounted Secret")
-                    continue
-                secret = find("Secret", vol["secret"]["secretName"], ns)
-                if secret is None:
-                    fail(where, f"Secret {vol['secret']['secretName']} does not exist")
-                elif key not in (secret.get("data") or {}):
-                    fail(where, f"Secret {vol['secret']['secretName']} has no key {key}")
+            check_tls_files(pod, c, {f"--{k}": flags[k] for k in tls}, server, find, ns, fail,
+                            where)
 
         for probe_name in ("startupProbe", "readinessProbe", "livenessProbe"):
             probe = c.get(probe_name)
@@ -545,8 +571,13 @@ def check_objects(objects, fail, label, binaries, full_names, documented):
             else:
                 fail(where, "picking needs --address orchestrator:50051 (its default is "
                             "localhost:50050)")
-            if tls_servers and not TLS_FLAGS <= set(flags_of(args)):
-                fail(where, "the servers run mutual TLS: the command line needs the TLS flags")
+            cli_tls = {a: args[i + 1] for i, a in enumerate(args[:-1]) if a in CLI_TLS_OPTIONS}
+            if tls_servers and set(cli_tls) != CLI_TLS_OPTIONS:
+                fail(where, "the servers run mutual TLS: the command line needs "
+                            f"{sorted(CLI_TLS_OPTIONS)}")
+            elif cli_tls:
+                check_tls_files(job["spec"]["template"]["spec"], c, cli_tls, "picking", find, ns,
+                                fail, where)
         rules = (job["spec"].get("podFailurePolicy") or {}).get("rules", [])
         for r in rules:
             name = (r.get("onExitCodes") or {}).get("containerName")
@@ -615,7 +646,7 @@ def prepare_tree(source):
     shutil.copytree(source, tree, ignore=shutil.ignore_patterns("__pycache__", "certs"))
     certs = os.path.join(tree, "overlays", "tls", "certs")
     os.makedirs(certs)
-    for name in ("ca.crt", "tls.crt", "tls.key"):
+    for name in ["ca.pem"] + [f"{n}.{x}" for n in CERT_NAMES for x in ("pem", "key")]:
         with open(os.path.join(certs, name), "w", encoding="ascii") as f:
             f.write(f"stand-in {name}: scripts/make-certs.sh writes the real one\n")
     return tmp, tree
@@ -711,8 +742,15 @@ MUTATIONS = [
      "no such file in the image"),
     ("overlays/sim/task.yaml", "- orchestrator:50051", "- orchestrator:50050",
      "has no port 50050"),
-    ("overlays/tls/tls-flags.yaml", "value: --tls.ca=/etc/picking/tls/ca.crt",
-     "value: --tls.ca=/etc/picking/tls/ca.pem", "has no key ca.pem"),
+    ("overlays/tls/tls-server.yaml", "value: --tls.ca=/etc/picking/tls/ca.crt",
+     "value: --tls.ca=/etc/picking/tls/ca.pem", "--tls.ca /etc/picking/tls/ca.pem: not in a "
+     "mounted Secret"),
+    ("overlays/tls/kustomization.yaml", "{key: detector.crt, path: tls.crt}",
+     "{key: orchestrator.crt, path: tls.crt}", "the certificate must name detector"),
+    ("overlays/tls/tls-client.yaml", "  value: --tls-key\n", "  value: --tls-keyfile\n",
+     "the command line needs"),
+    ("overlays/tls/tcp-probes.yaml", "tcpSocket: {port: 50051}", "grpc: {port: 50051}",
+     "the kubelet's gRPC probe has no TLS"),
     ("overlays/tls/kustomization.yaml", "namespace: picking\n", "",
      "Secret picking-tls missing"),
 ]
