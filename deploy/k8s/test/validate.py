@@ -42,7 +42,7 @@ ROOT = os.path.dirname(os.path.dirname(K8S))
 sys.path.insert(0, HERE)
 import kustomize_lite  # noqa: E402
 
-TARGETS = ["base", "overlays/sim", "overlays/tls"]
+TARGETS = ["base", "overlays/sim", "overlays/tls", "overlays/single-node"]
 SCHEMA_FILE = os.path.join(K8S, "schemas", "kubernetes-1.27.1.json")
 PORT = 50051
 IMAGE_DATA = "/opt/picking/data/"
