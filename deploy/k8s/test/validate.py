@@ -795,7 +795,7 @@ def main(argv):
         if a.startswith("--kustomize="):
             mode = a.split("=", 1)[1]
             if mode not in ("auto", "off", "require"):
-                print(f"validate.py: --kustomize must be auto, off or require", file=sys.stderr)
+                print("validate.py: --kustomize must be auto, off or require", file=sys.stderr)
                 return 2
         else:
             print(__doc__, file=sys.stderr)
