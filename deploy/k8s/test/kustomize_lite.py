@@ -3,8 +3,8 @@
 
 The manifests are written for `kubectl apply -k` (kustomize v4 or later, kubectl 1.21+).
 The test renders them with this module so that it needs nothing beyond Debian's python3
-and python3-yaml (Debian 12's kubectl is 1.20, whose kustomize v2 cannot take a folder in
-`resources`); where a real kustomize is at hand the test renders with it too and requires
+and python3-yaml (Debian 12's kubectl is 1.20, whose kustomize v2 renders the base but
+refuses the overlays' `patches`); where a real kustomize is at hand the test renders with it too and requires
 the same objects (deploy/k8s/test/validate.py).
 
 What it does, as kustomize does it:
