@@ -3,21 +3,30 @@
 //   picking run TASK.json [--time-limit S] [--ease item,item,...] [--resume ID]
 //   picking watch ID      picking status [ID]      picking list
 //   picking cancel ID     picking score ID
+//   picking health [--service NAME]     (any picking server's grpc.health.v1 answer)
 // Options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or localhost:50050), --json (one
-// JSON object per event or answer instead of the progress display).
-// Exit codes: 0 the task succeeded (or the command did), 1 the task failed or was cancelled,
-// 2 bad usage, 3 the orchestrator refused the request or could not be reached.
+// JSON object per event or answer instead of the progress display); for run: --wait S (keep
+// asking an orchestrator that is not up yet, or whose peers are not, for up to S seconds); for
+// run and watch: --out DIR (write the output file and the score there, from the answer, not
+// the orchestrator's disk).
+// Exit codes: 0 the task succeeded (or the command did; for health: SERVING), 1 the task failed
+// or was cancelled (health: not serving), 2 bad usage, 3 the orchestrator refused the request
+// or could not be reached.
 #include <grpcpp/create_channel.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 
 namespace {
@@ -34,12 +43,17 @@ struct Args {
   double time_limit_s = 0.0;
   std::vector<std::string> ease;
   std::string resume;
+  double wait_s = 0.0;  ///< run: how long to keep trying an orchestrator that is not ready.
+  std::string out_dir;  ///< run: where to write output.json and score.txt.
+  std::string service;  ///< health: the service name to ask about ("" = the server).
 };
 
 int Usage(const std::string& error) {
   if (!error.empty()) std::cerr << "picking: " << error << "\n";
   std::cerr << "usage: picking run TASK.json [--time-limit S] [--ease a,b] [--resume ID]\n"
+               "                           [--wait S] [--out DIR]\n"
                "       picking watch ID | status [ID] | list | cancel ID | score ID\n"
+               "       picking health [--service NAME]\n"
                "options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or "
                "localhost:50050), --json\n";
   return kUsage;
@@ -52,6 +66,17 @@ std::vector<std::string> Split(const std::string& text) {
     if (!part.empty()) out.push_back(part);
   }
   return out;
+}
+
+// Reads a number of seconds > 0 (and below a day: a larger value is a typo, not a wish).
+bool ParseSeconds(const std::string& flag, const char* text, double* seconds, std::string* error) {
+  char* end = nullptr;
+  *seconds = std::strtod(text, &end);
+  if (end == text || *end != '\0' || !(*seconds > 0.0) || !(*seconds <= 86400.0)) {
+    *error = flag + ": expected seconds in (0, 86400], got '" + std::string(text) + "'";
+    return false;
+  }
+  return true;
 }
 
 // Returns false on a malformed command line (with the reason in `error`).
@@ -69,20 +94,17 @@ bool Parse(int argc, char** argv, Args* args, std::string* error) {
     };
     if (a == "--json") {
       args->json = true;
-    } else if (a == "--address" || a == "--time-limit" || a == "--ease" || a == "--resume") {
+    } else if (a == "--address" || a == "--time-limit" || a == "--ease" || a == "--resume" ||
+               a == "--wait" || a == "--out" || a == "--service") {
       const char* v = value(a.c_str());
       if (v == nullptr) return false;
       if (a == "--address") args->address = v;
       if (a == "--ease") args->ease = Split(v);
       if (a == "--resume") args->resume = v;
-      if (a == "--time-limit") {
-        char* end = nullptr;
-        args->time_limit_s = std::strtod(v, &end);
-        if (end == v || *end != '\0' || !(args->time_limit_s > 0.0)) {
-          *error = "--time-limit: expected seconds > 0, got '" + std::string(v) + "'";
-          return false;
-        }
-      }
+      if (a == "--out") args->out_dir = v;
+      if (a == "--service") args->service = v;
+      if (a == "--time-limit" && !ParseSeconds(a, v, &args->time_limit_s, error)) return false;
+      if (a == "--wait" && !ParseSeconds(a, v, &args->wait_s, error)) return false;
     } else if (a == "-h" || a == "--help") {
       *error = "";
       return false;
@@ -193,7 +215,9 @@ class Display {
   double time_limit_s_;
 };
 
-int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args& args) {
+// Streams the task's events until it ends; its final state lands in `task`.
+int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args& args,
+          pb::GetTaskResponse* task) {
   grpc::ClientContext ctx;
   pb::WatchTaskRequest request;
   request.set_task_id(id);
@@ -214,17 +238,73 @@ int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args
   grpc::ClientContext get_ctx;
   pb::GetTaskRequest get;
   get.set_task_id(id);
-  pb::GetTaskResponse task;
-  if (grpc::Status s = stub.GetTask(&get_ctx, get, &task); !s.ok()) return RpcError("status", s);
+  if (grpc::Status s = stub.GetTask(&get_ctx, get, task); !s.ok()) return RpcError("status", s);
   if (args.json) {
-    std::cout << TaskJson(task).dump() << "\n";
+    std::cout << TaskJson(*task).dump() << "\n";
   } else {
     std::printf("score %d, %u of %u items moved, %.0f s task clock\noutput: %s\nreport: %s\n",
-                task.result().score(), task.result().items_moved(), task.items_total(),
-                task.result().duration_s(), task.result().output_file().c_str(),
-                task.result().report_file().c_str());
+                task->result().score(), task->result().items_moved(), task->items_total(),
+                task->result().duration_s(), task->result().output_file().c_str(),
+                task->result().report_file().c_str());
   }
   return last == pb::TASK_STATE_SUCCEEDED ? kOk : kTaskFailed;
+}
+
+// Starts the task. With --wait, an orchestrator that is not listening yet or whose peers are
+// not (UNAVAILABLE) is asked again once a second until the wait is over, so that a one-shot
+// task container can be started together with the cell.
+grpc::Status StartTask(pb::OrchestratorService::Stub& stub, const pb::StartTaskRequest& request,
+                       const Args& args, pb::StartTaskResponse* started) {
+  const auto give_up = std::chrono::steady_clock::now() +
+                       std::chrono::milliseconds(static_cast<long long>(args.wait_s * 1000.0));
+  bool told = false;
+  for (;;) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+    const grpc::Status status = stub.StartTask(&ctx, request, started);
+    if (status.error_code() != grpc::StatusCode::UNAVAILABLE ||
+        std::chrono::steady_clock::now() >= give_up) {
+      return status;
+    }
+    if (!told) {
+      std::cerr << "picking: waiting up to " << args.wait_s
+                << " s for the cell: " << status.error_message() << "\n";
+      told = true;
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(1));  // the retry pace
+  }
+}
+
+// Writes what the task's answer holds to `dir`: output.json (the APC output file), score.txt
+// (each scoring line and the total) and task.json (the final state).
+int WriteOutputs(const std::string& dir, const pb::GetTaskResponse& task) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  auto write = [&](const std::string& name, const std::string& text) {
+    std::ofstream out(std::filesystem::path(dir) / name);
+    out << text;
+    return static_cast<bool>(out.flush());
+  };
+  std::ostringstream score;
+  for (const auto& l : task.result().score_lines())
+    score << l.points() << "\t" << l.reason() << "\n";
+  score << task.result().score() << "\ttotal\n";
+  if (ec || !write("output.json", task.result().output_json()) ||
+      !write("score.txt", score.str()) || !write("task.json", TaskJson(task).dump(2) + "\n")) {
+    std::cerr << "picking: cannot write the results to " << dir << "\n";
+    return kTaskFailed;
+  }
+  if (!task.result().output_json().empty()) std::printf("results written to %s\n", dir.c_str());
+  return kOk;
+}
+
+// Watches the task to its end; with --out, writes its results there.
+int WatchAndWrite(pb::OrchestratorService::Stub& stub, const std::string& id, const Args& args) {
+  pb::GetTaskResponse task;
+  const int code = Watch(stub, id, args, &task);
+  if (code == kRpcError || args.out_dir.empty()) return code;
+  const int written = WriteOutputs(args.out_dir, task);
+  return written != kOk ? written : code;
 }
 
 int Run(pb::OrchestratorService::Stub& stub, const Args& args) {
@@ -240,11 +320,36 @@ int Run(pb::OrchestratorService::Stub& stub, const Args& args) {
   request.set_time_limit_s(args.time_limit_s);
   for (const auto& e : args.ease) request.add_ease_order(e);
   request.set_resume_task_id(args.resume);
-  grpc::ClientContext ctx;
   pb::StartTaskResponse started;
-  if (grpc::Status s = stub.StartTask(&ctx, request, &started); !s.ok()) return RpcError("run", s);
+  if (grpc::Status s = StartTask(stub, request, args, &started); !s.ok()) return RpcError("run", s);
   if (!args.json) std::printf("task %s\n", started.task_id().c_str());
-  return Watch(stub, started.task_id(), args);
+  return WatchAndWrite(stub, started.task_id(), args);
+}
+
+// Asks any picking server's standard health service about itself or one of its services.
+int Health(const std::shared_ptr<grpc::Channel>& channel, const Args& args) {
+  auto stub = grpc::health::v1::Health::NewStub(channel);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(args.service);
+  grpc::health::v1::HealthCheckResponse response;
+  if (grpc::Status s = stub->Check(&ctx, request, &response); !s.ok()) {
+    return RpcError("health of " + args.address, s);
+  }
+  const std::string state =
+      grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status());
+  if (args.json) {
+    std::cout << nlohmann::json{{"address", args.address},
+                                {"service", args.service},
+                                {"status", state}}
+                     .dump()
+              << "\n";
+  } else {
+    std::printf("%s %s%s%s\n", args.address.c_str(), state.c_str(), args.service.empty() ? "" : " ",
+                args.service.c_str());
+  }
+  return response.status() == grpc::health::v1::HealthCheckResponse::SERVING ? kOk : kTaskFailed;
 }
 
 int Status(pb::OrchestratorService::Stub& stub, const Args& args) {
@@ -289,9 +394,10 @@ int main(int argc, char** argv) {
   auto stub = pb::OrchestratorService::NewStub(channel);
   const auto& c = args.command;
   if (c == "run") return Run(*stub, args);
+  if (c == "health") return Health(channel, args);
   if (c == "watch") {
     if (args.positional.size() != 1) return Usage("watch needs a task id");
-    return Watch(*stub, args.positional[0], args);
+    return WatchAndWrite(*stub, args.positional[0], args);
   }
   if (c == "status" || c == "list") return Status(*stub, args);
   if (c == "score") {

@@ -1,4 +1,5 @@
 #include "libs/geometry/point_cloud_io.h"
+#include "libs/geometry/temp_path.h"
 
 #include <unistd.h>
 
@@ -80,11 +81,8 @@ void WritePointCloud(const std::string& path, const PointCloud& cloud, PointClou
 
 namespace internal {
 
-AtomicFile::AtomicFile(const std::string& path) : path_(path) {
-  static std::atomic<unsigned> counter{0};
-  temp_path_ =
-      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(counter.fetch_add(1));
-}
+AtomicFile::AtomicFile(const std::string& path)
+    : path_(path), temp_path_(TemporaryPathBeside(path)) {}
 
 AtomicFile::~AtomicFile() {
   if (file_ != nullptr) std::fclose(file_);

@@ -18,6 +18,7 @@
 
 #include <unistd.h>
 
+#include "libs/geometry/temp_path.h"
 #include "libs/world/mesh_utils.h"
 #include "libs/world/ply_mesh_io.h"
 
@@ -205,12 +206,10 @@ ScannedModel LoadScannedModelCached(const std::string& ply_path, std::string cac
   }
   TriangleMesh mesh_scan = Reconstruct(ply_path, options);
   std::filesystem::create_directories(cache_dir);
-  std::ostringstream tmp_name;
-  tmp_name << cache.string() << ".tmp" << std::hash<std::thread::id>()(std::this_thread::get_id())
-           << "-" << ::getpid();
-  WritePly(tmp_name.str(), mesh_scan,
+  const std::string tmp_name = geometry::TemporaryPathBeside(cache.string());
+  WritePly(tmp_name, mesh_scan,
            "scanned model cache v" + std::to_string(kScannedModelCacheVersion));
-  std::filesystem::rename(tmp_name.str(), cache);
+  std::filesystem::rename(tmp_name, cache);
   return ToItemFrame(std::move(mesh_scan));
 }
 

@@ -1,6 +1,7 @@
 // Integration test of the picking-orchestrator server binary through its generated client.
 #include <grpcpp/client_context.h>
 #include <gtest/gtest.h>
+#include <chrono>
 
 #include <filesystem>
 #include <fstream>
@@ -139,6 +140,36 @@ TEST_F(OrchestratorAloneTest, TheCommandLineExitCodesTellUsageFromRefusals) {
   EXPECT_NE(out.find("does not answer"), std::string::npos) << out;
   // No orchestrator at all.
   EXPECT_EQ(RunCli("list --address 127.0.0.1:1", &out), 3) << out;
+  EXPECT_EQ(RunCli("run --wait 0 x.json" + at, &out), 2) << out;
+  EXPECT_EQ(RunCli("run --wait 1e9 x.json" + at, &out), 2) << out;
+}
+
+// `picking health` asks any server's grpc.health.v1 service (the containers' health check).
+TEST_F(OrchestratorAloneTest, TheCommandLineAsksTheHealthService) {
+  const std::string at = " --address " + server_->address();
+  std::string out;
+  EXPECT_EQ(RunCli("health" + at, &out), 0) << out;
+  EXPECT_NE(out.find("SERVING"), std::string::npos) << out;
+  EXPECT_EQ(
+      RunCli("health --service picking.orchestrator.v1.OrchestratorService --json" + at, &out), 0)
+      << out;
+  EXPECT_NE(out.find("\"status\":\"SERVING\""), std::string::npos) << out;
+  EXPECT_EQ(RunCli("health --service no.such.Service" + at, &out), 3) << out;
+  EXPECT_EQ(RunCli("health --address 127.0.0.1:1", &out), 3) << out;
+}
+
+// `picking run --wait` keeps asking while the cell is not up, then gives up with the reason.
+TEST_F(OrchestratorAloneTest, RunWithWaitRetriesAnUnavailableCellThenGivesUp) {
+  std::string out;
+  const auto started = std::chrono::steady_clock::now();
+  EXPECT_EQ(RunCli("run " + std::string(PICKING_DATA_DIR) +
+                       "/apc2016/tasks/pick_layout_1.json --wait 4 --address " + server_->address(),
+                   &out),
+            3)
+      << out;
+  EXPECT_GE(std::chrono::steady_clock::now() - started, std::chrono::seconds(4));
+  EXPECT_NE(out.find("waiting up to 4 s for the cell"), std::string::npos) << out;
+  EXPECT_NE(out.find("does not answer"), std::string::npos) << out;
 }
 
 }  // namespace

@@ -231,6 +231,13 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
   EXPECT_NE(out.find("\"score\":" + std::to_string(score.total)), std::string::npos) << out;
   EXPECT_EQ(RunCli("score" + at + started.task_id(), &out), 0) << out;
   EXPECT_NE(out.find(std::to_string(score.total) + "  total"), std::string::npos) << out;
+  // --out writes the results from the answer (as a remote client or a container gets them).
+  const std::string results = ::testing::TempDir() + "/task_pick_results";
+  EXPECT_EQ(RunCli("watch" + at + started.task_id() + " --out " + results, &out), 0) << out;
+  EXPECT_EQ(ReadText(results + "/output.json"), result.output_json());
+  EXPECT_NE(ReadText(results + "/score.txt").find(std::to_string(score.total) + "\ttotal\n"),
+            std::string::npos);
+  EXPECT_NE(ReadText(results + "/task.json").find("\"state\": \"succeeded\""), std::string::npos);
 }
 
 // A stow task: stow_layout_1's tote items into the bins. Nothing may be lost: the output

@@ -11,6 +11,8 @@
 #include <type_traits>
 #include <vector>
 
+#include "libs/geometry/temp_path.h"
+
 namespace picking::detector {
 namespace {
 
@@ -387,7 +389,7 @@ void ObjectModel::Finish() {
 }
 
 void ObjectModel::Save(const std::string& path) const {
-  const std::string tmp = path + ".tmp";
+  const std::string tmp = geometry::TemporaryPathBeside(path);
   {
     Writer w(tmp);
     w.Pod(kMagic);

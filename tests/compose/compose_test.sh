@@ -1,0 +1,151 @@
+#!/usr/bin/env bash
+# Brings the picking cell up with docker-compose.yml under podman, runs a short pick task
+# through the compose file's one-shot `task` service, checks the results it wrote, and tears
+# everything down (also on failure).
+#
+#   tests/compose/compose_test.sh BUILD_DIR
+#
+# The runtime image is made from BUILD_DIR's binaries; the base image debian:bookworm-slim is
+# made with debootstrap when podman does not have it (no registry is reachable here).
+set -euo pipefail
+build=$(realpath "${1:?usage: compose_test.sh BUILD_DIR}")
+here=$(cd "$(dirname "$0")" && pwd)
+top=$(cd "$here/../.." && pwd)
+work=$(mktemp -d /tmp/picking-compose.XXXXXX)
+project=picking-test-$$
+log() { echo "[compose_test $(date +%H:%M:%S)] $*"; }
+
+# --- podman, as this kind of machine runs it: runc, fixed ulimits, netavark ---------------
+export CONTAINERS_CONF=$here/containers.conf
+need=()
+for p in podman runc netavark aardvark-dns iptables debootstrap docker-compose podman-compose; do
+  dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
+done
+if [[ ${#need[@]} -gt 0 ]]; then
+  log "installing ${need[*]}"
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+fi
+if ! podman info >/dev/null 2>&1; then
+  echo "compose_test: podman cannot run on this machine:" >&2
+  podman info 2>&1 | tail -3 >&2
+  exit 1
+fi
+# Inside an unprivileged container (a CI runner that is itself a container) podman answers
+# but cannot start containers: say so rather than fail somewhere later.
+if podman image exists localhost/debian:bookworm-slim &&
+   ! podman run --rm --network host localhost/debian:bookworm-slim true >"$work/probe.log" 2>&1; then
+  echo "compose_test: this machine cannot start containers: $(tail -1 "$work/probe.log")" >&2
+  echo "compose_test: (exclude the test with CTEST_ARGS='-LE containers' on such a machine)" >&2
+  exit 1
+fi
+if ! podman image exists localhost/debian:bookworm-slim; then
+  log "making the base image debian:bookworm-slim with debootstrap"
+  root=$work/rootfs
+  debootstrap --variant=minbase bookworm "$root" >"$work/debootstrap.log" 2>&1 || {
+    tail -5 "$work/debootstrap.log" >&2; exit 1; }
+  tar -C "$root" -c . | podman import - localhost/debian:bookworm-slim >/dev/null
+  rm -rf "$root"
+fi
+
+# --- the runtime image from this build's binaries -----------------------------------------
+log "staging the image context from $build/bin"
+"$top/deploy/docker/stage-prebuilt.sh" "$build" "$work/context"
+log "building localhost/picking:latest"
+podman build --network host -q -f "$top/deploy/docker/Dockerfile.prebuilt" \
+  -t localhost/picking:latest "$work/context" >"$work/image-build.log" 2>&1 || {
+  tail -20 "$work/image-build.log" >&2; exit 1; }
+log "image size: $(podman image inspect localhost/picking:latest --format '{{.Size}}' |
+  awk '{ printf "%.0f MB", $1 / 1e6 }')"
+
+# --- docker-compose through podman's Docker-compatible socket -----------------------------
+sock=$work/podman.sock
+podman system service --time=0 "unix://$sock" >"$work/podman-service.log" 2>&1 &
+service_pid=$!
+export DOCKER_HOST=unix://$sock
+for _ in $(seq 100); do [[ -S $sock ]] && break; sleep 0.1; done
+# podman-compose reads the same file: the commands it would run give three detector
+# replicas under the one network alias and every server its health check.
+dry=$(cd "$top" && podman-compose -p "$project-dry" --dry-run up -d 2>/dev/null | grep '^podman run')
+# (its dry run still creates the named volumes)
+podman volume ls -q | grep "^$project-dry_" | xargs -r podman volume rm >/dev/null
+[[ $(grep -c -- '--network-alias detector ' <<<"$dry") == 3 ]] || {
+  echo "compose_test: podman-compose would not start three detector replicas" >&2; exit 1; }
+[[ $(grep -c -- '--healthcheck-command' <<<"$dry") == 9 ]] || {
+  echo "compose_test: podman-compose would not give every server its health check" >&2; exit 1; }
+
+compose() { docker-compose --project-directory "$top" -f "$top/docker-compose.yml" -p "$project" "$@"; }
+teardown() {
+  set +e
+  if [[ -n ${keep_logs:-} ]]; then compose logs --no-color >"$work/compose.log" 2>&1; fi
+  compose down -v --timeout 15 >/dev/null 2>&1
+  kill "$service_pid" 2>/dev/null
+  wait "$service_pid" 2>/dev/null
+  if [[ -n ${keep_logs:-} ]]; then
+    echo "compose_test: logs of every service:" >&2
+    tail -n 60 "$work/compose.log" >&2
+  fi
+  rm -rf "$work"
+}
+trap teardown EXIT
+
+# A short task: pick_layout_1's contents with a work order of one item, written where the
+# task container sees it (its results folder).
+out=$work/out
+mkdir -p "$out"
+/usr/bin/python3 - "$top/data/apc2016/tasks/pick_layout_1.json" "$out/short_task.json" <<'PY'
+import json, sys
+task = json.load(open(sys.argv[1]))
+task["work_order"] = [w for w in task["work_order"] if w["item"] == "kleenex_tissue_box"]
+json.dump(task, open(sys.argv[2], "w"), indent=1)
+PY
+export PICKING_OUT=$out PICKING_TASK=/out/short_task.json PICKING_DETECTOR_BUDGET_SCALE=10
+
+log "docker-compose up"
+keep_logs=1
+compose up -d --no-build >"$work/up.log" 2>&1 || { cat "$work/up.log" >&2; exit 1; }
+task_container=$(compose ps -q task)
+[[ -n $task_container ]] || { echo "compose_test: no task container" >&2; exit 1; }
+detectors=$(compose ps -q detector | wc -l)
+[[ $detectors == 3 ]] || { echo "compose_test: $detectors detector replicas, expected 3" >&2; exit 1; }
+
+# Health checks run only when asked without systemd: ask each server's once it is up.
+log "waiting for every server's health check"
+for service in simulator robot gripper scanner detector planner orchestrator; do
+  for id in $(compose ps -q "$service"); do
+    ok=0
+    for _ in $(seq 120); do
+      if podman healthcheck run "$id" >/dev/null 2>&1; then ok=1; break; fi
+      sleep 1
+    done
+    [[ $ok == 1 ]] || { echo "compose_test: $service ($id) never became healthy" >&2; exit 1; }
+  done
+done
+log "every server is healthy; waiting for the task"
+status=$(timeout 1500 podman wait "$task_container") || {
+  echo "compose_test: the task did not end within 25 min" >&2; exit 1; }
+podman logs "$task_container" 2>&1 | tail -n 20
+[[ $status == 0 ]] || { echo "compose_test: the task service exited with $status" >&2; exit 1; }
+
+# The results the task service wrote: the output file, the score and the final state.
+/usr/bin/python3 - "$out" <<'PY'
+import json, os, sys
+out = sys.argv[1]
+output = json.load(open(os.path.join(out, "output.json")))
+assert set(output) >= {"bin_contents", "tote_contents"}, output.keys()
+task = json.load(open(os.path.join(out, "task.json")))
+assert task["state"] == "succeeded", task["state"]
+score = open(os.path.join(out, "score.txt")).read().splitlines()
+assert score and score[-1].endswith("\ttotal"), score
+print("compose_test: task %s %s, score %s, %d items in the tote" %
+      (task["task_id"], task["state"], score[-1].split("\t")[0], len(output["tote_contents"])))
+PY
+# Detection went through the one name "detector" to more than one replica (round_robin).
+serving=0
+for id in $(compose ps -q detector); do
+  if podman logs "$id" 2>&1 | grep -q 'DetectorService/\(Detect\|Verify\)'; then serving=$((serving + 1)); fi
+done
+log "$serving of 3 detector replicas served detection calls"
+[[ $serving -ge 2 ]] || { echo "compose_test: the calls were not spread over the replicas" >&2; exit 1; }
+keep_logs=
+log "passed"
