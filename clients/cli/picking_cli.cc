@@ -3,10 +3,12 @@
 //   picking run TASK.json [--time-limit S] [--ease item,item,...] [--resume ID]
 //   picking watch ID      picking status [ID]      picking list
 //   picking cancel ID     picking score ID
+//   picking call ADDRESS SERVICE/METHOD ['JSON']   any method of any server, by reflection
 // Options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or localhost:50050), --json (one
 // JSON object per event or answer instead of the progress display).
 // Exit codes: 0 the task succeeded (or the command did), 1 the task failed or was cancelled,
-// 2 bad usage, 3 the orchestrator refused the request or could not be reached.
+// 2 bad usage (for call also an unknown service or method, or a request that does not parse),
+// 3 the orchestrator (or the called server) refused the request or could not be reached.
 #include <grpcpp/create_channel.h>
 
 #include <cstdio>
@@ -18,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "clients/cli/call.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 
 namespace {
@@ -40,6 +43,7 @@ int Usage(const std::string& error) {
   if (!error.empty()) std::cerr << "picking: " << error << "\n";
   std::cerr << "usage: picking run TASK.json [--time-limit S] [--ease a,b] [--resume ID]\n"
                "       picking watch ID | status [ID] | list | cancel ID | score ID\n"
+               "       picking call ADDRESS SERVICE/METHOD ['JSON']\n"
                "options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or "
                "localhost:50050), --json\n";
   return kUsage;
@@ -285,6 +289,12 @@ int main(int argc, char** argv) {
   Args args;
   std::string error;
   if (!Parse(argc, argv, &args, &error)) return Usage(error);
+  if (args.command == "call") {
+    // The address is the called server's, not the orchestrator's: it comes first.
+    const auto& p = args.positional;
+    if (p.size() != 2 && p.size() != 3) return Usage("call needs ADDRESS SERVICE/METHOD ['JSON']");
+    return picking::cli::Call(p[0], p[1], p.size() == 3 ? p[2] : "", std::cout, std::cerr);
+  }
   auto channel = grpc::CreateChannel(args.address, grpc::InsecureChannelCredentials());
   auto stub = pb::OrchestratorService::NewStub(channel);
   const auto& c = args.command;
