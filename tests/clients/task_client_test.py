@@ -70,13 +70,13 @@ class TaskClientTest(unittest.TestCase):
         command, env = client_command(LANGUAGE)
         cls.tmp = tempfile.TemporaryDirectory()
         cls.out = pathlib.Path(cls.tmp.name) / "run"
-        cls.run = subprocess.run(
+        cls.result = subprocess.run(
             [str(ROOT / "scripts" / "run.sh"), "--bin", str(BIN_DIR), "--task", str(TASK),
              "--out", str(cls.out), "--time-scale", "20", "--detector-budget-scale", "10",
              "--client", command],
             capture_output=True, text=True, env=env, timeout=840)
-        sys.stdout.write(cls.run.stdout)
-        sys.stderr.write(cls.run.stderr)
+        sys.stdout.write(cls.result.stdout)
+        sys.stderr.write(cls.result.stderr)
         outcome = cls.out / "outcome.json"
         cls.outcome = json.loads(outcome.read_text()) if outcome.exists() else None
 
@@ -86,20 +86,20 @@ class TaskClientTest(unittest.TestCase):
 
     def setUp(self):
         if self.outcome is None:
-            self.fail(f"the client wrote no outcome file (run.sh exit {self.run.returncode})")
+            self.fail(f"the client wrote no outcome file (run.sh exit {self.result.returncode})")
 
     def test_the_task_succeeded_and_the_client_said_so(self):
-        self.assertEqual(self.run.returncode, 0, self.run.stderr)
+        self.assertEqual(self.result.returncode, 0, self.result.stderr)
         self.assertEqual(self.outcome["state"], "TASK_STATE_SUCCEEDED", self.outcome["error"])
         self.assertIn(f"TASK_STATE_SUCCEEDED: score {self.outcome['score']}, 1 moved, 0 failed",
-                      self.run.stdout)
+                      self.result.stdout)
 
     def test_the_events_arrived_in_order_one_line_each(self):
         events = self.outcome["events"]
         self.assertEqual([e["sequence"] for e in events], list(range(len(events))))
         self.assertTrue(all(e["state"] == "TASK_STATE_RUNNING" for e in events[:-1]))
         self.assertEqual(events[-1]["state"], "TASK_STATE_SUCCEEDED")
-        lines = [l for l in self.run.stdout.splitlines() if l.startswith("[")]
+        lines = [l for l in self.result.stdout.splitlines() if l.startswith("[")]
         self.assertEqual(len(lines), len(events))
         for line, event in zip(lines, events):
             self.assertIn(f"#{event['sequence']} {event['items_done']}/{event['items_total']} ",
@@ -111,6 +111,11 @@ class TaskClientTest(unittest.TestCase):
             self.assertIn(step, steps)
         self.assertLess(steps.index("STEP_GRASP"), len(steps) - 1 - steps[::-1].index(
             "STEP_PLACE"))
+        # The place that counts the item done is the last step of the item.
+        places = [e for e in self.outcome["events"] if e["item"] == ITEM
+                  and e["step"] == "STEP_PLACE"]
+        self.assertEqual(places[-1]["items_done"], 1)
+        self.assertTrue(places[-1]["ok"])
         self.assertEqual(self.outcome["events"][-1]["items_done"], 1)
 
     def test_the_output_file_has_the_item_in_the_tote(self):
