@@ -1,6 +1,9 @@
 #!/usr/bin/python3
 """Runs an example client (Python or Node.js) through a short task on a whole simulated cell.
 
+And checks the client's refusals against an orchestrator alone: a malformed task file and
+a task whose services are down both end with exit status 1 and the orchestrator's status.
+
 scripts/run.sh starts every server of the build on free ports and runs the client in place
 of `picking run`; the task picks the tissue box of pick_layout_1. The client's outcome file,
 its printed lines and run.sh's copy of the APC output file must all tell the same story: the
@@ -15,7 +18,9 @@ import filecmp
 import json
 import os
 import pathlib
+import select
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -62,6 +67,63 @@ def client_command(language):
         raise SystemExit(f"unknown client language {language!r}")
     args = ["--address", "{address}", "--task", "{task}", "--result", "{out}/outcome.json"]
     return " ".join(program + args), env
+
+
+def run_client(command, env, task_file, address):
+    """Runs the client command outside run.sh, with the placeholders filled in."""
+    with tempfile.TemporaryDirectory() as out:
+        line = (command.replace("{address}", address).replace("{task}", str(task_file))
+                .replace("{out}", out))
+        return subprocess.run(line.split(" "), capture_output=True, text=True, env=env,
+                              timeout=120)
+
+
+class OrchestratorAlone:
+    """picking-orchestrator on a free port, its peers on a port nothing listens on."""
+
+    def __enter__(self):
+        self.tasks = tempfile.TemporaryDirectory()
+        nobody = "127.0.0.1:1"
+        self.proc = subprocess.Popen(
+            [str(BIN_DIR / "picking-orchestrator"), "--listen=127.0.0.1:0",
+             f"--tasks_dir={self.tasks.name}", f"--scanner.address={nobody}",
+             f"--detector.endpoints={nobody}", f"--planner.address={nobody}",
+             f"--robot.address={nobody}", f"--gripper.address={nobody}"],
+            stdout=subprocess.PIPE, text=True)
+        ready, _, _ = select.select([self.proc.stdout], [], [], 60)
+        line = self.proc.stdout.readline().strip() if ready else ""
+        if not line.startswith("listening on "):
+            self.proc.kill()
+            raise RuntimeError(f"picking-orchestrator did not report its port: {line!r}")
+        self.address = line[len("listening on "):]
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.send_signal(signal.SIGTERM)
+        self.exit_code = self.proc.wait(timeout=30)
+        self.proc.stdout.close()
+        self.tasks.cleanup()
+
+
+class TaskClientRefusalTest(unittest.TestCase):
+    def test_a_malformed_task_file_is_refused(self):
+        command, env = client_command(LANGUAGE)
+        with tempfile.NamedTemporaryFile("w", suffix=".json") as bad, OrchestratorAlone() as orch:
+            bad.write('{"bin_contents": ')
+            bad.flush()
+            result = run_client(command, env, bad.name, orch.address)
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn("INVALID_ARGUMENT", result.stderr)
+        self.assertIn("malformed JSON", result.stderr)
+        self.assertEqual(orch.exit_code, 0)
+
+    def test_a_task_whose_services_are_down_is_unavailable(self):
+        command, env = client_command(LANGUAGE)
+        with OrchestratorAlone() as orch:
+            result = run_client(command, env, TASK, orch.address)
+        self.assertEqual(result.returncode, 1, result.stdout + result.stderr)
+        self.assertIn("UNAVAILABLE", result.stderr)
+        self.assertEqual(orch.exit_code, 0)
 
 
 class TaskClientTest(unittest.TestCase):
