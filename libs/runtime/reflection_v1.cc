@@ -36,15 +36,12 @@ class ReflectionV1Service final : public refl::ServerReflection::Service {
       grpc::ServerContext* /*context*/,
       grpc::ServerReaderWriter<refl::ServerReflectionResponse, refl::ServerReflectionRequest>*
           stream) override {
-    // Files already sent on this stream are not sent again, as in gRPC's implementation:
-    // a client keeps what it received earlier on the same stream.
-    std::unordered_set<std::string> sent;
     refl::ServerReflectionRequest request;
     while (stream->Read(&request)) {
       refl::ServerReflectionResponse response;
       response.set_valid_host(request.host());
       *response.mutable_original_request() = request;
-      const grpc::Status status = Answer(request, &sent, &response);
+      const grpc::Status status = Answer(request, &response);
       if (!status.ok()) {
         response.mutable_error_response()->set_error_code(status.error_code());
         response.mutable_error_response()->set_error_message(status.error_message());
@@ -56,7 +53,6 @@ class ReflectionV1Service final : public refl::ServerReflection::Service {
 
  private:
   grpc::Status Answer(const refl::ServerReflectionRequest& request,
-                      std::unordered_set<std::string>* sent,
                       refl::ServerReflectionResponse* response) const {
     using R = refl::ServerReflectionRequest;
     switch (request.message_request_case()) {
@@ -64,13 +60,12 @@ class ReflectionV1Service final : public refl::ServerReflection::Service {
         return ListServices(response->mutable_list_services_response());
       case R::kFileByFilename:
         return SendFile(pool_->FindFileByName(request.file_by_filename()),
-                        "file '" + request.file_by_filename() + "' not found", sent, response);
+                        "file '" + request.file_by_filename() + "' not found", response);
       case R::kFileContainingSymbol:
         return SendFile(pool_->FindFileContainingSymbol(request.file_containing_symbol()),
-                        "symbol '" + request.file_containing_symbol() + "' not found", sent,
-                        response);
+                        "symbol '" + request.file_containing_symbol() + "' not found", response);
       case R::kFileContainingExtension:
-        return SendExtensionFile(request.file_containing_extension(), sent, response);
+        return SendExtensionFile(request.file_containing_extension(), response);
       case R::kAllExtensionNumbersOfType:
         return ListExtensionNumbers(request.all_extension_numbers_of_type(),
                                     response->mutable_all_extension_numbers_response());
@@ -85,12 +80,14 @@ class ReflectionV1Service final : public refl::ServerReflection::Service {
     return grpc::Status::OK;
   }
 
-  // The file and, depth first, every file it imports that this stream has not yet sent.
+  // The file and, depth first, every file it imports, each once. Files sent in earlier
+  // answers on the stream are sent again (as gRPC's C++ implementation does): clients such
+  // as grpcurl build the files of each answer on their own.
   grpc::Status SendFile(const FileDescriptor* file, const std::string& not_found,
-                        std::unordered_set<std::string>* sent,
                         refl::ServerReflectionResponse* response) const {
     if (file == nullptr) return {grpc::StatusCode::NOT_FOUND, not_found};
-    AddFileAndImports(file, sent, response->mutable_file_descriptor_response());
+    std::unordered_set<std::string> sent;
+    AddFileAndImports(file, &sent, response->mutable_file_descriptor_response());
     return grpc::Status::OK;
   }
 
@@ -106,14 +103,13 @@ class ReflectionV1Service final : public refl::ServerReflection::Service {
   }
 
   grpc::Status SendExtensionFile(const refl::ExtensionRequest& request,
-                                 std::unordered_set<std::string>* sent,
                                  refl::ServerReflectionResponse* response) const {
     const Descriptor* type = pool_->FindMessageTypeByName(request.containing_type());
     if (type == nullptr) return {grpc::StatusCode::NOT_FOUND, "type not found"};
     const FieldDescriptor* extension =
         pool_->FindExtensionByNumber(type, request.extension_number());
     if (extension == nullptr) return {grpc::StatusCode::NOT_FOUND, "extension not found"};
-    return SendFile(extension->file(), "", sent, response);
+    return SendFile(extension->file(), "", response);
   }
 
   grpc::Status ListExtensionNumbers(const std::string& type_name,

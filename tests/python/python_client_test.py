@@ -88,11 +88,14 @@ class PythonClientTest(unittest.TestCase):
         os.environ["PICKING_PY_STUBS"] = STUB_DIR
         pb = picking_stubs.load(picking_stubs.REFLECTION_MODULE + ".reflection_pb2")
         pb_grpc = picking_stubs.load(picking_stubs.REFLECTION_MODULE + ".reflection_pb2_grpc")
+        # Two questions answered by one file, on one stream: each answer holds it.
         requests = [pb.ServerReflectionRequest(list_services=""),
-                    pb.ServerReflectionRequest(file_containing_symbol="grpc.health.v1.Health")]
+                    pb.ServerReflectionRequest(file_containing_symbol="grpc.health.v1.Health"),
+                    pb.ServerReflectionRequest(
+                        file_containing_symbol="grpc.health.v1.HealthCheckResponse")]
         with PlannerServer() as server, grpc.insecure_channel(server.address) as channel:
             stub = pb_grpc.ServerReflectionStub(channel)
-            listed, health = list(stub.ServerReflectionInfo(iter(requests), timeout=30))
+            listed, health, again = list(stub.ServerReflectionInfo(iter(requests), timeout=30))
         names = [s.name for s in listed.list_services_response.service]
         for name in ("picking.planner.v1.PlannerService", "grpc.health.v1.Health",
                      "grpc.reflection.v1.ServerReflection"):
@@ -101,6 +104,8 @@ class PythonClientTest(unittest.TestCase):
                  for b in health.file_descriptor_response.file_descriptor_proto]
         self.assertEqual([f.name for f in files], ["grpc/health/v1/health.proto"])
         self.assertEqual([s.name for s in files[0].service], ["Health"])
+        self.assertEqual(again.file_descriptor_response.file_descriptor_proto,
+                         health.file_descriptor_response.file_descriptor_proto)
         self.assertEqual(server.exit_code, 0)
 
 
