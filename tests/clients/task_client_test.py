@@ -39,6 +39,9 @@ def node_modules():
 
     A second run reuses them while the lock file is unchanged.
     """
+    for tool in ("node", "npm"):
+        if shutil.which(tool) is None:
+            raise RuntimeError(f"{tool} is not on PATH (scripts/install-deps.sh installs it)")
     source = ROOT / "clients" / "node"
     target = WORK_DIR / "node"
     target.mkdir(parents=True, exist_ok=True)
