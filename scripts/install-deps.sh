@@ -26,6 +26,10 @@ packages=(
   # style check
   clang-format
 )
+# The Node.js client example and its test. Only when missing: a Node.js from elsewhere
+# (e.g. NodeSource's, which bundles npm) conflicts with Debian's npm package.
+command -v node >/dev/null || packages+=(nodejs)
+command -v npm >/dev/null || packages+=(npm)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -7,6 +7,8 @@
 #   scripts/run.sh                                   # pick_layout_1
 #   scripts/run.sh --task data/apc2016/tasks/pick_layout_2.json --detectors 2
 #   scripts/run.sh --time-scale 1                    # the arm at real speed
+#   scripts/run.sh --client '/usr/bin/python3 clients/python/task_client.py \
+#       --address {address} --task {task}'          # another client runs the task
 #
 # Options:
 #   --task FILE       APC 2016 task file (default data/apc2016/tasks/pick_layout_1.json)
@@ -17,6 +19,12 @@
 #   --seed N          layout seed of the simulator (default 7)
 #   --out DIR         output folder (default runs/<date-time>)
 #   --no-install      do not install missing packages
+#   --bin DIR         use the servers already built in DIR (nothing is installed or built)
+#   --detector-budget-scale X  the detector's --time_budget_scale (default 1; more time
+#                     for each detection on a loaded machine)
+#   --client CMD      run CMD (a shell command) instead of `picking run TASK`, with {address}
+#                     replaced by the orchestrator's HOST:PORT, {task} by the task file's
+#                     path and {out} by the output folder; its exit status is run.sh's
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -27,21 +35,29 @@ time_scale=10
 seed=7
 out=""
 install=1
+bin=""
+budget_scale=1
+client=""
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --task) task=$2; shift 2 ;;
-        --stow) task=data/apc2016/tasks/stow_layout_1.json; shift ;;
+    --stow) task=data/apc2016/tasks/stow_layout_1.json; shift ;;
     --detectors) detectors=$2; shift 2 ;;
     --time-scale) time_scale=$2; shift 2 ;;
     --seed) seed=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     --no-install) install=0; shift ;;
-    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --bin) bin=$2; install=0; shift 2 ;;
+    --detector-budget-scale) budget_scale=$2; shift 2 ;;
+    --client) client=$2; shift 2 ;;
+    -h|--help) awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
 [[ -r "$task" ]] || { echo "run.sh: cannot read task file $task" >&2; exit 2; }
 [[ "$detectors" =~ ^[1-9][0-9]*$ ]] || { echo "run.sh: --detectors must be >= 1" >&2; exit 2; }
+[[ -z "$bin" || -x "$bin/picking-orchestrator" ]] || {
+  echo "run.sh: no picking-orchestrator in --bin $bin" >&2; exit 2; }
 
 task=$(realpath "$task")
 out=${out:-runs/$(date +%Y%m%d-%H%M%S)}
@@ -49,18 +65,21 @@ mkdir -p "$out/logs"
 out=$(realpath "$out")
 
 if [[ $install == 1 ]]; then scripts/install-deps.sh; fi
-build_dir=${BUILD_DIR:-build}
-export CCACHE_DIR=${CCACHE_DIR:-$HOME/.cache/ccache}
-targets=(picking picking-simulator picking-robot picking-gripper picking-scanner picking-detector
-         picking-planner picking-orchestrator)
-if [[ ! -f "$build_dir/build.ninja" ]]; then
-  cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=Release \
-    ${CMAKE_ARGS:-} > "$out/logs/cmake.log"
+if [[ -z "$bin" ]]; then
+  build_dir=${BUILD_DIR:-build}
+  export CCACHE_DIR=${CCACHE_DIR:-$HOME/.cache/ccache}
+  targets=(picking picking-simulator picking-robot picking-gripper picking-scanner
+           picking-detector picking-planner picking-orchestrator)
+  if [[ ! -f "$build_dir/build.ninja" ]]; then
+    cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+      ${CMAKE_ARGS:-} > "$out/logs/cmake.log"
+  fi
+  echo "building the servers (a second run reuses the build) ..."
+  cmake --build "$build_dir" -j "$(nproc)" --target "${targets[@]}" > "$out/logs/build.log" || {
+    tail -30 "$out/logs/build.log" >&2; exit 1; }
+  bin=$root/$build_dir/bin
 fi
-echo "building the servers (a second run reuses the build) ..."
-cmake --build "$build_dir" -j "$(nproc)" --target "${targets[@]}" > "$out/logs/build.log" || {
-  tail -30 "$out/logs/build.log" >&2; exit 1; }
-bin=$root/$build_dir/bin
+bin=$(realpath "$bin")
 
 pids=()
 cleanup() {
@@ -108,7 +127,8 @@ start gripper gripper picking-gripper --backend=sim --sim.address="$sim"
 start scanner scanner picking-scanner --sim.address="$sim" --calibration.dir="$out/calibration"
 detector_list=""
 for i in $(seq "$detectors"); do
-  start det "detector-$i" picking-detector --cache_dir="$root/$build_dir/detector-cache"
+  start det "detector-$i" picking-detector --cache_dir="$bin/../detector-cache" \
+    --time_budget_scale="$budget_scale"
   detector_list=${detector_list:+$detector_list,}$det
 done
 start planner planner picking-planner
@@ -117,7 +137,15 @@ start orch orchestrator picking-orchestrator --tasks_dir="$out/tasks" \
   --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper"
 
 status=0
-"$bin/picking" run "$task" --address "$orch" | tee "$out/progress.txt" || status=$?
+if [[ -n "$client" ]]; then
+  # The placeholders are replaced as plain text: paths and the address hold no spaces.
+  command=${client//\{address\}/$orch}
+  command=${command//\{task\}/$task}
+  command=${command//\{out\}/$out}
+  bash -c "$command" | tee "$out/progress.txt" || status=$?
+else
+  "$bin/picking" run "$task" --address "$orch" | tee "$out/progress.txt" || status=$?
+fi
 task_dir=$(ls -d "$out"/tasks/task-* 2>/dev/null | tail -1)
 if [[ -n "$task_dir" ]]; then
   cp "$task_dir/output.json" "$task_dir/report.html" "$task_dir/report.json" "$out/" 2>/dev/null || true

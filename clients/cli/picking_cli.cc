@@ -4,14 +4,16 @@
 //   picking watch ID      picking status [ID]      picking list
 //   picking cancel ID     picking score ID
 //   picking health [--service NAME]     (any picking server's grpc.health.v1 answer)
+//   picking call ADDRESS SERVICE/METHOD ['JSON']   any method of any server, by reflection
 // Options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or localhost:50050), --json (one
 // JSON object per event or answer instead of the progress display); for run: --wait S (keep
 // asking an orchestrator that is not up yet, or whose peers are not, for up to S seconds); for
 // run and watch: --out DIR (write the output file and the score there, from the answer, not
 // the orchestrator's disk).
 // Exit codes: 0 the task succeeded (or the command did; for health: SERVING), 1 the task failed
-// or was cancelled (health: not serving), 2 bad usage, 3 the orchestrator refused the request
-// or could not be reached.
+// or was cancelled (health: not serving), 2 bad usage (for call also an unknown service or
+// method, or a request that does not parse), 3 the orchestrator (or the called server) refused
+// the request or could not be reached.
 #include <grpcpp/create_channel.h>
 
 #include <chrono>
@@ -26,6 +28,7 @@
 #include <thread>
 #include <vector>
 
+#include "clients/cli/call.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 
@@ -54,6 +57,7 @@ int Usage(const std::string& error) {
                "                           [--wait S] [--out DIR]\n"
                "       picking watch ID | status [ID] | list | cancel ID | score ID\n"
                "       picking health [--service NAME]\n"
+               "       picking call ADDRESS SERVICE/METHOD ['JSON']\n"
                "options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or "
                "localhost:50050), --json\n";
   return kUsage;
@@ -390,6 +394,12 @@ int main(int argc, char** argv) {
   Args args;
   std::string error;
   if (!Parse(argc, argv, &args, &error)) return Usage(error);
+  if (args.command == "call") {
+    // The address is the called server's, not the orchestrator's: it comes first.
+    const auto& p = args.positional;
+    if (p.size() != 2 && p.size() != 3) return Usage("call needs ADDRESS SERVICE/METHOD ['JSON']");
+    return picking::cli::Call(p[0], p[1], p.size() == 3 ? p[2] : "", std::cout, std::cerr);
+  }
   auto channel = grpc::CreateChannel(args.address, grpc::InsecureChannelCredentials());
   auto stub = pb::OrchestratorService::NewStub(channel);
   const auto& c = args.command;

@@ -15,12 +15,16 @@ import tempfile
 
 PROTO_ROOT = pathlib.Path(__file__).resolve().parents[2] / "proto"
 
-# The vendored gRPC health contract lives at proto/grpc/health/v1/health.proto; generated
-# as is, its module "grpc.health.v1" would clash with grpcio's own "grpc" package. It is
-# generated as "grpc_health_vendored.v1.health_pb2" instead (same proto package, same wire
+# The vendored gRPC contracts live under proto/grpc/ (health/v1, reflection/v1); generated
+# as is, their modules "grpc.health.v1" and "grpc.reflection.v1" would clash with grpcio's
+# own "grpc" package. They are generated as "grpc_health_vendored.v1.health_pb2" and
+# "grpc_reflection_vendored.v1.reflection_pb2" instead (same proto packages, same wire
 # format).
 HEALTH_MODULE = "grpc_health_vendored.v1"
-_RENAMES = {"grpc/health/v1/health.proto": "grpc_health_vendored/v1/health.proto"}
+REFLECTION_MODULE = "grpc_reflection_vendored.v1"
+_RENAMES = {"grpc/health/v1/health.proto": "grpc_health_vendored/v1/health.proto",
+            "grpc/reflection/v1/reflection.proto":
+                "grpc_reflection_vendored/v1/reflection.proto"}
 
 
 def _proto_files():

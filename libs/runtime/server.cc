@@ -16,6 +16,7 @@
 #include <string_view>
 
 #include "libs/runtime/log.h"
+#include "libs/runtime/reflection_v1.h"
 
 namespace picking::runtime {
 namespace {
@@ -279,6 +280,7 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
+  AddReflectionV1(builder);
   int bound_port = 0;
   builder.AddListeningPort(flags.listen, grpc::InsecureServerCredentials(), &bound_port);
   const int max_bytes = flags.max_message_mb * 1024 * 1024;

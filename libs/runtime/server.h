@@ -49,7 +49,7 @@ struct ServerSpec {
 ///   --shutdown-grace-s=S (how long in-flight calls may run on after SIGTERM; default 5)
 ///   --max-message-mb=N   (largest gRPC message accepted or sent; default 64)
 /// builds the services, enables the standard health service (grpc.health.v1: "" and each
-/// service SERVING) and server reflection, binds, prints exactly one line
+/// service SERVING) and server reflection (v1alpha and v1), binds, prints exactly one line
 /// `listening on HOST:PORT` with the bound port to stdout, serves until SIGTERM or SIGINT,
 /// then stops cleanly (health NOT_SERVING, new calls refused, in-flight calls finish within
 /// the grace period) and returns the process exit status (0 on a clean stop).

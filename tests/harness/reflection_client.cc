@@ -6,26 +6,28 @@
 #include <chrono>
 #include <stdexcept>
 
+#include "grpc/reflection/v1/reflection.grpc.pb.h"
 #include "grpc/reflection/v1alpha/reflection.grpc.pb.h"
 
 namespace picking::testing {
 namespace {
 
-using grpc::reflection::v1alpha::ServerReflection;
-using grpc::reflection::v1alpha::ServerReflectionRequest;
-using grpc::reflection::v1alpha::ServerReflectionResponse;
+namespace v1 = ::grpc::reflection::v1;
+namespace v1alpha = ::grpc::reflection::v1alpha;
 
-ServerReflectionResponse Ask(const std::shared_ptr<grpc::Channel>& channel,
-                             const ServerReflectionRequest& request) {
+// The two versions have the same messages in different packages: one implementation, over
+// the generated types of either. Asks one question on a new stream and returns the answer.
+template <typename ServerReflection, typename Request, typename Response>
+Response Ask(const std::shared_ptr<grpc::Channel>& channel, const Request& request) {
   auto stub = ServerReflection::NewStub(channel);
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
   auto stream = stub->ServerReflectionInfo(&ctx);
   if (!stream->Write(request)) throw std::runtime_error("reflection: write failed");
   stream->WritesDone();
-  ServerReflectionResponse response;
+  Response response;
   if (!stream->Read(&response)) throw std::runtime_error("reflection: no response");
-  ServerReflectionResponse ignored;
+  Response ignored;
   while (stream->Read(&ignored)) {
   }
   const grpc::Status status = stream->Finish();
@@ -36,22 +38,22 @@ ServerReflectionResponse Ask(const std::shared_ptr<grpc::Channel>& channel,
   return response;
 }
 
-}  // namespace
-
-std::vector<std::string> ListServicesByReflection(const std::shared_ptr<grpc::Channel>& channel) {
-  ServerReflectionRequest request;
+template <typename ServerReflection, typename Request, typename Response>
+std::vector<std::string> ListServices(const std::shared_ptr<grpc::Channel>& channel) {
+  Request request;
   request.set_list_services("");
-  const auto response = Ask(channel, request);
+  const auto response = Ask<ServerReflection, Request, Response>(channel, request);
   std::vector<std::string> names;
   for (const auto& s : response.list_services_response().service()) names.push_back(s.name());
   return names;
 }
 
-std::vector<std::string> FilesContainingSymbol(const std::shared_ptr<grpc::Channel>& channel,
-                                               const std::string& symbol) {
-  ServerReflectionRequest request;
+template <typename ServerReflection, typename Request, typename Response>
+std::vector<std::string> FileNames(const std::shared_ptr<grpc::Channel>& channel,
+                                   const std::string& symbol) {
+  Request request;
   request.set_file_containing_symbol(symbol);
-  const auto response = Ask(channel, request);
+  const auto response = Ask<ServerReflection, Request, Response>(channel, request);
   std::vector<std::string> files;
   for (const auto& bytes : response.file_descriptor_response().file_descriptor_proto()) {
     google::protobuf::FileDescriptorProto fd;
@@ -59,6 +61,29 @@ std::vector<std::string> FilesContainingSymbol(const std::shared_ptr<grpc::Chann
     files.push_back(fd.name());
   }
   return files;
+}
+
+}  // namespace
+
+std::vector<std::string> ListServicesByReflection(const std::shared_ptr<grpc::Channel>& channel,
+                                                  ReflectionVersion version) {
+  if (version == ReflectionVersion::kV1) {
+    return ListServices<v1::ServerReflection, v1::ServerReflectionRequest,
+                        v1::ServerReflectionResponse>(channel);
+  }
+  return ListServices<v1alpha::ServerReflection, v1alpha::ServerReflectionRequest,
+                      v1alpha::ServerReflectionResponse>(channel);
+}
+
+std::vector<std::string> FilesContainingSymbol(const std::shared_ptr<grpc::Channel>& channel,
+                                               const std::string& symbol,
+                                               ReflectionVersion version) {
+  if (version == ReflectionVersion::kV1) {
+    return FileNames<v1::ServerReflection, v1::ServerReflectionRequest,
+                     v1::ServerReflectionResponse>(channel, symbol);
+  }
+  return FileNames<v1alpha::ServerReflection, v1alpha::ServerReflectionRequest,
+                   v1alpha::ServerReflectionResponse>(channel, symbol);
 }
 
 }  // namespace picking::testing

@@ -48,11 +48,21 @@ void ExpectStandardServerBehaviour(const std::string& binary, const std::string&
   status = Check(*health, "no.such.Service", &response);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
 
-  const auto services = ListServicesByReflection(server.Channel());
-  EXPECT_TRUE(Contains(services, service_full_name));
-  EXPECT_TRUE(Contains(services, "grpc.health.v1.Health"));
-  const auto files = FilesContainingSymbol(server.Channel(), service_full_name);
-  EXPECT_TRUE(Contains(files, proto_file)) << "reflection did not return " << proto_file;
+  // Both reflection versions list the server's services (themselves included) and resolve
+  // its contract and the health service's.
+  for (const ReflectionVersion version : {ReflectionVersion::kV1Alpha, ReflectionVersion::kV1}) {
+    const char* name = version == ReflectionVersion::kV1 ? "v1" : "v1alpha";
+    const auto services = ListServicesByReflection(server.Channel(), version);
+    EXPECT_TRUE(Contains(services, service_full_name)) << name;
+    EXPECT_TRUE(Contains(services, "grpc.health.v1.Health")) << name;
+    EXPECT_TRUE(Contains(services, "grpc.reflection.v1.ServerReflection")) << name;
+    EXPECT_TRUE(Contains(services, "grpc.reflection.v1alpha.ServerReflection")) << name;
+    const auto files = FilesContainingSymbol(server.Channel(), service_full_name, version);
+    EXPECT_TRUE(Contains(files, proto_file)) << name << " did not return " << proto_file;
+    const auto health_files =
+        FilesContainingSymbol(server.Channel(), "grpc.health.v1.Health", version);
+    EXPECT_TRUE(Contains(health_files, "grpc/health/v1/health.proto")) << name;
+  }
 
   EXPECT_EQ(server.Stop(), 0);
 }

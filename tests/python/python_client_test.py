@@ -14,8 +14,13 @@ import sys
 import tempfile
 import unittest
 
+import grpc
+from google.protobuf import descriptor_pb2
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLIENT = ROOT / "clients" / "python" / "example_client.py"
+sys.path.insert(0, str(CLIENT.parent))
+import picking_stubs  # noqa: E402  (found through the path set just above)
 BIN_DIR = pathlib.Path(sys.argv.pop(1)) if len(sys.argv) > 1 else ROOT / "build" / "bin"
 
 
@@ -39,6 +44,7 @@ class PlannerServer:
     def __exit__(self, *exc):
         self.proc.send_signal(signal.SIGTERM)
         self.exit_code = self.proc.wait(timeout=30)
+        self.proc.stdout.close()
 
 
 def run_client(address, *extra):
@@ -74,6 +80,33 @@ class PythonClientTest(unittest.TestCase):
         self.assertEqual(result.returncode, 1)
         self.assertIn("INVALID_ARGUMENT", result.stderr)
         self.assertIn("6", result.stderr)
+
+
+    def test_reflection_v1_from_python(self):
+        # grpcio's client, not the C++ one of the other tests: the v1 service speaks the
+        # wire format other languages' tools expect.
+        os.environ["PICKING_PY_STUBS"] = STUB_DIR
+        pb = picking_stubs.load(picking_stubs.REFLECTION_MODULE + ".reflection_pb2")
+        pb_grpc = picking_stubs.load(picking_stubs.REFLECTION_MODULE + ".reflection_pb2_grpc")
+        # Two questions answered by one file, on one stream: each answer holds it.
+        requests = [pb.ServerReflectionRequest(list_services=""),
+                    pb.ServerReflectionRequest(file_containing_symbol="grpc.health.v1.Health"),
+                    pb.ServerReflectionRequest(
+                        file_containing_symbol="grpc.health.v1.HealthCheckResponse")]
+        with PlannerServer() as server, grpc.insecure_channel(server.address) as channel:
+            stub = pb_grpc.ServerReflectionStub(channel)
+            listed, health, again = list(stub.ServerReflectionInfo(iter(requests), timeout=30))
+        names = [s.name for s in listed.list_services_response.service]
+        for name in ("picking.planner.v1.PlannerService", "grpc.health.v1.Health",
+                     "grpc.reflection.v1.ServerReflection"):
+            self.assertIn(name, names)
+        files = [descriptor_pb2.FileDescriptorProto.FromString(b)
+                 for b in health.file_descriptor_response.file_descriptor_proto]
+        self.assertEqual([f.name for f in files], ["grpc/health/v1/health.proto"])
+        self.assertEqual([s.name for s in files[0].service], ["Health"])
+        self.assertEqual(again.file_descriptor_response.file_descriptor_proto,
+                         health.file_descriptor_response.file_descriptor_proto)
+        self.assertEqual(server.exit_code, 0)
 
 
 if __name__ == "__main__":
