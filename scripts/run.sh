@@ -82,8 +82,14 @@ fi
 bin=$(realpath "$bin")
 
 pids=()
+client_pid=""
 cleanup() {
   trap - INT TERM EXIT
+  # The client pipeline first (a signal sent to run.sh alone does not reach it).
+  if [[ -n $client_pid ]]; then
+    pkill -TERM -P "$client_pid" 2>/dev/null || true
+    kill -TERM "$client_pid" 2>/dev/null || true
+  fi
   if [[ ${#pids[@]} -gt 0 ]]; then
     echo "stopping the services ..."
     kill -TERM "${pids[@]}" 2>/dev/null || true
@@ -142,15 +148,23 @@ if [[ -n "$client" ]]; then
   command=${client//\{address\}/$orch}
   command=${command//\{task\}/$task}
   command=${command//\{out\}/$out}
-  bash -c "$command" | tee "$out/progress.txt" || status=$?
+  run_client() { bash -c "$command" | tee "$out/progress.txt"; }
 else
-  "$bin/picking" run "$task" --address "$orch" | tee "$out/progress.txt" || status=$?
+  # --out: output.json, score.txt and task.json from the orchestrator's answer.
+  run_client() { "$bin/picking" run "$task" --address "$orch" --out "$out" | tee "$out/progress.txt"; }
 fi
+# In the background and waited for: bash runs a trap (Ctrl-C, SIGTERM) only once a foreground
+# command ends, but interrupts `wait` at once.
+run_client &
+client_pid=$!
+wait "$client_pid" || status=$?
+client_pid=""
 task_dir=$(ls -d "$out"/tasks/task-* 2>/dev/null | tail -1)
 if [[ -n "$task_dir" ]]; then
   cp "$task_dir/output.json" "$task_dir/report.html" "$task_dir/report.json" "$out/" 2>/dev/null || true
 fi
 echo
 echo "output folder: $out"
-echo "  output.json (the APC output file), report.html (per item: method, grasp, times, score)"
+echo "  output.json (the APC output file), score.txt (the score line by line), report.html and"
+echo "  report.json (per item: method, grasp, attempts, times, score), logs/ (every server's log)"
 exit $status
