@@ -8,6 +8,8 @@ packages=(
   build-essential cmake ninja-build pkg-config ccache git ca-certificates
   # RPC
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+  # TLS: the key and certificate checks (libssl-dev), certificates for tests (openssl)
+  libssl-dev openssl
   # maths, vision, geometry, planning
   libeigen3-dev libopencv-dev libopencv-contrib-dev libpcl-dev liboctomap-dev libfcl-dev
   libembree-dev

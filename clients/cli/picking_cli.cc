@@ -9,7 +9,10 @@
 // JSON object per event or answer instead of the progress display); for run: --wait S (keep
 // asking an orchestrator that is not up yet, or whose peers are not, for up to S seconds); for
 // run and watch: --out DIR (write the output file and the score there, from the answer, not
-// the orchestrator's disk).
+// the orchestrator's disk); --tls-ca FILE (TLS: the CA the server's certificate must be signed
+// by), --tls-cert FILE --tls-key FILE (the certificate shown to a server that requires one:
+// mutual TLS), --tls-server-name NAME (the name checked in the server's certificate instead of
+// the address's host).
 // Exit codes: 0 the task succeeded (or the command did; for health: SERVING), 1 the task failed
 // or was cancelled (health: not serving), 2 bad usage (for call also an unknown service or
 // method, or a request that does not parse), 3 the orchestrator (or the called server) refused
@@ -30,6 +33,7 @@
 
 #include "clients/cli/call.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "libs/runtime/channel.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 
 namespace {
@@ -49,6 +53,8 @@ struct Args {
   double wait_s = 0.0;  ///< run: how long to keep trying an orchestrator that is not ready.
   std::string out_dir;  ///< run: where to write output.json and score.txt.
   std::string service;  ///< health: the service name to ask about ("" = the server).
+  picking::runtime::TlsFiles tls;
+  std::string tls_server_name;
 };
 
 int Usage(const std::string& error) {
@@ -59,7 +65,8 @@ int Usage(const std::string& error) {
                "       picking health [--service NAME]\n"
                "       picking call ADDRESS SERVICE/METHOD ['JSON']\n"
                "options: --address HOST:PORT (default $PICKING_ORCHESTRATOR or "
-               "localhost:50050), --json\n";
+               "localhost:50050), --json\n"
+               "         --tls-ca FILE [--tls-cert FILE --tls-key FILE] [--tls-server-name N]\n";
   return kUsage;
 }
 
@@ -83,10 +90,30 @@ bool ParseSeconds(const std::string& flag, const char* text, double* seconds, st
   return true;
 }
 
+// Stores --tls-* options; false for an unknown one. Other options are left alone (true).
+bool SetTlsOption(const std::string& option, const std::string& value, Args* args) {
+  if (option.rfind("--tls-", 0) != 0) return true;
+  if (option == "--tls-cert") {
+    args->tls.cert_path = value;
+  } else if (option == "--tls-key") {
+    args->tls.key_path = value;
+  } else if (option == "--tls-ca") {
+    args->tls.ca_path = value;
+  } else if (option == "--tls-server-name") {
+    args->tls_server_name = value;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 // Returns false on a malformed command line (with the reason in `error`).
 bool Parse(int argc, char** argv, Args* args, std::string* error) {
   const char* env = std::getenv("PICKING_ORCHESTRATOR");
   args->address = env != nullptr && *env != '\0' ? env : "localhost:50050";
+  args->tls.cert_name = "--tls-cert";
+  args->tls.key_name = "--tls-key";
+  args->tls.ca_name = "--tls-ca";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&](const char* name) -> const char* {
@@ -99,9 +126,13 @@ bool Parse(int argc, char** argv, Args* args, std::string* error) {
     if (a == "--json") {
       args->json = true;
     } else if (a == "--address" || a == "--time-limit" || a == "--ease" || a == "--resume" ||
-               a == "--wait" || a == "--out" || a == "--service") {
+               a == "--wait" || a == "--out" || a == "--service" || a.rfind("--tls-", 0) == 0) {
       const char* v = value(a.c_str());
       if (v == nullptr) return false;
+      if (!SetTlsOption(a, v, args)) {
+        *error = "unknown option " + a;
+        return false;
+      }
       if (a == "--address") args->address = v;
       if (a == "--ease") args->ease = Split(v);
       if (a == "--resume") args->resume = v;
@@ -128,9 +159,22 @@ bool Parse(int argc, char** argv, Args* args, std::string* error) {
   return true;
 }
 
-int RpcError(const std::string& what, const grpc::Status& status) {
+const char* SecurityName(const picking::runtime::TlsFiles& tls) {
+  if (!tls.any()) return "plaintext";
+  return tls.cert_path.empty() ? "TLS" : "mutual TLS";
+}
+
+// UNAVAILABLE is also how a refused TLS handshake ends (a plaintext client, a missing or
+// untrusted certificate), so it says how the connection was made and what TLS needs.
+int RpcError(const Args& args, const std::string& what, const grpc::Status& status) {
   std::cerr << "picking: " << what << ": " << status.error_message() << " (code "
             << status.error_code() << ")\n";
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+    std::cerr << "picking: the orchestrator at " << args.address << " was called over "
+              << SecurityName(args.tls)
+              << "; an orchestrator serving TLS needs --tls-ca, one serving mutual TLS also "
+                 "--tls-cert and --tls-key\n";
+  }
   return kRpcError;
 }
 
@@ -238,11 +282,13 @@ int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args
     last = event.state();
   }
   const grpc::Status status = reader->Finish();
-  if (!status.ok()) return RpcError("watch " + id, status);
+  if (!status.ok()) return RpcError(args, "watch " + id, status);
   grpc::ClientContext get_ctx;
   pb::GetTaskRequest get;
   get.set_task_id(id);
-  if (grpc::Status s = stub.GetTask(&get_ctx, get, task); !s.ok()) return RpcError("status", s);
+  if (grpc::Status s = stub.GetTask(&get_ctx, get, task); !s.ok()) {
+    return RpcError(args, "status", s);
+  }
   if (args.json) {
     std::cout << TaskJson(*task).dump() << "\n";
   } else {
@@ -325,7 +371,9 @@ int Run(pb::OrchestratorService::Stub& stub, const Args& args) {
   for (const auto& e : args.ease) request.add_ease_order(e);
   request.set_resume_task_id(args.resume);
   pb::StartTaskResponse started;
-  if (grpc::Status s = StartTask(stub, request, args, &started); !s.ok()) return RpcError("run", s);
+  if (grpc::Status s = StartTask(stub, request, args, &started); !s.ok()) {
+    return RpcError(args, "run", s);
+  }
   if (!args.json) std::printf("task %s\n", started.task_id().c_str());
   return WatchAndWrite(stub, started.task_id(), args);
 }
@@ -339,7 +387,7 @@ int Health(const std::shared_ptr<grpc::Channel>& channel, const Args& args) {
   request.set_service(args.service);
   grpc::health::v1::HealthCheckResponse response;
   if (grpc::Status s = stub->Check(&ctx, request, &response); !s.ok()) {
-    return RpcError("health of " + args.address, s);
+    return RpcError(args, "health of " + args.address, s);
   }
   const std::string state =
       grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status());
@@ -361,7 +409,7 @@ int Status(pb::OrchestratorService::Stub& stub, const Args& args) {
   if (args.positional.empty()) {
     grpc::ClientContext ctx;
     pb::ListTasksResponse list;
-    if (grpc::Status s = stub.ListTasks(&ctx, {}, &list); !s.ok()) return RpcError("list", s);
+    if (grpc::Status s = stub.ListTasks(&ctx, {}, &list); !s.ok()) return RpcError(args, "list", s);
     tasks.assign(list.tasks().begin(), list.tasks().end());
     if (args.command == "status" && !tasks.empty()) tasks.resize(1);
   } else {
@@ -369,7 +417,8 @@ int Status(pb::OrchestratorService::Stub& stub, const Args& args) {
     pb::GetTaskRequest request;
     request.set_task_id(args.positional[0]);
     pb::GetTaskResponse task;
-    if (grpc::Status s = stub.GetTask(&ctx, request, &task); !s.ok()) return RpcError("status", s);
+    if (grpc::Status s = stub.GetTask(&ctx, request, &task); !s.ok())
+      return RpcError(args, "status", s);
     tasks.push_back(task);
   }
   for (const auto& t : tasks) {
@@ -400,7 +449,13 @@ int main(int argc, char** argv) {
     if (p.size() != 2 && p.size() != 3) return Usage("call needs ADDRESS SERVICE/METHOD ['JSON']");
     return picking::cli::Call(p[0], p[1], p.size() == 3 ? p[2] : "", std::cout, std::cerr);
   }
-  auto channel = grpc::CreateChannel(args.address, grpc::InsecureChannelCredentials());
+  std::shared_ptr<grpc::Channel> channel;
+  try {
+    channel =
+        picking::runtime::ChannelFactory(args.tls, args.tls_server_name).Connect(args.address);
+  } catch (const std::invalid_argument& e) {
+    return Usage(e.what());
+  }
   auto stub = pb::OrchestratorService::NewStub(channel);
   const auto& c = args.command;
   if (c == "run") return Run(*stub, args);
@@ -421,7 +476,7 @@ int main(int argc, char** argv) {
     request.set_task_id(args.positional[0]);
     pb::CancelTaskResponse response;
     if (grpc::Status s = stub->CancelTask(&ctx, request, &response); !s.ok()) {
-      return RpcError("cancel", s);
+      return RpcError(args, "cancel", s);
     }
     if (!args.json)
       std::printf("cancelling %s after its current step\n", args.positional[0].c_str());

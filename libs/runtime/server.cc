@@ -17,6 +17,7 @@
 
 #include "libs/runtime/log.h"
 #include "libs/runtime/reflection_v1.h"
+#include "libs/runtime/tls.h"
 
 namespace picking::runtime {
 namespace {
@@ -154,10 +155,24 @@ void PrintHelp(const ServerSpec& spec) {
             << "  --log-level=LEVEL     debug, info, warning or error (default info)\n"
             << "  --shutdown-grace-s=S  time in-flight calls get after SIGTERM (default 5)\n"
             << "  --max-message-mb=N    largest gRPC message (default 64)\n";
+  std::cout
+      << "  --tls.cert=FILE       PEM certificate this server presents, also to the servers\n"
+      << "                        it calls; with --tls.key it serves TLS (default plaintext)\n"
+      << "  --tls.key=FILE        PEM private key of --tls.cert\n"
+      << "  --tls.ca=FILE         PEM CA certificate(s): clients must present a certificate\n"
+      << "                        signed by them (mutual TLS), and the servers this one\n"
+      << "                        calls must be signed by them\n"
+      << "  --tls.server_name=N   (servers that call others) name expected in their\n"
+      << "                        certificates instead of the address's host\n";
   if (!spec.settings_help.empty()) {
     std::cout << "\nsettings:\n";
     for (const auto& line : spec.settings_help) std::cout << "  " << line << "\n";
   }
+}
+
+const char* SecurityName(const TlsFiles& tls) {
+  if (!tls.any()) return "plaintext";
+  return tls.ca_path.empty() ? "tls" : "mutual-tls";
 }
 
 struct ParsedFlags {
@@ -259,7 +274,10 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   }
 
   ServiceSet set;
+  std::shared_ptr<grpc::ServerCredentials> credentials;
+  const TlsFiles tls = TlsFilesFromConfig(config);
   try {
+    credentials = ServerCredentialsFor(tls);
     set = spec.build(config);
     const auto unused = config.UnusedKeys();
     if (!unused.empty()) {
@@ -282,7 +300,7 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   grpc::ServerBuilder builder;
   AddReflectionV1(builder);
   int bound_port = 0;
-  builder.AddListeningPort(flags.listen, grpc::InsecureServerCredentials(), &bound_port);
+  builder.AddListeningPort(flags.listen, credentials, &bound_port);
   const int max_bytes = flags.max_message_mb * 1024 * 1024;
   builder.SetMaxReceiveMessageSize(max_bytes);
   builder.SetMaxSendMessageSize(max_bytes);
@@ -305,7 +323,8 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   const std::string bound = host + ":" + std::to_string(bound_port);
   std::printf("listening on %s\n", bound.c_str());
   std::fflush(stdout);
-  LogInfo("serving", {{"address", bound}, {"program", spec.program}});
+  LogInfo("serving",
+          {{"address", bound}, {"program", spec.program}, {"security", SecurityName(tls)}});
 
   int signal_number = 0;
   sigwait(&stop_signals, &signal_number);

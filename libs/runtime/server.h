@@ -48,6 +48,8 @@ struct ServerSpec {
 ///   --log-level=LEVEL    (debug, info, warning, error)
 ///   --shutdown-grace-s=S (how long in-flight calls may run on after SIGTERM; default 5)
 ///   --max-message-mb=N   (largest gRPC message accepted or sent; default 64)
+/// and the settings tls.cert, tls.key, tls.ca (TLS, mutual with the CA; plaintext without them;
+/// see tls.h and ServerCredentialsFor),
 /// builds the services, enables the standard health service (grpc.health.v1: "" and each
 /// service SERVING) and server reflection (v1alpha and v1), binds, prints exactly one line
 /// `listening on HOST:PORT` with the bound port to stdout, serves until SIGTERM or SIGINT,

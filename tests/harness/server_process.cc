@@ -1,8 +1,6 @@
 #include "tests/harness/server_process.h"
 
 #include <fcntl.h>
-#include <grpcpp/create_channel.h>
-#include <grpcpp/security/credentials.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/syscall.h>
@@ -126,10 +124,15 @@ ServerProcess::~ServerProcess() {
 }
 
 std::shared_ptr<grpc::Channel> ServerProcess::Channel() const {
+  return Channel(runtime::ChannelFactory());
+}
+
+std::shared_ptr<grpc::Channel> ServerProcess::Channel(
+    const runtime::ChannelFactory& channels) const {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 * 1024 * 1024);
   args.SetMaxSendMessageSize(64 * 1024 * 1024);
-  return grpc::CreateCustomChannel(address_, grpc::InsecureChannelCredentials(), args);
+  return channels.Connect(address_, args);
 }
 
 int ServerProcess::WaitExit(std::chrono::milliseconds timeout) {

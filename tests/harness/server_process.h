@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "libs/runtime/channel.h"
+
 namespace picking::testing {
 
 /// Path of a server executable built into build/bin/ (e.g. "picking-robot").
@@ -31,8 +33,11 @@ class ServerProcess final {
   int port() const { return port_; }
   pid_t pid() const { return pid_; }
 
-  /// A new channel to the server, with a message size limit suited to scan data.
+  /// A new plaintext channel to the server, with a message size limit suited to scan data.
   std::shared_ptr<grpc::Channel> Channel() const;
+  /// The same over a channel from `channels` (e.g. TLS with a client certificate, for a
+  /// server started with --tls.* flags).
+  std::shared_ptr<grpc::Channel> Channel(const runtime::ChannelFactory& channels) const;
 
   /// Sends SIGTERM and waits for the exit. Returns the exit status, or 128 + signal if it
   /// was killed by a signal; -1 if it did not exit within `timeout` (it is then killed).

@@ -134,6 +134,7 @@ runtime::ServiceSet BuildGripperServices(const runtime::Config& config) {
   link.reply_timeout_s = PositiveSetting(config, "serial.reply_timeout_s", link.reply_timeout_s);
   link.max_attempts = IntSetting(config, "serial.max_attempts", link.max_attempts, 1, 100);
   const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+  const runtime::ChannelFactory sim_channels = runtime::ChannelFactory::FromConfig(config);
   SimGripperOptions sim_options;
   sim_options.kind = kind;
   sim_options.timeout_s = PositiveSetting(config, "sim.timeout_s", sim_options.timeout_s);
@@ -147,7 +148,7 @@ runtime::ServiceSet BuildGripperServices(const runtime::Config& config) {
   if (backend == "serial") {
     gripper_backend = std::make_unique<SerialGripper>(device, baud, link);
   } else if (backend == "sim") {
-    gripper_backend = SimGripper::Connect(sim_address, sim_options);
+    gripper_backend = SimGripper::Connect(sim_address, sim_options, sim_channels);
   } else {
     throw std::invalid_argument("setting 'backend': unknown backend '" + backend +
                                 "' (expected sim or serial)");

@@ -1,8 +1,6 @@
 #include "services/gripper/service/sim_gripper.h"
 
 #include <grpcpp/client_context.h>
-#include <grpcpp/create_channel.h>
-#include <grpcpp/security/credentials.h>
 
 #include <algorithm>
 #include <chrono>
@@ -54,11 +52,12 @@ SimGripper::SimGripper(std::unique_ptr<sim::SimulatorService::StubInterface> stu
 }
 
 std::unique_ptr<SimGripper> SimGripper::Connect(const std::string& address,
-                                                const SimGripperOptions& options) {
+                                                const SimGripperOptions& options,
+                                                const runtime::ChannelFactory& channels) {
   if (address.empty() || address.find(':') == std::string::npos) {
     throw std::invalid_argument("sim.address must be HOST:PORT, got '" + address + "'");
   }
-  auto channel = grpc::CreateChannel(address, grpc::InsecureChannelCredentials());
+  auto channel = channels.Connect(address);
   return std::make_unique<SimGripper>(sim::SimulatorService::NewStub(channel), address, options);
 }
 

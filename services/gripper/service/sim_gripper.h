@@ -4,6 +4,7 @@
 #include <mutex>
 #include <string>
 
+#include "libs/runtime/channel.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "services/gripper/core/gripper_backend.h"
 
@@ -40,9 +41,11 @@ class SimGripper final : public GripperBackend {
   SimGripper(std::unique_ptr<simulator::v1::SimulatorService::StubInterface> stub,
              std::string address, const SimGripperOptions& options = {});
 
-  /// Over an insecure channel to `address` (HOST:PORT); connects lazily.
-  static std::unique_ptr<SimGripper> Connect(const std::string& address,
-                                             const SimGripperOptions& options = {});
+  /// Over a channel from `channels` (plaintext or TLS) to `address` (HOST:PORT); connects
+  /// lazily.
+  static std::unique_ptr<SimGripper> Connect(
+      const std::string& address, const SimGripperOptions& options = {},
+      const runtime::ChannelFactory& channels = runtime::ChannelFactory());
 
   std::string name() const override { return "sim"; }
   void SetVacuum(bool on) override;

@@ -1,8 +1,6 @@
 #include "services/orchestrator/detector_pool/detector_pool.h"
 
 #include <grpc/grpc.h>
-#include <grpcpp/create_channel.h>
-#include <grpcpp/security/credentials.h>
 #include <grpcpp/support/channel_arguments.h>
 
 #include <algorithm>
@@ -127,7 +125,7 @@ std::shared_ptr<grpc::Channel> MakeChannel(const std::string& endpoint,
                               R"( "healthCheckConfig": {"serviceName": ")" +
                               options.health_service + R"("}})");
   }
-  return grpc::CreateCustomChannel(endpoint, grpc::InsecureChannelCredentials(), args);
+  return options.channels.Connect(endpoint, args);
 }
 
 }  // namespace

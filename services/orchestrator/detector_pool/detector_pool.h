@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "libs/runtime/channel.h"
 #include "libs/runtime/config.h"
 #include "picking/common/v1/data.pb.h"
 #include "picking/detector/v1/detector.grpc.pb.h"
@@ -89,6 +90,10 @@ struct DetectorPoolOptions {
   double reconnect_backoff_max_s = 2.0;
   /// Largest message sent or received, MiB (>= 1); the servers' --max-message-mb.
   int max_message_mb = 64;
+
+  /// How the replicas' channels are made: plaintext by default; the orchestrator passes one
+  /// from its tls.* settings.
+  runtime::ChannelFactory channels;
 
   /// Observer of attempts and health changes; may be empty.
   std::function<void(const PoolEvent&)> on_event;

@@ -1,11 +1,10 @@
 #include "services/orchestrator/service/orchestrator_service.h"
 
-#include <grpcpp/create_channel.h>
-
 #include <atomic>
 
 #include "libs/apc/catalogue.h"
 #include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/channel.h"
 #include "libs/runtime/status.h"
 #include "libs/world/cell_config.h"
 #include "services/orchestrator/core/task_manager.h"
@@ -206,14 +205,16 @@ std::string Address(const runtime::Config& config, const std::string& service) {
   return config.GetString(service + ".address", service + ":50051");
 }
 
-std::shared_ptr<grpc::Channel> Channel(const runtime::Config& config, const std::string& service) {
+std::shared_ptr<grpc::Channel> Channel(const runtime::Config& config,
+                                       const runtime::ChannelFactory& channels,
+                                       const std::string& service) {
   const std::string key = service + ".address";
   const std::string address = Address(config, service);
   if (address.empty()) throw std::invalid_argument("setting '" + key + "': empty");
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
   args.SetMaxSendMessageSize(256 << 20);
-  return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+  return channels.Connect(address, args);
 }
 
 // Detect through the pool of replicas: retried on another replica when one does not answer.
@@ -272,16 +273,20 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
     options.pick.bin_volume_m3[bin.name] = bin.inner_S.volume();
   }
   options.pick.max_bin_fill = config.GetDouble("stow.max_bin_fill", options.pick.max_bin_fill);
-  cell.scanner = Channel(config, "scanner");
-  cell.planner = Channel(config, "planner");
-  cell.robot = Channel(config, "robot");
-  cell.gripper = Channel(config, "gripper");
-  auto pool = std::make_shared<DetectorPool>(FromConfig(config));
+  // Every peer, the detector replicas included, is called with this server's tls.* settings.
+  const runtime::ChannelFactory channels = runtime::ChannelFactory::FromConfig(config);
+  cell.scanner = Channel(config, channels, "scanner");
+  cell.planner = Channel(config, channels, "planner");
+  cell.robot = Channel(config, channels, "robot");
+  cell.gripper = Channel(config, channels, "gripper");
+  DetectorPoolOptions pool_options = FromConfig(config);
+  pool_options.channels = channels;
+  auto pool = std::make_shared<DetectorPool>(std::move(pool_options));
   cell.detect = PoolDetector(pool);
   cell.verify = PoolVerifier(pool);
   std::vector<Peer> peers;
   for (const std::string name : {"scanner", "planner", "robot", "gripper"}) {
-    peers.push_back({name, Address(config, name), Channel(config, name)});
+    peers.push_back({name, Address(config, name), Channel(config, channels, name)});
   }
   const double shutdown_wait_s = config.GetDouble("shutdown_wait_s", 3.0);
   auto tasks = std::make_shared<TaskManager>(options, catalogue,

@@ -798,6 +798,7 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   // Both backends' settings are read whichever is chosen, so one file can hold both.
   const std::string backend_name = config.GetString("backend", "sim");
   const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+  const runtime::ChannelFactory sim_channels = runtime::ChannelFactory::FromConfig(config);
   SimBackendOptions sim_options;
   sim_options.time_scale = config.GetDouble("sim.time_scale", sim_options.time_scale);
   sim_options.command_rate_hz = config.GetDouble("sim.rate_hz", sim_options.command_rate_hz);
@@ -843,8 +844,8 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   std::shared_ptr<RobotBackend> backend;
   options.backend_name = backend_name;
   if (backend_name == "sim") {
-    backend = std::make_shared<SimBackend>(SimulatorArmClient::Connect(sim_address, arm_options),
-                                           checker, sim_options);
+    backend = std::make_shared<SimBackend>(
+        SimulatorArmClient::Connect(sim_address, arm_options, sim_channels), checker, sim_options);
   } else if (backend_name == "ur") {
     std::shared_ptr<UrBackend> ur;
     try {

@@ -1,8 +1,6 @@
 #include "services/robot/service/sim_arm_client.h"
 
 #include <grpcpp/client_context.h>
-#include <grpcpp/create_channel.h>
-#include <grpcpp/security/credentials.h>
 
 #include <chrono>
 #include <cmath>
@@ -49,11 +47,12 @@ std::array<double, 6> ToArray(const JointVector& q) {
 }  // namespace
 
 std::shared_ptr<SimulatorArmClient> SimulatorArmClient::Connect(
-    const std::string& address, const SimulatorArmClientOptions& options) {
+    const std::string& address, const SimulatorArmClientOptions& options,
+    const runtime::ChannelFactory& channels) {
   if (address.empty() || address.find(':') == std::string::npos) {
     throw std::invalid_argument("sim.address must be HOST:PORT, got '" + address + "'");
   }
-  auto channel = grpc::CreateChannel(address, grpc::InsecureChannelCredentials());
+  auto channel = channels.Connect(address);
   return std::make_shared<SimulatorArmClient>(sim::SimulatorService::NewStub(channel), address,
                                               options);
 }

@@ -3,6 +3,7 @@
 #include <memory>
 #include <string>
 
+#include "libs/runtime/channel.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "services/robot/core/sim_backend.h"
 
@@ -27,9 +28,11 @@ struct SimulatorArmClientOptions {
 /// address; any other refusal throws std::runtime_error with the simulator's message.
 class SimulatorArmClient final : public SimulatedArm {
  public:
+  /// Over a channel from `channels` (plaintext or TLS) to `address`; connects lazily.
   /// @throws std::invalid_argument for an address that is not HOST:PORT or bad options.
-  static std::shared_ptr<SimulatorArmClient> Connect(const std::string& address,
-                                                     const SimulatorArmClientOptions& options);
+  static std::shared_ptr<SimulatorArmClient> Connect(
+      const std::string& address, const SimulatorArmClientOptions& options,
+      const runtime::ChannelFactory& channels = runtime::ChannelFactory());
   SimulatorArmClient(std::unique_ptr<simulator::v1::SimulatorService::StubInterface> stub,
                      std::string address, const SimulatorArmClientOptions& options);
 

@@ -959,6 +959,8 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   const long long sim_seed = config.GetInt("sim.seed", 1);
   const std::string robot_address = config.GetString("robot.address", "");
   const double robot_timeout_s = config.GetDouble("robot.timeout_s", 2.0);
+  // The simulator and the robot service are called with this server's own tls.* settings.
+  const runtime::ChannelFactory channels = runtime::ChannelFactory::FromConfig(config);
   const std::string aravis_device = config.GetString("aravis.device", "");
   const std::string replay_dir = config.GetString("replay.dir", "");
   const std::string dlpc350_device = config.GetString("dlpc350.device", "/dev/hidraw0");
@@ -1038,7 +1040,7 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
     if (projector_kind != "sim") {
       throw std::invalid_argument("setting 'projector': camera=sim needs projector=sim");
     }
-    simulator = std::make_shared<SimulatorClient>(sim_address, render);
+    simulator = std::make_shared<SimulatorClient>(sim_address, render, channels);
     link = std::make_shared<SimSensorLink>([simulator] { return simulator->ToolPose(); });
     SimSensorModel model = LoadSimModel(nominal_dir);
     const auto pw = static_cast<std::uint32_t>(model.projector.width());
@@ -1076,7 +1078,7 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   }
   std::shared_ptr<RobotPoseClient> robot;
   if (!robot_address.empty())
-    robot = std::make_shared<RobotPoseClient>(robot_address, robot_timeout_s);
+    robot = std::make_shared<RobotPoseClient>(robot_address, robot_timeout_s, channels);
 
   CalibrationStore store(calibration_dir, nominal_dir);
   auto service = std::make_shared<ScannerServiceImpl>(

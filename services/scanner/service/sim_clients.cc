@@ -1,8 +1,6 @@
 #include "services/scanner/service/sim_clients.h"
 
 #include <grpcpp/client_context.h>
-#include <grpcpp/create_channel.h>
-#include <grpcpp/security/credentials.h>
 
 #include <chrono>
 #include <cmath>
@@ -17,11 +15,12 @@ namespace {
 namespace pc = ::picking::proto_convert;
 namespace simpb = ::picking::simulator::v1;
 
-std::shared_ptr<grpc::Channel> MakeChannel(const std::string& address) {
+std::shared_ptr<grpc::Channel> MakeChannel(const std::string& address,
+                                           const runtime::ChannelFactory& channels) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
   args.SetMaxSendMessageSize(64 << 20);
-  return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+  return channels.Connect(address, args);
 }
 
 void SetDeadline(grpc::ClientContext* ctx, double timeout_s) {
@@ -59,7 +58,8 @@ simpb::PinholeModel ToModel(const camera::PinholeCamera& c) {
 
 }  // namespace
 
-SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSettings& settings)
+SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSettings& settings,
+                                 const runtime::ChannelFactory& channels)
     : address_(address), settings_(settings) {
   if (address_.empty()) throw std::invalid_argument("setting 'sim.address' is empty");
   if (!(settings_.timeout_s > 0))
@@ -72,7 +72,7 @@ SimulatorClient::SimulatorClient(const std::string& address, const SimRenderSett
   if (!(settings_.projector_blur_sigma_px >= 0) || !(settings_.projector_blur_sigma_px <= 20)) {
     throw std::invalid_argument("setting 'sim.projector_blur_sigma_px' must be in [0, 20]");
   }
-  stub_ = simpb::SimulatorService::NewStub(MakeChannel(address_));
+  stub_ = simpb::SimulatorService::NewStub(MakeChannel(address_, channels));
 }
 
 std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& request) {
@@ -161,11 +161,12 @@ Eigen::Isometry3d SimulatorClient::ToolPose() {
   return pc::PoseFromProto(response.x_base_tool(), "GetGroundTruth.X_base_tool");
 }
 
-RobotPoseClient::RobotPoseClient(const std::string& address, double timeout_s)
+RobotPoseClient::RobotPoseClient(const std::string& address, double timeout_s,
+                                 const runtime::ChannelFactory& channels)
     : address_(address), timeout_s_(timeout_s) {
   if (address_.empty()) throw std::invalid_argument("setting 'robot.address' is empty");
   if (!(timeout_s_ > 0)) throw std::invalid_argument("setting 'robot.timeout_s' must be > 0");
-  stub_ = robot::v1::RobotService::NewStub(MakeChannel(address_));
+  stub_ = robot::v1::RobotService::NewStub(MakeChannel(address_, channels));
 }
 
 Eigen::Isometry3d RobotPoseClient::ToolPose() {

@@ -5,6 +5,7 @@
 #include <memory>
 #include <string>
 
+#include "libs/runtime/channel.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "services/scanner/core/sim_backends.h"
@@ -31,9 +32,11 @@ struct SimRenderSettings {
 /// simulator's message.
 class SimulatorClient final : public PatternRenderer {
  public:
+  /// Over a channel from `channels` (plaintext or TLS); connects lazily.
   /// @throws std::invalid_argument for an empty address, a non-positive timeout or a
   ///   negative or non-finite noise or blur setting.
-  SimulatorClient(const std::string& address, const SimRenderSettings& settings);
+  SimulatorClient(const std::string& address, const SimRenderSettings& settings,
+                  const runtime::ChannelFactory& channels);
 
   std::vector<GrayImage> Render(const PatternRenderRequest& request) override;
   /// The simulated arm's flange pose now, X_BaseTool (GetGroundTruth.X_base_tool; the camera
@@ -50,8 +53,10 @@ class SimulatorClient final : public PatternRenderer {
 /// The robot service's current flange pose (picking.robot.v1 GetState).
 class RobotPoseClient final {
  public:
+  /// Over a channel from `channels` (plaintext or TLS); connects lazily.
   /// @throws std::invalid_argument for an empty address or a non-positive timeout.
-  RobotPoseClient(const std::string& address, double timeout_s);
+  RobotPoseClient(const std::string& address, double timeout_s,
+                  const runtime::ChannelFactory& channels);
   /// Throws picking::UnavailableError when the robot service cannot be reached.
   Eigen::Isometry3d ToolPose();
 
