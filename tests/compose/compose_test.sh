@@ -74,7 +74,8 @@ podman volume ls -q | grep "^$project-dry_" | xargs -r podman volume rm >/dev/nu
 [[ $(grep -c -- '--healthcheck-command' <<<"$dry") == 9 ]] || {
   echo "compose_test: podman-compose would not give every server its health check" >&2; exit 1; }
 
-compose() { docker-compose --project-directory "$top" -f "$top/docker-compose.yml" -p "$project" "$@"; }
+files=(-f "$top/docker-compose.yml")
+compose() { docker-compose --project-directory "$top" "${files[@]}" -p "$project" "$@"; }
 teardown() {
   set +e
   if [[ -n ${keep_logs:-} ]]; then compose logs --no-color >"$work/compose.log" 2>&1; fi
@@ -91,44 +92,34 @@ trap teardown EXIT
 
 # A short task: pick_layout_1's contents with a work order of one item, written where the
 # task container sees it (its results folder).
-out=$work/out
-mkdir -p "$out"
-/usr/bin/python3 - "$top/data/apc2016/tasks/pick_layout_1.json" "$out/short_task.json" <<'PY'
+make_task() {
+  /usr/bin/python3 - "$top/data/apc2016/tasks/pick_layout_1.json" "$1" <<'PY'
 import json, sys
 task = json.load(open(sys.argv[1]))
 task["work_order"] = [w for w in task["work_order"] if w["item"] == "kleenex_tissue_box"]
 json.dump(task, open(sys.argv[2], "w"), indent=1)
 PY
-export PICKING_OUT=$out PICKING_TASK=/out/short_task.json PICKING_DETECTOR_BUDGET_SCALE=10
+}
 
-log "docker-compose up"
-keep_logs=1
-compose up -d --no-build >"$work/up.log" 2>&1 || { cat "$work/up.log" >&2; exit 1; }
-task_container=$(compose ps -q task)
-[[ -n $task_container ]] || { echo "compose_test: no task container" >&2; exit 1; }
-detectors=$(compose ps -q detector | wc -l)
-[[ $detectors == 3 ]] || { echo "compose_test: $detectors detector replicas, expected 3" >&2; exit 1; }
-
-# Health checks run only when asked without systemd: ask each server's once it is up.
-log "waiting for every server's health check"
-for service in simulator robot gripper scanner detector planner orchestrator; do
-  for id in $(compose ps -q "$service"); do
-    ok=0
-    for _ in $(seq 120); do
-      if podman healthcheck run "$id" >/dev/null 2>&1; then ok=1; break; fi
-      sleep 1
+# Every server's health check, asked until it passes (without systemd, podman runs them only
+# when asked).
+wait_healthy() {
+  local service id ok
+  for service in simulator robot gripper scanner detector planner orchestrator; do
+    for id in $(compose ps -q "$service"); do
+      ok=0
+      for _ in $(seq 120); do
+        if podman healthcheck run "$id" >/dev/null 2>&1; then ok=1; break; fi
+        sleep 1
+      done
+      [[ $ok == 1 ]] || { echo "compose_test: $service ($id) never became healthy" >&2; exit 1; }
     done
-    [[ $ok == 1 ]] || { echo "compose_test: $service ($id) never became healthy" >&2; exit 1; }
   done
-done
-log "every server is healthy; waiting for the task"
-status=$(timeout 1500 podman wait "$task_container") || {
-  echo "compose_test: the task did not end within 25 min" >&2; exit 1; }
-podman logs "$task_container" 2>&1 | tail -n 20
-[[ $status == 0 ]] || { echo "compose_test: the task service exited with $status" >&2; exit 1; }
+}
 
 # The results the task service wrote: the output file, the score and the final state.
-/usr/bin/python3 - "$out" <<'PY'
+check_results() {
+  /usr/bin/python3 - "$1" <<'PY'
 import json, os, sys
 out = sys.argv[1]
 output = json.load(open(os.path.join(out, "output.json")))
@@ -140,12 +131,62 @@ assert score and score[-1].endswith("\ttotal"), score
 print("compose_test: task %s %s, score %s, %d items in the tote" %
       (task["task_id"], task["state"], score[-1].split("\t")[0], len(output["tote_contents"])))
 PY
-# Detection went through the one name "detector" to more than one replica (round_robin).
-serving=0
-for id in $(compose ps -q detector); do
-  if podman logs "$id" 2>&1 | grep -q 'DetectorService/\(Detect\|Verify\)'; then serving=$((serving + 1)); fi
-done
-log "$serving of 3 detector replicas served detection calls"
-[[ $serving -ge 2 ]] || { echo "compose_test: the calls were not spread over the replicas" >&2; exit 1; }
-keep_logs=
+}
+
+# Brings the cell up with the compose files in `files`, runs the short task through the task
+# service, checks its results and that detection reached more than one replica, tears down.
+run_cell() {
+  local name=$1
+  out=$work/out-$name
+  mkdir -p "$out"
+  make_task "$out/short_task.json"
+  export PICKING_OUT=$out PICKING_TASK=/out/short_task.json PICKING_DETECTOR_BUDGET_SCALE=10
+  log "$name: docker-compose up"
+  keep_logs=1
+  compose up -d --no-build >"$work/up.log" 2>&1 || { cat "$work/up.log" >&2; exit 1; }
+  local task_container detectors status serving id
+  task_container=$(compose ps -q task)
+  [[ -n $task_container ]] || { echo "compose_test: no task container" >&2; exit 1; }
+  detectors=$(compose ps -q detector | wc -l)
+  [[ $detectors == 3 ]] || { echo "compose_test: $detectors detector replicas, expected 3" >&2; exit 1; }
+  log "$name: waiting for every server's health check"
+  wait_healthy
+  if [[ $name == mutual-tls ]]; then
+    # A client without a certificate is refused (exit status 3), one with it is served.
+    id=$(compose ps -q orchestrator)
+    if podman exec "$id" picking list --address 127.0.0.1:50051 >/dev/null 2>&1; then
+      echo "compose_test: the orchestrator served a client without a certificate" >&2; exit 1
+    fi
+    podman exec "$id" picking list --address 127.0.0.1:50051 --tls-ca /certs/ca.pem \
+      --tls-cert /certs/orchestrator.pem --tls-key /certs/orchestrator.key >/dev/null || {
+      echo "compose_test: the orchestrator refused a client with its certificate" >&2; exit 1; }
+  fi
+  log "$name: every server is healthy; waiting for the task"
+  status=$(timeout 1500 podman wait "$task_container") || {
+    echo "compose_test: the task did not end within 25 min" >&2; exit 1; }
+  podman logs "$task_container" 2>&1 | tail -n 6
+  [[ $status == 0 ]] || { echo "compose_test: the task service exited with $status" >&2; exit 1; }
+  check_results "$out"
+  # Detection went through the one name "detector" to more than one replica (round_robin).
+  serving=0
+  for id in $(compose ps -q detector); do
+    if podman logs "$id" 2>&1 | grep -q 'DetectorService/\(Detect\|Verify\)'; then
+      serving=$((serving + 1))
+    fi
+  done
+  log "$name: $serving of 3 detector replicas served detection calls"
+  [[ $serving -ge 2 ]] || { echo "compose_test: the calls were not spread over the replicas" >&2; exit 1; }
+  keep_logs=
+  compose down -v --timeout 15 >/dev/null 2>&1
+}
+
+run_cell plaintext
+
+# The same cell with mutual TLS (deploy/compose/tls.yml): certificates made now, the keys
+# readable by the image's user; every server refuses a client without a certificate.
+export PICKING_CERTS=$work/certs
+"$top/scripts/make-certs.sh" "$PICKING_CERTS" >/dev/null
+chown 10001 "$PICKING_CERTS"/*.key
+files+=(-f "$top/deploy/compose/tls.yml")
+run_cell mutual-tls
 log "passed"
