@@ -417,6 +417,31 @@ TEST(RobotServerTest, AFreshSimulatorGetsTheInitialJoints) {
   EXPECT_EQ(server.Stop(), 0);
 }
 
+TEST(RobotServerTest, GetStateAnswersUnavailableOnceTheSimulatorIsGone) {
+  auto sim = std::make_unique<FakeSimulator>();
+  sim->set_tcp(kTestTcp);
+  const std::string address = sim->address();
+  ServerProcess server(ServerBinary(kBinary),
+                       {"--sim.address=" + address, "--cell=" + TestCellPath(), "--sim.timeout_s=1",
+                        "--sim.link_check_period_s=0.1"});
+  RobotClient client(server.Channel());
+  ASSERT_EQ(client.State().status(), rb::ROBOT_STATUS_IDLE);
+  sim.reset();  // the simulator goes away
+  // Polled with a deadline: the link check runs every 0.1 s, each call times out after 1 s.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
+  rb::GetStateResponse state;
+  grpc::Status s = client.State(&state);
+  while (s.ok() && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    s = client.State(&state);
+  }
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE)
+      << (s.ok() ? "still answering status " + rb::RobotStatus_Name(state.status())
+                 : s.error_message());
+  EXPECT_NE(s.error_message().find(address), std::string::npos) << s.error_message();
+  EXPECT_EQ(server.Stop(), 0);
+}
+
 class SimRobotTest : public ::testing::Test {
  protected:
   explicit SimRobotTest(std::vector<std::string> extra = {"--sim.time_scale=1000"})
@@ -523,6 +548,55 @@ TEST_F(SimRobotTest, RefusedRequestsMoveNothing) {
   EXPECT_TRUE(
       Joints(after.joints().positions_rad()).isApprox(Joints(before.joints().positions_rad())));
   EXPECT_EQ(after.status(), rb::ROBOT_STATUS_IDLE);
+}
+
+// Joints with the tcp inside the board under bin_H of the test cell (3 cm behind the opening,
+// 1 cm below the bin's lowest floor point), the tool pointing into the shelf, nearest to the
+// start.
+JointVector JointsInsideAShelfBoard(const ur10::Ur10Kinematics& kinematics) {
+  const world::CellModel cell = world::LoadCellModel(world::ReadCellConfig(TestCellPath()));
+  const world::BinGeometry& bin = cell.bin("bin_H");
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+  X_BaseTcp.linear().col(0) = -Eigen::Vector3d::UnitZ();
+  X_BaseTcp.linear().col(1) = Eigen::Vector3d::UnitY();
+  X_BaseTcp.linear().col(2) = Eigen::Vector3d::UnitX();
+  X_BaseTcp.translation() =
+      cell.config.X_BaseShelf * Eigen::Vector3d(bin.opening_x_m - 0.03, bin.inner_S.center().y(),
+                                                bin.inner_S.min().z() - 0.01);
+  const auto ik = kinematics.NearestSolution(X_BaseTcp * kTestTcp.inverse(), StartJoints());
+  EXPECT_TRUE(ik.has_value());
+  return ik ? ik->q_rad : StartJoints();
+}
+
+TEST_F(SimRobotTest, MotionsIntoTheShelfOrTheArmAreRefusedAndNothingMoves) {
+  const int placed = sim_.placements();
+  const JointVector q_board = JointsInsideAShelfBoard(kin_);
+  rb::MoveJointsResponse response;
+  grpc::Status s = client_.MoveJoints(q_board, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("hits shelf"), std::string::npos) << s.error_message();
+  // A trajectory there, whatever its timing.
+  std::vector<rb::ExecuteTrajectoryProgress> progress;
+  s = client_.Execute(SlowPath(StartJoints(), q_board), &progress);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("hits shelf"), std::string::npos) << s.error_message();
+  EXPECT_TRUE(progress.empty());
+  // The elbow folding the forearm back onto the upper arm.
+  JointVector folded = StartJoints();
+  folded[2] = 3.0;
+  s = client_.MoveJoints(folded, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("hits self: "), std::string::npos) << s.error_message();
+  // Nothing moved.
+  EXPECT_EQ(sim_.placements(), placed);
+  EXPECT_TRUE(sim_.q().isApprox(StartJoints(), 1e-12));
+  EXPECT_EQ(client_.State().status(), rb::ROBOT_STATUS_IDLE);
+  // A motion clear of the cell still runs.
+  JointVector target = StartJoints();
+  target[0] += 0.3;
+  s = client_.MoveJoints(target, &response);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_LT((sim_.q() - target).cwiseAbs().maxCoeff(), 1e-9);
 }
 
 TEST_F(SimRobotTest, ProtectiveStopBlocksMovesUntilReset) {

@@ -55,6 +55,10 @@ void SimBackendOptions::Validate() const {
   if (!std::isfinite(start_tolerance_rad) || start_tolerance_rad < 0.0) {
     throw std::invalid_argument("SimBackendOptions: start_tolerance_rad must be finite and >= 0");
   }
+  if (!std::isfinite(link_check_period_s) || link_check_period_s < 0.0) {
+    throw std::invalid_argument("SimBackendOptions: link_check_period_s must be finite and >= 0");
+  }
+  if (!now) throw std::invalid_argument("SimBackendOptions: now (the clock) is empty");
 }
 
 void SampleTrajectory(const JointTrajectory& trajectory, double t_s, JointVector* q_rad,
@@ -118,16 +122,55 @@ void SimBackend::SyncLocked() {
   qd_.setZero();
   wrench_.setZero();
   synced_ = true;
+  MarkContactLocked();
   if (status_ == RobotStatus::kUnknown) status_ = RobotStatus::kReady;
+}
+
+bool SimBackend::LinkCheckDueLocked() const {
+  return options_.now() - last_contact_ >=
+         std::chrono::duration<double>(options_.link_check_period_s);
+}
+
+void SimBackend::CheckLinkLocked() {
+  bool synced = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (synced_ && !LinkCheckDueLocked()) return;
+    synced = synced_;
+  }
+  // Not synced: read where the arm is, not only whether the world answers.
+  if (!synced) {
+    SyncLocked();
+    return;
+  }
+  try {
+    arm_->CheckReachable();
+  } catch (const std::exception& e) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    synced_ = false;  // the world may come back restarted: read the arm again then
+    if (dynamic_cast<const UnavailableError*>(&e)) throw;
+    throw UnavailableError(std::string("cannot read the simulated arm: ") + e.what());
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  MarkContactLocked();
 }
 
 RobotState SimBackend::GetState() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (synced_) return StateLocked();
+    if (synced_ && !LinkCheckDueLocked()) return StateLocked();
   }
-  std::lock_guard<std::mutex> arm(arm_mutex_);
-  SyncLocked();
+  std::unique_lock<std::mutex> arm(arm_mutex_, std::try_to_lock);
+  if (!arm.owns_lock()) {
+    // A world call is under way (a motion streams the arm): its outcome tells whether the
+    // world answers, so report the commanded state rather than queue behind it.
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (synced_) return StateLocked();
+    }
+    arm.lock();
+  }
+  CheckLinkLocked();
   std::lock_guard<std::mutex> lock(mutex_);
   return StateLocked();
 }
@@ -258,6 +301,8 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
     try {
       std::lock_guard<std::mutex> arm(arm_mutex_);
       placement = arm_->PlaceArm(q);
+      std::lock_guard<std::mutex> lock(mutex_);
+      MarkContactLocked();
     } catch (const UnavailableError& e) {
       {
         std::lock_guard<std::mutex> lock(mutex_);
@@ -405,6 +450,10 @@ MotionResult SimBackend::GuardedMove(const GuardedMoveRequest& request) {
     std::lock_guard<std::mutex> arm(arm_mutex_);
     probe = arm_->Probe(X_BaseTool, direction_tcp, distance);
   } catch (const std::exception& e) {
+    if (dynamic_cast<const UnavailableError*>(&e)) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      synced_ = false;  // where the arm is must be read again
+    }
     MotionResult r = begin;
     r.outcome = MotionOutcome::kFailed;
     r.message = std::string("simulator unreachable: contact probe: ") + e.what();

@@ -3,7 +3,9 @@
 #include <Eigen/Geometry>
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -45,6 +47,9 @@ class SimulatedArm {
   /// The arm's joint positions now. @throws UnavailableError if the world is unreachable,
   /// std::runtime_error for other failures.
   virtual JointVector ReadJoints() = 0;
+  /// Asks whether the world answers, changing nothing (the link check of an idle arm).
+  /// @throws as ReadJoints. Default: ReadJoints.
+  virtual void CheckReachable() { ReadJoints(); }
   /// Puts the arm at `q_rad`. @throws as ReadJoints.
   virtual ArmPlacement PlaceArm(const JointVector& q_rad) = 0;
   /// Probes a straight motion of the TCP from the flange pose `X_BaseTool` along
@@ -66,6 +71,12 @@ struct SimBackendOptions {
   double stop_acceleration_rad_s2 = 3.0;
   /// Largest distance (rad, max over joints) between a trajectory's first point and the arm.
   double start_tolerance_rad = 0.01;
+  /// GetState asks the world again when its last answer is older than this, wall-clock s
+  /// (>= 0; 0: at every call): a world that went away is reported (UnavailableError) within
+  /// this bound plus one call's timeout, instead of the last commanded state.
+  double link_check_period_s = 0.5;
+  /// The wall clock of the link check (injectable for tests).
+  std::function<std::chrono::steady_clock::time_point()> now = std::chrono::steady_clock::now;
   /// @throws std::invalid_argument naming the bad field.
   void Validate() const;
 };
@@ -83,14 +94,17 @@ struct SimBackendOptions {
 /// the simulator and the robot loaded different cell descriptions) fails the motion at its
 /// first sample with kFailed naming both poses. The state (joints, wrench,
 /// status) is the commanded one, read from the world once at first use and again after the
-/// world was unreachable.
+/// world was unreachable. The link is watched: GetState reads the world's joints whenever its
+/// last answer is older than options.link_check_period_s, so a world that stopped answering
+/// makes GetState throw UnavailableError (naming it) rather than report a stale state.
 class SimBackend final : public RobotBackend {
  public:
   /// @throws std::invalid_argument for a null arm or bad options.
   SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
              const SimBackendOptions& options);
 
-  /// @throws UnavailableError if the world cannot be read (first use).
+  /// @throws UnavailableError if the world cannot be read (first use, after it was
+  /// unreachable, or at a due link check).
   RobotState GetState() override;
   MotionResult MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
                           double acceleration_rad_s2) override;
@@ -107,6 +121,13 @@ class SimBackend final : public RobotBackend {
  private:
   // Reads the joints from the world if not done yet. Caller holds arm_mutex_.
   void SyncLocked();
+  // Asks the world whether it still answers (SyncLocked if not synced). Caller holds
+  // arm_mutex_. @throws UnavailableError naming the world, which must then be read again.
+  void CheckLinkLocked();
+  // A world call answered now. Caller holds mutex_.
+  void MarkContactLocked() { last_contact_ = options_.now(); }
+  // True when the world has not answered for link_check_period_s. Caller holds mutex_.
+  bool LinkCheckDueLocked() const;
   MotionResult Reject(const std::string& why);
   // Synchronises, checks the arm is ready and marks it moving; kCompleted when it may move.
   MotionResult BeginMotion();
@@ -139,7 +160,8 @@ class SimBackend final : public RobotBackend {
   RobotStatus status_ = RobotStatus::kUnknown;
   bool stop_requested_ = false;
   bool protective_requested_ = false;
-  double time_s_ = 0.0;  // simulated time of the commanded state
+  double time_s_ = 0.0;                                   // simulated time of the commanded state
+  std::chrono::steady_clock::time_point last_contact_{};  // last answer of the world
 };
 
 /// Joint positions and velocities of `trajectory` at time `t_s` (clamped into its range),

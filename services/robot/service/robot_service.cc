@@ -86,6 +86,16 @@ double PeakToolSpeed(const JointTrajectory& trajectory, const SafetyChecker& che
   return peak;
 }
 
+// The joint positions of a trajectory's waypoints, after `q_start_rad` if given.
+std::vector<JointVector> PathOf(const JointTrajectory& trajectory,
+                                const JointVector* q_start_rad = nullptr) {
+  std::vector<JointVector> path;
+  path.reserve(trajectory.points.size() + 1);
+  if (q_start_rad) path.push_back(*q_start_rad);
+  for (const TrajectoryPoint& p : trajectory.points) path.push_back(p.q_rad);
+  return path;
+}
+
 // Stops the arm when the call's deadline passes, the client cancels or the server shuts
 // down while a motion runs.
 class MotionWatch final {
@@ -151,9 +161,13 @@ class MotionWatch final {
 class RobotServiceImpl final : public pb::RobotService::Service {
  public:
   RobotServiceImpl(std::shared_ptr<RobotBackend> backend, const SafetyChecker& checker,
-                   const RobotServiceOptions& options)
-      : backend_(std::move(backend)), checker_(checker), options_(options) {
+                   std::shared_ptr<const CollisionGuard> guard, const RobotServiceOptions& options)
+      : backend_(std::move(backend)),
+        checker_(checker),
+        guard_(std::move(guard)),
+        options_(options) {
     if (!backend_) throw std::invalid_argument("RobotService: null backend");
+    if (!guard_) throw std::invalid_argument("RobotService: null collision guard");
     options_.Validate();
   }
 
@@ -253,6 +267,10 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       if (const SafetyCheck check = checker_.CheckTrajectory(path, 1e-6); !check) {
         return runtime::InvalidArgument("path to the target: " + check.reason);
       }
+      // The controller's path is the straight line in joint space.
+      if (const SafetyCheck check = guard_->CheckJointMotion(start.q_rad, target); !check) {
+        return runtime::InvalidArgument("path to the target: " + check.reason);
+      }
       MotionResult result;
       grpc::Status status;
       {
@@ -299,6 +317,9 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       if (const SafetyCheck check = checker_.CheckTrajectory(plan.trajectory, 1e-6); !check) {
         return runtime::InvalidArgument("linear move: " + check.reason);
       }
+      if (const SafetyCheck check = guard_->CheckPath(PathOf(plan.trajectory)); !check) {
+        return runtime::InvalidArgument("linear move: " + check.reason);
+      }
       MotionResult result;
       grpc::Status status;
       {
@@ -337,6 +358,10 @@ class RobotServiceImpl final : public pb::RobotService::Service {
         return runtime::InvalidArgument("trajectory: the first point is " + Num(start_error) +
                                         " rad from the current joint positions (tolerance " +
                                         Num(tolerance) + " rad)");
+      }
+      // Both backends move along the polyline of the waypoints, from where the arm is.
+      if (const SafetyCheck check = guard_->CheckPath(PathOf(trajectory, &start.q_rad)); !check) {
+        return runtime::InvalidArgument("trajectory: " + check.reason);
       }
       auto report = [&](const TrajectoryProgress& progress) {
         pb::ExecuteTrajectoryProgress message;
@@ -400,6 +425,10 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       X_goal.translation() += axis_base * distance;
       if (const SafetyCheck check = checker_.CheckLinearMove(start.q_rad, X_goal, speed); !check) {
         return runtime::InvalidArgument("guarded move over the full distance: " + check.reason);
+      }
+      if (const SafetyCheck check = CheckGuardedPath(start.q_rad, X_BaseTcp, axis_base, distance);
+          !check) {
+        return runtime::InvalidArgument("guarded move: " + check.reason);
       }
       GuardedMoveRequest move;
       move.direction_tcp = direction_tcp;
@@ -473,6 +502,25 @@ class RobotServiceImpl final : public pb::RobotService::Service {
     std::unique_lock<std::mutex> slot(motion_mutex_, std::try_to_lock);
     if (!slot.owns_lock()) throw PreconditionError("another motion is running");
     return slot;
+  }
+
+  // A guarded move's swept path: the arm and the gripper tube along the straight tcp line up
+  // to where the cup would meet a static surface (board, tote, table, floor, pedestal), or
+  // the full distance. The cup's touch is the contact the move is meant to find: the force
+  // threshold stops it there, so the travel beyond is the contact's, not a collision's.
+  SafetyCheck CheckGuardedPath(const JointVector& q_start_rad, const Eigen::Isometry3d& X_BaseTcp,
+                               const Eigen::Vector3d& axis_Base, double distance_m) const {
+    const double travel_m =
+        guard_->CupTravelToStaticContact(X_BaseTcp.translation(), axis_Base, distance_m);
+    if (travel_m <= 1e-9) return guard_->CheckPath({q_start_rad});
+    Eigen::Isometry3d X_BaseTcp_contact = X_BaseTcp;
+    X_BaseTcp_contact.translation() += axis_Base * travel_m;
+    LinearMoveOptions options;
+    options.X_ToolTcp = checker_.X_ToolTcp();
+    const LinearMoveResult line = SampleLinearPath(checker_.kinematics(), q_start_rad,
+                                                   X_BaseTcp_contact, options, 0.005, 0.02);
+    if (!line.ok) return SafetyCheck::Fail(line.reason);
+    return guard_->CheckPath(PathOf(line.trajectory));
   }
 
   // Polls the backend's state until `done` holds, at most kStatusWait.
@@ -647,6 +695,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
 
   std::shared_ptr<RobotBackend> backend_;
   SafetyChecker checker_;
+  std::shared_ptr<const CollisionGuard> guard_;
   RobotServiceOptions options_;
   std::mutex motion_mutex_;
   std::mutex mutex_;
@@ -700,6 +749,23 @@ const std::vector<ZoneDefault>& DefaultZones() {
   return kZones;
 }
 
+// The swept-path check over the static cell of the cell description the planner and the
+// simulator load, with the planner's gripper tube and padding.
+std::shared_ptr<const CollisionGuard> BuildCollisionGuard(const ur10::Ur10Kinematics& kinematics,
+                                                          const world::CellConfig& cell_config) {
+  planner::GripperGeometry gripper;
+  gripper.X_ToolTcp = cell_config.gripper.X_ToolTcp;
+  gripper.tube_radius_m = cell_config.gripper.tube_radius_m;
+  gripper.cup_length_m = cell_config.gripper.cup_length_m;
+  world::CellModel cell;
+  try {
+    cell = world::LoadCellModel(cell_config);
+  } catch (const std::runtime_error& e) {
+    throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
+  }
+  return std::make_shared<const CollisionGuard>(kinematics, cell, gripper);
+}
+
 }  // namespace
 
 void RobotServiceOptions::Validate() const {
@@ -721,10 +787,10 @@ void RobotServiceOptions::Validate() const {
   positive(max_start_tolerance_rad, "max_start_tolerance_rad");
 }
 
-std::shared_ptr<v1::RobotService::Service> MakeRobotService(std::shared_ptr<RobotBackend> backend,
-                                                            const SafetyChecker& checker,
-                                                            const RobotServiceOptions& options) {
-  return std::make_shared<RobotServiceImpl>(std::move(backend), checker, options);
+std::shared_ptr<v1::RobotService::Service> MakeRobotService(
+    std::shared_ptr<RobotBackend> backend, const SafetyChecker& checker,
+    std::shared_ptr<const CollisionGuard> guard, const RobotServiceOptions& options) {
+  return std::make_shared<RobotServiceImpl>(std::move(backend), checker, std::move(guard), options);
 }
 
 runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
@@ -735,12 +801,13 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
       config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
   const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
   const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
-  Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
+  world::CellConfig cell_config;
   try {
-    X_ToolTcp = world::ReadCellConfig(cell_path).gripper.X_ToolTcp;
+    cell_config = world::ReadCellConfig(cell_path);
   } catch (const world::CellConfigError& e) {
     throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
   }
+  const Eigen::Isometry3d X_ToolTcp = cell_config.gripper.X_ToolTcp;
 
   // Safety limits: the model's joint limits, the workspace box and the forbidden zones.
   Box workspace;
@@ -782,6 +849,7 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   limits.Validate();
   const ur10::Ur10Kinematics kinematics(model);
   const SafetyChecker checker(kinematics, limits, X_ToolTcp);
+  const std::shared_ptr<const CollisionGuard> guard = BuildCollisionGuard(kinematics, cell_config);
 
   RobotServiceOptions options;
   options.default_speed_fraction =
@@ -804,6 +872,8 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   sim_options.command_rate_hz = config.GetDouble("sim.rate_hz", sim_options.command_rate_hz);
   sim_options.stop_acceleration_rad_s2 =
       config.GetDouble("sim.stop_acceleration_rad_s2", sim_options.stop_acceleration_rad_s2);
+  sim_options.link_check_period_s =
+      config.GetDouble("sim.link_check_period_s", sim_options.link_check_period_s);
   SimulatorArmClientOptions arm_options;
   arm_options.timeout_s = config.GetDouble("sim.timeout_s", arm_options.timeout_s);
   const std::vector<double> initial = config.GetDoubles(
@@ -861,7 +931,8 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   }
 
   runtime::ServiceSet set;
-  set.Add(MakeRobotService(backend, checker, options), v1::RobotService::service_full_name());
+  set.Add(MakeRobotService(backend, checker, guard, options),
+          v1::RobotService::service_full_name());
   set.on_shutdown = [backend] { backend->Stop(); };
   return set;
 }

@@ -6,6 +6,7 @@
 #include "libs/runtime/config.h"
 #include "libs/runtime/server.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
+#include "services/robot/core/collision_guard.h"
 #include "services/robot/core/robot_backend.h"
 #include "services/robot/core/safety.h"
 
@@ -32,16 +33,20 @@ struct RobotServiceOptions {
 
 /// The picking.robot.v1.RobotService over any RobotBackend. Every motion is checked against
 /// `checker` (joint, speed and acceleration limits, workspace box, forbidden zones, TCP
-/// speed) from the current state before the backend is asked to move; a refused request
-/// changes nothing. Moves are exclusive; a call past its deadline or cancelled by the client
-/// stops the arm.
-std::shared_ptr<v1::RobotService::Service> MakeRobotService(std::shared_ptr<RobotBackend> backend,
-                                                            const SafetyChecker& checker,
-                                                            const RobotServiceOptions& options);
+/// speed) and its swept path against `guard` (the static cell and self-collision) from the
+/// current state before the backend is asked to move; a refused request (INVALID_ARGUMENT
+/// naming the limit, or the links and what they hit) changes nothing. A guarded move's path
+/// is checked up to where the suction cup would meet a static surface (the contact it is
+/// meant to find). Moves are exclusive; a call past its deadline or cancelled by the client
+/// stops the arm. @throws std::invalid_argument for a null backend or guard, bad options.
+std::shared_ptr<v1::RobotService::Service> MakeRobotService(
+    std::shared_ptr<RobotBackend> backend, const SafetyChecker& checker,
+    std::shared_ptr<const CollisionGuard> guard, const RobotServiceOptions& options);
 
 /// Builds the robot server's services from its settings (see docs/services.md): the backend
-/// (`backend` = sim | ur), the UR10 model from `data_dir`, the tool centre point (the gripper's
-/// X_ToolTcp of the cell description `cell`) and the safety limits. @throws
+/// (`backend` = sim | ur), the UR10 model from `data_dir`, the tool centre point and gripper
+/// tube (the cell description `cell`), the safety limits and the collision guard over the
+/// cell description's static cell. @throws
 /// std::invalid_argument for bad settings or cell description, std::runtime_error when the UR
 /// controller cannot be reached.
 runtime::ServiceSet BuildRobotServices(const runtime::Config& config);

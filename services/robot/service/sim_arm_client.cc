@@ -99,6 +99,15 @@ JointVector SimulatorArmClient::ReadJoints() {
   }
 }
 
+void SimulatorArmClient::CheckReachable() {
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, options_.timeout_s);
+  sim::GetGroundTruthResponse truth;
+  const grpc::Status status = stub_->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth);
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) return;  // it answered
+  Check(status, address_, "GetGroundTruth");
+}
+
 ArmPlacement SimulatorArmClient::PlaceArm(const JointVector& q_rad) {
   grpc::ClientContext ctx;
   SetDeadline(&ctx, options_.timeout_s);

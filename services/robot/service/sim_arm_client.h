@@ -37,6 +37,8 @@ class SimulatorArmClient final : public SimulatedArm {
                      std::string address, const SimulatorArmClientOptions& options);
 
   JointVector ReadJoints() override;
+  /// GetGroundTruth answered, with or without an arm (FAILED_PRECONDITION: no layout yet).
+  void CheckReachable() override;
   ArmPlacement PlaceArm(const JointVector& q_rad) override;
   ContactProbe Probe(const Eigen::Isometry3d& X_BaseTool, const Eigen::Vector3d& direction_tcp,
                      double max_distance_m) override;

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <functional>
 #include <mutex>
@@ -358,6 +359,53 @@ TEST_F(SimBackendTest, UnreachableWorldFailsAndIsReadAgainLater) {
   EXPECT_EQ(backend_->MoveJoints(target, 0.5, 1.0).outcome, MotionOutcome::kCompleted);
 }
 
+TEST_F(SimBackendTest, GetStateReportsAWorldThatStoppedAnswering) {
+  std::chrono::steady_clock::time_point now{};
+  SimBackendOptions options;
+  options.time_scale = 1e4;
+  options.link_check_period_s = 0.5;
+  options.now = [&now] { return now; };
+  SimBackend backend(arm_, checker_, options);
+  ASSERT_EQ(backend.GetState().status, RobotStatus::kReady);
+  arm_->set_unreachable(true);
+  // Within the period the world's last answer stands.
+  now += std::chrono::milliseconds(400);
+  EXPECT_EQ(backend.GetState().status, RobotStatus::kReady);
+  // After it the world is asked, and its silence reported rather than the stale state.
+  now += std::chrono::milliseconds(200);
+  try {
+    backend.GetState();
+    ADD_FAILURE() << "GetState answered while the world was unreachable";
+  } catch (const UnavailableError& e) {
+    EXPECT_NE(std::string(e.what()).find("connection refused"), std::string::npos) << e.what();
+  }
+  // And at every call until it answers again; then the arm is read again.
+  EXPECT_THROW(backend.GetState(), UnavailableError);
+  arm_->set_unreachable(false);
+  const RobotState back = backend.GetState();
+  EXPECT_EQ(back.status, RobotStatus::kReady);
+  EXPECT_TRUE(back.q_rad.isApprox(arm_->q()));
+}
+
+TEST_F(SimBackendTest, AMotionKeepsTheLinkFreshWithoutExtraReads) {
+  std::chrono::steady_clock::time_point now{};
+  SimBackendOptions options;
+  options.time_scale = 1e4;
+  options.link_check_period_s = 0.5;
+  options.now = [&now] { return now; };
+  SimBackend backend(arm_, checker_, options);
+  ASSERT_EQ(backend.GetState().status, RobotStatus::kReady);
+  now += std::chrono::seconds(1);
+  JointVector target = arm_->q();
+  target[0] += 0.1;
+  ASSERT_EQ(backend.MoveJoints(target, 0.5, 1.0).outcome, MotionOutcome::kCompleted);
+  // The motion's placements were the world's answers: no check is due.
+  arm_->set_unreachable(true);
+  EXPECT_EQ(backend.GetState().status, RobotStatus::kReady);
+  now += std::chrono::seconds(1);
+  EXPECT_THROW(backend.GetState(), UnavailableError);
+}
+
 TEST(SampleTrajectoryTest, InterpolatesAndClamps) {
   JointTrajectory t;
   TrajectoryPoint a, b;
@@ -381,6 +429,12 @@ TEST(SimBackendOptionsTest, Validates) {
   EXPECT_THROW(options.Validate(), std::invalid_argument);
   options = {};
   options.command_rate_hz = std::nan("");
+  EXPECT_THROW(options.Validate(), std::invalid_argument);
+  options = {};
+  options.link_check_period_s = -1.0;
+  EXPECT_THROW(options.Validate(), std::invalid_argument);
+  options = {};
+  options.now = nullptr;
   EXPECT_THROW(options.Validate(), std::invalid_argument);
 }
 
