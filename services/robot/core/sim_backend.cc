@@ -15,6 +15,33 @@ namespace {
 // Collisions this close before the probed contact point count as the expected touch.
 constexpr double kContactSlackM = 1e-3;
 
+// Reports a trajectory's progress once per waypoint reached (and once at the start).
+class ProgressReporter {
+ public:
+  void Update(const JointTrajectory& trajectory, double tau, const RobotState& state,
+              const std::function<void(const TrajectoryProgress&)>& progress) {
+    const auto& p = trajectory.points;
+    if (p.empty()) return;
+    const auto after = std::upper_bound(
+        p.begin(), p.end(), tau, [](double v, const TrajectoryPoint& pt) { return v < pt.time_s; });
+    const std::size_t index = static_cast<std::size_t>(after - p.begin()) - 1;
+    if (index <= reached_ && reported_) return;
+    reached_ = index;
+    reported_ = true;
+    const double duration = trajectory.duration_s();
+    TrajectoryProgress info;
+    info.waypoint_index = index;
+    info.time_s = p[index].time_s;
+    info.fraction = duration > 0.0 ? p[index].time_s / duration : 1.0;
+    info.state = state;
+    progress(info);
+  }
+
+ private:
+  std::size_t reached_ = 0;
+  bool reported_ = false;
+};
+
 void RequirePositive(double value, const char* field) {
   if (!std::isfinite(value) || value <= 0.0) {
     throw std::invalid_argument(std::string("SimBackendOptions: ") + field +
@@ -206,11 +233,47 @@ MotionResult SimBackend::BeginMotion() {
   return r;
 }
 
+Eigen::Matrix<double, 6, 1> SimBackend::ContactWrench(const JointVector& q, const ContactZone& zone,
+                                                      double* penetration_m) const {
+  // Contact model of guarded moves: travel past the first touch presses the spring.
+  Eigen::Matrix<double, 6, 1> wrench = Eigen::Matrix<double, 6, 1>::Zero();
+  *penetration_m = -std::numeric_limits<double>::infinity();
+  if (!zone.enabled) return wrench;
+  const Eigen::Vector3d p_tcp =
+      (checker_.kinematics().ForwardKinematics(q) * checker_.X_ToolTcp()).translation();
+  *penetration_m = (p_tcp - zone.p_start_base).dot(zone.axis_base) - zone.contact_distance_m;
+  if (*penetration_m > 0.0) {
+    wrench.head<3>() = -zone.axis_base * zone.stiffness_n_per_m * *penetration_m;
+  }
+  return wrench;
+}
+
+MotionResult SimBackend::StopBeforeCollision(const JointVector& last_free,
+                                             const std::string& detail) {
+  try {
+    std::lock_guard<std::mutex> arm(arm_mutex_);
+    arm_->PlaceArm(last_free);
+  } catch (const std::exception&) {
+    // Reported as the protective stop below; the next call reads the arm again.
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  q_ = last_free;
+  qd_.setZero();
+  wrench_.setZero();
+  status_ = RobotStatus::kProtectiveStop;
+  protective_requested_ = true;
+  MotionResult r;
+  r.outcome = MotionOutcome::kProtectiveStop;
+  r.message =
+      "protective stop: collision: " + (detail.empty() ? std::string("unnamed contact") : detail);
+  r.final_state = StateLocked();
+  return r;
+}
+
 MotionResult SimBackend::Run(const JointTrajectory& trajectory,
                              const std::function<void(const TrajectoryProgress&)>& progress,
                              const ContactZone& zone) {
   using Clock = std::chrono::steady_clock;
-  const auto& p = trajectory.points;
   const double duration = trajectory.duration_s();
   const double dt = 1.0 / options_.command_rate_hz;
   const Clock::time_point wall_start = Clock::now();
@@ -242,8 +305,7 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
   double tau = 0.0;  // trajectory time of the last sample sent
   bool stopping = false;
   double stop_t0 = 0.0, stop_tau0 = 0.0, stop_duration = 0.0;
-  std::size_t reached = 0;
-  bool reported = false;
+  ProgressReporter reporter;
   while (true) {
     const double t_next = t + dt;
     {
@@ -286,16 +348,8 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
     qd *= rate;
     if (finished) qd.setZero();
 
-    // Contact model of guarded moves: travel past the first touch presses the spring.
-    Eigen::Matrix<double, 6, 1> wrench = Eigen::Matrix<double, 6, 1>::Zero();
-    double penetration_m = -std::numeric_limits<double>::infinity();
-    if (zone.enabled) {
-      const Eigen::Vector3d p_tcp =
-          (kinematics.ForwardKinematics(q) * checker_.X_ToolTcp()).translation();
-      penetration_m = (p_tcp - zone.p_start_base).dot(zone.axis_base) - zone.contact_distance_m;
-      if (penetration_m > 0.0)
-        wrench.head<3>() = -zone.axis_base * zone.stiffness_n_per_m * penetration_m;
-    }
+    double penetration_m = 0.0;
+    const Eigen::Matrix<double, 6, 1> wrench = ContactWrench(q, zone, &penetration_m);
 
     ArmPlacement placement;
     try {
@@ -329,26 +383,7 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
       }
     }
     if (placement.in_collision && !(zone.enabled && penetration_m > -kContactSlackM)) {
-      // The safety system stops the arm before the hit: back to the last free sample.
-      try {
-        std::lock_guard<std::mutex> arm(arm_mutex_);
-        arm_->PlaceArm(last_free);
-      } catch (const std::exception&) {
-        // Reported as the protective stop below; the next call reads the arm again.
-      }
-      std::lock_guard<std::mutex> lock(mutex_);
-      q_ = last_free;
-      qd_.setZero();
-      wrench_.setZero();
-      status_ = RobotStatus::kProtectiveStop;
-      protective_requested_ = true;
-      MotionResult r;
-      r.outcome = MotionOutcome::kProtectiveStop;
-      r.message = "protective stop: collision: " + (placement.collision_detail.empty()
-                                                        ? std::string("unnamed contact")
-                                                        : placement.collision_detail);
-      r.final_state = StateLocked();
-      return r;
+      return StopBeforeCollision(last_free, placement.collision_detail);
     }
     last_free = q;
     RobotState state;
@@ -360,22 +395,7 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
       time_s_ += dt;
       state = StateLocked();
     }
-    if (progress && !p.empty()) {
-      const auto after =
-          std::upper_bound(p.begin(), p.end(), tau,
-                           [](double v, const TrajectoryPoint& pt) { return v < pt.time_s; });
-      const std::size_t index = static_cast<std::size_t>(after - p.begin()) - 1;
-      if (index > reached || !reported) {
-        reached = index;
-        reported = true;
-        TrajectoryProgress info;
-        info.waypoint_index = index;
-        info.time_s = p[index].time_s;
-        info.fraction = duration > 0.0 ? p[index].time_s / duration : 1.0;
-        info.state = state;
-        progress(info);
-      }
-    }
+    if (progress) reporter.Update(trajectory, tau, state, progress);
     if (finished) {
       if (stopping && tau < duration) {
         return finish(MotionOutcome::kStopped, "stopped on request", RobotStatus::kReady);

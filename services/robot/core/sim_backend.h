@@ -143,6 +143,12 @@ class SimBackend final : public RobotBackend {
   MotionResult Run(const JointTrajectory& trajectory,
                    const std::function<void(const TrajectoryProgress&)>& progress,
                    const ContactZone& zone);
+  // The guarded move's spring: the force on the tcp at `q` (zero before the first touch), and
+  // how far past the touch the tcp is in `penetration_m` (-inf outside a contact zone).
+  Eigen::Matrix<double, 6, 1> ContactWrench(const JointVector& q, const ContactZone& zone,
+                                            double* penetration_m) const;
+  // The safety system stops the arm before a hit: back to `last_free`, protective stop.
+  MotionResult StopBeforeCollision(const JointVector& last_free, const std::string& detail);
   RobotState StateLocked() const;
 
   std::shared_ptr<SimulatedArm> arm_;
