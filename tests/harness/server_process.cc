@@ -145,6 +145,15 @@ int ServerProcess::WaitExit(std::chrono::milliseconds timeout) {
   return -1;
 }
 
+bool ServerProcess::Alive() {
+  if (pid_ <= 0) return false;
+  int wstatus = 0;
+  if (waitpid(pid_, &wstatus, WNOHANG) != pid_) return true;
+  exit_status_ = StatusFromWait(wstatus);
+  pid_ = -1;
+  return false;
+}
+
 int ServerProcess::Stop(std::chrono::milliseconds timeout) {
   if (pid_ <= 0) return -1;
   kill(pid_, SIGTERM);

@@ -45,6 +45,11 @@ class ServerProcess final {
 
   bool running() const { return pid_ > 0; }
 
+  /// False once the process has exited (for any reason); `exit_status` then holds its
+  /// status as Stop() reports it. Does not block.
+  bool Alive();
+  int exit_status() const { return exit_status_; }
+
  private:
   int WaitExit(std::chrono::milliseconds timeout);
 
@@ -52,6 +57,7 @@ class ServerProcess final {
   int stdout_fd_ = -1;
   std::string address_;
   int port_ = 0;
+  int exit_status_ = -1;
 };
 
 /// Runs a program to completion and returns its exit status and combined output. Used to
