@@ -41,10 +41,17 @@ PinholeCamera::PinholeCamera(int width, int height, double fx, double fy, double
     : width_(width), height_(height), fx_(fx), fy_(fy), cx_(cx), cy_(cy), distortion_(distortion) {
   Require(width > 0, "width must be positive, got " + std::to_string(width));
   Require(height > 0, "height must be positive, got " + std::to_string(height));
-  Require(std::isfinite(fx) && fx > 0.0, "fx must be positive and finite");
-  Require(std::isfinite(fy) && fy > 0.0, "fy must be positive and finite");
-  Require(std::isfinite(cx), "cx must be finite");
-  Require(std::isfinite(cy), "cy must be finite");
+  // Bounds that keep every back-projected ray (u - cx) / fx finite and normalisable, far
+  // beyond any real lens: a denormal focal length made ray directions infinite.
+  constexpr double kMinFocalPx = 1e-3, kMaxFocalPx = 1e7, kMaxPrincipalPx = 1e6;
+  Require(std::isfinite(fx) && fx >= kMinFocalPx && fx <= kMaxFocalPx,
+          "fx must be in [0.001, 1e7] px");
+  Require(std::isfinite(fy) && fy >= kMinFocalPx && fy <= kMaxFocalPx,
+          "fy must be in [0.001, 1e7] px");
+  Require(std::isfinite(cx) && std::abs(cx) <= kMaxPrincipalPx,
+          "cx must be within 1e6 px of the image origin");
+  Require(std::isfinite(cy) && std::abs(cy) <= kMaxPrincipalPx,
+          "cy must be within 1e6 px of the image origin");
   Require(std::isfinite(distortion.k1) && std::isfinite(distortion.k2) &&
               std::isfinite(distortion.p1) && std::isfinite(distortion.p2) &&
               std::isfinite(distortion.k3),

@@ -257,7 +257,7 @@ bool RunOne(const FuzzTarget& target, const FuzzCall& call, int index, FuzzRepor
     RecordFailure(report, index, call, result, problem);
   }
   if (target.truth && IsRefusal(result.status.error_code()) && target.truth() != truth_before) {
-    RecordFailure(report, index, call, result, "a refused call changed the simulator's truth");
+    RecordFailure(report, index, call, result, "a refused call changed the truth snapshot");
   }
   if (target.restore) target.restore();
   return true;

@@ -11,12 +11,15 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <set>
 #include <sstream>
 
+#include "picking/detector/v1/detector.grpc.pb.h"
 #include "picking/gripper/v1/gripper.grpc.pb.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 #include "picking/planner/v1/planner.grpc.pb.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
+#include "picking/scanner/v1/scanner.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "tests/fuzz/fuzz_runner.h"
 #include "tests/harness/server_process.h"
@@ -284,6 +287,63 @@ TEST(FuzzServers, Planner) {
   ExpectClean(RunFuzz(target, FuzzOptionsFromEnvironment(kDefaultCalls)), planner);
 }
 
+TEST(FuzzServers, Scanner) {
+  const std::string dir = ::testing::TempDir() + "/fuzz_scanner";
+  std::filesystem::remove_all(dir);
+  ServerProcess simulator(ServerBinary("picking-simulator"));
+  LoadLayout(simulator);
+  {  // The arm at its start pose, where the scanner's simulated camera looks from.
+    auto stub = sim::SimulatorService::NewStub(simulator.Channel());
+    grpc::ClientContext context;
+    sim::SetArmJointsRequest request;
+    ASSERT_TRUE(google::protobuf::TextFormat::ParseFromString(
+        std::string("joints { ") + kHomeJoints + " }", &request));
+    sim::SetArmJointsResponse response;
+    ASSERT_TRUE(stub->SetArmJoints(&context, request, &response).ok());
+  }
+  ServerProcess scanner(ServerBinary("picking-scanner"),
+                        {"--sim.address=" + simulator.address(), "--calibration.dir=" + dir});
+  FuzzTarget target = TargetFor(scanner::v1::ScanRequest::descriptor(), scanner);
+  target.seeds = {
+      {"Scan", {"views { } merge_voxel_m: 0.005 with_normals: true"}},
+      {"CaptureImages", {"exposure_s: 0.01"}},
+      {"CaptureCalibrationView", {"session: 'fuzz'"}, /*must_succeed=*/false},
+      {"Calibrate",
+       {"kind: CALIBRATION_KIND_CAMERA session: 'fuzz' board { inner_corners_cols: 9 "
+        "inner_corners_rows: 6 square_size_m: 0.025 }"},
+       /*must_succeed=*/false},  // One view is too few.
+      {"GetCalibration", {""}},
+  };
+  target.dictionary = {"fuzz", dir, dir + "/sessions/fuzz"};
+  target.default_deadline = std::chrono::seconds(60);
+  target.truth = SimTruth(simulator);
+  ExpectClean(RunFuzz(target, FuzzOptionsFromEnvironment(kDefaultCalls / 2)), scanner);
+  EXPECT_TRUE(simulator.Alive());
+}
+
+TEST(FuzzServers, Detector) {
+  const std::string dir = ::testing::TempDir() + "/fuzz_detector";
+  std::filesystem::remove_all(dir);
+  ServerProcess detector(ServerBinary("picking-detector"), {"--cache_dir=" + dir});
+  const std::string cloud = "cloud { " + PlaneCloudChunk(40) + " }";
+  FuzzTarget target = TargetFor(detector::v1::DetectRequest::descriptor(), detector);
+  target.seeds = {
+      {"ListModels", {""}},
+      {"Detect",
+       {"params { queries { item: 'kleenex_tissue_box' method: METHOD_PPF max_results: 1 } "
+        "region { X_frame_region { position { x: 1.05 z: 0.8 } orientation { w: 1 } } "
+        "size_m { x: 0.3 y: 0.4 z: 0.4 } } }",
+        cloud}},
+      {"Verify",
+       {"params { item: 'kleenex_tissue_box' X_frame_item { position { x: 1.06 z: 0.8 } "
+        "orientation { w: 1 } } X_frame_sensor { orientation { w: 1 } } }",
+        cloud}},
+  };
+  target.dictionary = {"kleenex_tissue_box", "crayola_64_ct"};
+  target.default_deadline = std::chrono::seconds(120);  // The first use builds the model.
+  ExpectClean(RunFuzz(target, FuzzOptionsFromEnvironment(kDefaultCalls / 2)), detector);
+}
+
 TEST(FuzzServers, Orchestrator) {
   const std::string dir = ::testing::TempDir() + "/fuzz_orchestrator";
   std::filesystem::remove_all(dir);
@@ -331,9 +391,11 @@ TEST(FuzzServers, Orchestrator) {
     grpc::ClientContext list_context;
     orchestrator::v1::ListTasksResponse tasks;
     stub->ListTasks(&list_context, {}, &tasks);
-    std::string ids;
-    for (const auto& task : tasks.tasks()) ids += task.task_id() + ",";
-    return ids;
+    std::set<std::string> ids;  // In any order.
+    for (const auto& task : tasks.tasks()) ids.insert(task.task_id());
+    std::string text;
+    for (const std::string& task_id : ids) text += task_id + ",";
+    return text;
   };
   ExpectClean(RunFuzz(target, FuzzOptionsFromEnvironment(kDefaultCalls)), orchestrator);
 }

@@ -614,6 +614,18 @@ TEST_F(ScannerCalibrationTest, CameraCalibrationFromAnImageDirectory) {
     EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
   }
 
+  // A board of 2 inner corners per side reached OpenCV's corner finder, which threw: INTERNAL.
+  {
+    grpc::ClientContext ctx;
+    pb::CalibrateRequest request;
+    request.set_kind(pb::CALIBRATION_KIND_CAMERA);
+    request.set_image_directory((fs::path(PICKING_TEST_DATA_DIR) / "calibration").string());
+    request.mutable_board()->set_inner_corners_rows(2);
+    status = stub_->Calibrate(&ctx, request, &response);
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << status.error_message();
+    EXPECT_NE(status.error_message().find("3 to 100 inner corners"), std::string::npos);
+  }
+
   // The OpenCV sample views (9 x 6 inner corners).
   status = CalibrateCamera((fs::path(PICKING_TEST_DATA_DIR) / "calibration").string(), &response);
   ASSERT_TRUE(status.ok()) << status.error_message();

@@ -490,6 +490,14 @@ TEST_F(SimulatorRpcTest, RefusedRequestsNameTheProblemAndChangeNothing) {
   r = Render(stub_.get(), render);
   EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(r.status.error_message().find("camera"), std::string::npos);
+  // A denormal focal length made the ray directions infinite and aborted the ray caster.
+  render = ShelfView();
+  render.mutable_camera()->set_fx(std::numeric_limits<double>::denorm_min());
+  render.add_patterns()->set_solid_level(1.0);
+  r = Render(stub_.get(), render);
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(r.status.error_message().find("fx must be in"), std::string::npos)
+      << r.status.error_message();
   render = ShelfView();
   render.add_patterns()->set_solid_level(1.5);
   r = Render(stub_.get(), render);

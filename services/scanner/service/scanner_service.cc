@@ -502,8 +502,12 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     ChessboardSpec board = options_.board;
     if (request.has_board()) {
       const auto& b = request.board();
-      if (b.inner_corners_cols() > 100 || b.inner_corners_rows() > 100) {
-        throw std::invalid_argument("board: at most 100 inner corners per side");
+      // 0 keeps the configured value; OpenCV's corner finder needs 3 or more per side.
+      const auto side_ok = [](std::uint32_t n) { return n == 0 || (n >= 3 && n <= 100); };
+      if (!side_ok(b.inner_corners_cols()) || !side_ok(b.inner_corners_rows())) {
+        throw std::invalid_argument("board: 3 to 100 inner corners per side, got " +
+                                    std::to_string(b.inner_corners_cols()) + " x " +
+                                    std::to_string(b.inner_corners_rows()));
       }
       if (b.inner_corners_cols()) board.inner_corners_x = static_cast<int>(b.inner_corners_cols());
       if (b.inner_corners_rows()) board.inner_corners_y = static_cast<int>(b.inner_corners_rows());
