@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "grpc/reflection/v1/reflection.grpc.pb.h"
+#include "libs/runtime/status.h"
 
 namespace picking::cli {
 namespace {
@@ -23,28 +24,6 @@ namespace refl = ::grpc::reflection::v1;
 namespace gp = ::google::protobuf;
 
 constexpr int kOk = 0, kUsage = 2, kRpcError = 3;
-
-const char* CodeName(grpc::StatusCode code) {
-  static const char* const kNames[] = {"OK",
-                                       "CANCELLED",
-                                       "UNKNOWN",
-                                       "INVALID_ARGUMENT",
-                                       "DEADLINE_EXCEEDED",
-                                       "NOT_FOUND",
-                                       "ALREADY_EXISTS",
-                                       "PERMISSION_DENIED",
-                                       "RESOURCE_EXHAUSTED",
-                                       "FAILED_PRECONDITION",
-                                       "ABORTED",
-                                       "OUT_OF_RANGE",
-                                       "UNIMPLEMENTED",
-                                       "INTERNAL",
-                                       "UNAVAILABLE",
-                                       "DATA_LOSS",
-                                       "UNAUTHENTICATED"};
-  const int i = static_cast<int>(code);
-  return i >= 0 && i < static_cast<int>(sizeof(kNames) / sizeof(kNames[0])) ? kNames[i] : "?";
-}
 
 // A failure with the exit status it maps to.
 struct Failure {
@@ -96,13 +75,14 @@ class ReflectedDescriptors {
       const grpc::Status status = stream_->Finish();
       finished_ = true;
       return {kRpcError, std::string("reflection (grpc.reflection.v1) failed: ") +
-                             status.error_message() + " (" + CodeName(status.error_code()) + ")"};
+                             status.error_message() + " (" +
+                             runtime::StatusCodeName(status.error_code()) + ")"};
     }
     if (response.has_error_response()) {
       const auto& e = response.error_response();
       const auto code = static_cast<grpc::StatusCode>(e.error_code());
       return {code == grpc::StatusCode::NOT_FOUND ? kUsage : kRpcError,
-              "reflection: " + e.error_message() + " (" + CodeName(code) + ")"};
+              "reflection: " + e.error_message() + " (" + runtime::StatusCodeName(code) + ")"};
     }
     for (const std::string& bytes : response.file_descriptor_response().file_descriptor_proto()) {
       gp::FileDescriptorProto file;
@@ -222,7 +202,7 @@ Failure Invoke(const std::shared_ptr<grpc::Channel>& channel, const std::string&
   if (!failure.message.empty()) return failure;
   if (!status.ok()) {
     return {kRpcError, path.substr(1) + ": " + status.error_message() + " (" +
-                           CodeName(status.error_code()) + ")"};
+                           runtime::StatusCodeName(status.error_code()) + ")"};
   }
   return {kOk, ""};
 }

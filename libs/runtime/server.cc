@@ -17,6 +17,7 @@
 
 #include "libs/runtime/log.h"
 #include "libs/runtime/reflection_v1.h"
+#include "libs/runtime/status.h"
 #include "libs/runtime/tls.h"
 
 namespace picking::runtime {
@@ -54,47 +55,6 @@ void SignalShutdown() {
   g_shutdown_cv.notify_all();
 }
 
-const char* CodeName(grpc::StatusCode code) {
-  switch (code) {
-    case grpc::OK:
-      return "OK";
-    case grpc::CANCELLED:
-      return "CANCELLED";
-    case grpc::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::ABORTED:
-      return "ABORTED";
-    case grpc::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::INTERNAL:
-      return "INTERNAL";
-    case grpc::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    default:
-      return "?";
-  }
-}
-
 // Logs one line per finished call: method, status code, duration. Health and reflection
 // calls are logged at debug level so that probes do not flood the log.
 class CallLogInterceptor final : public grpc::experimental::Interceptor {
@@ -123,7 +83,7 @@ class CallLogInterceptor final : public grpc::experimental::Interceptor {
       } else {
         Log(level, "rpc",
             {{"method", method_},
-             {"code", CodeName(status.error_code())},
+             {"code", StatusCodeName(status.error_code())},
              {"duration_ms", dur},
              {"error", status.error_message()}});
       }

@@ -31,6 +31,10 @@ inline std::string Quoted(std::string_view text) { return CutMessage(text, kMaxQ
 /// `status` with its message cut to kMaxStatusMessageBytes (code and details unchanged).
 grpc::Status CutStatus(const grpc::Status& status);
 
+/// The code's name as gRPC writes it ("FAILED_PRECONDITION"); "?" for a number it does not
+/// define.
+const char* StatusCodeName(grpc::StatusCode code);
+
 /// Maps the exception currently being handled onto a gRPC status with its message
 /// (see libs/errors/errors.h for the mapping). Exceptions of other types are bugs and
 /// become INTERNAL.

@@ -66,7 +66,8 @@ struct FuzzReport {
 /// each that the server is alive, that the call ended within its deadline, that the status
 /// is not INTERNAL or UNKNOWN (except gRPC's own answer to bytes that do not parse as the
 /// request), that the error message is short, and that a refused call left the truth
-/// snapshot unchanged. Stops early once the server has died.
+/// snapshot unchanged (not checked for the call right after a cancelled one, which the
+/// server may still be finishing). Stops early once the server has died.
 FuzzReport RunFuzz(const FuzzTarget& target, const FuzzOptions& options);
 
 }  // namespace picking::testing

@@ -224,14 +224,14 @@ TEST(FuzzServers, Robot) {
   robot::v1::MoveJointsRequest back;
   *back.mutable_target()->mutable_positions_rad() = start.joints().positions_rad();
   target.restore = [stub, back] {
-    grpc::ClientContext reset_context;
-    robot::v1::ResetProtectiveStopResponse reset;
-    stub->ResetProtectiveStop(&reset_context, {}, &reset);
-    // A cancelled motion call ends for its client at once, but the server stops it a moment
-    // later ("another motion is running" until then): retry, so that the next call's truth
-    // check sees only its own effect.
+    // A cancelled call ends for its client at once, but the server may finish it a moment
+    // later (a motion still running, a protective stop arriving after the reset): retry
+    // both until the move back is accepted.
     grpc::Status status;
     for (int attempt = 0; attempt < 2000; ++attempt) {
+      grpc::ClientContext reset_context;
+      robot::v1::ResetProtectiveStopResponse reset;
+      stub->ResetProtectiveStop(&reset_context, {}, &reset);
       grpc::ClientContext move_context;
       robot::v1::MoveJointsResponse moved;
       status = stub->MoveJoints(&move_context, back, &moved);
