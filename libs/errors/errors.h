@@ -34,6 +34,12 @@ class TimeoutError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// The work was abandoned because its call was cancelled (the client left, the server stops).
+class CancelledError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 class DataLossError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;

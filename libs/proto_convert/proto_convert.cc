@@ -199,15 +199,17 @@ void CloudAssembler::Add(const pb::PointCloudChunk& chunk) {
       throw std::invalid_argument("cloud of " + std::to_string(h.point_count()) +
                                   " points exceeds the limit of " + std::to_string(max_points_));
     }
-    if (h.height() > 1 && static_cast<std::uint64_t>(h.width()) * h.height() != h.point_count()) {
+    // The contract: point_count = width * height, height 1 for an unorganised cloud. A
+    // header that leaves the shape out is refused rather than guessed.
+    if (static_cast<std::uint64_t>(h.width()) * h.height() != h.point_count()) {
       throw std::invalid_argument("cloud header: width * height (" + std::to_string(h.width()) +
                                   " * " + std::to_string(h.height()) + ") != point_count (" +
                                   std::to_string(h.point_count()) + ")");
     }
     total_ = h.point_count();
     cloud_.frame_id = h.frame_id();
-    cloud_.width = h.height() > 1 ? h.width() : static_cast<std::uint32_t>(total_);
-    cloud_.height = h.height() > 1 ? h.height() : 1;
+    cloud_.width = h.width();
+    cloud_.height = h.height();
     cloud_.points.resize(total_);
     if (h.has_normals()) cloud_.normals.resize(total_);
     if (h.has_colors()) cloud_.colors.resize(total_);

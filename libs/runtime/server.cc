@@ -1,6 +1,7 @@
 #include "libs/runtime/server.h"
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/generic/async_generic_service.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/support/server_interceptor.h>
@@ -12,6 +13,7 @@
 #include <cstdio>
 #include <iostream>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string_view>
 
@@ -46,6 +48,32 @@ void CallEnded() {
   }
   g_calls_cv.notify_all();
 }
+
+// Answers calls to methods no registered service has. gRPC's own answer is UNIMPLEMENTED
+// with an empty message, which leaves a client guessing between a typo, a wrong port and
+// an older server.
+class UnknownMethodService final : public grpc::CallbackGenericService {
+ public:
+  explicit UnknownMethodService(const std::vector<std::string>& services) {
+    for (const auto& name : services) served_ += (served_.empty() ? "" : ", ") + name;
+  }
+
+  grpc::ServerGenericBidiReactor* CreateReactor(
+      grpc::GenericCallbackServerContext* context) override {
+    class Reactor final : public grpc::ServerGenericBidiReactor {
+     public:
+      explicit Reactor(grpc::Status status) { Finish(status); }
+      void OnDone() override { delete this; }
+    };
+    return new Reactor(grpc::Status(grpc::StatusCode::UNIMPLEMENTED,
+                                    "no method " + CutMessage(context->method(), 120) +
+                                        " on this server; it serves " + served_ +
+                                        " (and grpc.health.v1.Health, server reflection)"));
+  }
+
+ private:
+  std::string served_;
+};
 
 void SignalShutdown() {
   {
@@ -208,37 +236,35 @@ bool WaitForShutdown(std::chrono::milliseconds timeout) {
   return g_shutting_down.load();
 }
 
-int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
-  // Block the stop signals in every thread (gRPC's included, which inherit this mask) so
-  // that only the sigwait below receives them.
+namespace {
+
+// Blocks the stop signals in every thread (gRPC's included, which inherit this mask) so
+// that only the sigwait of ServeUntilStopped receives them.
+sigset_t BlockStopSignals() {
   sigset_t stop_signals;
   sigemptyset(&stop_signals);
   sigaddset(&stop_signals, SIGTERM);
   sigaddset(&stop_signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+  return stop_signals;
+}
 
-  ParsedFlags flags;
+// The service's settings: the --config file, then the --key=value overrides.
+Config ConfigFrom(const ParsedFlags& flags) {
   Config config;
-  try {
-    flags = ParseFlags(argc, argv, spec);
-    if (flags.help) {
-      PrintHelp(spec);
-      return 0;
-    }
-    ConfigureLogging(spec.service, ParseLogLevel(flags.log_level));
-    if (!flags.config_path.empty()) config = Config::FromYamlFile(flags.config_path);
-    for (const auto& [key, value] : flags.overrides) config.Set(key, value);
-  } catch (const std::exception& e) {
-    std::cerr << spec.program << ": " << e.what() << "\n(see " << spec.program << " --help)\n";
-    return 2;
-  }
+  if (!flags.config_path.empty()) config = Config::FromYamlFile(flags.config_path);
+  for (const auto& [key, value] : flags.overrides) config.Set(key, value);
+  return config;
+}
 
-  ServiceSet set;
-  std::shared_ptr<grpc::ServerCredentials> credentials;
-  const TlsFiles tls = TlsFilesFromConfig(config);
+// Builds the services and the server credentials; an exit status when they cannot be.
+std::optional<int> BuildServices(const ServerSpec& spec, const Config& config, ServiceSet* set,
+                                 std::shared_ptr<grpc::ServerCredentials>* credentials,
+                                 TlsFiles* tls) {
   try {
-    credentials = ServerCredentialsFor(tls);
-    set = spec.build(config);
+    *tls = TlsFilesFromConfig(config);
+    *credentials = ServerCredentialsFor(*tls);
+    *set = spec.build(config);
     const auto unused = config.UnusedKeys();
     if (!unused.empty()) {
       std::string list;
@@ -254,6 +280,54 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
     std::cerr << spec.program << ": " << e.what() << "\n";
     return 1;
   }
+  return std::nullopt;
+}
+
+// Waits for SIGTERM or SIGINT, lets in-flight calls finish within the grace period (long
+// handlers see ShuttingDown() and end early), then shuts down with a short deadline that
+// also closes idle client connections.
+void ServeUntilStopped(grpc::Server* server, const sigset_t& stop_signals, double grace_s) {
+  int signal_number = 0;
+  sigwait(&stop_signals, &signal_number);
+  LogInfo("stopping", {{"signal", signal_number == SIGTERM ? "SIGTERM" : "SIGINT"}});
+  SignalShutdown();
+  server->GetHealthCheckService()->SetServingStatus(false);
+  {
+    std::unique_lock<std::mutex> lock(g_calls_mutex);
+    const bool drained = g_calls_cv.wait_for(
+        lock, std::chrono::milliseconds(static_cast<long long>(grace_s * 1000.0)),
+        [] { return g_calls_in_flight == 0; });
+    if (!drained) {
+      LogWarning("grace period over, cancelling calls",
+                 {{"in_flight", std::to_string(g_calls_in_flight)}});
+    }
+  }
+  server->Shutdown(std::chrono::system_clock::now() + std::chrono::milliseconds(200));
+  server->Wait();
+}
+
+}  // namespace
+
+int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
+  const sigset_t stop_signals = BlockStopSignals();
+  ParsedFlags flags;
+  Config config;
+  try {
+    flags = ParseFlags(argc, argv, spec);
+    if (flags.help) {
+      PrintHelp(spec);
+      return 0;
+    }
+    ConfigureLogging(spec.service, ParseLogLevel(flags.log_level));
+    config = ConfigFrom(flags);
+  } catch (const std::exception& e) {
+    std::cerr << spec.program << ": " << e.what() << "\n(see " << spec.program << " --help)\n";
+    return 2;
+  }
+  ServiceSet set;
+  std::shared_ptr<grpc::ServerCredentials> credentials;
+  TlsFiles tls;
+  if (const auto status = BuildServices(spec, config, &set, &credentials, &tls)) return *status;
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -265,6 +339,8 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   builder.SetMaxReceiveMessageSize(max_bytes);
   builder.SetMaxSendMessageSize(max_bytes);
   for (auto& s : set.services) builder.RegisterService(s.get());
+  UnknownMethodService unknown_methods(set.full_names);
+  builder.RegisterCallbackGenericService(&unknown_methods);
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> creators;
   creators.push_back(std::make_unique<CallLogInterceptorFactory>());
   builder.experimental().SetInterceptorCreators(std::move(creators));
@@ -286,25 +362,7 @@ int RunServerMain(int argc, char** argv, const ServerSpec& spec) {
   LogInfo("serving",
           {{"address", bound}, {"program", spec.program}, {"security", SecurityName(tls)}});
 
-  int signal_number = 0;
-  sigwait(&stop_signals, &signal_number);
-  LogInfo("stopping", {{"signal", signal_number == SIGTERM ? "SIGTERM" : "SIGINT"}});
-  SignalShutdown();
-  health->SetServingStatus(false);
-  // Let in-flight calls finish (long-running handlers see ShuttingDown() and end early),
-  // then shut down with a short deadline that also closes idle client connections.
-  {
-    std::unique_lock<std::mutex> lock(g_calls_mutex);
-    const bool drained = g_calls_cv.wait_for(
-        lock, std::chrono::milliseconds(static_cast<long long>(flags.grace_s * 1000.0)),
-        [] { return g_calls_in_flight == 0; });
-    if (!drained) {
-      LogWarning("grace period over, cancelling calls",
-                 {{"in_flight", std::to_string(g_calls_in_flight)}});
-    }
-  }
-  server->Shutdown(std::chrono::system_clock::now() + std::chrono::milliseconds(200));
-  server->Wait();
+  ServeUntilStopped(server.get(), stop_signals, flags.grace_s);
   if (set.on_shutdown) {
     try {
       set.on_shutdown();

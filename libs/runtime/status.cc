@@ -76,6 +76,8 @@ grpc::Status StatusFromCurrentException() {
     return grpc::Status(grpc::StatusCode::UNAVAILABLE, e.what());
   } catch (const TimeoutError& e) {
     return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, e.what());
+  } catch (const CancelledError& e) {
+    return grpc::Status(grpc::StatusCode::CANCELLED, e.what());
   } catch (const DataLossError& e) {
     return grpc::Status(grpc::StatusCode::DATA_LOSS, e.what());
   } catch (const ResourceExhaustedError& e) {

@@ -263,6 +263,19 @@ bool Ur10Model::WithinPositionLimits(const JointVector& q) const {
   return true;
 }
 
+std::string Ur10Model::PositionLimitViolation(const JointVector& q) const {
+  for (int i = 0; i < kNumJoints; ++i) {
+    if (!std::isfinite(q[i]) || q[i] < limits_[i].min_position_rad ||
+        q[i] > limits_[i].max_position_rad) {
+      std::ostringstream os;
+      os << "joint " << kJointNames[i] << " at " << q[i] << " rad is outside ["
+         << limits_[i].min_position_rad << ", " << limits_[i].max_position_rad << "] rad";
+      return os.str();
+    }
+  }
+  return {};
+}
+
 world::TriangleMesh Ur10Model::LoadCollisionMesh(Link link) const {
   const std::string& path = collision_mesh_path(link);
   if (path.empty()) {

@@ -106,6 +106,9 @@ class Ur10Model final {
 
   /// True if every entry of q is finite and within [min_position, max_position].
   bool WithinPositionLimits(const JointVector& q) const;
+  /// Empty if WithinPositionLimits(q); else which joint is out and its range, e.g.
+  /// "joint elbow_joint at 3.2 rad is outside [-3.14159, 3.14159] rad".
+  std::string PositionLimitViolation(const JointVector& q) const;
 
  private:
   void ValidateLimits(const std::array<JointLimit, kNumJoints>& limits) const;

@@ -96,6 +96,8 @@ std::string PlaneCloudChunk(int n) {
   common::PointCloudChunk chunk;
   chunk.mutable_header()->set_frame_id("base");
   chunk.mutable_header()->set_point_count(n * n);
+  chunk.mutable_header()->set_width(n);
+  chunk.mutable_header()->set_height(n);
   chunk.mutable_header()->mutable_sensor_pose()->mutable_orientation()->set_w(1.0);
   chunk.set_point_count(n * n);
   chunk.set_positions(positions);

@@ -524,6 +524,44 @@ TEST_F(DetectorSceneTest, EmptyCloudIsInvalid) {
   nan.rgb.assign(3000, 0);
   s = Detect(Query({"milk"}, pb::METHOD_PPF), ToChunks(nan, Transform()), &response);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  // Only infinite points were reported as "(all NaN)".
+  Scene inf = nan;
+  inf.xyz.assign(3000, std::numeric_limits<float>::infinity());
+  s = Detect(Query({"milk"}, pb::METHOD_PPF), ToChunks(inf, Transform()), &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("NaN or infinite"), std::string::npos) << s.error_message();
+}
+
+// A header of width = height = 0 with 11,825 points was taken as an unorganised cloud; the
+// contract says point_count = width * height.
+TEST_F(DetectorSceneTest, AHeaderWhoseShapeDisagreesWithItsPointCountIsInvalid) {
+  std::vector<common::PointCloudChunk> chunks = *chunks_;
+  chunks.front().mutable_header()->set_width(0);
+  chunks.front().mutable_header()->set_height(0);
+  pb::DetectResponse response;
+  const grpc::Status s = Detect(Query({"milk"}, pb::METHOD_PPF), chunks, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("width * height (0 * 0)"), std::string::npos)
+      << s.error_message();
+}
+
+// Verify with a sensor pose at 1e308 m answered "KdTree: point 0 is not finite", naming no
+// field of the request.
+TEST_F(DetectorSceneTest, VerifyRefusesAHugeSensorPoseNamingTheField) {
+  grpc::ClientContext ctx;
+  pb::VerifyResponse response;
+  auto writer = Stub()->Verify(&ctx, &response);
+  pb::VerifyRequest request;
+  request.mutable_params()->set_item("milk");
+  *request.mutable_params()->mutable_x_frame_item() = ToPose(*X_BaseScene_);
+  auto* sensor = request.mutable_params()->mutable_x_frame_sensor();
+  sensor->mutable_orientation()->set_w(1.0);
+  sensor->mutable_position()->set_z(1e308);
+  writer->Write(request);
+  const grpc::Status s = WriteChunksAndFinish<pb::VerifyRequest>(*writer, *chunks_);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("params.X_frame_sensor.position"), std::string::npos)
+      << s.error_message();
 }
 
 TEST_F(DetectorSceneTest, BrokenChunkStreamIsInvalid) {

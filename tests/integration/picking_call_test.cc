@@ -2,13 +2,18 @@
 // resolves a method through the server's reflection, sends the request it reads as JSON and
 // prints the reply as JSON; unknown names and bad requests are refused with exit status 2.
 #include <arpa/inet.h>
+#include <grpcpp/generic/generic_stub.h>
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 
@@ -135,6 +140,37 @@ TEST_F(PickingCallTest, AnUnknownMethodOrServiceIsABadCommandLine) {
   r = RunProgram(ServerBinary("picking"), {"call", planner_->address()});
   EXPECT_EQ(r.exit_status, 2) << r.output;
   EXPECT_NE(r.output.find("call needs ADDRESS SERVICE/METHOD"), std::string::npos) << r.output;
+}
+
+// gRPC answers a method nobody serves with UNIMPLEMENTED and no message at all; the server
+// says which method it did not find and what it serves instead.
+TEST_F(PickingCallTest, AMethodNoServiceHasIsUnimplementedWithAMessage) {
+  auto channel = grpc::CreateChannel(planner_->address(), grpc::InsecureChannelCredentials());
+  grpc::GenericStub stub(channel);
+  for (const std::string method :
+       {"/picking.planner.v1.PlannerService/NoSuchMethod", "/no.such.Service/Method"}) {
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+    grpc::Slice empty_message("");  // An empty request message, valid for any method.
+    grpc::ByteBuffer request(&empty_message, 1), response;
+    grpc::Status status;
+    std::mutex mutex;
+    std::condition_variable done_cv;
+    bool done = false;
+    stub.UnaryCall(&context, method, grpc::StubOptions(), &request, &response, [&](grpc::Status s) {
+      std::lock_guard<std::mutex> lock(mutex);
+      status = std::move(s);
+      done = true;
+      done_cv.notify_all();
+    });
+    std::unique_lock<std::mutex> lock(mutex);
+    done_cv.wait(lock, [&] { return done; });
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::UNIMPLEMENTED) << method;
+    EXPECT_NE(status.error_message().find("no method " + method), std::string::npos)
+        << status.error_message();
+    EXPECT_NE(status.error_message().find("picking.planner.v1.PlannerService"), std::string::npos)
+        << status.error_message();
+  }
 }
 
 TEST_F(PickingCallTest, ARequestThatIsNotTheMethodsTypeIsABadCommandLine) {

@@ -92,8 +92,9 @@ TEST_F(PlannerKinematicsTest, BadInputIsRefusedWithInvalidArgument) {
   EXPECT_NE(s.error_message().find("6 joint positions"), std::string::npos) << s.error_message();
   s = Fk({0, std::numeric_limits<double>::quiet_NaN(), 0, 0, 0, 0}, &fk);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  s = Fk({0, 0, 4.0, 0, 0, 0}, &fk);  // Elbow beyond +-pi.
+  s = Fk({0, 0, 4.0, 0, 0, 0}, &fk);  // Elbow beyond +-pi: the message names the joint.
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("elbow_joint at 4 rad"), std::string::npos) << s.error_message();
 
   grpc::ClientContext ctx;
   planner::v1::ComputeIkRequest req;

@@ -852,6 +852,30 @@ TEST_F(SimRobotRealTimeTest, AMovePastItsDeadlineIsStopped) {
   EXPECT_TRUE(next.ok()) << next.error_message();
 }
 
+// The contract a client relies on: once GetState says IDLE after a motion it abandoned,
+// the next move is accepted. The server's motion slot outlives the backend's motion by the
+// few steps that end a call, and GetState answers MOVING until the slot is free.
+TEST_F(SimRobotRealTimeTest, GetStateSaysMovingUntilAnAbandonedMotionHasEnded) {
+  JointVector target = StartJoints();
+  target[0] += 1.5;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(300));
+  rb::MoveJointsRequest request;
+  SetJoints(target, request.mutable_target());
+  request.mutable_options()->set_speed_fraction(0.2);
+  rb::MoveJointsResponse response;
+  ASSERT_EQ(client_.stub().MoveJoints(&ctx, request, &response).error_code(),
+            grpc::StatusCode::DEADLINE_EXCEEDED);
+  rb::GetStateResponse state = client_.State();
+  for (int poll = 0; poll < 100000 && state.status() == rb::ROBOT_STATUS_MOVING; ++poll) {
+    state = client_.State();
+  }
+  ASSERT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
+  rb::MoveJointsResponse back;
+  const grpc::Status next = client_.MoveJoints(StartJoints(), &back);
+  EXPECT_TRUE(next.ok()) << next.error_message();
+}
+
 // The ur backend against the in-process fake controller.
 class UrRobotTest : public ::testing::Test {
  protected:

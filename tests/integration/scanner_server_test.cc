@@ -423,18 +423,26 @@ TEST_F(ScannerReplayTest, BaseFrameScanWithoutHandEyeIsAFailedPrecondition) {
 }
 
 TEST_F(ScannerReplayTest, BadScanRequestsAreInvalidArguments) {
-  for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < 4; ++k) {
     grpc::ClientContext ctx;
     pb::ScanRequest request;
     request.set_frame_id("camera");
     if (k == 0) request.set_frame_id("tool");
     if (k == 1) request.set_merge_voxel_m(-0.01);
     if (k == 2) request.mutable_decode()->set_min_white_black_contrast(300);
+    if (k == 3) {  // One view more than a scan may have: refused before any capture.
+      for (int v = 0; v < 17; ++v) request.add_views();
+    }
     auto reader = stub_->Scan(&ctx, request);
     pb::ScanResponse response;
     while (reader->Read(&response)) {
     }
-    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::INVALID_ARGUMENT) << k;
+    const grpc::Status status = reader->Finish();
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << k;
+    if (k == 3) {
+      EXPECT_NE(status.error_message().find("at most 16 views, got 17"), std::string::npos)
+          << status.error_message();
+    }
   }
 }
 
@@ -1187,6 +1195,71 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
   EXPECT_LT(median_mm, 0.5);
   EXPECT_LT(GrossFraction(e), 0.02);
   EXPECT_GT(static_cast<double>(e.bin_scanned) / e.bin_pixels, 0.65);
+}
+
+// A scan of many views past its deadline went on rendering them one after the other while
+// it held the sensor: the client had its DEADLINE_EXCEEDED, but the next scan waited for
+// the abandoned one (and a stopping scanner for both). The renders are now child calls of
+// the scan's call and end with it.
+TEST_F(ScannerWithSimulatorTest, AScanPastItsDeadlineFreesTheSensorAtOnce) {
+  pb::ScanRequest many;
+  for (int v = 0; v < 16; ++v) {
+    *many.add_views()->mutable_x_base_tool() =
+        ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.02 * v, 0.35));
+  }
+  many.set_frame_id("base");
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(1500));
+    auto reader = stub_->Scan(&ctx, many);
+    pb::ScanResponse response;
+    while (reader->Read(&response)) {
+    }
+    ASSERT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  // One view takes well under a second here; the abandoned scan's 15 other views would have
+  // held the sensor for many more.
+  pb::ScanRequest one;
+  *one.add_views()->mutable_x_base_tool() = ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.0, 0.35));
+  one.set_frame_id("base");
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(6));
+  auto reader = stub_->Scan(&ctx, one);
+  pb::ScanResponse response;
+  std::uint64_t points = 0;
+  while (reader->Read(&response)) {
+    if (response.has_summary()) points = response.summary().point_count();
+  }
+  const grpc::Status status = reader->Finish();
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  EXPECT_GT(points, 0u);
+}
+
+// A scanner asked to stop during a long scan stops within its shutdown grace: the scan's
+// renders are cancelled with its call.
+TEST_F(ScannerWithSimulatorTest, AScannerStoppedDuringALongScanExitsWithinItsGrace) {
+  TempDir dir("stopped_during_scan");
+  ServerProcess scanner(ServerBinary(kBinary),
+                        {"--sim.address=" + simulator_->address(),
+                         "--calibration.dir=" + dir.path().string(), "--shutdown-grace-s=0.5"});
+  auto stub = pb::ScannerService::NewStub(scanner.Channel());
+  pb::ScanRequest many;
+  for (int v = 0; v < 16; ++v) {
+    *many.add_views()->mutable_x_base_tool() =
+        ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.02 * v, 0.35));
+  }
+  many.set_frame_id("base");
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+  auto reader = stub->Scan(&ctx, many);
+  pb::ScanResponse response;
+  ASSERT_TRUE(reader->Read(&response));  // The first view's progress: the scan runs.
+  ASSERT_TRUE(response.has_progress());
+  // 16 views take far longer than 5 s; the scanner must not wait for them.
+  EXPECT_EQ(scanner.Stop(std::chrono::seconds(5)), 0);
+  while (reader->Read(&response)) {
+  }
+  EXPECT_FALSE(reader->Finish().ok());
 }
 
 TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurface) {

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <utility>
+#include <vector>
 
 namespace picking::proto_convert {
 namespace {
@@ -170,6 +172,23 @@ TEST(ProtoConvertTest, AssemblerRejectsBrokenStreams) {
   {
     CloudAssembler a;
     EXPECT_THROW(a.Finish(), std::invalid_argument);
+  }
+}
+
+// A header with width = height = 0 and 1000 points was taken as an unorganised cloud.
+TEST(ProtoConvertTest, AssemblerRefusesAHeaderWhoseShapeDisagreesWithItsPointCount) {
+  const auto chunks = CloudToChunks(MakeCloud(1000, false), 300);
+  for (const auto& [width, height] : std::vector<std::pair<int, int>>{{0, 0}, {0, 1}, {10, 10}}) {
+    auto bad = chunks[0];
+    bad.mutable_header()->set_width(width);
+    bad.mutable_header()->set_height(height);
+    CloudAssembler a;
+    try {
+      a.Add(bad);
+      ADD_FAILURE() << width << " x " << height << " accepted for 1000 points";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("width * height"), std::string::npos) << e.what();
+    }
   }
 }
 

@@ -178,9 +178,13 @@ TEST(Ur10ModelTest, WithinPositionLimits) {
   EXPECT_TRUE(model.WithinPositionLimits(q));
   q[2] = 3.2;  // elbow beyond pi
   EXPECT_FALSE(model.WithinPositionLimits(q));
+  EXPECT_NE(model.PositionLimitViolation(q).find("joint elbow_joint at 3.2 rad"), std::string::npos)
+      << model.PositionLimitViolation(q);
   q[2] = 0.0;
   q[0] = std::nan("");
   EXPECT_FALSE(model.WithinPositionLimits(q));
+  EXPECT_NE(model.PositionLimitViolation(q).find("shoulder_pan"), std::string::npos);
+  EXPECT_EQ(model.PositionLimitViolation(JointVector::Zero()), "");
 }
 
 TEST(StlTest, ReadsAsciiStl) {

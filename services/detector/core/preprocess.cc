@@ -143,7 +143,8 @@ void ValidateCloud(const PointCloud& cloud, const CloudLimits& limits) {
                                 " * " + std::to_string(cloud.height) + ") != number of points (" +
                                 std::to_string(cloud.size()) + ")");
   if (std::none_of(cloud.points.begin(), cloud.points.end(), Finite))
-    throw std::invalid_argument("point cloud has no finite point (all NaN)");
+    throw std::invalid_argument(
+        "point cloud has no finite point (every point has a NaN or infinite coordinate)");
 }
 
 PointCloud CropToBox(const PointCloud& cloud, const OrientedBox& box, const CropOptions& options) {

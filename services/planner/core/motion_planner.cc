@@ -230,8 +230,9 @@ GraspContainer MotionPlanner::Container(const std::string& name) const {
 
 void MotionPlanner::ValidateStart(const JointVector& start_rad) const {
   if (!start_rad.allFinite()) throw std::invalid_argument("start joints must be finite");
-  if (!robot_->kinematics().model().WithinPositionLimits(start_rad)) {
-    throw PreconditionError("the start joints are outside the UR10's joint limits");
+  if (const std::string out = robot_->kinematics().model().PositionLimitViolation(start_rad);
+      !out.empty()) {
+    throw PreconditionError("the start joints are outside the UR10's limits: " + out);
   }
 }
 
@@ -413,8 +414,9 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   const auto started = std::chrono::steady_clock::now();
   ValidateStart(start_rad);
   if (!goal_rad.allFinite()) throw std::invalid_argument("goal joints must be finite");
-  if (!robot_->kinematics().model().WithinPositionLimits(goal_rad)) {
-    throw std::invalid_argument("the goal joints are outside the UR10's joint limits");
+  if (const std::string out = robot_->kinematics().model().PositionLimitViolation(goal_rad);
+      !out.empty()) {
+    throw std::invalid_argument("the goal joints are outside the UR10's limits: " + out);
   }
   if (const CollisionReport r = static_fast_->Check(start_rad); r.in_collision) {
     throw PreconditionError("the start state collides: " + r.ToString());

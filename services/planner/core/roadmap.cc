@@ -22,8 +22,8 @@ Roadmap::Roadmap(const MotionChecker& checker, std::vector<NamedPose> named,
   for (int j = 0; j < 6; ++j) weights_[j] = checker_.reach_m(j, nullptr);
   Eigen::Array<double, 6, 1> lo = Eigen::Array<double, 6, 1>::Constant(1e9), hi = -lo;
   for (const NamedPose& pose : named_) {
-    if (!model.WithinPositionLimits(pose.q_rad)) {
-      throw std::invalid_argument("named pose '" + pose.name + "' is outside the joint limits");
+    if (const std::string out = model.PositionLimitViolation(pose.q_rad); !out.empty()) {
+      throw std::invalid_argument("named pose '" + pose.name + "': " + out);
     }
     const CollisionReport report = checker_.checker().Check(pose.q_rad);
     if (report.in_collision) {

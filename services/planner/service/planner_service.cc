@@ -142,8 +142,8 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
                          pb::ComputeFkResponse* response) override {
     return runtime::Guard([&] {
       const ur10::JointVector q = JointsFrom(request->joints(), "joints");
-      if (!kinematics_.model().WithinPositionLimits(q)) {
-        return runtime::InvalidArgument("joints are outside the UR10's joint position limits");
+      if (const std::string out = kinematics_.model().PositionLimitViolation(q); !out.empty()) {
+        return runtime::InvalidArgument("joints: " + out);
       }
       const Eigen::Isometry3d X_BaseTool = kinematics_.ForwardKinematics(q);
       *response->mutable_x_base_tool() = pc::PoseToProto(X_BaseTool);

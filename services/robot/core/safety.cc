@@ -185,6 +185,22 @@ SafetyCheck SafetyChecker::CheckTrajectory(const JointTrajectory& trajectory,
     if (!p[i].qd_rad_s.allFinite() || !p[i].qdd_rad_s2.allFinite()) {
       return SafetyCheck::Fail(where + ": velocity or acceleration is not finite");
     }
+    // Declared velocities and accelerations are what a backend may command, so they obey
+    // the same limits as the ones implied by the positions.
+    for (int j = 0; j < ur10::kNumJoints; ++j) {
+      if (std::abs(p[i].qd_rad_s[j]) > limits_.max_velocity_rad_s[j] * (1.0 + tolerance)) {
+        os << where << ": joint " << ur10::kJointNames[j] << " declared velocity "
+           << std::abs(p[i].qd_rad_s[j]) << " rad/s exceeds the limit "
+           << limits_.max_velocity_rad_s[j] << " rad/s";
+        return SafetyCheck::Fail(os.str());
+      }
+      if (std::abs(p[i].qdd_rad_s2[j]) > limits_.max_acceleration_rad_s2[j] * (1.0 + tolerance)) {
+        os << where << ": joint " << ur10::kJointNames[j] << " declared acceleration "
+           << std::abs(p[i].qdd_rad_s2[j]) << " rad/s^2 exceeds the limit "
+           << limits_.max_acceleration_rad_s2[j] << " rad/s^2";
+        return SafetyCheck::Fail(os.str());
+      }
+    }
     if (i == 0 && p[i].time_s < 0.0) return SafetyCheck::Fail(where + ": negative time");
     if (i > 0 && !(p[i].time_s > p[i - 1].time_s)) {
       os << where << ": time " << p[i].time_s << " s does not increase (previous "

@@ -203,8 +203,9 @@ LinearMoveResult SampleLinearPath(const ur10::Ur10Kinematics& kinematics,
     result.reason = "start joint vector is not finite";
     return result;
   }
-  if (!kinematics.model().WithinPositionLimits(q_start_rad)) {
-    result.reason = "start joint vector is outside the joint limits";
+  if (const std::string out = kinematics.model().PositionLimitViolation(q_start_rad);
+      !out.empty()) {
+    result.reason = "start joints: " + out;
     return result;
   }
   if (!X_BaseTcp_goal.matrix().allFinite() || !options.X_ToolTcp.matrix().allFinite()) {

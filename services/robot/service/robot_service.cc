@@ -174,7 +174,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   grpc::Status GetState(grpc::ServerContext*, const pb::GetStateRequest*,
                         pb::GetStateResponse* response) override {
     return runtime::Guard([&] {
-      *response = StateToProto(backend_->GetState());
+      *response = StateToProto(CurrentState());
       return grpc::Status::OK;
     });
   }
@@ -193,7 +193,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       auto next = std::chrono::steady_clock::now();
       while (true) {
         if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
-        if (!writer->Write(StateToProto(backend_->GetState()))) return grpc::Status::OK;
+        if (!writer->Write(StateToProto(CurrentState()))) return grpc::Status::OK;
         next += period;
         // Wait in short slices so a cancel or a shutdown ends the stream promptly.
         while (std::chrono::steady_clock::now() < next) {
@@ -247,7 +247,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       if (const SafetyCheck check = checker_.CheckJointTarget(target); !check) {
         return runtime::InvalidArgument("target: " + check.reason);
       }
-      std::unique_lock<std::mutex> slot = MotionSlot();
+      const MotionSlot slot(this);
       const RobotState start = ReadyState();
       const SafetyLimits& limits = checker_.limits();
       double speed = speed_fraction * limits.max_velocity_rad_s.minCoeff();
@@ -295,7 +295,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       const double acceleration_fraction =
           Fraction(request->options().acceleration_fraction(),
                    options_.default_acceleration_fraction, "acceleration_fraction");
-      std::unique_lock<std::mutex> slot = MotionSlot();
+      const MotionSlot slot(this);
       const RobotState start = ReadyState();
       const SafetyLimits& limits = checker_.limits();
       const double tool_speed = speed_fraction * limits.max_tool_speed_m_s;
@@ -350,7 +350,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       if (const SafetyCheck check = checker_.CheckTrajectory(trajectory, 1e-6); !check) {
         return runtime::InvalidArgument("trajectory: " + check.reason);
       }
-      std::unique_lock<std::mutex> slot = MotionSlot();
+      const MotionSlot slot(this);
       const RobotState start = ReadyState();
       const double start_error =
           (trajectory.points.front().q_rad - start.q_rad).cwiseAbs().maxCoeff();
@@ -413,7 +413,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
                                         ", " + Num(max_speed) + "] (or 0 for 0.05), got " +
                                         Num(speed));
       }
-      std::unique_lock<std::mutex> slot = MotionSlot();
+      const MotionSlot slot(this);
       const RobotState start = ReadyState();
       const Eigen::Isometry3d X_BaseTcp = start.X_BaseTool * checker_.X_ToolTcp();
       const Eigen::Vector3d direction_tcp =
@@ -497,11 +497,32 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   }
 
  private:
-  // Moves are exclusive: a second one is refused rather than queued.
-  std::unique_lock<std::mutex> MotionSlot() {
-    std::unique_lock<std::mutex> slot(motion_mutex_, std::try_to_lock);
-    if (!slot.owns_lock()) throw PreconditionError("another motion is running");
-    return slot;
+  // Moves are exclusive: a second one is refused rather than queued. While a slot is held
+  // the arm counts as moving, also after a stop while the backend still winds the motion
+  // down: a client that sees IDLE may start the next motion.
+  class MotionSlot {
+   public:
+    explicit MotionSlot(RobotServiceImpl* robot)
+        : lock_(robot->motion_mutex_, std::try_to_lock), running_(&robot->motion_running_) {
+      if (!lock_.owns_lock()) throw PreconditionError("another motion is running");
+      running_->store(true);
+    }
+    ~MotionSlot() { running_->store(false); }
+    MotionSlot(const MotionSlot&) = delete;
+    MotionSlot& operator=(const MotionSlot&) = delete;
+
+   private:
+    std::unique_lock<std::mutex> lock_;
+    std::atomic<bool>* running_;
+  };
+
+  // The backend's state, MOVING while a motion call is in progress.
+  RobotState CurrentState() {
+    RobotState state = backend_->GetState();
+    if (state.status == RobotStatus::kReady && motion_running_.load()) {
+      state.status = RobotStatus::kMoving;
+    }
+    return state;
   }
 
   // A guarded move's swept path: the arm and the gripper tube along the straight tcp line up
@@ -698,6 +719,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   std::shared_ptr<const CollisionGuard> guard_;
   RobotServiceOptions options_;
   std::mutex motion_mutex_;
+  std::atomic<bool> motion_running_{false};  // A MotionSlot is held.
   std::mutex mutex_;
   bool latched_ = false;  // protective stop requested or seen, until reset
   std::string detail_;
@@ -793,35 +815,25 @@ std::shared_ptr<v1::RobotService::Service> MakeRobotService(
   return std::make_shared<RobotServiceImpl>(std::move(backend), checker, std::move(guard), options);
 }
 
-runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
-  // The UR10 model, and the gripper's tool centre point from the cell description.
-  const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
-  ur10::Ur10ModelOptions model_options;
-  model_options.max_acceleration_rad_s2 =
-      config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
-  const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
+namespace {
+
+world::CellConfig CellConfigFrom(const runtime::Config& config, const std::string& data_dir) {
   const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
-  world::CellConfig cell_config;
   try {
-    cell_config = world::ReadCellConfig(cell_path);
+    return world::ReadCellConfig(cell_path);
   } catch (const world::CellConfigError& e) {
     throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
   }
-  const Eigen::Isometry3d X_ToolTcp = cell_config.gripper.X_ToolTcp;
+}
 
-  // Safety limits: the model's joint limits, the workspace box and the forbidden zones.
-  Box workspace;
-  workspace.name = "workspace";
-  workspace.min_m =
-      Vector3Setting(config, "safety.workspace_min_m", Eigen::Vector3d(-1.2, -1.4, -0.68));
-  workspace.max_m =
-      Vector3Setting(config, "safety.workspace_max_m", Eigen::Vector3d(1.3, 1.4, 1.5));
-  SafetyLimits limits =
-      SafetyLimits::FromModel(model, workspace, config.GetDouble("safety.max_tcp_speed_m_s", 0.5));
+// The forbidden zones the settings name: the built-in ones by name, others from their
+// safety.zone.<name>.min_m / .max_m settings (which may also move a built-in one).
+std::vector<Box> ForbiddenZonesFrom(const runtime::Config& config) {
   std::string default_zone_names;
   for (const ZoneDefault& zone : DefaultZones()) {
     default_zone_names += (default_zone_names.empty() ? "" : ",") + std::string(zone.name);
   }
+  std::vector<Box> zones;
   for (const std::string& name :
        SplitNames(config.GetString("safety.forbidden_zones", default_zone_names))) {
     Eigen::Vector3d min_m = Eigen::Vector3d::Constant(std::nan(""));
@@ -834,23 +846,37 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
       throw std::invalid_argument("forbidden zone '" + name + "' needs settings '" + prefix +
                                   ".min_m' and '" + prefix + ".max_m'");
     }
-    limits.forbidden_zones.push_back(
-        {name,
-         Vector3Setting(config, prefix + ".min_m",
-                        min_m.allFinite() ? min_m : Eigen::Vector3d::Zero()),
-         Vector3Setting(config, prefix + ".max_m",
-                        max_m.allFinite() ? max_m : Eigen::Vector3d::Zero())});
+    zones.push_back({name,
+                     Vector3Setting(config, prefix + ".min_m",
+                                    min_m.allFinite() ? min_m : Eigen::Vector3d::Zero()),
+                     Vector3Setting(config, prefix + ".max_m",
+                                    max_m.allFinite() ? max_m : Eigen::Vector3d::Zero())});
   }
+  return zones;
+}
+
+// Joint, speed and workspace limits: the model's joint limits, the workspace box and the
+// forbidden zones.
+SafetyLimits SafetyLimitsFrom(const runtime::Config& config, const ur10::Ur10Model& model) {
+  Box workspace;
+  workspace.name = "workspace";
+  workspace.min_m =
+      Vector3Setting(config, "safety.workspace_min_m", Eigen::Vector3d(-1.2, -1.4, -0.68));
+  workspace.max_m =
+      Vector3Setting(config, "safety.workspace_max_m", Eigen::Vector3d(1.3, 1.4, 1.5));
+  SafetyLimits limits =
+      SafetyLimits::FromModel(model, workspace, config.GetDouble("safety.max_tcp_speed_m_s", 0.5));
+  limits.forbidden_zones = ForbiddenZonesFrom(config);
   const double joint_speed_scale = config.GetDouble("safety.joint_speed_scale", 1.0);
   if (!std::isfinite(joint_speed_scale) || joint_speed_scale <= 0.0 || joint_speed_scale > 1.0) {
     throw std::invalid_argument("setting 'safety.joint_speed_scale' must be in (0, 1]");
   }
   limits.max_velocity_rad_s *= joint_speed_scale;
   limits.Validate();
-  const ur10::Ur10Kinematics kinematics(model);
-  const SafetyChecker checker(kinematics, limits, X_ToolTcp);
-  const std::shared_ptr<const CollisionGuard> guard = BuildCollisionGuard(kinematics, cell_config);
+  return limits;
+}
 
+RobotServiceOptions RobotServiceOptionsFrom(const runtime::Config& config) {
   RobotServiceOptions options;
   options.default_speed_fraction =
       config.GetDouble("motion.default_speed_fraction", options.default_speed_fraction);
@@ -862,31 +888,48 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
       config.GetDouble("safety.max_contact_force_n", options.max_contact_force_n);
   options.guarded_acceleration_m_s2 =
       config.GetDouble("guarded.acceleration_m_s2", options.guarded_acceleration_m_s2);
+  options.backend_name = config.GetString("backend", "sim");
+  return options;
+}
 
-  // Both backends' settings are read whichever is chosen, so one file can hold both.
-  const std::string backend_name = config.GetString("backend", "sim");
-  const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
-  const runtime::ChannelFactory sim_channels = runtime::ChannelFactory::FromConfig(config);
-  SimBackendOptions sim_options;
-  sim_options.time_scale = config.GetDouble("sim.time_scale", sim_options.time_scale);
-  sim_options.command_rate_hz = config.GetDouble("sim.rate_hz", sim_options.command_rate_hz);
-  sim_options.stop_acceleration_rad_s2 =
-      config.GetDouble("sim.stop_acceleration_rad_s2", sim_options.stop_acceleration_rad_s2);
-  sim_options.link_check_period_s =
-      config.GetDouble("sim.link_check_period_s", sim_options.link_check_period_s);
-  SimulatorArmClientOptions arm_options;
-  arm_options.timeout_s = config.GetDouble("sim.timeout_s", arm_options.timeout_s);
-  const std::vector<double> initial = config.GetDoubles(
-      "sim.initial_joints_rad",
-      std::vector<double>(arm_options.initial_joints_rad.data(),
-                          arm_options.initial_joints_rad.data() + ur10::kNumJoints));
+// The sim backend's settings (sim.*), read whichever backend is chosen.
+struct SimSettings {
+  std::string address;
+  SimBackendOptions backend;
+  SimulatorArmClientOptions arm;
+};
+
+SimSettings SimSettingsFrom(const runtime::Config& config) {
+  SimSettings sim;
+  sim.address = config.GetString("sim.address", "127.0.0.1:50051");
+  sim.backend.time_scale = config.GetDouble("sim.time_scale", sim.backend.time_scale);
+  sim.backend.command_rate_hz = config.GetDouble("sim.rate_hz", sim.backend.command_rate_hz);
+  sim.backend.stop_acceleration_rad_s2 =
+      config.GetDouble("sim.stop_acceleration_rad_s2", sim.backend.stop_acceleration_rad_s2);
+  sim.backend.link_check_period_s =
+      config.GetDouble("sim.link_check_period_s", sim.backend.link_check_period_s);
+  sim.arm.timeout_s = config.GetDouble("sim.timeout_s", sim.arm.timeout_s);
+  const std::vector<double> initial =
+      config.GetDoubles("sim.initial_joints_rad",
+                        std::vector<double>(sim.arm.initial_joints_rad.data(),
+                                            sim.arm.initial_joints_rad.data() + ur10::kNumJoints));
   if (initial.size() != ur10::kNumJoints) {
     throw std::invalid_argument("setting 'sim.initial_joints_rad' needs 6 values");
   }
-  for (int j = 0; j < ur10::kNumJoints; ++j) arm_options.initial_joints_rad[j] = initial[j];
+  for (int j = 0; j < ur10::kNumJoints; ++j) sim.arm.initial_joints_rad[j] = initial[j];
+  return sim;
+}
 
-  UrBackendOptions ur_options;
-  ur_options.host = config.GetString("ur.host", ur_options.host);
+// The ur backend's settings (ur.*), read whichever backend is chosen.
+struct UrSettings {
+  UrBackendOptions backend;
+  bool power_on = false;
+};
+
+UrSettings UrSettingsFrom(const runtime::Config& config) {
+  UrSettings ur;
+  UrBackendOptions& o = ur.backend;
+  o.host = config.GetString("ur.host", o.host);
   auto port = [&](const std::string& key, std::uint16_t default_value) {
     const long long value = config.GetInt(key, default_value);
     if (value < 1 || value > 65535) {
@@ -894,41 +937,65 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
     }
     return static_cast<std::uint16_t>(value);
   };
-  ur_options.rtde_port = port("ur.rtde_port", ur_options.rtde_port);
-  ur_options.script_port = port("ur.script_port", ur_options.script_port);
-  ur_options.dashboard_port = port("ur.dashboard_port", ur_options.dashboard_port);
-  ur_options.rtde_frequency_hz =
-      config.GetDouble("ur.rtde_frequency_hz", ur_options.rtde_frequency_hz);
+  o.rtde_port = port("ur.rtde_port", o.rtde_port);
+  o.script_port = port("ur.script_port", o.script_port);
+  o.dashboard_port = port("ur.dashboard_port", o.dashboard_port);
+  o.rtde_frequency_hz = config.GetDouble("ur.rtde_frequency_hz", o.rtde_frequency_hz);
   const double connect_timeout_s = config.GetDouble("ur.connect_timeout_s", 3.0);
   if (!std::isfinite(connect_timeout_s) || connect_timeout_s <= 0.0) {
     throw std::invalid_argument("setting 'ur.connect_timeout_s' must be > 0");
   }
-  ur_options.connect_timeout =
-      std::chrono::milliseconds(static_cast<long long>(connect_timeout_s * 1000.0));
-  const bool ur_power_on = config.GetBool("ur.power_on", false);
-  if (!std::isfinite(ur_options.rtde_frequency_hz) || ur_options.rtde_frequency_hz <= 0.0 ||
-      ur_options.rtde_frequency_hz > 500.0) {
+  o.connect_timeout = std::chrono::milliseconds(static_cast<long long>(connect_timeout_s * 1000.0));
+  ur.power_on = config.GetBool("ur.power_on", false);
+  if (!std::isfinite(o.rtde_frequency_hz) || o.rtde_frequency_hz <= 0.0 ||
+      o.rtde_frequency_hz > 500.0) {
     throw std::invalid_argument("setting 'ur.rtde_frequency_hz' must be in (0, 500]");
   }
+  return ur;
+}
 
-  std::shared_ptr<RobotBackend> backend;
-  options.backend_name = backend_name;
-  if (backend_name == "sim") {
-    backend = std::make_shared<SimBackend>(
-        SimulatorArmClient::Connect(sim_address, arm_options, sim_channels), checker, sim_options);
-  } else if (backend_name == "ur") {
-    std::shared_ptr<UrBackend> ur;
-    try {
-      ur = UrBackend::Connect(ur_options, checker);
-    } catch (const std::exception& e) {
-      throw std::runtime_error("UR controller at " + ur_options.host + " unreachable: " + e.what());
-    }
-    if (ur_power_on) ur->PowerOnAndReleaseBrakes(std::chrono::seconds(30));
-    backend = ur;
-  } else {
-    throw std::invalid_argument("setting 'backend' must be 'sim' or 'ur', got '" + backend_name +
-                                "'");
+std::shared_ptr<RobotBackend> ConnectBackend(const std::string& name, const SimSettings& sim,
+                                             const UrSettings& ur, const SafetyChecker& checker,
+                                             const runtime::ChannelFactory& sim_channels) {
+  if (name == "sim") {
+    return std::make_shared<SimBackend>(
+        SimulatorArmClient::Connect(sim.address, sim.arm, sim_channels), checker, sim.backend);
   }
+  if (name == "ur") {
+    std::shared_ptr<UrBackend> backend;
+    try {
+      backend = UrBackend::Connect(ur.backend, checker);
+    } catch (const std::exception& e) {
+      throw std::runtime_error("UR controller at " + ur.backend.host + " unreachable: " + e.what());
+    }
+    if (ur.power_on) backend->PowerOnAndReleaseBrakes(std::chrono::seconds(30));
+    return backend;
+  }
+  throw std::invalid_argument("setting 'backend' must be 'sim' or 'ur', got '" + name + "'");
+}
+
+}  // namespace
+
+runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
+  // The UR10 model, and the gripper's tool centre point from the cell description.
+  const std::string data_dir = config.GetString("data_dir", apc::DefaultDataDir());
+  ur10::Ur10ModelOptions model_options;
+  model_options.max_acceleration_rad_s2 =
+      config.GetDouble("ur10.max_acceleration_rad_s2", model_options.max_acceleration_rad_s2);
+  const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
+  const world::CellConfig cell_config = CellConfigFrom(config, data_dir);
+  const ur10::Ur10Kinematics kinematics(model);
+  const SafetyChecker checker(kinematics, SafetyLimitsFrom(config, model),
+                              cell_config.gripper.X_ToolTcp);
+  const std::shared_ptr<const CollisionGuard> guard = BuildCollisionGuard(kinematics, cell_config);
+  const RobotServiceOptions options = RobotServiceOptionsFrom(config);
+
+  // Both backends' settings are read whichever is chosen, so one file can hold both.
+  const runtime::ChannelFactory sim_channels = runtime::ChannelFactory::FromConfig(config);
+  const SimSettings sim = SimSettingsFrom(config);
+  const UrSettings ur = UrSettingsFrom(config);
+  const std::shared_ptr<RobotBackend> backend =
+      ConnectBackend(options.backend_name, sim, ur, checker, sim_channels);
 
   runtime::ServiceSet set;
   set.Add(MakeRobotService(backend, checker, guard, options),

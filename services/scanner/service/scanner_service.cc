@@ -1,6 +1,7 @@
 #include "services/scanner/service/scanner_service.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -15,6 +16,7 @@
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/log.h"
+#include "libs/runtime/server.h"
 #include "libs/runtime/status.h"
 #include "services/scanner/core/aravis_camera.h"
 #include "services/scanner/core/calibration.h"
@@ -35,6 +37,9 @@ namespace fs = std::filesystem;
 namespace pb = ::picking::scanner::v1;
 namespace pc = ::picking::proto_convert;
 
+// Views of one Scan: the paper takes 3 of a shelf bin and 2 of the tote; each view is a
+// full pattern sequence (about a second), so the bound keeps one call's work bounded.
+constexpr int kMaxScanViews = 16;
 constexpr int kMinCalibrationViews = 3;
 
 // Server-wide defaults of a scan, from the settings.
@@ -231,12 +236,16 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     };
   }
 
-  grpc::Status Scan(grpc::ServerContext*, const pb::ScanRequest* request,
+  grpc::Status Scan(grpc::ServerContext* context, const pb::ScanRequest* request,
                     grpc::ServerWriter<pb::ScanResponse>* writer) override {
     return runtime::Guard([&] {
-      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const DeviceSession device(this, context);
       const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
       const ScanOptions options = ScanOptionsFrom(*request, *pipeline);
+      if (request->views_size() > kMaxScanViews) {
+        throw std::invalid_argument("a scan has at most " + std::to_string(kMaxScanViews) +
+                                    " views, got " + std::to_string(request->views_size()));
+      }
       std::vector<ScanViewSpec> views;
       for (int i = 0; i < request->views_size(); ++i) {
         const auto& v = request->views(i);
@@ -293,14 +302,14 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     });
   }
 
-  grpc::Status CaptureImages(grpc::ServerContext*, const pb::CaptureImagesRequest* request,
+  grpc::Status CaptureImages(grpc::ServerContext* context, const pb::CaptureImagesRequest* request,
                              grpc::ServerWriter<common::v1::ImageChunk>* writer) override {
     return runtime::Guard([&] {
       if (!std::isfinite(request->exposure_s()) || request->exposure_s() < 0 ||
           request->exposure_s() > 10.0) {
         throw std::invalid_argument("exposure_s must be in [0, 10] seconds");
       }
-      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const DeviceSession device(this, context);
       const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
       ConfigureCamera(request->exposure_s());
       const std::vector<GrayImage> images =
@@ -321,7 +330,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     });
   }
 
-  grpc::Status CaptureCalibrationView(grpc::ServerContext*,
+  grpc::Status CaptureCalibrationView(grpc::ServerContext* context,
                                       const pb::CaptureCalibrationViewRequest* request,
                                       pb::CaptureCalibrationViewResponse* response) override {
     return runtime::Guard([&] {
@@ -330,7 +339,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
       if (request->has_x_base_tool()) {
         X_BaseTool = pc::PoseFromProto(request->x_base_tool(), "X_base_tool");
       }
-      std::lock_guard<std::mutex> device_lock(device_mutex_);
+      const DeviceSession device(this, context);
       const std::shared_ptr<ScanPipeline> pipeline = Pipeline();
       if (!X_BaseTool) X_BaseTool = CurrentToolPose(/*required=*/false);
       ConfigureCamera(0.0);
@@ -415,6 +424,33 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
     state_ = next;
     pipeline_ = std::move(pipeline);
   }
+
+  // The sensor, held for one call: waits for the capture before it no longer than the call
+  // may (its deadline, its cancellation, the server's stop) and makes the simulator's renders
+  // children of the call, so that no capture outlives the call it serves.
+  class DeviceSession {
+   public:
+    DeviceSession(ScannerServiceImpl* scanner, const grpc::ServerContext* context)
+        : scanner_(scanner) {
+      while (!scanner_->device_mutex_.try_lock_for(std::chrono::milliseconds(100))) {
+        if (context->IsCancelled()) throw CancelledError("the call was cancelled");
+        if (runtime::ShuttingDown()) throw UnavailableError("the scanner is stopping");
+        if (std::chrono::system_clock::now() >= context->deadline()) {
+          throw TimeoutError("the sensor was busy with another capture until the call's deadline");
+        }
+      }
+      if (scanner_->simulator_) scanner_->simulator_->SetParentCall(context);
+    }
+    ~DeviceSession() {
+      if (scanner_->simulator_) scanner_->simulator_->SetParentCall(nullptr);
+      scanner_->device_mutex_.unlock();
+    }
+    DeviceSession(const DeviceSession&) = delete;
+    DeviceSession& operator=(const DeviceSession&) = delete;
+
+   private:
+    ScannerServiceImpl* scanner_;
+  };
 
   // The flange pose now: robot service, else the simulated arm. nullopt if neither is
   // configured and `required` is false.
@@ -878,9 +914,9 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
   std::shared_ptr<RobotPoseClient> robot_;
   ScanDevices devices_;
 
-  std::mutex device_mutex_;       // One capture at a time.
-  std::mutex calibration_mutex_;  // One calibration at a time.
-  std::mutex state_mutex_;        // Guards state_ and pipeline_.
+  std::timed_mutex device_mutex_;  // One capture at a time (DeviceSession).
+  std::mutex calibration_mutex_;   // One calibration at a time.
+  std::mutex state_mutex_;         // Guards state_ and pipeline_.
   CalibrationState state_;
   std::shared_ptr<ScanPipeline> pipeline_;
 };
@@ -944,14 +980,9 @@ std::vector<std::string> ScannerSettingsHelp() {
   };
 }
 
-runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
-  const std::string data_dir = apc::DefaultDataDir();
-  const std::string camera_kind = config.GetString("camera", "sim");
-  const std::string default_projector = camera_kind == "sim"      ? "sim"
-                                        : camera_kind == "aravis" ? "dlpc350"
-                                                                  : "none";
-  const std::string projector_kind = config.GetString("projector", default_projector);
-  const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+namespace {
+
+SimRenderSettings SimRenderSettingsFrom(const runtime::Config& config) {
   SimRenderSettings render;
   render.timeout_s = config.GetDouble("sim.timeout_s", render.timeout_s);
   render.ambient = config.GetDouble("sim.ambient", render.ambient);
@@ -960,64 +991,27 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
   render.electrons_per_dn = config.GetDouble("sim.electrons_per_dn", render.electrons_per_dn);
   render.projector_blur_sigma_px =
       config.GetDouble("sim.projector_blur_sigma_px", render.projector_blur_sigma_px);
-  const long long sim_seed = config.GetInt("sim.seed", 1);
-  const std::string robot_address = config.GetString("robot.address", "");
-  const double robot_timeout_s = config.GetDouble("robot.timeout_s", 2.0);
-  // The simulator and the robot service are called with this server's own tls.* settings.
-  const runtime::ChannelFactory channels = runtime::ChannelFactory::FromConfig(config);
-  const std::string aravis_device = config.GetString("aravis.device", "");
-  const std::string replay_dir = config.GetString("replay.dir", "");
-  const std::string dlpc350_device = config.GetString("dlpc350.device", "/dev/hidraw0");
-  const std::string calibration_dir =
-      config.GetString("calibration.dir", (fs::path(data_dir) / "scanner").string());
-  const std::string nominal_dir = config.GetString(
-      "sensor.nominal_dir", (fs::path(data_dir) / "scanner" / "sim_sensor").string());
+  return render;
+}
 
-  ServiceOptions options;
-  ScanDefaults& d = options.scan;
-  d.min_contrast = static_cast<int>(config.GetInt("decode.min_contrast", d.min_contrast));
-  d.min_bit_contrast =
-      static_cast<int>(config.GetInt("decode.min_bit_contrast", d.min_bit_contrast));
-  d.refine_rows = config.GetBool("decode.refine_rows", d.refine_rows);
-  d.max_residual_m = config.GetDouble("decode.max_residual_m", d.max_residual_m);
-  d.reference_distance_m = config.GetDouble("decode.reference_distance_m", d.reference_distance_m);
-  d.min_depth_m = config.GetDouble("scan.min_depth_m", d.min_depth_m);
-  d.max_depth_m = config.GetDouble("scan.max_depth_m", d.max_depth_m);
-  d.normals_step = static_cast<int>(config.GetInt("scan.normals_step", d.normals_step));
-  d.exposure_us = config.GetDouble("camera.exposure_us", d.exposure_us);
-  d.frame_timeout_s = config.GetDouble("camera.frame_timeout_s", d.frame_timeout_s);
-  d.dropped_frame_retries =
-      static_cast<int>(config.GetInt("camera.dropped_frame_retries", d.dropped_frame_retries));
+TriggerMode TriggerModeFrom(const std::string& trigger) {
+  if (trigger == "hardware") return TriggerMode::kHardware;
+  if (trigger == "software") return TriggerMode::kSoftware;
+  if (trigger == "free_run") return TriggerMode::kFreeRun;
+  throw std::invalid_argument(
+      "setting 'camera.trigger' must be hardware, software or free_run, got '" + trigger + "'");
+}
+
+void ValidateScanDefaults(const ScanDefaults& d) {
   if (d.dropped_frame_retries < 0) {
     throw std::invalid_argument("setting 'camera.dropped_frame_retries' must be >= 0, got " +
                                 std::to_string(d.dropped_frame_retries));
   }
-  const std::string trigger =
-      config.GetString("camera.trigger", projector_kind == "none" ? "free_run" : "hardware");
-  if (trigger == "hardware") {
-    d.trigger_mode = TriggerMode::kHardware;
-  } else if (trigger == "software") {
-    d.trigger_mode = TriggerMode::kSoftware;
-  } else if (trigger == "free_run") {
-    d.trigger_mode = TriggerMode::kFreeRun;
-  } else {
-    throw std::invalid_argument(
-        "setting 'camera.trigger' must be hardware, software or free_run, got '" + trigger + "'");
-  }
-  d.trigger_line = config.GetString("camera.trigger_line", d.trigger_line);
   if (d.trigger_line.empty()) throw std::invalid_argument("setting 'camera.trigger_line' is empty");
   if (!(d.exposure_us > 0)) throw std::invalid_argument("setting 'camera.exposure_us' must be > 0");
   if (!(d.frame_timeout_s > 0)) {
     throw std::invalid_argument("setting 'camera.frame_timeout_s' must be > 0");
   }
-  options.board.inner_corners_x = static_cast<int>(config.GetInt("board.inner_corners_cols", 9));
-  options.board.inner_corners_y = static_cast<int>(config.GetInt("board.inner_corners_rows", 6));
-  options.board.square_size_m = config.GetDouble("board.square_size_m", 0.025);
-  // Kiva pod top face in the shelf frame (x to the shelf's right, y toward its back, z up).
-  options.shelf_top = ShelfTopFrom(config.GetDoubles(
-      "shelf.top_corners_m", {0.0, 0.0, 1.9, 0.87, 0.0, 1.9, 0.87, 0.87, 1.9, 0.0, 0.87, 1.9}));
-  options.sessions_dir = (fs::path(calibration_dir) / "sessions").string();
-
   if (d.min_contrast < 0 || d.min_contrast > 255) {
     throw std::invalid_argument("setting 'decode.min_contrast' must be in [0, 255]");
   }
@@ -1034,60 +1028,151 @@ runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
         "settings 'scan.min_depth_m' / 'scan.max_depth_m': need 0 < min < max");
   }
   if (d.normals_step < 1) throw std::invalid_argument("setting 'scan.normals_step' must be >= 1");
-  options.board.Validate();
+}
 
+// Decoding, depth range and camera defaults of every scan (decode.*, scan.*, camera.*).
+ScanDefaults ScanDefaultsFrom(const runtime::Config& config, const std::string& projector_kind) {
+  ScanDefaults d;
+  d.min_contrast = static_cast<int>(config.GetInt("decode.min_contrast", d.min_contrast));
+  d.min_bit_contrast =
+      static_cast<int>(config.GetInt("decode.min_bit_contrast", d.min_bit_contrast));
+  d.refine_rows = config.GetBool("decode.refine_rows", d.refine_rows);
+  d.max_residual_m = config.GetDouble("decode.max_residual_m", d.max_residual_m);
+  d.reference_distance_m = config.GetDouble("decode.reference_distance_m", d.reference_distance_m);
+  d.min_depth_m = config.GetDouble("scan.min_depth_m", d.min_depth_m);
+  d.max_depth_m = config.GetDouble("scan.max_depth_m", d.max_depth_m);
+  d.normals_step = static_cast<int>(config.GetInt("scan.normals_step", d.normals_step));
+  d.exposure_us = config.GetDouble("camera.exposure_us", d.exposure_us);
+  d.frame_timeout_s = config.GetDouble("camera.frame_timeout_s", d.frame_timeout_s);
+  d.dropped_frame_retries =
+      static_cast<int>(config.GetInt("camera.dropped_frame_retries", d.dropped_frame_retries));
+  d.trigger_mode = TriggerModeFrom(
+      config.GetString("camera.trigger", projector_kind == "none" ? "free_run" : "hardware"));
+  d.trigger_line = config.GetString("camera.trigger_line", d.trigger_line);
+  ValidateScanDefaults(d);
+  return d;
+}
+
+ServiceOptions ServiceOptionsFrom(const runtime::Config& config, const std::string& projector_kind,
+                                  const std::string& calibration_dir) {
+  ServiceOptions options;
+  options.scan = ScanDefaultsFrom(config, projector_kind);
+  options.board.inner_corners_x = static_cast<int>(config.GetInt("board.inner_corners_cols", 9));
+  options.board.inner_corners_y = static_cast<int>(config.GetInt("board.inner_corners_rows", 6));
+  options.board.square_size_m = config.GetDouble("board.square_size_m", 0.025);
+  options.board.Validate();
+  // Kiva pod top face in the shelf frame (x to the shelf's right, y toward its back, z up).
+  options.shelf_top = ShelfTopFrom(config.GetDoubles(
+      "shelf.top_corners_m", {0.0, 0.0, 1.9, 0.87, 0.0, 1.9, 0.87, 0.87, 1.9, 0.0, 0.87, 1.9}));
+  options.sessions_dir = (fs::path(calibration_dir) / "sessions").string();
+  return options;
+}
+
+// The sensor the settings name: the simulated pair, or a real or replayed camera with a
+// real projector or none.
+struct ScannerDevices {
   std::shared_ptr<SimulatorClient> simulator;
   std::shared_ptr<SimSensorLink> link;
   std::unique_ptr<CameraBackend> camera;
   std::unique_ptr<ProjectorBackend> projector;
-  if (camera_kind == "sim") {
-    if (projector_kind != "sim") {
-      throw std::invalid_argument("setting 'projector': camera=sim needs projector=sim");
+};
+
+ScannerDevices SimDevicesFrom(const runtime::Config& config, const std::string& nominal_dir,
+                              const runtime::ChannelFactory& channels) {
+  ScannerDevices devices;
+  const std::string sim_address = config.GetString("sim.address", "127.0.0.1:50051");
+  const long long sim_seed = config.GetInt("sim.seed", 1);
+  devices.simulator =
+      std::make_shared<SimulatorClient>(sim_address, SimRenderSettingsFrom(config), channels);
+  devices.link = std::make_shared<SimSensorLink>(
+      [simulator = devices.simulator] { return simulator->ToolPose(); });
+  SimSensorModel model = LoadSimModel(nominal_dir);
+  const auto pw = static_cast<std::uint32_t>(model.projector.width());
+  const auto ph = static_cast<std::uint32_t>(model.projector.height());
+  devices.camera = std::make_unique<SimCamera>(devices.link, devices.simulator, std::move(model),
+                                               static_cast<std::uint64_t>(sim_seed));
+  devices.projector = std::make_unique<SimProjector>(devices.link, pw, ph);
+  return devices;
+}
+
+ScannerDevices HardwareDevicesFrom(const std::string& camera_kind,
+                                   const std::string& projector_kind,
+                                   const runtime::Config& config) {
+  const std::string aravis_device = config.GetString("aravis.device", "");
+  const std::string replay_dir = config.GetString("replay.dir", "");
+  const std::string dlpc350_device = config.GetString("dlpc350.device", "/dev/hidraw0");
+  ScannerDevices devices;
+  try {
+    if (camera_kind == "replay") {
+      if (replay_dir.empty())
+        throw std::invalid_argument("setting 'replay.dir' is required with camera=replay");
+      devices.camera = std::make_unique<ReplayCamera>(replay_dir);
+    } else if (camera_kind == "aravis") {
+      devices.camera = std::make_unique<AravisCamera>(aravis_device);
+    } else {
+      throw std::invalid_argument("setting 'camera' must be sim, aravis or replay, got '" +
+                                  camera_kind + "'");
     }
-    simulator = std::make_shared<SimulatorClient>(sim_address, render, channels);
-    link = std::make_shared<SimSensorLink>([simulator] { return simulator->ToolPose(); });
-    SimSensorModel model = LoadSimModel(nominal_dir);
-    const auto pw = static_cast<std::uint32_t>(model.projector.width());
-    const auto ph = static_cast<std::uint32_t>(model.projector.height());
-    camera = std::make_unique<SimCamera>(link, simulator, std::move(model),
-                                         static_cast<std::uint64_t>(sim_seed));
-    projector = std::make_unique<SimProjector>(link, pw, ph);
-  } else {
-    if (projector_kind == "sim") {
-      throw std::invalid_argument("setting 'projector': projector=sim needs camera=sim");
+    if (projector_kind == "dlpc350") {
+      devices.projector = std::make_unique<Dlpc350Projector>(
+          std::make_unique<dlpc350::HidrawTransport>(dlpc350_device));
+    } else if (projector_kind != "none") {
+      throw std::invalid_argument("setting 'projector' must be sim, dlpc350 or none, got '" +
+                                  projector_kind + "'");
     }
-    try {
-      if (camera_kind == "replay") {
-        if (replay_dir.empty())
-          throw std::invalid_argument("setting 'replay.dir' is required with camera=replay");
-        camera = std::make_unique<ReplayCamera>(replay_dir);
-      } else if (camera_kind == "aravis") {
-        camera = std::make_unique<AravisCamera>(aravis_device);
-      } else {
-        throw std::invalid_argument("setting 'camera' must be sim, aravis or replay, got '" +
-                                    camera_kind + "'");
-      }
-      if (projector_kind == "dlpc350") {
-        projector = std::make_unique<Dlpc350Projector>(
-            std::make_unique<dlpc350::HidrawTransport>(dlpc350_device));
-      } else if (projector_kind != "none") {
-        throw std::invalid_argument("setting 'projector' must be sim, dlpc350 or none, got '" +
-                                    projector_kind + "'");
-      }
-    } catch (const CameraError& e) {
-      throw std::runtime_error(std::string("camera: ") + e.what());
-    } catch (const ProjectorError& e) {
-      throw std::runtime_error(std::string("projector: ") + e.what());
-    }
+  } catch (const CameraError& e) {
+    throw std::runtime_error(std::string("camera: ") + e.what());
+  } catch (const ProjectorError& e) {
+    throw std::runtime_error(std::string("projector: ") + e.what());
   }
+  return devices;
+}
+
+}  // namespace
+
+runtime::ServiceSet BuildScannerServices(const runtime::Config& config) {
+  const std::string data_dir = apc::DefaultDataDir();
+  const std::string camera_kind = config.GetString("camera", "sim");
+  const std::string default_projector = camera_kind == "sim"      ? "sim"
+                                        : camera_kind == "aravis" ? "dlpc350"
+                                                                  : "none";
+  const std::string projector_kind = config.GetString("projector", default_projector);
+  // The simulator and the robot service are called with this server's own tls.* settings.
+  const runtime::ChannelFactory channels = runtime::ChannelFactory::FromConfig(config);
+  const std::string calibration_dir =
+      config.GetString("calibration.dir", (fs::path(data_dir) / "scanner").string());
+  const std::string nominal_dir = config.GetString(
+      "sensor.nominal_dir", (fs::path(data_dir) / "scanner" / "sim_sensor").string());
+  ServiceOptions options = ServiceOptionsFrom(config, projector_kind, calibration_dir);
+
+  if ((camera_kind == "sim") != (projector_kind == "sim")) {
+    throw std::invalid_argument(camera_kind == "sim"
+                                    ? "setting 'projector': camera=sim needs projector=sim"
+                                    : "setting 'projector': projector=sim needs camera=sim");
+  }
+  // Every setting is read whichever sensor is chosen, so that one file serves them all.
+  ScannerDevices devices;
+  if (camera_kind == "sim") {
+    devices = SimDevicesFrom(config, nominal_dir, channels);
+    for (const char* key : {"aravis.device", "replay.dir", "dlpc350.device"}) {
+      config.GetString(key, "");
+    }
+  } else {
+    config.GetString("sim.address", "");
+    config.GetInt("sim.seed", 1);
+    SimRenderSettingsFrom(config);
+    devices = HardwareDevicesFrom(camera_kind, projector_kind, config);
+  }
+  const std::string robot_address = config.GetString("robot.address", "");
+  const double robot_timeout_s = config.GetDouble("robot.timeout_s", 2.0);
   std::shared_ptr<RobotPoseClient> robot;
   if (!robot_address.empty())
     robot = std::make_shared<RobotPoseClient>(robot_address, robot_timeout_s, channels);
 
   CalibrationStore store(calibration_dir, nominal_dir);
   auto service = std::make_shared<ScannerServiceImpl>(
-      std::move(options), std::move(store), std::move(camera), std::move(projector),
-      std::move(link), std::move(simulator), std::move(robot));
+      std::move(options), std::move(store), std::move(devices.camera), std::move(devices.projector),
+      std::move(devices.link), std::move(devices.simulator), std::move(robot));
   runtime::LogInfo("scanner configured", {{"camera", camera_kind},
                                           {"projector", projector_kind},
                                           {"calibration.dir", calibration_dir}});

@@ -1,6 +1,7 @@
 #include "services/scanner/service/sim_clients.h"
 
 #include <grpcpp/client_context.h>
+#include <grpcpp/server_context.h>
 
 #include <chrono>
 #include <cmath>
@@ -112,7 +113,16 @@ std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& reque
   options->set_exposure(request.exposure);
   options->set_seed(request.seed);
 
-  grpc::ClientContext ctx;
+  const grpc::ServerContext* parent = nullptr;
+  {
+    std::lock_guard<std::mutex> lock(parent_mutex_);
+    parent = parent_;
+  }
+  // A child call ends at the earlier of the two deadlines (gRPC propagates the parent's).
+  std::unique_ptr<grpc::ClientContext> ctx_owner =
+      parent ? grpc::ClientContext::FromServerContext(*parent)
+             : std::make_unique<grpc::ClientContext>();
+  grpc::ClientContext& ctx = *ctx_owner;
   SetDeadline(&ctx, settings_.timeout_s);
   auto reader = stub_->RenderPatterns(&ctx, req);
   pc::ImageAssembler assembler;
@@ -144,8 +154,20 @@ std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& reque
   if (!stream_error.empty()) {
     throw std::runtime_error("RenderPatterns at " + address_ + ": " + stream_error);
   }
+  if (!status.ok() && parent != nullptr) {
+    // A call past its deadline also counts as cancelled: the deadline is asked first.
+    if (std::chrono::system_clock::now() >= parent->deadline()) {
+      throw TimeoutError("the capture did not finish within the call's deadline");
+    }
+    if (parent->IsCancelled()) throw CancelledError("the scan's call was cancelled");
+  }
   if (!status.ok()) ThrowStatus(status, "RenderPatterns", address_);
   return images;
+}
+
+void SimulatorClient::SetParentCall(const grpc::ServerContext* parent) {
+  std::lock_guard<std::mutex> lock(parent_mutex_);
+  parent_ = parent;
 }
 
 Eigen::Isometry3d SimulatorClient::ToolPose() {

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "libs/runtime/channel.h"
@@ -39,6 +40,11 @@ class SimulatorClient final : public PatternRenderer {
                   const runtime::ChannelFactory& channels);
 
   std::vector<GrayImage> Render(const PatternRenderRequest& request) override;
+  /// Makes the following Render calls children of `parent` (nullptr: none): they end by its
+  /// deadline and are cancelled with it, so a capture never outlives the call it serves, nor
+  /// the server's shutdown (which cancels every call). Past the parent's deadline Render
+  /// throws picking::TimeoutError, after its cancellation picking::CancelledError.
+  void SetParentCall(const grpc::ServerContext* parent);
   /// The simulated arm's flange pose now, X_BaseTool (GetGroundTruth.X_base_tool; the camera
   /// is mounted on the flange, not on the suction cup). @throws picking::PreconditionError
   /// before the arm is placed.
@@ -48,6 +54,8 @@ class SimulatorClient final : public PatternRenderer {
   std::string address_;
   SimRenderSettings settings_;
   std::unique_ptr<simulator::v1::SimulatorService::Stub> stub_;
+  std::mutex parent_mutex_;
+  const grpc::ServerContext* parent_ = nullptr;
 };
 
 /// The robot service's current flange pose (picking.robot.v1 GetState).

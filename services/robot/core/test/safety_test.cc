@@ -146,6 +146,29 @@ TEST_F(SafetyTest, TrajectoryChecks) {
   EXPECT_FALSE(Checker().CheckTrajectory(JointTrajectory{}).ok);
 }
 
+// A trajectory whose positions move slowly but whose declared velocity is 100 rad/s was
+// accepted: a backend that streams the declared velocities would have commanded it.
+TEST_F(SafetyTest, TrajectoryDeclaredVelocityAndAccelerationLimits) {
+  limits_.max_tool_speed_m_s = 2.0;
+  JointVector q1 = q_;
+  q1[0] += 0.3;
+  const JointTrajectory t = Trajectory(q_, q1, limits_);
+  ASSERT_TRUE(Checker().CheckTrajectory(t).ok);
+
+  JointTrajectory fast = t;
+  fast.points[3].qd_rad_s[2] = 100.0;
+  SafetyCheck c = Checker().CheckTrajectory(fast);
+  EXPECT_FALSE(c.ok);
+  EXPECT_NE(c.reason.find("waypoint 3"), std::string::npos) << c.reason;
+  EXPECT_NE(c.reason.find("elbow_joint declared velocity 100"), std::string::npos) << c.reason;
+
+  JointTrajectory hard = t;
+  hard.points[4].qdd_rad_s2[5] = -1e4;
+  c = Checker().CheckTrajectory(hard);
+  EXPECT_FALSE(c.ok);
+  EXPECT_NE(c.reason.find("wrist_3 declared acceleration"), std::string::npos) << c.reason;
+}
+
 TEST_F(SafetyTest, TrajectoryToolSpeedLimit) {
   JointVector q1 = q_;
   q1[0] += 0.5;  // base rotation: the TCP moves at about r * 1 rad/s
