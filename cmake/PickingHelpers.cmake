@@ -1,6 +1,6 @@
 # Helpers that declare every library, executable and test of the project the same way.
 #
-#   picking_library(NAME <name> SRCS <files...> [HEADERS_DIR <dir>] [DEPS <targets...>]
+#   picking_library(NAME <name> SRCS <files...> [DEPS <targets...>]
 #                   [PRIVATE_DEPS <targets...>])
 #     -> target picking_<name>, alias picking::<name>. Public include root is the
 #        repository root, so headers are included as "libs/geometry/pose.h".

@@ -59,16 +59,16 @@ Eigen::Isometry3d FromTranslationQuaternion(const Eigen::Vector3d& p_AB,
                                             const Eigen::Quaterniond& q_AB,
                                             std::string_view field_name) {
   if (!p_AB.allFinite()) {
-    throw std::invalid_argument(std::string(field_name) + ": position is not finite");
+    throw std::invalid_argument(std::string(field_name) + ".position is not finite");
   }
   if (!q_AB.coeffs().allFinite()) {
-    throw std::invalid_argument(std::string(field_name) + ": quaternion is not finite");
+    throw std::invalid_argument(std::string(field_name) + ".orientation is not finite");
   }
   const double norm = q_AB.norm();
   if (std::abs(norm - 1.0) > kQuaternionNormTolerance) {
     std::ostringstream s;
-    s << field_name << ": quaternion norm is " << norm << ", must be within "
-      << kQuaternionNormTolerance << " of 1";
+    s << field_name << ".orientation must be a unit quaternion (w, x, y, z); its norm is " << norm
+      << " (within " << kQuaternionNormTolerance << " of 1)";
     throw std::invalid_argument(s.str());
   }
   Eigen::Isometry3d X_AB = Eigen::Isometry3d::Identity();

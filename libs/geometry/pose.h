@@ -22,7 +22,8 @@ void ValidatePose(const Eigen::Isometry3d& X_AB, std::string_view field_name,
 
 /// Builds X_AB from the position p_AB (metres) and the orientation quaternion q_AB.
 /// The quaternion is normalised; it must be finite with a norm within
-/// kQuaternionNormTolerance of 1, else std::invalid_argument naming `field_name`.
+/// kQuaternionNormTolerance of 1, else std::invalid_argument naming `field_name` and its
+/// .position or .orientation. The one check of a pose's quaternion (proto_convert uses it).
 Eigen::Isometry3d FromTranslationQuaternion(const Eigen::Vector3d& p_AB,
                                             const Eigen::Quaterniond& q_AB,
                                             std::string_view field_name = "pose");

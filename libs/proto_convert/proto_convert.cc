@@ -5,6 +5,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "libs/geometry/pose.h"
+
 namespace picking::proto_convert {
 namespace {
 
@@ -57,23 +59,13 @@ Eigen::Isometry3d PoseFromProto(const pb::Pose& pose, std::string_view field,
   const std::string qf = Field(field, "orientation");
   const Eigen::Quaterniond quat(Finite(q.w(), qf, "w"), Finite(q.x(), qf, "x"),
                                 Finite(q.y(), qf, "y"), Finite(q.z(), qf, "z"));
-  const double norm = quat.norm();
-  if (std::abs(norm - 1.0) > 1e-3) {
-    throw std::invalid_argument(qf + " must be a unit quaternion (w, x, y, z); its norm is " +
-                                std::to_string(norm));
-  }
-  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-  X.linear() = quat.normalized().toRotationMatrix();
-  X.translation() = p;
-  return X;
+  return geometry::FromTranslationQuaternion(p, quat, field);
 }
 
 pb::Pose PoseToProto(const Eigen::Isometry3d& X) {
   pb::Pose out;
   *out.mutable_position() = VectorToProto(X.translation());
-  Eigen::Quaterniond q(X.rotation());
-  q.normalize();
-  if (q.w() < 0) q.coeffs() *= -1.0;  // One canonical sign: w >= 0.
+  const Eigen::Quaterniond q = geometry::ToTranslationQuaternion(X).q_AB;  // w >= 0
   auto* o = out.mutable_orientation();
   o->set_w(q.w());
   o->set_x(q.x());

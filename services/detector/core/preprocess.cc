@@ -18,6 +18,8 @@
 #include <unordered_map>
 #include <unordered_set>
 
+#include "libs/geometry/pcl_conversions.h"
+
 namespace picking::detector {
 namespace {
 
@@ -54,16 +56,7 @@ PointCloud Filter(const PointCloud& cloud, const std::vector<bool>& keep, bool k
 }
 
 pcl::PointCloud<pcl::PointXYZ>::Ptr ToPcl(const PointCloud& cloud) {
-  auto out = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
-  out->points.resize(cloud.size());
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    const auto& p = cloud.points[i];
-    out->points[i] = pcl::PointXYZ(p.x(), p.y(), p.z());
-  }
-  out->width = static_cast<std::uint32_t>(cloud.size());
-  out->height = 1;
-  out->is_dense = false;
-  return out;
+  return pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>(geometry::ToPclXyz(cloud));
 }
 
 std::vector<int> FiniteIndices(const PointCloud& cloud) {
