@@ -830,32 +830,11 @@ TEST_F(SimRobotRealTimeTest, StopInterruptsAMoveAndMovesAreExclusive) {
   EXPECT_GT(std::abs(state.joints().positions_rad(0) - target[0]), 0.1);
 }
 
-TEST_F(SimRobotRealTimeTest, AMovePastItsDeadlineIsStopped) {
-  JointVector target = StartJoints();
-  target[0] += 1.5;
-  grpc::ClientContext ctx;
-  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(300));
-  rb::MoveJointsRequest request;
-  SetJoints(target, request.mutable_target());
-  request.mutable_options()->set_speed_fraction(0.2);
-  rb::MoveJointsResponse response;
-  const grpc::Status s = client_.stub().MoveJoints(&ctx, request, &response);
-  EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
-  // The server stops the arm: the next move is accepted once it is at rest.
-  rb::MoveJointsResponse back;
-  grpc::Status next;
-  for (int attempt = 0; attempt < 5000; ++attempt) {
-    next = client_.MoveJoints(StartJoints(), &back);
-    if (next.error_code() != grpc::StatusCode::FAILED_PRECONDITION) break;
-    client_.State();
-  }
-  EXPECT_TRUE(next.ok()) << next.error_message();
-}
-
-// The contract a client relies on: once GetState says IDLE after a motion it abandoned,
-// the next move is accepted. The server's motion slot outlives the backend's motion by the
-// few steps that end a call, and GetState answers MOVING until the slot is free.
-TEST_F(SimRobotRealTimeTest, GetStateSaysMovingUntilAnAbandonedMotionHasEnded) {
+// A move past its deadline is stopped by the server. The contract a client relies on:
+// GetState answers MOVING until the stopped motion has ended (the server's motion slot
+// outlives the backend's motion by the few steps that end a call), and once it says IDLE
+// the next move is accepted at the first try.
+TEST_F(SimRobotRealTimeTest, AMovePastItsDeadlineIsStoppedAndIdleMeansReady) {
   JointVector target = StartJoints();
   target[0] += 1.5;
   grpc::ClientContext ctx;

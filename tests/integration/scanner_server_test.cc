@@ -1019,6 +1019,17 @@ class ScannerWithSimulatorTest : public ::testing::Test {
     return {Mat3{{x_cam, y_cam, z_cam}}, p_BaseCamera};
   }
 
+  // The most views a scan may have, of bin_E from 1 m, turning by about one degree each.
+  static pb::ScanRequest SixteenViews() {
+    pb::ScanRequest request;
+    for (int v = 0; v < 16; ++v) {
+      *request.add_views()->mutable_x_base_tool() =
+          ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.02 * v, 0.35));
+    }
+    request.set_frame_id("base");
+    return request;
+  }
+
   // The flange pose that puts the camera at X_BaseCamera: X_BaseCamera * X_ToolCamera^-1.
   static common::v1::Pose ToolPoseFor(const Rigid& X_BaseCamera) {
     const Mat3 R_BaseTool = Mul(X_BaseCamera.R, Transpose(X_ToolCamera_.R));
@@ -1202,12 +1213,7 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
 // the abandoned one (and a stopping scanner for both). The renders are now child calls of
 // the scan's call and end with it.
 TEST_F(ScannerWithSimulatorTest, AScanPastItsDeadlineFreesTheSensorAtOnce) {
-  pb::ScanRequest many;
-  for (int v = 0; v < 16; ++v) {
-    *many.add_views()->mutable_x_base_tool() =
-        ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.02 * v, 0.35));
-  }
-  many.set_frame_id("base");
+  const pb::ScanRequest many = SixteenViews();
   {
     grpc::ClientContext ctx;
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(1500));
@@ -1243,12 +1249,7 @@ TEST_F(ScannerWithSimulatorTest, AScannerStoppedDuringALongScanExitsWithinItsGra
                         {"--sim.address=" + simulator_->address(),
                          "--calibration.dir=" + dir.path().string(), "--shutdown-grace-s=0.5"});
   auto stub = pb::ScannerService::NewStub(scanner.Channel());
-  pb::ScanRequest many;
-  for (int v = 0; v < 16; ++v) {
-    *many.add_views()->mutable_x_base_tool() =
-        ToolPoseFor(CameraLookingIntoTheBin(1.0, 0.02 * v, 0.35));
-  }
-  many.set_frame_id("base");
+  const pb::ScanRequest many = SixteenViews();
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
   auto reader = stub->Scan(&ctx, many);
