@@ -335,49 +335,41 @@ std::vector<Eigen::Isometry3d> PpfEstimator::BoxFaceSeeds(const LoadedModel& mod
   return seeds;
 }
 
-std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
-  CheckInput(input, *context_, "PpfEstimator");
-  const auto start = Clock::now();
-  const auto model = library_->Get(input.item);
-  context_->CheckDeadline();
-  const auto preprocess_start = Clock::now();
-  const PpfScene& scene = context_->PpfSceneFor(*model);
-  const double preprocess_s = SecondsSince(preprocess_start);
-  context_->CheckDeadline();
+std::vector<Detection> PpfEstimator::EstimateSpheres(const LoadedModel& model,
+                                                     const PpfScene& scene, double preprocess_s) {
+  const auto estimate_start = Clock::now();
+  const std::vector<SphereFit> spheres =
+      FindSpheres(scene.fine, 0.5 * model.object->diameter_m(), search_.sphere);
+  const double estimate_s = SecondsSince(estimate_start);
   std::vector<Detection> out;
-  if (search_.fit_spheres && model->spec.kind == ModelSourceKind::kShapeSphere) {
-    const auto estimate_start = Clock::now();
-    const std::vector<SphereFit> spheres =
-        FindSpheres(scene.fine, 0.5 * model->object->diameter_m(), search_.sphere);
-    const double estimate_s = SecondsSince(estimate_start);
-    for (const SphereFit& sphere : spheres) {
-      context_->CheckDeadline();
-      // The model frame's origin is the sphere's centre; any rotation places it alike.
-      Detection d =
-          RefineAndVerify(*model, *context_, Method::kPpf,
-                          Eigen::Isometry3d(Eigen::Translation3d(sphere.p_Centre)), true, refine_);
-      d.timings.preprocess_s = preprocess_s;
-      d.timings.estimate_s = estimate_s;
-      out.push_back(std::move(d));
-    }
-    return Finish(std::move(out), refine_, start);
+  for (const SphereFit& sphere : spheres) {
+    context_->CheckDeadline();
+    // The model frame's origin is the sphere's centre; any rotation places it alike.
+    Detection d =
+        RefineAndVerify(model, *context_, Method::kPpf,
+                        Eigen::Isometry3d(Eigen::Translation3d(sphere.p_Centre)), true, refine_);
+    d.timings.preprocess_s = preprocess_s;
+    d.timings.estimate_s = estimate_s;
+    out.push_back(std::move(d));
   }
-  // The verification scene is built once per scene, on first use, and before the time left
-  // is shared out between voting, refinement and verification.
-  context_->Verification();
+  return out;
+}
+
+PpfDetectorOptions PpfEstimator::VotingOptions(const std::shared_ptr<const LoadedModel>& model,
+                                               const PpfScene& scene, const EstimatorInput& input,
+                                               double* seed_s) {
   PpfDetectorOptions ppf = ppf_;
-  double seed_s = 0.0;
   if (search_.fit_boxes && model->spec.kind == ModelSourceKind::kShapeBox) {
-    ppf.seed_source = [this, &model, &scene, &seed_s, &input]() {
+    ppf.seed_source = [this, model, &scene, seed_s, budget_end = input.budget_end]() {
       const auto seed_start = Clock::now();
       const Clock::time_point deadline =
-          input.budget_end == Clock::time_point::max()
-              ? input.budget_end
+          budget_end == Clock::time_point::max()
+              ? budget_end
               : seed_start + std::chrono::duration_cast<Clock::duration>(
-                                 std::max(Clock::duration::zero(), input.budget_end - seed_start) *
+                                 std::max(Clock::duration::zero(), budget_end - seed_start) *
                                  search_.box_budget_fraction);
       std::vector<Eigen::Isometry3d> seeds = BoxFaceSeeds(*model, scene, deadline);
-      seed_s = SecondsSince(seed_start);
+      *seed_s = SecondsSince(seed_start);
       return seeds;
     };
   }
@@ -403,8 +395,103 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     ppf.refine_deadline = input.budget_end - std::chrono::duration_cast<Clock::duration>(
                                                  remaining * search_.verify_budget_fraction);
   }
+  return ppf;
+}
+
+void PpfEstimator::RefineBoxCandidates(const LoadedModel& model, const EstimatorInput& input,
+                                       Clock::time_point verify_start,
+                                       const std::function<void(Detection)>& add,
+                                       std::vector<Detection>& out) {
+  const auto by_score = [](const Detection& a, const Detection& b) { return a.score < b.score; };
+  const auto time_for_another = [&]() {
+    context_->CheckDeadline();
+    return TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end);
+  };
+  const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
+  const std::size_t turned_from = out.size();
+  if (search_.box_near_square_tolerance > 0.0) {
+    const Eigen::Isometry3d X_best = std::max_element(out.begin(), out.end(), by_score)->X_BaseItem;
+    for (const Eigen::Isometry3d& turn :
+         NearSquareQuarterTurns(half_size, p_ItemCentre, search_.box_near_square_tolerance)) {
+      if (!time_for_another()) break;
+      add(RefineAndVerify(model, *context_, Method::kPpf, X_best * turn, true, refine_));
+    }
+  }
+  if (search_.box_polish_levels <= 0) return;
+  // Along the box's two longer sides, where a box lying on a flat surface slides freely
+  // under ICP; the verification score weighs its edges and the free space beside them.
+  int thin = 0;
+  half_size.minCoeff(&thin);
+  std::vector<int> axes;
+  for (int axis = 0; axis < 3; ++axis) {
+    if (axis != thin) axes.push_back(axis);
+  }
+  // Each start polished in its share of the time left (the budget's end, or the
+  // verification's pace without a budget).
+  const auto polish = [&](Detection best, Clock::time_point deadline) {
+    const double start_score = best.score;
+    Clock::duration last = Clock::duration::zero();
+    const PosePolish polished = PolishTranslation(
+        best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
+        [&](const Eigen::Isometry3d& X) -> std::optional<double> {
+          const auto now = Clock::now();
+          if (!time_for_another() || now + last > deadline) return std::nullopt;
+          Detection d = RefineAndVerify(model, *context_, Method::kPpf, X, false, refine_);
+          last = Clock::now() - now;
+          const double score = d.score;
+          if (score > best.score) best = std::move(d);
+          return score;
+        });
+    // `best` is the detection of the highest score seen: the polished pose's.
+    if (polished.score > start_score) add(std::move(best));
+  };
+  // The best candidate, and the best of its quarter-turns: a near-square face's two
+  // turns score alike until each is placed.
+  const auto best = std::max_element(out.begin(), out.end(), by_score);
+  const auto turned_begin = out.begin() + static_cast<std::ptrdiff_t>(turned_from);
+  const auto best_turned = std::max_element(turned_begin, out.end(), by_score);
+  std::vector<Detection> starts = {*best};
+  if (best_turned != out.end() && best_turned != best) starts.push_back(*best_turned);
+  for (std::size_t i = 0; i < starts.size(); ++i) {
+    Clock::time_point deadline = Clock::time_point::max();
+    if (input.budget_end != Clock::time_point::max()) {
+      const auto now = Clock::now();
+      deadline = now + std::max(Clock::duration::zero(), input.budget_end - now) /
+                           static_cast<int>(starts.size() - i);
+    }
+    polish(std::move(starts[i]), deadline);
+  }
+}
+
+// Stages: the scene's PPF preparation; spheres by a direct fit; otherwise voting (with box
+// face seeds and per-segment hypotheses), verification of the hypotheses while the budget
+// leaves time, and for boxes the quarter-turns and the polish of the best.
+std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
+  CheckInput(input, *context_, "PpfEstimator");
+  const auto start = Clock::now();
+  const auto model = library_->Get(input.item);
+  context_->CheckDeadline();
+  const auto preprocess_start = Clock::now();
+  const PpfScene& scene = context_->PpfSceneFor(*model);
+  const double preprocess_s = SecondsSince(preprocess_start);
+  context_->CheckDeadline();
+  if (search_.fit_spheres && model->spec.kind == ModelSourceKind::kShapeSphere) {
+    return Finish(EstimateSpheres(*model, scene, preprocess_s), refine_, start);
+  }
+  // The verification scene is built once per scene, on first use, and before the time left
+  // is shared out between voting, refinement and verification.
+  context_->Verification();
+  double seed_s = 0.0;
+  const PpfDetectorOptions ppf = VotingOptions(model, scene, input, &seed_s);
   context_->CheckDeadline();
   const PpfDetectionResult result = DetectPpf(*model->object, scene, ppf);
+  std::vector<Detection> out;
+  const auto add = [&](Detection d) {
+    d.timings.preprocess_s = preprocess_s;
+    d.timings.estimate_s = seed_s + result.match_s;
+    d.timings.refine_s += result.refine_s;
+    out.push_back(std::move(d));
+  };
   const auto verify_start = Clock::now();
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
@@ -417,79 +504,10 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
         RefineAndVerify(*model, *context_, Method::kPpf, hypothesis.X_SceneModel, false, refine_);
     d.fitness = hypothesis.icp.fitness;
     d.inlier_rmse_m = hypothesis.icp.inlier_rmse_m;
-    d.timings.preprocess_s = preprocess_s;
-    d.timings.estimate_s = seed_s + result.match_s;
-    d.timings.refine_s += result.refine_s;
-    out.push_back(std::move(d));
+    add(std::move(d));
   }
   if (model->spec.kind == ModelSourceKind::kShapeBox && !out.empty()) {
-    const auto by_score = [](const Detection& a, const Detection& b) { return a.score < b.score; };
-    const auto time_for_another = [&]() {
-      context_->CheckDeadline();
-      return TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end);
-    };
-    const auto add = [&](Detection d) {
-      d.timings.preprocess_s = preprocess_s;
-      d.timings.estimate_s = seed_s + result.match_s;
-      d.timings.refine_s += result.refine_s;
-      out.push_back(std::move(d));
-    };
-    const auto [half_size, p_ItemCentre] = BoxExtentOf(model->object->icp_cloud());
-    const std::size_t turned_from = out.size();
-    if (search_.box_near_square_tolerance > 0.0) {
-      const Eigen::Isometry3d X_best =
-          std::max_element(out.begin(), out.end(), by_score)->X_BaseItem;
-      for (const Eigen::Isometry3d& turn :
-           NearSquareQuarterTurns(half_size, p_ItemCentre, search_.box_near_square_tolerance)) {
-        if (!time_for_another()) break;
-        add(RefineAndVerify(*model, *context_, Method::kPpf, X_best * turn, true, refine_));
-      }
-    }
-    if (search_.box_polish_levels > 0) {
-      // Along the box's two longer sides, where a box lying on a flat surface slides freely
-      // under ICP; the verification score weighs its edges and the free space beside them.
-      int thin = 0;
-      half_size.minCoeff(&thin);
-      std::vector<int> axes;
-      for (int axis = 0; axis < 3; ++axis) {
-        if (axis != thin) axes.push_back(axis);
-      }
-      // Each start polished in its share of the time left (the budget's end, or the
-      // verification's pace without a budget).
-      const auto polish = [&](Detection best, Clock::time_point deadline) {
-        const double start_score = best.score;
-        Clock::duration last = Clock::duration::zero();
-        const PosePolish polished = PolishTranslation(
-            best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
-            [&](const Eigen::Isometry3d& X) -> std::optional<double> {
-              const auto now = Clock::now();
-              if (!time_for_another() || now + last > deadline) return std::nullopt;
-              Detection d = RefineAndVerify(*model, *context_, Method::kPpf, X, false, refine_);
-              last = Clock::now() - now;
-              const double score = d.score;
-              if (score > best.score) best = std::move(d);
-              return score;
-            });
-        // `best` is the detection of the highest score seen: the polished pose's.
-        if (polished.score > start_score) add(std::move(best));
-      };
-      // The best candidate, and the best of its quarter-turns: a near-square face's two
-      // turns score alike until each is placed.
-      const auto best = std::max_element(out.begin(), out.end(), by_score);
-      const auto turned_begin = out.begin() + static_cast<std::ptrdiff_t>(turned_from);
-      const auto best_turned = std::max_element(turned_begin, out.end(), by_score);
-      std::vector<Detection> starts = {*best};
-      if (best_turned != out.end() && best_turned != best) starts.push_back(*best_turned);
-      for (std::size_t i = 0; i < starts.size(); ++i) {
-        Clock::time_point deadline = Clock::time_point::max();
-        if (input.budget_end != Clock::time_point::max()) {
-          const auto now = Clock::now();
-          deadline = now + std::max(Clock::duration::zero(), input.budget_end - now) /
-                               static_cast<int>(starts.size() - i);
-        }
-        polish(std::move(starts[i]), deadline);
-      }
-    }
+    RefineBoxCandidates(*model, input, verify_start, add, out);
   }
   return Finish(std::move(out), refine_, start);
 }

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -236,6 +237,19 @@ class PpfEstimator final : public Estimator {
   // verification scene. Patches are no longer screened after `deadline`.
   std::vector<Eigen::Isometry3d> BoxFaceSeeds(const LoadedModel& model, const PpfScene& scene,
                                               std::chrono::steady_clock::time_point deadline);
+  // Spheres by a direct fit of the item's radius, each refined and verified.
+  std::vector<Detection> EstimateSpheres(const LoadedModel& model, const PpfScene& scene,
+                                         double preprocess_s);
+  // The voting's options for this model and scene: box face seeds (their time in *seed_s),
+  // per-segment hypotheses, the shares of the budget for voting and verification.
+  PpfDetectorOptions VotingOptions(const std::shared_ptr<const LoadedModel>& model,
+                                   const PpfScene& scene, const EstimatorInput& input,
+                                   double* seed_s);
+  // For a box: the best candidate's near-square quarter-turns, then the translation polish
+  // of the best and of its best turn, each result passed to `add` (which appends to `out`).
+  void RefineBoxCandidates(const LoadedModel& model, const EstimatorInput& input,
+                           std::chrono::steady_clock::time_point verify_start,
+                           const std::function<void(Detection)>& add, std::vector<Detection>& out);
 
   std::shared_ptr<const ModelLibrary> library_;
   std::shared_ptr<SceneContext> context_;
