@@ -1,0 +1,36 @@
+#pragma once
+
+// Stages the estimators (estimators.h) share, each estimator in its own file:
+// ppf_estimator.cc, sift_estimator.cc, template_estimator.cc. Not part of the detector
+// core's interface.
+
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <vector>
+
+#include "libs/geometry/point_cloud.h"
+#include "services/detector/core/estimators.h"
+
+namespace picking::detector::estimator_stages {
+
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point start);
+
+/// A box model's half sides and centre, item frame, from its points.
+struct BoxExtent {
+  Eigen::Vector3d half_size;
+  Eigen::Vector3d p_ItemCentre;
+};
+BoxExtent BoxExtentOf(const geometry::PointCloud& cloud);
+
+/// Throws std::invalid_argument when `input` has no scene or not the context's.
+void CheckInput(const EstimatorInput& input, const SceneContext& context, const char* who);
+
+/// An estimator's candidates, best first (score plus the appearance as a bonus), each with
+/// the estimator's whole time since `start`.
+std::vector<Detection> Finish(std::vector<Detection> out, const RefineVerifyOptions& options,
+                              Clock::time_point start);
+
+}  // namespace picking::detector::estimator_stages

@@ -1,0 +1,75 @@
+// RangeTemplateEstimator: range image templates aligned to the scene's clusters.
+#include "services/detector/core/estimators.h"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "libs/errors/errors.h"
+#include "services/detector/core/estimator_stages.h"
+
+namespace picking::detector {
+
+using estimator_stages::BoxExtent;
+using estimator_stages::BoxExtentOf;
+using estimator_stages::CheckInput;
+using estimator_stages::Clock;
+using estimator_stages::Finish;
+using estimator_stages::SecondsSince;
+
+RangeTemplateEstimator::RangeTemplateEstimator(std::shared_ptr<const ModelLibrary> library,
+                                               std::shared_ptr<SceneContext> context,
+                                               TemplateMatchOptions match,
+                                               RefineVerifyOptions refine)
+    : library_(std::move(library)),
+      context_(std::move(context)),
+      match_(std::move(match)),
+      refine_(std::move(refine)) {
+  if (!library_ || !context_) {
+    throw std::invalid_argument("RangeTemplateEstimator: null library or context");
+  }
+}
+
+std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& input) {
+  CheckInput(input, *context_, "RangeTemplateEstimator");
+  const auto start = Clock::now();
+  const auto model = library_->Get(input.item);
+  if (!model->templates) return {};
+  if (!context_->camera()) {
+    throw std::invalid_argument("range templates need the sensor's intrinsics");
+  }
+  context_->CheckDeadline();
+  const auto preprocess_start = Clock::now();
+  const SceneContext::Clusters& clusters = context_->SceneClusters();
+  const double preprocess_s = SecondsSince(preprocess_start);
+  if (clusters.clusters.empty()) return {};
+  context_->CheckDeadline();
+  if (Clock::now() > input.budget_end) return {};  // No time left to match a cluster.
+  const auto estimate_start = Clock::now();
+  TemplateMatchOptions match = match_;
+  match.deadline = std::min(match.deadline, input.budget_end);
+  const std::vector<TemplateMatch> matches =
+      MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
+                     *context_->camera(), match);
+  const double estimate_s = SecondsSince(estimate_start);
+  std::vector<Detection> out;
+  for (const TemplateMatch& m : matches) {
+    context_->CheckDeadline();
+    if (!out.empty() && Clock::now() > input.budget_end) break;
+    Detection d =
+        RefineAndVerify(*model, *context_, Method::kRangeTemplates, m.X_BaseItem, true, refine_);
+    d.timings.preprocess_s = preprocess_s;
+    d.timings.estimate_s = estimate_s;
+    out.push_back(std::move(d));
+  }
+  return Finish(std::move(out), refine_, start);
+}
+
+}  // namespace picking::detector
