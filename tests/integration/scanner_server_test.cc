@@ -1263,6 +1263,68 @@ TEST_F(ScannerWithSimulatorTest, AScannerStoppedDuringALongScanExitsWithinItsGra
   EXPECT_FALSE(reader->Finish().ok());
 }
 
+struct MergedErrors {
+  std::vector<double> distance_m;  // Per matched point: its depth difference, metres.
+  std::size_t finite = 0;          // Finite merged points.
+  std::size_t unmatched = 0;       // ... off every view's smooth true surface.
+  std::string per_view;            // Coverage of each view's bin surface, "a %, b %, c %".
+  double coverage = 0.0;           // Of all views' bin surface pixels.
+};
+
+// The merged cloud against the true surface: each point projected into every view and
+// compared with that view's true depth there (bilinear over one smooth surface); the view
+// that sees the point's surface gives the smallest difference. Pixels of each view's bin
+// surface that some merged point lands on (within 2 mm of their true depth) are covered.
+MergedErrors CompareMergedWithTruth(const ScannedCloud& cloud, const std::vector<Rigid>& cameras,
+                                    const std::vector<TruthView>& truth,
+                                    const std::vector<std::vector<bool>>& bin_surface,
+                                    const Intrinsics& camera, int width, int height) {
+  const int pixels = width * height;
+  MergedErrors out;
+  std::vector<std::vector<bool>> covered(cameras.size(), std::vector<bool>(pixels, false));
+  std::vector<Rigid> X_CameraBase;
+  for (const Rigid& X : cameras) X_CameraBase.push_back(X.Inverse());
+  for (std::size_t i = 0; i < cloud.xyz.size() / 3; ++i) {
+    const Vec3 p_Base = cloud.at(i);
+    if (!p_Base.Finite()) continue;
+    ++out.finite;
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t k = 0; k < cameras.size(); ++k) {
+      const Vec3 p_C = X_CameraBase[k] * p_Base;
+      if (p_C.z <= 0) continue;
+      double u, v;
+      camera.Project(p_C, &u, &v);
+      const double d = truth[k].Interpolated(u, v, height);
+      if (!std::isfinite(d)) continue;
+      const double error = std::abs(p_C.z - d);
+      best = std::min(best, error);
+      const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
+      if (error < 0.002) covered[k][static_cast<std::size_t>(vi) * width + ui] = true;
+    }
+    if (std::isfinite(best)) {
+      out.distance_m.push_back(best);
+    } else {
+      ++out.unmatched;
+    }
+  }
+  std::size_t bin_pixels = 0, bin_covered = 0;
+  std::ostringstream per_view;
+  for (std::size_t k = 0; k < cameras.size(); ++k) {
+    std::size_t n = 0, c = 0;
+    for (int i = 0; i < pixels; ++i) {
+      if (!bin_surface[k][i]) continue;
+      ++n;
+      if (covered[k][i]) ++c;
+    }
+    per_view << (k ? ", " : "") << 100.0 * c / std::max<std::size_t>(1, n) << " %";
+    bin_pixels += n;
+    bin_covered += c;
+  }
+  out.per_view = per_view.str();
+  out.coverage = static_cast<double>(bin_covered) / std::max<std::size_t>(1, bin_pixels);
+  return out;
+}
+
 TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurface) {
   // The paper's three scans of a shelf bin from different angles: straight in and 15
   // degrees to either side, each from 1 m.
@@ -1307,53 +1369,12 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
     EXPECT_LT(GrossFraction(e), 0.02) << "view " << k;
   }
 
-  // The merged cloud against the true surface: each point projected into every view and
-  // compared with that view's true depth there (bilinear over one smooth surface); the view
-  // that sees the point's surface gives the smallest difference. Pixels of each view's bin
-  // surface that some merged point lands on (within 2 mm of their true depth) are covered.
-  std::vector<double> distance_m;
-  std::size_t finite = 0, unmatched = 0;
-  std::vector<std::vector<bool>> covered(cameras.size(), std::vector<bool>(pixels, false));
-  std::vector<Rigid> X_CameraBase;
-  for (const Rigid& X : cameras) X_CameraBase.push_back(X.Inverse());
-  for (std::size_t i = 0; i < cloud.xyz.size() / 3; ++i) {
-    const Vec3 p_Base = cloud.at(i);
-    if (!p_Base.Finite()) continue;
-    ++finite;
-    double best = std::numeric_limits<double>::infinity();
-    for (std::size_t k = 0; k < cameras.size(); ++k) {
-      const Vec3 p_C = X_CameraBase[k] * p_Base;
-      if (p_C.z <= 0) continue;
-      double u, v;
-      camera_->Project(p_C, &u, &v);
-      const double d = truth[k].Interpolated(u, v, height);
-      if (!std::isfinite(d)) continue;
-      const double error = std::abs(p_C.z - d);
-      best = std::min(best, error);
-      const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
-      if (error < 0.002) covered[k][static_cast<std::size_t>(vi) * width + ui] = true;
-    }
-    if (std::isfinite(best)) {
-      distance_m.push_back(best);
-    } else {
-      ++unmatched;
-    }
-  }
-  std::size_t bin_pixels = 0, bin_covered = 0;
-  std::ostringstream per_view;
-  for (std::size_t k = 0; k < cameras.size(); ++k) {
-    std::size_t n = 0, c = 0;
-    for (int i = 0; i < pixels; ++i) {
-      if (!bin_surface[k][i]) continue;
-      ++n;
-      if (covered[k][i]) ++c;
-    }
-    per_view << (k ? ", " : "") << 100.0 * c / std::max<std::size_t>(1, n) << " %";
-    bin_pixels += n;
-    bin_covered += c;
-  }
+  const MergedErrors merged =
+      CompareMergedWithTruth(cloud, cameras, truth, bin_surface, *camera_, width, height);
+  const std::vector<double>& distance_m = merged.distance_m;
+  const std::size_t finite = merged.finite, unmatched = merged.unmatched;
+  const double coverage = merged.coverage;
   const double median_mm = Percentile(distance_m, 0.5) * 1e3;
-  const double coverage = static_cast<double>(bin_covered) / std::max<std::size_t>(1, bin_pixels);
   const auto gross = static_cast<std::size_t>(
       std::count_if(distance_m.begin(), distance_m.end(), [](double x) { return x > 0.005; }));
   std::cout << "bin_E, 3 views merged in the base frame: " << finite
@@ -1363,7 +1384,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
             << 100.0 * gross / std::max<std::size_t>(1, finite) << " % over 5 mm, "
             << 100.0 * unmatched / std::max<std::size_t>(1, finite)
             << " % off every smooth true surface (depth edges); the bin surface each view sees is "
-            << "covered by the merged cloud to " << per_view.str() << " (" << coverage * 100
+            << "covered by the merged cloud to " << merged.per_view << " (" << coverage * 100
             << " % overall); capture " << cloud.summary.capture_time_s() << " s, processing "
             << cloud.summary.processing_time_s() << " s\n";
   RecordProperty("merged_median_error_mm", std::to_string(median_mm));

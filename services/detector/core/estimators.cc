@@ -5,13 +5,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <functional>
-#include <limits>
 #include <stdexcept>
 #include <string>
 #include <utility>
 
-#include "libs/errors/errors.h"
 #include "services/detector/core/estimator_stages.h"
 
 namespace picking::detector {
@@ -64,9 +61,7 @@ std::vector<Detection> Finish(std::vector<Detection> out, const RefineVerifyOpti
 
 using estimator_stages::BoxExtent;
 using estimator_stages::BoxExtentOf;
-using estimator_stages::CheckInput;
 using estimator_stages::Clock;
-using estimator_stages::Finish;
 using estimator_stages::SecondsSince;
 
 Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Method method,

@@ -1,23 +1,18 @@
 // PpfEstimator: point pair features (ppf_detector.h) with box face seeds and sphere fits.
 #include "services/detector/core/estimators.h"
 
-#include <Eigen/Dense>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <functional>
-#include <limits>
+#include <optional>
 #include <stdexcept>
-#include <string>
 #include <utility>
 
-#include "libs/errors/errors.h"
 #include "services/detector/core/estimator_stages.h"
 
 namespace picking::detector {
 
-using estimator_stages::BoxExtent;
 using estimator_stages::BoxExtentOf;
 using estimator_stages::CheckInput;
 using estimator_stages::Clock;

@@ -1,15 +1,11 @@
 // SceneContext: what the estimators of one scene share, each built once on first use.
 #include "services/detector/core/estimators.h"
 
-#include <Eigen/Dense>
-
 #include <algorithm>
-#include <chrono>
-#include <cmath>
-#include <functional>
-#include <limits>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <stdexcept>
-#include <string>
 #include <utility>
 
 #include "libs/errors/errors.h"
@@ -17,12 +13,7 @@
 
 namespace picking::detector {
 
-using estimator_stages::BoxExtent;
-using estimator_stages::BoxExtentOf;
-using estimator_stages::CheckInput;
 using estimator_stages::Clock;
-using estimator_stages::Finish;
-using estimator_stages::SecondsSince;
 
 SceneContext::SceneContext(const geometry::PointCloud& scene, const Eigen::Isometry3d& X_BaseSensor,
                            std::optional<PinholeCamera> camera, SceneContextOptions options)

@@ -1,27 +1,16 @@
 // SiftPoseEstimator: SIFT matches to rendered model views, pose from the measured points.
 #include "services/detector/core/estimators.h"
 
-#include <Eigen/Dense>
-
-#include <algorithm>
-#include <chrono>
-#include <cmath>
-#include <functional>
-#include <limits>
 #include <stdexcept>
 #include <string>
 #include <utility>
 
-#include "libs/errors/errors.h"
 #include "services/detector/core/estimator_stages.h"
 
 namespace picking::detector {
 
-using estimator_stages::BoxExtent;
-using estimator_stages::BoxExtentOf;
 using estimator_stages::CheckInput;
 using estimator_stages::Clock;
-using estimator_stages::Finish;
 using estimator_stages::SecondsSince;
 
 SiftPoseEstimator::SiftPoseEstimator(std::shared_ptr<const ModelLibrary> library,

@@ -4,25 +4,13 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
-#include <functional>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
-#include <utility>
-
-#include "libs/errors/errors.h"
-#include "services/detector/core/estimator_stages.h"
 
 namespace picking::detector {
-
-using estimator_stages::BoxExtent;
-using estimator_stages::BoxExtentOf;
-using estimator_stages::CheckInput;
-using estimator_stages::Clock;
-using estimator_stages::Finish;
-using estimator_stages::SecondsSince;
 
 namespace {
 

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
+#include <vector>
 
 namespace picking::robot {
 namespace {
@@ -256,6 +258,57 @@ LinearMoveResult SampleLinearPath(const ur10::Ur10Kinematics& kinematics,
   return result;
 }
 
+namespace {
+
+// Limits on the path parameter u in [0, 1] of a straight tool line: the tool's speed and
+// acceleration limits over its length and turn, and the joints' limits over their dq/du
+// along the densely sampled path. Infinite for a zero-length move.
+void PathParameterLimits(const std::vector<TrajectoryPoint>& samples, double distance_m,
+                         double angle_rad, const LinearMoveOptions& options, double* u_speed,
+                         double* u_accel) {
+  *u_speed = std::numeric_limits<double>::infinity();
+  *u_accel = std::numeric_limits<double>::infinity();
+  if (distance_m > 0.0) {
+    *u_speed = std::min(*u_speed, options.max_tool_speed_m_s / distance_m);
+    *u_accel = std::min(*u_accel, options.max_tool_acceleration_m_s2 / distance_m);
+  }
+  if (angle_rad > 0.0) {
+    *u_speed = std::min(*u_speed, options.max_tool_angular_speed_rad_s / angle_rad);
+    *u_accel = std::min(*u_accel, options.max_tool_angular_acceleration_rad_s2 / angle_rad);
+  }
+  const double du = 1.0 / static_cast<double>(samples.size() - 1);
+  for (std::size_t i = 1; i < samples.size(); ++i) {
+    const JointVector dq_du = (samples[i].q_rad - samples[i - 1].q_rad).cwiseAbs() / du;
+    for (int j = 0; j < ur10::kNumJoints; ++j) {
+      if (dq_du[j] <= 0.0) continue;
+      *u_speed = std::min(*u_speed, options.max_velocity_rad_s[j] / dq_du[j]);
+      *u_accel = std::min(*u_accel, options.max_acceleration_rad_s2[j] / dq_du[j]);
+    }
+  }
+}
+
+// Largest finite-difference joint speed and acceleration of `trajectory` relative to the
+// joint limits (1 = at the limit).
+std::pair<double, double> LimitRatios(const JointTrajectory& trajectory,
+                                      const LinearMoveOptions& options) {
+  double ratio_v = 0.0, ratio_a = 0.0;
+  const auto& p = trajectory.points;
+  for (std::size_t i = 1; i < p.size(); ++i) {
+    const double h = p[i].time_s - p[i - 1].time_s;
+    const JointVector v = (p[i].q_rad - p[i - 1].q_rad) / h;
+    ratio_v =
+        std::max(ratio_v, (v.cwiseAbs().cwiseQuotient(options.max_velocity_rad_s)).maxCoeff());
+    if (i + 1 < p.size()) {
+      ratio_a = std::max(
+          ratio_a,
+          p[i].qdd_rad_s2.cwiseAbs().cwiseQuotient(options.max_acceleration_rad_s2).maxCoeff());
+    }
+  }
+  return {ratio_v, ratio_a};
+}
+
+}  // namespace
+
 LinearMoveResult PlanLinearMove(const ur10::Ur10Kinematics& kinematics,
                                 const JointVector& q_start_rad,
                                 const Eigen::Isometry3d& X_BaseTcp_goal,
@@ -281,26 +334,8 @@ LinearMoveResult PlanLinearMove(const ur10::Ur10Kinematics& kinematics,
   const double angle_rad =
       Eigen::AngleAxisd(X_BaseTcp_start.linear().transpose() * X_BaseTcp_goal.linear()).angle();
 
-  // Limits on the path parameter u in [0, 1]: tool limits and the joints' dq/du.
-  double u_speed = std::numeric_limits<double>::infinity();
-  double u_accel = std::numeric_limits<double>::infinity();
-  if (distance_m > 0.0) {
-    u_speed = std::min(u_speed, options.max_tool_speed_m_s / distance_m);
-    u_accel = std::min(u_accel, options.max_tool_acceleration_m_s2 / distance_m);
-  }
-  if (angle_rad > 0.0) {
-    u_speed = std::min(u_speed, options.max_tool_angular_speed_rad_s / angle_rad);
-    u_accel = std::min(u_accel, options.max_tool_angular_acceleration_rad_s2 / angle_rad);
-  }
-  const double du = 1.0 / static_cast<double>(samples.size() - 1);
-  for (std::size_t i = 1; i < samples.size(); ++i) {
-    const JointVector dq_du = (samples[i].q_rad - samples[i - 1].q_rad).cwiseAbs() / du;
-    for (int j = 0; j < ur10::kNumJoints; ++j) {
-      if (dq_du[j] <= 0.0) continue;
-      u_speed = std::min(u_speed, options.max_velocity_rad_s[j] / dq_du[j]);
-      u_accel = std::min(u_accel, options.max_acceleration_rad_s2[j] / dq_du[j]);
-    }
-  }
+  double u_speed = 0.0, u_accel = 0.0;
+  PathParameterLimits(samples, distance_m, angle_rad, options, &u_speed, &u_accel);
   if (!std::isfinite(u_speed) || !std::isfinite(u_accel)) {  // zero-length move
     dense.trajectory.points.resize(1);
     return dense;
@@ -340,20 +375,7 @@ LinearMoveResult PlanLinearMove(const ur10::Ur10Kinematics& kinematics,
     }
     if (failed) return result;
     FillDerivatives(&trajectory);
-    // Largest finite-difference speed and acceleration relative to the joint limits.
-    double ratio_v = 0.0, ratio_a = 0.0;
-    const auto& p = trajectory.points;
-    for (std::size_t i = 1; i < p.size(); ++i) {
-      const double h = p[i].time_s - p[i - 1].time_s;
-      const JointVector v = (p[i].q_rad - p[i - 1].q_rad) / h;
-      ratio_v =
-          std::max(ratio_v, (v.cwiseAbs().cwiseQuotient(options.max_velocity_rad_s)).maxCoeff());
-      if (i + 1 < p.size()) {
-        ratio_a = std::max(
-            ratio_a,
-            p[i].qdd_rad_s2.cwiseAbs().cwiseQuotient(options.max_acceleration_rad_s2).maxCoeff());
-      }
-    }
+    const auto [ratio_v, ratio_a] = LimitRatios(trajectory, options);
     if (ratio_v <= 1.0 && ratio_a <= 1.0) {
       result.ok = true;
       result.trajectory = std::move(trajectory);
