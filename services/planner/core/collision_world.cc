@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "libs/world/mesh_utils.h"
@@ -230,39 +231,81 @@ Leaves LeavesOf(const SphereTree& tree, const Sphere& s) {
 
 }  // namespace
 
+int FastChecker::num_obstacles() const {
+  return kObstacleFirstMesh + static_cast<int>(cell_.grids().size()) + (scan_ ? 1 : 0);
+}
+
+float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask,
+                          int* which) const {
+  float worst = std::numeric_limits<float>::infinity();
+  *which = -1;
+  auto consider = [&](int obstacle, float d) {
+    if (d < worst) worst = d, *which = obstacle;
+  };
+  if (mask & (1u << kObstacleFloor)) {
+    consider(kObstacleFloor, c.z() - static_cast<float>(cell_.floor_z_m()) - r);
+  }
+  if ((mask & (1u << kObstaclePedestal)) && !cell_.pedestal_Base().isEmpty()) {
+    consider(kObstaclePedestal, BoxDistance(cell_.pedestal_Base().cast<float>(), c) - r);
+  }
+  const auto& grids = cell_.grids();
+  for (std::size_t g = 0; g < grids.size(); ++g) {
+    const int obstacle = kObstacleFirstMesh + static_cast<int>(g);
+    if (!(mask & (1u << obstacle))) continue;
+    float d = grids[g].grid.Clearance(c);
+    if (exact && d < r) d = cell_.SurfaceDistance(g, c, r);
+    consider(obstacle, d - r);
+  }
+  const int scan_obstacle = kObstacleFirstMesh + static_cast<int>(grids.size());
+  if (scan_ && (mask & (1u << scan_obstacle)))
+    consider(scan_obstacle, scan_->grid.Clearance(c) - r);
+  return worst;
+}
+
+bool FastChecker::SelfPairMayTouch(std::size_t pair, const JointVector& q_rad,
+                                   const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
+                                   const std::array<const SphereTree*, kNumBodies>& trees,
+                                   const Eigen::Vector3f* centres, const int* first,
+                                   float padding_m, float* clearance) const {
+  const auto [a, b] = robot_.self_pairs()[pair];
+  if (const PairDistanceTable* table = robot_.pair_table(a, b)) {
+    // No padding here: the padding covers travel in the workspace, and these two bodies
+    // barely move relative to each other between checked states (wrist_1 and wrist_2
+    // turn little there; MotionChecker spaces states by each joint's reach).
+    *clearance = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
+    return *clearance <= 0.f;
+  }
+  for (int i = first[a]; i < first[a + 1]; ++i) {
+    const Sphere& si = trees[a]->coarse[i - first[a]];
+    for (int j = first[b]; j < first[b + 1]; ++j) {
+      const Sphere& sj = trees[b]->coarse[j - first[b]];
+      const float r = si.radius_m + sj.radius_m + 2.f * padding_m;
+      if ((centres[i] - centres[j]).squaredNorm() >= r * r) continue;
+      // The coarse spheres touch: compare their leaves.
+      const Leaves li = LeavesOf(*trees[a], si), lj = LeavesOf(*trees[b], sj);
+      for (const Sphere* x = li.begin; x != li.end; ++x) {
+        const Eigen::Vector3f cx = Xf[a] * x->center_B;
+        for (const Sphere* y = lj.begin; y != lj.end; ++y) {
+          const float ry = x->radius_m + y->radius_m + 2.f * padding_m;
+          const float d2 = (cx - Xf[b] * y->center_B).squaredNorm();
+          if (d2 < ry * ry) {
+            *clearance = std::sqrt(d2) - ry;
+            return true;
+          }
+        }
+      }
+    }
+  }
+  return false;
+}
+
 template <bool kExplain>
 bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
                       CollisionReport* report) const {
   BodyPoses X;
   robot_.ComputePoses(q_rad, carried, &X);
   const int num_bodies = carried ? kNumBodies : kNumArmBodies;
-  const float floor_z = static_cast<float>(cell_.floor_z_m());
-  const Eigen::AlignedBox3f pedestal = cell_.pedestal_Base().cast<float>();
-  const bool has_pedestal = !pedestal.isEmpty();
-  const auto& grids = cell_.grids();
-  // Smallest clearance minus radius over the obstacles; `which` names the worst one
-  // (0 floor, 1 pedestal, 2 + i grid i, 2 + grids.size() the scan).
-  // `exact`: where a static grid's bound cannot tell, measure the distance to the mesh's
-  // triangles (done for leaf spheres, which are small).
-  auto margin = [&](const Eigen::Vector3f& c, float r, int* which, bool exact) {
-    float worst = c.z() - floor_z - r;
-    *which = 0;
-    if (has_pedestal) {
-      const float d = BoxDistance(pedestal, c) - r;
-      if (d < worst) worst = d, *which = 1;
-    }
-    for (std::size_t g = 0; g < grids.size(); ++g) {
-      float d = grids[g].grid.Clearance(c);
-      if (exact && d < r) d = cell_.SurfaceDistance(g, c, r);
-      d -= r;
-      if (d < worst) worst = d, *which = 2 + static_cast<int>(g);
-    }
-    if (scan_) {
-      const float d = scan_->grid.Clearance(c) - r;
-      if (d < worst) worst = d, *which = 2 + static_cast<int>(grids.size());
-    }
-    return worst;
-  };
+  const std::uint32_t all_obstacles = (1u << num_obstacles()) - 1u;
   bool free = true;
   auto hit = [&](int body, int which, const char* self_body, float clearance) {
     free = false;
@@ -271,17 +314,7 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
         report->in_collision = true;
         report->body = body;
         report->clearance_m = clearance + padding_m;
-        if (self_body) {
-          report->obstacle = std::string("self: ") + self_body;
-        } else if (which == 0) {
-          report->obstacle = "floor";
-        } else if (which == 1) {
-          report->obstacle = "pedestal";
-        } else if (which - 2 < static_cast<int>(grids.size())) {
-          report->obstacle = grids[which - 2].name;
-        } else {
-          report->obstacle = "scan";
-        }
+        report->obstacle = self_body ? std::string("self: ") + self_body : ObstacleName(which);
       }
     }
   };
@@ -302,10 +335,11 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
       // The base is fixed to the pedestal; it is only checked against the moving bodies.
       if (b == kBodyBase) continue;
       int which = 0;
-      if (margin(c, s.radius_m + padding_m, &which, false) >= 0.f) continue;
+      if (Margin(c, s.radius_m + padding_m, false, all_obstacles, &which) >= 0.f) continue;
       const Leaves leaves = LeavesOf(*trees[b], s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-        const float m = margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, &which, true);
+        const float m =
+            Margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, true, all_obstacles, &which);
         if (m < 0.f) {
           hit(b, which, nullptr, m);
           if constexpr (!kExplain) return false;
@@ -315,44 +349,72 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
     }
   }
   first[num_bodies] = n;
-  for (const auto& [a, b] : robot_.self_pairs()) {
-    if (b >= num_bodies) continue;
-    if (const PairDistanceTable* table = robot_.pair_table(a, b)) {
-      // No padding here: the padding covers travel in the workspace, and these two bodies
-      // barely move relative to each other between checked states (wrist_1 and wrist_2
-      // turn little there; MotionChecker spaces states by each joint's reach).
-      const float d = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
-      if (d <= 0.f) {
-        hit(a, 0, BodyName(b), d);
-        if constexpr (!kExplain) return false;
-      }
-      continue;
+  const auto& pairs = robot_.self_pairs();
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    if (pairs[p].second >= num_bodies) continue;
+    float clearance = 0.f;
+    if (SelfPairMayTouch(p, q_rad, Xf, trees, centres, first, padding_m, &clearance)) {
+      hit(pairs[p].first, 0, BodyName(pairs[p].second), clearance);
+      if constexpr (!kExplain) return false;
     }
-    for (int i = first[a]; i < first[a + 1]; ++i) {
-      const Sphere& si = trees[a]->coarse[i - first[a]];
-      for (int j = first[b]; j < first[b + 1]; ++j) {
-        const Sphere& sj = trees[b]->coarse[j - first[b]];
-        const float r = si.radius_m + sj.radius_m + 2.f * padding_m;
-        if ((centres[i] - centres[j]).squaredNorm() >= r * r) continue;
-        // The coarse spheres touch: compare their leaves.
-        const Leaves li = LeavesOf(*trees[a], si), lj = LeavesOf(*trees[b], sj);
-        for (const Sphere* x = li.begin; x != li.end; ++x) {
-          const Eigen::Vector3f cx = Xf[a] * x->center_B;
-          for (const Sphere* y = lj.begin; y != lj.end; ++y) {
-            const float ry = x->radius_m + y->radius_m + 2.f * padding_m;
-            const float d2 = (cx - Xf[b] * y->center_B).squaredNorm();
-            if (d2 < ry * ry) {
-              hit(a, 0, BodyName(b), std::sqrt(d2) - ry);
-              if constexpr (!kExplain) return false;
-              goto next_pair;
-            }
+  }
+  return free;
+}
+
+Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
+                            const CarriedItem* carried) const {
+  const int num_bodies = carried ? kNumBodies : kNumArmBodies;
+  const int num = num_obstacles();
+  Proximity near;
+  std::array<Eigen::Isometry3f, kNumBodies> Xf;
+  std::array<const SphereTree*, kNumBodies> trees{};
+  constexpr int kMaxCoarse = 256;
+  Eigen::Vector3f centres[kMaxCoarse];
+  int first[kNumBodies + 1] = {0};
+  int n = 0;
+  for (int b = 0; b < num_bodies; ++b) {
+    first[b] = n;
+    trees[b] = b == kBodyItem ? &carried->spheres_Item : &robot_.spheres(b);
+    Xf[b] = X[b].cast<float>();
+    for (const Sphere& s : trees[b]->coarse) {
+      if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
+      const Eigen::Vector3f c = Xf[b] * s.center_B;
+      centres[n++] = c;
+      if (b == kBodyBase) continue;
+      // Each obstacle on its own: a coarse sphere clear of it, or else every leaf.
+      for (int o = 0; o < num; ++o) {
+        const std::uint32_t bit = 1u << o;
+        if (near.near_obstacles[b] & bit) continue;
+        int which = 0;
+        if (Margin(c, s.radius_m, false, bit, &which) >= 0.f) continue;
+        const Leaves leaves = LeavesOf(*trees[b], s);
+        for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
+          if (Margin(Xf[b] * leaf->center_B, leaf->radius_m, true, bit, &which) < 0.f) {
+            near.near_obstacles[b] |= bit;
+            break;
           }
         }
       }
     }
-  next_pair:;
   }
-  return free;
+  first[num_bodies] = n;
+  const auto& pairs = robot_.self_pairs();
+  near.near_self.assign(pairs.size(), 0);
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    if (pairs[p].second >= num_bodies) continue;
+    float clearance = 0.f;
+    near.near_self[p] = SelfPairMayTouch(p, q_rad, Xf, trees, centres, first, 0.f, &clearance);
+  }
+  return near;
+}
+
+std::string FastChecker::ObstacleName(int obstacle) const {
+  if (obstacle == kObstacleFloor) return "floor";
+  if (obstacle == kObstaclePedestal) return "pedestal";
+  const auto& grids = cell_.grids();
+  const int g = obstacle - kObstacleFirstMesh;
+  if (g >= 0 && g < static_cast<int>(grids.size())) return grids[g].name;
+  return "scan";
 }
 
 template bool FastChecker::Run<true>(const JointVector&, const CarriedItem*, float,
@@ -366,89 +428,119 @@ template bool FastChecker::Run<false>(const JointVector&, const CarriedItem*, fl
 struct ExactChecker::Impl {
   const RobotGeometry& robot;
   const StaticCell& cell;
-  // One collision object per body, built once (FCL computes a mesh's local bounds when the
-  // object is made) and moved to each checked state.
-  std::array<std::unique_ptr<fcl::CollisionObjectd>, kNumBodies> bodies;
+  FastChecker spheres;  // the broad phase
+  bool sphere_broad_phase = true;
+  std::array<std::shared_ptr<fcl::CollisionGeometryd>, ur10::kNumLinks> links;
+  std::shared_ptr<fcl::CollisionGeometryd> tube;  // null without a tube
   Eigen::Isometry3d X_ToolTube = Eigen::Isometry3d::Identity();
-  Eigen::AlignedBox3d item_box;  // the box the item object was made for
-  std::unique_ptr<fcl::CollisionObjectd> octree;
+  std::shared_ptr<fcl::CollisionGeometryd> octree;
+  // The fast check's obstacle number of each of the cell's FCL objects; the scan's.
+  std::vector<int> cell_obstacle;
+  int scan_obstacle = 0;
 
-  Impl(const RobotGeometry& r, const StaticCell& c) : robot(r), cell(c) {}
+  Impl(const RobotGeometry& r, const StaticCell& c, const ScanObstacles* scan)
+      : robot(r), cell(c), spheres(r, c, scan) {}
 
-  static bool Collide(const fcl::CollisionObjectd* a, const fcl::CollisionObjectd* b) {
+  static bool Collide(const fcl::CollisionGeometryd* a, const Eigen::Isometry3d& X_BaseA,
+                      const fcl::CollisionGeometryd* b, const fcl::Transform3d& X_BaseB) {
     fcl::CollisionRequestd request;
     fcl::CollisionResultd result;
-    fcl::collide(a, b, request, result);
+    fcl::collide(a, X_BaseA, b, X_BaseB, request, result);
     return result.isCollision();
   }
 };
 
 ExactChecker::ExactChecker(const RobotGeometry& robot, const StaticCell& cell,
-                           const ScanObstacles* scan)
-    : impl_(std::make_unique<Impl>(robot, cell)) {
-  for (int i = 0; i < 7; ++i) {
-    impl_->bodies[i] = std::make_unique<fcl::CollisionObjectd>(MakeMeshBvh(robot.link_mesh(i)));
+                           const ScanObstacles* scan, bool sphere_broad_phase)
+    : impl_(std::make_unique<Impl>(robot, cell, scan)) {
+  Impl& m = *impl_;
+  m.sphere_broad_phase = sphere_broad_phase;
+  for (int i = 0; i < ur10::kNumLinks; ++i) {
+    m.links[i] = MakeMeshBvh(robot.link_mesh(i));
+    m.links[i]->computeLocalAABB();
   }
   if (robot.tube_length_m() > 1e-6) {
-    impl_->bodies[kBodyTool] = std::make_unique<fcl::CollisionObjectd>(
-        std::make_shared<fcl::Cylinderd>(robot.gripper().tube_radius_m, robot.tube_length_m()));
-    impl_->X_ToolTube = robot.X_ToolTube();
+    m.tube = std::make_shared<fcl::Cylinderd>(robot.gripper().tube_radius_m, robot.tube_length_m());
+    m.tube->computeLocalAABB();
+    m.X_ToolTube = robot.X_ToolTube();
   }
   if (scan && scan->octree) {
-    impl_->octree =
-        std::make_unique<fcl::CollisionObjectd>(std::make_shared<fcl::OcTreed>(scan->octree));
-    impl_->octree->computeAABB();
+    m.octree = std::make_shared<fcl::OcTreed>(scan->octree);
+    m.octree->computeLocalAABB();
   }
+  const auto& grids = cell.grids();
+  for (const auto& object : cell.fcl().objects) {
+    int obstacle = object.name == "floor" ? kObstacleFloor : kObstaclePedestal;
+    for (std::size_t g = 0; g < grids.size(); ++g) {
+      if (grids[g].name == object.name) obstacle = kObstacleFirstMesh + static_cast<int>(g);
+    }
+    m.cell_obstacle.push_back(obstacle);
+  }
+  m.scan_obstacle = kObstacleFirstMesh + static_cast<int>(grids.size());
 }
 
 ExactChecker::~ExactChecker() = default;
 
 CollisionReport ExactChecker::Check(const JointVector& q_rad, const CarriedItem* carried) const {
   if (!q_rad.allFinite()) throw std::invalid_argument("ExactChecker: non-finite joints");
-  Impl& m = *impl_;
+  const Impl& m = *impl_;
   BodyPoses X;
   m.robot.ComputePoses(q_rad, carried, &X);
-  std::array<fcl::CollisionObjectd*, kNumBodies> bodies{};
-  for (int i = 0; i < 7; ++i) {
-    m.bodies[i]->setTransform(X[i]);
-    m.bodies[i]->computeAABB();
-    bodies[i] = m.bodies[i].get();
+  const int num_bodies = carried ? kNumBodies : kNumArmBodies;
+  // Each body's geometry and its pose in base.
+  std::array<const fcl::CollisionGeometryd*, kNumBodies> geometry{};
+  std::array<Eigen::Isometry3d, kNumBodies> X_BaseGeometry;
+  for (int i = 0; i < ur10::kNumLinks; ++i)
+    geometry[i] = m.links[i].get(), X_BaseGeometry[i] = X[i];
+  if (m.tube) {
+    geometry[kBodyTool] = m.tube.get();
+    X_BaseGeometry[kBodyTool] = X[kBodyTool] * m.X_ToolTube;
   }
-  if (m.bodies[kBodyTool]) {
-    m.bodies[kBodyTool]->setTransform(X[kBodyTool] * m.X_ToolTube);
-    m.bodies[kBodyTool]->computeAABB();
-    bodies[kBodyTool] = m.bodies[kBodyTool].get();
-  }
+  std::shared_ptr<fcl::Boxd> item_box;
   if (carried) {
-    if (!m.bodies[kBodyItem] || !m.item_box.isApprox(carried->box_Item)) {
-      m.bodies[kBodyItem] = std::make_unique<fcl::CollisionObjectd>(
-          std::make_shared<fcl::Boxd>(carried->box_Item.sizes()));
-      m.item_box = carried->box_Item;
-    }
-    m.bodies[kBodyItem]->setTransform(X[kBodyItem] *
-                                      Eigen::Translation3d(carried->box_Item.center()));
-    m.bodies[kBodyItem]->computeAABB();
-    bodies[kBodyItem] = m.bodies[kBodyItem].get();
+    item_box = std::make_shared<fcl::Boxd>(carried->box_Item.sizes());
+    item_box->computeLocalAABB();
+    geometry[kBodyItem] = item_box.get();
+    X_BaseGeometry[kBodyItem] = X[kBodyItem] * Eigen::Translation3d(carried->box_Item.center());
+  }
+  Proximity near;
+  if (m.sphere_broad_phase) {
+    near = m.spheres.Near(q_rad, X, carried);
+  } else {
+    near.near_obstacles.fill(~0u);
+    near.near_self.assign(m.robot.self_pairs().size(), 1);
   }
   CollisionReport report;
-  const int num_bodies = carried ? kNumBodies : kNumArmBodies;
   auto hit = [&](int body, const std::string& obstacle) {
     report.in_collision = true;
     report.body = body;
     report.obstacle = obstacle;
     return report;
   };
+  const auto& objects = m.cell.fcl().objects;
   // From the gripper end back: the bodies that move most are the likeliest to hit.
   for (int b = num_bodies - 1; b >= 1; --b) {
-    if (!bodies[b]) continue;
-    for (const auto& object : m.cell.fcl().objects) {
-      if (Impl::Collide(bodies[b], object.object.get())) return hit(b, object.name);
+    if (!geometry[b]) continue;
+    for (std::size_t k = 0; k < objects.size(); ++k) {
+      if (!(near.near_obstacles[b] & (1u << m.cell_obstacle[k]))) continue;
+      if (Impl::Collide(geometry[b], X_BaseGeometry[b], objects[k].geometry.get(),
+                        objects[k].X_BaseObject)) {
+        return hit(b, objects[k].name);
+      }
     }
-    if (m.octree && Impl::Collide(bodies[b], m.octree.get())) return hit(b, "scan");
+    if (m.octree && (near.near_obstacles[b] & (1u << m.scan_obstacle)) &&
+        Impl::Collide(geometry[b], X_BaseGeometry[b], m.octree.get(),
+                      fcl::Transform3d::Identity())) {
+      return hit(b, "scan");
+    }
   }
-  for (const auto& [a, b] : m.robot.self_pairs()) {
-    if (b >= num_bodies || !bodies[a] || !bodies[b]) continue;
-    if (Impl::Collide(bodies[a], bodies[b])) return hit(a, std::string("self: ") + BodyName(b));
+  const auto& pairs = m.robot.self_pairs();
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    const auto [a, b] = pairs[p];
+    if (b >= num_bodies || !geometry[a] || !geometry[b] || !near.near_self[p]) continue;
+    if (Impl::Collide(geometry[a], X_BaseGeometry[a], geometry[b], X_BaseGeometry[b])) {
+      return hit(a, std::string("self: ") + BodyName(b));
+    }
   }
   return report;
 }

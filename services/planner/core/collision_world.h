@@ -3,6 +3,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <array>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -87,6 +89,21 @@ struct CollisionReport {
   std::string ToString() const;
 };
 
+/// Obstacles of the fast check, in the order of its bit masks: the floor, the pedestal, the
+/// static cell's meshes (StaticCell::grids() order), the scan.
+inline constexpr int kObstacleFloor = 0;
+inline constexpr int kObstaclePedestal = 1;
+inline constexpr int kObstacleFirstMesh = 2;
+
+/// What the enclosing spheres cannot rule out at one state: for each body, the obstacles it
+/// may touch (bit o of `near_obstacles[body]`, obstacles numbered as above, the scan
+/// last), and for each of the robot's self pairs whether the two bodies may touch. Whatever
+/// is not flagged is clear for the exact meshes too (the spheres enclose them).
+struct Proximity {
+  std::array<std::uint32_t, kNumBodies> near_obstacles{};
+  std::vector<char> near_self;  ///< One per RobotGeometry::self_pairs() entry.
+};
+
 /// The fast, conservative check of the search: the bodies' enclosing spheres against the
 /// static cell's and the scan's distance grids, the floor and pedestal, and each other. Never
 /// calls free a state that the exact check (FCL on the meshes) calls colliding; it may call
@@ -104,6 +121,14 @@ class FastChecker final {
   /// As IsFree, saying what hits what (slower).
   CollisionReport Check(const JointVector& q_rad, const CarriedItem* carried = nullptr,
                         float padding_m = 0.f) const;
+  /// Every body-obstacle and self pair the spheres cannot prove clear at body poses `X`
+  /// (from RobotGeometry::ComputePoses with the same `carried` and joints `q_rad`): the
+  /// broad phase of the exact check.
+  Proximity Near(const JointVector& q_rad, const BodyPoses& X, const CarriedItem* carried) const;
+  /// Number of obstacles: floor, pedestal, the static meshes, the scan (last, if any).
+  int num_obstacles() const;
+  /// "floor", "pedestal", a static mesh's name or "scan".
+  std::string ObstacleName(int obstacle) const;
 
   const RobotGeometry& robot() const { return robot_; }
 
@@ -111,6 +136,17 @@ class FastChecker final {
   template <bool kExplain>
   bool Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
            CollisionReport* report) const;
+  /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
+  /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell.
+  float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which) const;
+  /// Whether self pair `pair` (an index of robot().self_pairs()) may touch; `centres` are
+  /// the coarse spheres' centres in base, body b's from `first[b]` on. Fills `clearance`
+  /// (negative) when it may.
+  bool SelfPairMayTouch(std::size_t pair, const JointVector& q_rad,
+                        const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
+                        const std::array<const SphereTree*, kNumBodies>& trees,
+                        const Eigen::Vector3f* centres, const int* first, float padding_m,
+                        float* clearance) const;
 
   const RobotGeometry& robot_;
   const StaticCell& cell_;
@@ -120,11 +156,15 @@ class FastChecker final {
 /// The exact check that validates every returned trajectory: FCL on the link meshes, the
 /// gripper tube (a cylinder) and the carried item (its box) against the cell's meshes, the
 /// floor (a half space), the pedestal (a box), the scan's OctoMap (fcl::OcTree) and each
-/// other (the same body pairs as the fast check). Not thread-safe: it moves one FCL object
-/// per body to each checked state (make one per thread).
+/// other (the same body pairs as the fast check). Thread-safe (const): FCL is asked with
+/// each body's geometry and pose, no shared objects are moved.
 class ExactChecker final {
  public:
-  ExactChecker(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan);
+  /// `sphere_broad_phase`: skip the FCL queries of the body-obstacle and self pairs whose
+  /// enclosing spheres prove them clear (the same answer, see FastChecker::Near); false runs
+  /// FCL on every pair (for the differential tests).
+  ExactChecker(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan,
+               bool sphere_broad_phase = true);
   ~ExactChecker();
 
   CollisionReport Check(const JointVector& q_rad, const CarriedItem* carried = nullptr) const;

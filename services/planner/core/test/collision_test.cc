@@ -145,7 +145,8 @@ std::vector<JointVector> NearContactSamples(const ur10::Ur10Kinematics& kinemati
 
 TEST_F(CollisionTest, FastCheckIsNeverFreeWhereFclCollides) {
   const FastChecker fast(*robot_, *cell_, scan_->get());
-  const ExactChecker exact(*robot_, *cell_, scan_->get());
+  // FCL on every pair: the spheres must not judge themselves.
+  const ExactChecker exact(*robot_, *cell_, scan_->get(), /*sphere_broad_phase=*/false);
   std::mt19937 rng(20161);
   const JointVector lo = kinematics_->model().min_position_rad();
   const JointVector hi = kinematics_->model().max_position_rad();
@@ -200,6 +201,96 @@ TEST_F(CollisionTest, FastCheckIsNeverFreeWhereFclCollides) {
   // Most false alarms are the forearm against the wrist housings, which stay within a
   // centimetre or two of each other over much of the joint space (benchmarks/RESULTS.md).
   EXPECT_LT(false_alarms, static_cast<int>(0.65 * (states.size() - exact_hits)));
+}
+
+// The exact check's broad phase only skips FCL queries that the enclosing spheres prove
+// clear: with and without it, FCL gives the same answer on random, near-contact and carrying
+// states, and the broad phase leaves most of the queries out.
+TEST_F(CollisionTest, SphereBroadPhaseGivesFclsAnswer) {
+  const ExactChecker culled(*robot_, *cell_, scan_->get());
+  const ExactChecker full(*robot_, *cell_, scan_->get(), /*sphere_broad_phase=*/false);
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  std::mt19937 rng(2016);
+  const JointVector lo = kinematics_->model().min_position_rad();
+  const JointVector hi = kinematics_->model().max_position_rad();
+  std::vector<JointVector> states;
+  for (int i = 0; i < 2000; ++i) {
+    JointVector q;
+    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+    states.push_back(q);
+  }
+  const auto near = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 6000, rng);
+  states.insert(states.end(), near.begin(), near.end());
+  const CarriedItem item = MakeCarriedItem(
+      "box",
+      Eigen::AlignedBox3d(Eigen::Vector3d(-0.1, -0.06, 0.0), Eigen::Vector3d(0.1, 0.06, 0.08)),
+      Eigen::Isometry3d::Identity());
+  int collisions = 0, mismatches = 0;
+  std::size_t pairs_total = 0, pairs_near = 0;
+  for (std::size_t i = 0; i < states.size(); ++i) {
+    const CarriedItem* carried = (i % 3 == 2) ? &item : nullptr;
+    const CollisionReport a = culled.Check(states[i], carried);
+    const CollisionReport b = full.Check(states[i], carried);
+    collisions += b.in_collision;
+    if (a.in_collision != b.in_collision) {
+      ++mismatches;
+      ADD_FAILURE() << "broad phase: " << (a.in_collision ? a.ToString() : "free")
+                    << ", FCL on every pair: " << (b.in_collision ? b.ToString() : "free") << " at "
+                    << states[i].transpose();
+      if (mismatches > 5) break;
+    }
+    BodyPoses X;
+    robot_->ComputePoses(states[i], carried, &X);
+    const Proximity p = fast.Near(states[i], X, carried);
+    const int bodies = carried ? kNumBodies : kNumArmBodies;
+    for (int body = 1; body < bodies; ++body) {
+      pairs_total += fast.num_obstacles();
+      pairs_near += __builtin_popcount(p.near_obstacles[body]);
+    }
+  }
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_GT(collisions, 1000);
+  EXPECT_LT(collisions, 7000);
+  std::printf("states %zu, collisions %d; body-obstacle pairs left to FCL: %.1f%%\n", states.size(),
+              collisions, 100.0 * pairs_near / pairs_total);
+  EXPECT_LT(pairs_near, pairs_total / 4);
+}
+
+// A state whose spheres touch nothing flags nothing; a state with the tool in a shelf wall
+// flags the gripper and the shelf.
+TEST_F(CollisionTest, ProximityFlagsOnlyWhatTheSpheresTouch) {
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  JointVector home;
+  home << 3.14159, -2.0, 2.0, -1.5708, -1.5708, 0.0;
+  BodyPoses X;
+  robot_->ComputePoses(home, nullptr, &X);
+  ASSERT_TRUE(fast.IsFree(home));
+  const Proximity clear = fast.Near(home, X, nullptr);
+  for (int b = 0; b < kNumBodies; ++b) EXPECT_EQ(clear.near_obstacles[b], 0u) << BodyName(b);
+  // The tcp in the middle of the shelf's divider between bin_D and bin_E.
+  const auto& d = cell_model_->bin("bin_D");
+  const auto& e = cell_model_->bin("bin_E");
+  const Eigen::Vector3d p_S(d.inner_S.max().x() - 0.1,
+                            0.5 * (d.inner_S.max().y() + e.inner_S.min().y()),
+                            d.inner_S.center().z());
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+  const Eigen::Vector3d z = cell_model_->config.X_BaseShelf.linear() * -Eigen::Vector3d::UnitX();
+  const Eigen::Vector3d x = Eigen::Vector3d::UnitZ().cross(z).normalized();
+  X_BaseTcp.linear() << x, z.cross(x), z;
+  X_BaseTcp.translation() = cell_model_->config.X_BaseShelf * p_S;
+  const auto ik =
+      kinematics_->NearestSolution(X_BaseTcp * robot_->gripper().X_ToolTcp.inverse(), home);
+  ASSERT_TRUE(ik.has_value());
+  robot_->ComputePoses(ik->q_rad, nullptr, &X);
+  const Proximity hit = fast.Near(ik->q_rad, X, nullptr);
+  int shelf = -1;
+  for (std::size_t g = 0; g < cell_->grids().size(); ++g) {
+    if (cell_->grids()[g].name == "shelf") shelf = kObstacleFirstMesh + static_cast<int>(g);
+  }
+  ASSERT_GE(shelf, 0);
+  EXPECT_TRUE(hit.near_obstacles[kBodyTool] & (1u << shelf));
+  const ExactChecker exact(*robot_, *cell_, scan_->get());
+  EXPECT_TRUE(exact.Check(ik->q_rad).in_collision);
 }
 
 }  // namespace
