@@ -430,9 +430,6 @@ struct ExactChecker::Impl {
   const StaticCell& cell;
   FastChecker spheres;  // the broad phase
   bool sphere_broad_phase = true;
-  std::array<std::shared_ptr<fcl::CollisionGeometryd>, ur10::kNumLinks> links;
-  std::shared_ptr<fcl::CollisionGeometryd> tube;  // null without a tube
-  Eigen::Isometry3d X_ToolTube = Eigen::Isometry3d::Identity();
   std::shared_ptr<fcl::CollisionGeometryd> octree;
   // The fast check's obstacle number of each of the cell's FCL objects; the scan's.
   std::vector<int> cell_obstacle;
@@ -455,15 +452,6 @@ ExactChecker::ExactChecker(const RobotGeometry& robot, const StaticCell& cell,
     : impl_(std::make_unique<Impl>(robot, cell, scan)) {
   Impl& m = *impl_;
   m.sphere_broad_phase = sphere_broad_phase;
-  for (int i = 0; i < ur10::kNumLinks; ++i) {
-    m.links[i] = MakeMeshBvh(robot.link_mesh(i));
-    m.links[i]->computeLocalAABB();
-  }
-  if (robot.tube_length_m() > 1e-6) {
-    m.tube = std::make_shared<fcl::Cylinderd>(robot.gripper().tube_radius_m, robot.tube_length_m());
-    m.tube->computeLocalAABB();
-    m.X_ToolTube = robot.X_ToolTube();
-  }
   if (scan && scan->octree) {
     m.octree = std::make_shared<fcl::OcTreed>(scan->octree);
     m.octree->computeLocalAABB();
@@ -490,11 +478,9 @@ CollisionReport ExactChecker::Check(const JointVector& q_rad, const CarriedItem*
   // Each body's geometry and its pose in base.
   std::array<const fcl::CollisionGeometryd*, kNumBodies> geometry{};
   std::array<Eigen::Isometry3d, kNumBodies> X_BaseGeometry;
-  for (int i = 0; i < ur10::kNumLinks; ++i)
-    geometry[i] = m.links[i].get(), X_BaseGeometry[i] = X[i];
-  if (m.tube) {
-    geometry[kBodyTool] = m.tube.get();
-    X_BaseGeometry[kBodyTool] = X[kBodyTool] * m.X_ToolTube;
+  for (int i = 0; i < kNumArmBodies; ++i) {
+    geometry[i] = m.robot.fcl_geometry(i).get();
+    X_BaseGeometry[i] = i == kBodyTool ? X[i] * m.robot.X_ToolTube() : X[i];
   }
   std::shared_ptr<fcl::Boxd> item_box;
   if (carried) {

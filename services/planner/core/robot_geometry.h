@@ -142,6 +142,11 @@ class RobotGeometry final {
   double tube_length_m() const { return tube_length_m_; }
   /// Pose of the tube's centre (cylinder axis along z) in the flange frame.
   const Eigen::Isometry3d& X_ToolTube() const { return X_ToolTube_; }
+  /// FCL geometry of body 0..7 (the links' meshes as BVHs in their link frames; the tube as
+  /// a cylinder in X_ToolTube(), null without a tube), shared by every exact check.
+  const std::shared_ptr<fcl::CollisionGeometry<double>>& fcl_geometry(int body) const {
+    return fcl_geometry_[body];
+  }
   /// Spheres of bodies 0..7 in their body frames.
   const SphereTree& spheres(int body) const { return spheres_[body]; }
   std::size_t num_arm_spheres() const;
@@ -178,6 +183,7 @@ class RobotGeometry final {
   std::array<SphereTree, kNumArmBodies> spheres_;
   double tube_length_m_ = 0.0;
   Eigen::Isometry3d X_ToolTube_ = Eigen::Isometry3d::Identity();
+  std::array<std::shared_ptr<fcl::CollisionGeometry<double>>, kNumArmBodies> fcl_geometry_;
   std::vector<std::pair<int, int>> self_pairs_;
   std::vector<PairDistanceTable> pair_tables_;
 };

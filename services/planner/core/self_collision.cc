@@ -77,14 +77,17 @@ void RobotGeometry::BuildPairTables(
 }
 
 void RobotGeometry::ChooseSelfPairs() {
-  std::array<std::shared_ptr<fcl::CollisionGeometryd>, kNumArmBodies> geometry;
+  // Built once here, shared by every exact check (a BVH takes milliseconds to build).
+  auto& geometry = fcl_geometry_;
   std::array<Eigen::Isometry3d, kNumArmBodies> X_BodyGeometry;
   for (int i = 0; i < 7; ++i) {
     geometry[i] = MakeMeshBvh(link_meshes_[i]);
+    geometry[i]->computeLocalAABB();
     X_BodyGeometry[i] = Eigen::Isometry3d::Identity();
   }
   if (tube_length_m_ > 1e-6) {
     geometry[kBodyTool] = std::make_shared<fcl::Cylinderd>(gripper_.tube_radius_m, tube_length_m_);
+    geometry[kBodyTool]->computeLocalAABB();
     X_BodyGeometry[kBodyTool] = X_ToolTube_;
   }
   std::vector<std::pair<int, int>> candidates;
