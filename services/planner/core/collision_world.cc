@@ -205,15 +205,20 @@ FastChecker::FastChecker(const RobotGeometry& robot, const StaticCell& cell,
 
 bool FastChecker::IsFree(const JointVector& q_rad, const CarriedItem* carried,
                          float padding_m) const {
-  return Run<false>(q_rad, carried, padding_m, nullptr);
+  return Run<RunMode::kIsFree>(q_rad, carried, padding_m, 0.f, nullptr) >= 0.f;
 }
 
 CollisionReport FastChecker::Check(const JointVector& q_rad, const CarriedItem* carried,
                                    float padding_m) const {
   CollisionReport report;
   report.clearance_m = 1e3;
-  Run<true>(q_rad, carried, padding_m, &report);
+  Run<RunMode::kExplain>(q_rad, carried, padding_m, 0.f, &report);
   return report;
+}
+
+float FastChecker::Slack(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
+                         float cap_m) const {
+  return Run<RunMode::kSlack>(q_rad, carried, padding_m, std::max(0.f, cap_m), nullptr);
 }
 
 namespace {
@@ -262,53 +267,62 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
   return worst;
 }
 
-bool FastChecker::SelfPairMayTouch(std::size_t pair, const JointVector& q_rad,
-                                   const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
-                                   const std::array<const SphereTree*, kNumBodies>& trees,
-                                   const Eigen::Vector3f* centres, const int* first,
-                                   float padding_m, float* clearance) const {
+float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
+                                 const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
+                                 const std::array<const SphereTree*, kNumBodies>& trees,
+                                 const Eigen::Vector3f* centres, const int* first, float padding_m,
+                                 float cap_m) const {
   const auto [a, b] = robot_.self_pairs()[pair];
   if (const PairDistanceTable* table = robot_.pair_table(a, b)) {
     // No padding here: the padding covers travel in the workspace, and these two bodies
     // barely move relative to each other between checked states (wrist_1 and wrist_2
-    // turn little there; MotionChecker spaces states by each joint's reach).
-    *clearance = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
-    return *clearance <= 0.f;
+    // turn little there; MotionChecker also bounds the step by the table).
+    const float d = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
+    return d > 0.f ? cap_m : std::min(d, -std::numeric_limits<float>::denorm_min());
   }
+  float slack = cap_m;
   for (int i = first[a]; i < first[a + 1]; ++i) {
     const Sphere& si = trees[a]->coarse[i - first[a]];
     for (int j = first[b]; j < first[b + 1]; ++j) {
       const Sphere& sj = trees[b]->coarse[j - first[b]];
       const float r = si.radius_m + sj.radius_m + 2.f * padding_m;
-      if ((centres[i] - centres[j]).squaredNorm() >= r * r) continue;
+      const float reach = r + slack;
+      const float d2 = (centres[i] - centres[j]).squaredNorm();
+      if (d2 >= reach * reach) continue;
+      if (d2 >= r * r) {
+        slack = std::sqrt(d2) - r;
+        continue;
+      }
       // The coarse spheres touch: compare their leaves.
       const Leaves li = LeavesOf(*trees[a], si), lj = LeavesOf(*trees[b], sj);
       for (const Sphere* x = li.begin; x != li.end; ++x) {
         const Eigen::Vector3f cx = Xf[a] * x->center_B;
         for (const Sphere* y = lj.begin; y != lj.end; ++y) {
           const float ry = x->radius_m + y->radius_m + 2.f * padding_m;
-          const float d2 = (cx - Xf[b] * y->center_B).squaredNorm();
-          if (d2 < ry * ry) {
-            *clearance = std::sqrt(d2) - ry;
-            return true;
-          }
+          const float reach_y = ry + slack;
+          const float e2 = (cx - Xf[b] * y->center_B).squaredNorm();
+          if (e2 >= reach_y * reach_y) continue;
+          slack = std::sqrt(e2) - ry;
+          if (slack < 0.f) return slack;
         }
       }
     }
   }
-  return false;
+  return slack;
 }
 
-template <bool kExplain>
-bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
-                      CollisionReport* report) const {
+template <FastChecker::RunMode kMode>
+float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
+                       float cap_m, CollisionReport* report) const {
+  constexpr bool kExplain = kMode == RunMode::kExplain;
   BodyPoses X;
   robot_.ComputePoses(q_rad, carried, &X);
   const int num_bodies = carried ? kNumBodies : kNumArmBodies;
   const std::uint32_t all_obstacles = (1u << num_obstacles()) - 1u;
-  bool free = true;
+  // The smallest margin seen, capped; negative once something is hit.
+  float slack = cap_m;
   auto hit = [&](int body, int which, const char* self_body, float clearance) {
-    free = false;
+    slack = std::min(slack, clearance);
     if constexpr (kExplain) {
       if (!report->in_collision || clearance < report->clearance_m) {
         report->in_collision = true;
@@ -335,16 +349,23 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
       // The base is fixed to the pedestal; it is only checked against the moving bodies.
       if (b == kBodyBase) continue;
       int which = 0;
-      if (Margin(c, s.radius_m + padding_m, false, all_obstacles, &which) >= 0.f) continue;
+      const float m = Margin(c, s.radius_m + padding_m, false, all_obstacles, &which);
+      if (m >= slack) continue;
+      if (m >= 0.f) {
+        slack = m;
+        continue;
+      }
       const Leaves leaves = LeavesOf(*trees[b], s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-        const float m =
+        const float ml =
             Margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, true, all_obstacles, &which);
-        if (m < 0.f) {
-          hit(b, which, nullptr, m);
-          if constexpr (!kExplain) return false;
-          break;
+        if (ml >= 0.f) {
+          slack = std::min(slack, ml);
+          continue;
         }
+        hit(b, which, nullptr, ml);
+        if constexpr (!kExplain) return slack;
+        break;
       }
     }
   }
@@ -352,13 +373,17 @@ bool FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, floa
   const auto& pairs = robot_.self_pairs();
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     if (pairs[p].second >= num_bodies) continue;
-    float clearance = 0.f;
-    if (SelfPairMayTouch(p, q_rad, Xf, trees, centres, first, padding_m, &clearance)) {
-      hit(pairs[p].first, 0, BodyName(pairs[p].second), clearance);
-      if constexpr (!kExplain) return false;
+    // Two bodies close in on each other from both sides: half their distance each.
+    const float d =
+        SelfPairSlack(p, q_rad, Xf, trees, centres, first, padding_m, std::max(0.f, 2.f * slack));
+    if (d >= 0.f) {
+      slack = std::min(slack, 0.5f * d);
+      continue;
     }
+    hit(pairs[p].first, 0, BodyName(pairs[p].second), d);
+    if constexpr (!kExplain) return slack;
   }
-  return free;
+  return slack;
 }
 
 Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
@@ -402,8 +427,7 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
   near.near_self.assign(pairs.size(), 0);
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     if (pairs[p].second >= num_bodies) continue;
-    float clearance = 0.f;
-    near.near_self[p] = SelfPairMayTouch(p, q_rad, Xf, trees, centres, first, 0.f, &clearance);
+    near.near_self[p] = SelfPairSlack(p, q_rad, Xf, trees, centres, first, 0.f, 0.f) < 0.f;
   }
   return near;
 }
@@ -416,11 +440,6 @@ std::string FastChecker::ObstacleName(int obstacle) const {
   if (g >= 0 && g < static_cast<int>(grids.size())) return grids[g].name;
   return "scan";
 }
-
-template bool FastChecker::Run<true>(const JointVector&, const CarriedItem*, float,
-                                     CollisionReport*) const;
-template bool FastChecker::Run<false>(const JointVector&, const CarriedItem*, float,
-                                      CollisionReport*) const;
 
 // ---------------------------------------------------------------------------------------
 // Exact check

@@ -121,6 +121,12 @@ class FastChecker final {
   /// As IsFree, saying what hits what (slower).
   CollisionReport Check(const JointVector& q_rad, const CarriedItem* carried = nullptr,
                         float padding_m = 0.f) const;
+  /// How much farther than `padding_m` every point of the bodies at `q_rad` is from the
+  /// obstacles (and from the other bodies, half their distance), metres, capped at `cap_m`:
+  /// each point may move that far and stay clear by `padding_m`. Negative where IsFree with
+  /// the same padding is false. Self pairs with a distance table only say whether they touch.
+  float Slack(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
+              float cap_m) const;
   /// Every body-obstacle and self pair the spheres cannot prove clear at body poses `X`
   /// (from RobotGeometry::ComputePoses with the same `carried` and joints `q_rad`): the
   /// broad phase of the exact check.
@@ -133,20 +139,25 @@ class FastChecker final {
   const RobotGeometry& robot() const { return robot_; }
 
  private:
-  template <bool kExplain>
-  bool Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
-           CollisionReport* report) const;
+  enum class RunMode { kIsFree, kExplain, kSlack };
+  /// The check: the smallest margin of the spheres grown by `padding_m` (half of it between
+  /// two bodies), capped at `cap_m`, negative once something is hit (kIsFree and kSlack stop
+  /// there; kExplain goes on to report the worst hit).
+  template <RunMode kMode>
+  float Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m, float cap_m,
+            CollisionReport* report) const;
   /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
   /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell.
   float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which) const;
-  /// Whether self pair `pair` (an index of robot().self_pairs()) may touch; `centres` are
-  /// the coarse spheres' centres in base, body b's from `first[b]` on. Fills `clearance`
-  /// (negative) when it may.
-  bool SelfPairMayTouch(std::size_t pair, const JointVector& q_rad,
-                        const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
-                        const std::array<const SphereTree*, kNumBodies>& trees,
-                        const Eigen::Vector3f* centres, const int* first, float padding_m,
-                        float* clearance) const;
+  /// The distance of self pair `pair` (an index of robot().self_pairs()) beyond its spheres
+  /// grown by `padding_m` each, capped at `cap_m`; negative when they touch. `centres` are
+  /// the coarse spheres' centres in base, body b's from `first[b]` on. A pair with a distance
+  /// table answers `cap_m` or its negative bound.
+  float SelfPairSlack(std::size_t pair, const JointVector& q_rad,
+                      const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
+                      const std::array<const SphereTree*, kNumBodies>& trees,
+                      const Eigen::Vector3f* centres, const int* first, float padding_m,
+                      float cap_m) const;
 
   const RobotGeometry& robot_;
   const StaticCell& cell_;

@@ -11,6 +11,9 @@ MotionChecker::MotionChecker(const FastChecker& checker, const MotionCheckOption
   if (!(options_.max_travel_m > 0.0) || !std::isfinite(options_.max_travel_m)) {
     throw std::invalid_argument("MotionCheckOptions.max_travel_m must be finite and > 0");
   }
+  if (!(options_.max_step_m >= options_.max_travel_m) || !std::isfinite(options_.max_step_m)) {
+    throw std::invalid_argument("MotionCheckOptions.max_step_m must be finite and >= max_travel_m");
+  }
   // A point of a body downstream of joint j moves at most |dq_j| times its distance from
   // joint j's axis, which is at most the distance from joint j's origin to the point. Bound
   // it by the lengths of the chain after joint j, the gripper and the largest sphere.
@@ -56,33 +59,80 @@ int MotionChecker::StatesOnSegment(const JointVector& a_rad, const JointVector& 
 
 MotionCheckResult MotionChecker::CheckSegment(const JointVector& a_rad, const JointVector& b_rad,
                                               const CarriedItem* carried) const {
+  float slack = -1.f;
+  return Walk(a_rad, b_rad, carried, &slack);
+}
+
+MotionCheckResult MotionChecker::Walk(const JointVector& a_rad, const JointVector& b_rad,
+                                      const CarriedItem* carried, float* slack) const {
   if (!a_rad.allFinite() || !b_rad.allFinite()) {
     throw std::invalid_argument("MotionChecker: non-finite joints");
   }
-  const int states = StatesOnSegment(a_rad, b_rad, carried);
+  const JointVector delta = b_rad - a_rad;
+  // Upper bound of how far any body point travels over the whole segment.
+  double travel = 0.0;
+  for (int j = 0; j < 6; ++j) travel += std::abs(delta[j]) * reach_m(j, carried);
   const float padding = static_cast<float>(0.5 * options_.max_travel_m);
+  const float cap = static_cast<float>(options_.max_step_m - options_.max_travel_m);
+  // The fixed spacing, which the slack only ever widens.
+  const double min_ds = travel > 0.0 ? options_.max_travel_m / travel : 1.0;
   MotionCheckResult result;
-  for (int i = 0; i < states; ++i) {
-    const double t = states == 1 ? 1.0 : double(i) / (states - 1);
-    const JointVector q = a_rad + t * (b_rad - a_rad);
-    if (!checker_.IsFree(q, carried, padding)) {
+  double s = 0.0;
+  if (*slack < 0.f) {
+    *slack = checker_.Slack(a_rad, carried, padding, cap);
+    if (*slack < 0.f) {
       result.free = false;
-      result.fraction_free = states == 1 ? 0.0 : double(std::max(0, i - 1)) / (states - 1);
+      result.fraction_free = 0.0;
+      result.q_hit_rad = a_rad;
+      result.report = checker_.Check(a_rad, carried, padding);
+      return result;
+    }
+  }
+  while (s < 1.0) {
+    // From a state with slack c, each point may travel c + padding before it could leave
+    // the grown spheres of both this state and the next (whose slack is >= 0).
+    double ds = travel > 0.0 ? (*slack + options_.max_travel_m) / travel : 1.0;
+    ds = std::max(ds, min_ds);
+    if (ds > min_ds) ds = std::min(ds, TableStep(a_rad + s * delta, delta, min_ds));
+    const double s_next = std::min(1.0, s + ds);
+    const JointVector q = a_rad + s_next * delta;
+    *slack = checker_.Slack(q, carried, padding, cap);
+    if (*slack < 0.f) {
+      result.free = false;
+      result.fraction_free = s;
       result.q_hit_rad = q;
       result.report = checker_.Check(q, carried, padding);
       return result;
     }
+    s = s_next;
   }
   return result;
+}
+
+double MotionChecker::TableStep(const JointVector& q_rad, const JointVector& delta,
+                                double min_ds) const {
+  // A pair judged by a distance table may close in by its Lipschitz bounds per radian of its
+  // two joints: step no farther than its distance allows, or the fixed spacing.
+  double ds = 1.0;
+  for (const PairDistanceTable& table : checker_.robot().pair_tables()) {
+    const double rate = table.lipschitz_u_m * std::abs(delta[table.joint_u]) +
+                        table.lipschitz_v_m * std::abs(delta[table.joint_v]);
+    if (rate <= 0.0) continue;
+    const double d = table.LowerBound(q_rad[table.joint_u], q_rad[table.joint_v]);
+    ds = std::min(ds, std::max(min_ds, d / rate));
+  }
+  return ds;
 }
 
 MotionCheckResult MotionChecker::CheckPath(const std::vector<JointVector>& path_rad,
                                            const CarriedItem* carried) const {
   MotionCheckResult result;
   if (path_rad.empty()) return result;
-  if (path_rad.size() == 1) return CheckSegment(path_rad[0], path_rad[0], carried);
+  float slack = -1.f;
+  if (path_rad.size() == 1) return Walk(path_rad[0], path_rad[0], carried, &slack);
+  // Each segment starts where the last one ended: its state is checked once.
   for (std::size_t i = 0; i + 1 < path_rad.size(); ++i) {
-    MotionCheckResult segment = CheckSegment(path_rad[i], path_rad[i + 1], carried);
+    MotionCheckResult segment = Walk(path_rad[i], path_rad[i + 1], carried, &slack);
     if (!segment.free) {
       segment.fraction_free = (i + segment.fraction_free) / (path_rad.size() - 1);
       return segment;

@@ -13,6 +13,10 @@ struct MotionCheckOptions {
   /// states, metres. Each check grows the spheres by half of it, so the swept volume between
   /// the states is covered.
   double max_travel_m = 0.006;
+  /// Where the bodies are farther from everything, states are spaced by their clearance
+  /// (conservative advancement), up to this travel between two checked states, metres
+  /// (>= max_travel_m).
+  double max_step_m = 0.06;
 };
 
 /// Where a checked motion first collides.
@@ -24,10 +28,12 @@ struct MotionCheckResult {
   CollisionReport report;  ///< What hits what at q_hit_rad.
 };
 
-/// Checks straight joint-space motions continuously with the fast checker: states are spaced
-/// so that no point of the moving bodies travels more than `max_travel_m` between two of
-/// them (a bound from each joint's reach), and each state's spheres are grown by half that.
-/// Thread-safe (const).
+/// Checks straight joint-space motions continuously with the fast checker. Each checked
+/// state must be free with its spheres grown by half of `max_travel_m`; the next state lies
+/// as far on as the points of the moving bodies may travel (a bound from each joint's reach)
+/// without leaving the union of the two states' grown spheres: `max_travel_m` near contact,
+/// up to `max_step_m` where the state's slack (FastChecker::Slack) allows. Self pairs judged
+/// by a distance table also bound the step through their joints. Thread-safe (const).
 class MotionChecker final {
  public:
   MotionChecker(const FastChecker& checker, const MotionCheckOptions& options = {});
@@ -38,7 +44,7 @@ class MotionChecker final {
   /// Checks a path of straight segments.
   MotionCheckResult CheckPath(const std::vector<JointVector>& path_rad,
                               const CarriedItem* carried = nullptr) const;
-  /// Number of states CheckSegment would test (for budgets and benchmarks).
+  /// Number of states CheckSegment tests at most (every `max_travel_m`; for budgets).
   int StatesOnSegment(const JointVector& a_rad, const JointVector& b_rad,
                       const CarriedItem* carried) const;
 
@@ -47,6 +53,15 @@ class MotionChecker final {
   double reach_m(int joint, const CarriedItem* carried) const;
 
  private:
+  /// CheckSegment from a state whose slack is known (`*slack` >= 0; the state itself is not
+  /// checked again) or not (`*slack` < 0); leaves the end state's slack in `*slack`.
+  MotionCheckResult Walk(const JointVector& a_rad, const JointVector& b_rad,
+                         const CarriedItem* carried, float* slack) const;
+
+  /// The largest step (fraction of `delta`) from q_rad that the self pairs with a distance
+  /// table allow, and at least `min_ds`.
+  double TableStep(const JointVector& q_rad, const JointVector& delta, double min_ds) const;
+
   const FastChecker& checker_;
   MotionCheckOptions options_;
   JointVector reach_arm_m_ = JointVector::Zero();

@@ -5,6 +5,7 @@
 
 #include "libs/world/cell_config.h"
 #include "services/planner/core/collision_world.h"
+#include "services/planner/core/motion_check.h"
 #include "services/planner/core/scene.h"
 
 namespace picking::planner {
@@ -254,6 +255,88 @@ TEST_F(CollisionTest, SphereBroadPhaseGivesFclsAnswer) {
   std::printf("states %zu, collisions %d; body-obstacle pairs left to FCL: %.1f%%\n", states.size(),
               collisions, 100.0 * pairs_near / pairs_total);
   EXPECT_LT(pairs_near, pairs_total / 4);
+}
+
+// The slack is a lower bound: every state whose body points all lie within the slack of a
+// checked state's stays free with the same padding (self pairs with a distance table aside:
+// the motion check bounds their step through their joints), and its sign is IsFree's.
+TEST_F(CollisionTest, SlackIsHowFarEveryPointMayMove) {
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  const MotionChecker motion(fast);
+  std::mt19937 rng(7);
+  const auto states = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 3000, rng);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const float padding = 0.003f, cap = 0.05f;
+  int positive = 0, moved = 0;
+  for (const JointVector& q : states) {
+    const float slack = fast.Slack(q, nullptr, padding, cap);
+    ASSERT_EQ(slack >= 0.f, fast.IsFree(q, nullptr, padding)) << q.transpose();
+    EXPECT_LE(slack, cap);
+    if (slack <= 0.f) continue;
+    ++positive;
+    // A random joint direction scaled so that no point travels farther than the slack.
+    JointVector dq;
+    for (int j = 0; j < 6; ++j) dq[j] = gauss(rng);
+    double travel = 0.0;
+    for (int j = 0; j < 6; ++j) travel += std::abs(dq[j]) * motion.reach_m(j, nullptr);
+    const JointVector q2 = q + dq * (slack * u(rng) / travel);
+    const CollisionReport r = fast.Check(q2, nullptr, padding);
+    if (!r.in_collision) continue;
+    const bool table_pair = r.obstacle.rfind("self: ", 0) == 0 && [&] {
+      for (int b = 0; b < kNumBodies; ++b) {
+        if (r.obstacle == std::string("self: ") + BodyName(b)) {
+          return robot_->pair_table(std::min(r.body, b), std::max(r.body, b)) != nullptr;
+        }
+      }
+      return false;
+    }();
+    if (table_pair) continue;
+    ++moved;
+    ADD_FAILURE() << "moved within the slack (" << slack << " m) into " << r.ToString();
+    if (moved > 5) break;
+  }
+  EXPECT_GT(positive, 500);
+}
+
+// The motion check spaces its states by their slack; a motion it calls free is free for FCL
+// at every state sampled four times more densely than the fixed spacing (the broad-phase
+// exact check, which gives FCL's answers: SphereBroadPhaseGivesFclsAnswer).
+TEST_F(CollisionTest, MotionsCheckedByTheirSlackAreFreeForFcl) {
+  const FastChecker fast(*robot_, *cell_, scan_->get());
+  const MotionChecker motion(fast);
+  const ExactChecker exact(*robot_, *cell_, scan_->get());
+  std::mt19937 rng(11);
+  const auto near = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 3000, rng);
+  std::vector<JointVector> starts;
+  for (const JointVector& q : near) {
+    if (fast.IsFree(q, nullptr, 0.003f)) starts.push_back(q);
+  }
+  ASSERT_GT(starts.size(), 300u);
+  int free_motions = 0, blocked = 0, dense_states = 0;
+  for (std::size_t i = 0; i + 1 < starts.size() && i < 600; i += 2) {
+    // From a free state near the shelf toward another, a few centimetres to decimetres.
+    const JointVector a = starts[i];
+    const JointVector b = a + (starts[i + 1] - a) * (i % 4 == 0 ? 0.05 : 0.3);
+    const MotionCheckResult result = motion.CheckSegment(a, b);
+    if (!result.free) {
+      ++blocked;
+      continue;
+    }
+    ++free_motions;
+    const int n = 4 * motion.StatesOnSegment(a, b, nullptr);
+    for (int k = 0; k <= n; ++k) {
+      const JointVector q = a + (b - a) * (double(k) / n);
+      ++dense_states;
+      const CollisionReport r = exact.Check(q);
+      ASSERT_FALSE(r.in_collision)
+          << "a free motion hits at " << double(k) / n << ": " << r.ToString();
+    }
+  }
+  std::printf("motions: %d free (%d states checked by FCL), %d blocked\n", free_motions,
+              dense_states, blocked);
+  EXPECT_GT(free_motions, 60);
+  EXPECT_GT(blocked, 20);
 }
 
 // A state whose spheres touch nothing flags nothing; a state with the tool in a shelf wall
