@@ -69,57 +69,52 @@ MotionCheckResult MotionChecker::Walk(const JointVector& a_rad, const JointVecto
     throw std::invalid_argument("MotionChecker: non-finite joints");
   }
   const JointVector delta = b_rad - a_rad;
-  // Upper bound of how far any body point travels over the whole segment.
-  double travel = 0.0;
+  // The fixed grid: states at k / (states - 1), no point travelling more than max_travel_m
+  // between neighbours. Checked states are grid states, so the robot service, which checks
+  // every grid state with at most this padding, passes what is planned here.
+  const int states = StatesOnSegment(a_rad, b_rad, carried);
+  double travel = 0.0;  // upper bound of any body point's travel over the segment
   for (int j = 0; j < 6; ++j) travel += std::abs(delta[j]) * reach_m(j, carried);
   const float padding = static_cast<float>(0.5 * options_.max_travel_m);
-  const float cap = static_cast<float>(options_.max_step_m - options_.max_travel_m);
-  // The fixed spacing, which the slack only ever widens.
-  const double min_ds = travel > 0.0 ? options_.max_travel_m / travel : 1.0;
+  const float cap = static_cast<float>(options_.max_step_m);
   MotionCheckResult result;
-  double s = 0.0;
+  auto fail = [&](int k, const JointVector& q) {
+    result.free = false;
+    result.fraction_free = states == 1 ? 0.0 : double(std::max(0, k)) / (states - 1);
+    result.q_hit_rad = q;
+    result.report = checker_.Check(q, carried, padding);
+    return result;
+  };
   if (*slack < 0.f) {
     *slack = checker_.Slack(a_rad, carried, padding, cap);
-    if (*slack < 0.f) {
-      result.free = false;
-      result.fraction_free = 0.0;
-      result.q_hit_rad = a_rad;
-      result.report = checker_.Check(a_rad, carried, padding);
-      return result;
-    }
+    if (*slack < 0.f) return fail(0, a_rad);
   }
-  while (s < 1.0) {
-    // From a state with slack c, each point may travel c + padding before it could leave
-    // the grown spheres of both this state and the next (whose slack is >= 0).
-    double ds = travel > 0.0 ? (*slack + options_.max_travel_m) / travel : 1.0;
-    ds = std::max(ds, min_ds);
-    if (ds > min_ds) ds = std::min(ds, TableStep(a_rad + s * delta, delta, min_ds));
-    const double s_next = std::min(1.0, s + ds);
-    const JointVector q = a_rad + s_next * delta;
+  const double grid_ds = states > 1 ? 1.0 / (states - 1) : 1.0;
+  int k = 0;
+  while (k < states - 1) {
+    // Every point within the slack of this state stays clear by the padding: skip the grid
+    // states that close (the next grid state otherwise).
+    double ds = travel > 0.0 ? *slack / travel : 1.0;
+    if (ds >= 2.0 * grid_ds) ds = std::min(ds, TableStep(a_rad + (k * grid_ds) * delta, delta));
+    const int k_next = std::min(states - 1, k + std::max(1, static_cast<int>(ds / grid_ds)));
+    const JointVector q = a_rad + (k_next * grid_ds) * delta;
     *slack = checker_.Slack(q, carried, padding, cap);
-    if (*slack < 0.f) {
-      result.free = false;
-      result.fraction_free = s;
-      result.q_hit_rad = q;
-      result.report = checker_.Check(q, carried, padding);
-      return result;
-    }
-    s = s_next;
+    if (*slack < 0.f) return fail(k, q);
+    k = k_next;
   }
   return result;
 }
 
-double MotionChecker::TableStep(const JointVector& q_rad, const JointVector& delta,
-                                double min_ds) const {
+double MotionChecker::TableStep(const JointVector& q_rad, const JointVector& delta) const {
   // A pair judged by a distance table may close in by its Lipschitz bounds per radian of its
-  // two joints: step no farther than its distance allows, or the fixed spacing.
+  // two joints: step no farther than its distance allows.
   double ds = 1.0;
   for (const PairDistanceTable& table : checker_.robot().pair_tables()) {
     const double rate = table.lipschitz_u_m * std::abs(delta[table.joint_u]) +
                         table.lipschitz_v_m * std::abs(delta[table.joint_v]);
     if (rate <= 0.0) continue;
     const double d = table.LowerBound(q_rad[table.joint_u], q_rad[table.joint_v]);
-    ds = std::min(ds, std::max(min_ds, d / rate));
+    ds = std::min(ds, std::max(0.0, d / rate));
   }
   return ds;
 }

@@ -13,9 +13,8 @@ struct MotionCheckOptions {
   /// states, metres. Each check grows the spheres by half of it, so the swept volume between
   /// the states is covered.
   double max_travel_m = 0.006;
-  /// Where the bodies are farther from everything, states are spaced by their clearance
-  /// (conservative advancement), up to this travel between two checked states, metres
-  /// (>= max_travel_m).
+  /// Where the bodies are farther from everything, checked states are spaced by their slack
+  /// (conservative advancement), up to this travel, metres (>= max_travel_m).
   double max_step_m = 0.06;
 };
 
@@ -28,12 +27,13 @@ struct MotionCheckResult {
   CollisionReport report;  ///< What hits what at q_hit_rad.
 };
 
-/// Checks straight joint-space motions continuously with the fast checker. Each checked
-/// state must be free with its spheres grown by half of `max_travel_m`; the next state lies
-/// as far on as the points of the moving bodies may travel (a bound from each joint's reach)
-/// without leaving the union of the two states' grown spheres: `max_travel_m` near contact,
-/// up to `max_step_m` where the state's slack (FastChecker::Slack) allows. Self pairs judged
-/// by a distance table also bound the step through their joints. Thread-safe (const).
+/// Checks straight joint-space motions continuously with the fast checker, on a grid of
+/// states spaced so that no point of the moving bodies travels more than `max_travel_m`
+/// between two of them (a bound from each joint's reach). Each checked state must be free
+/// with its spheres grown by half of that; from a state whose slack (FastChecker::Slack) is
+/// s, the grid states within s of travel are clear by that padding and skipped (conservative
+/// advancement, up to `max_step_m`; self pairs judged by a distance table bound the skip
+/// through their joints), otherwise the next grid state is checked. Thread-safe (const).
 class MotionChecker final {
  public:
   MotionChecker(const FastChecker& checker, const MotionCheckOptions& options = {});
@@ -44,7 +44,7 @@ class MotionChecker final {
   /// Checks a path of straight segments.
   MotionCheckResult CheckPath(const std::vector<JointVector>& path_rad,
                               const CarriedItem* carried = nullptr) const;
-  /// Number of states CheckSegment tests at most (every `max_travel_m`; for budgets).
+  /// Number of grid states of the segment: the most CheckSegment tests (for budgets).
   int StatesOnSegment(const JointVector& a_rad, const JointVector& b_rad,
                       const CarriedItem* carried) const;
 
@@ -59,8 +59,8 @@ class MotionChecker final {
                          const CarriedItem* carried, float* slack) const;
 
   /// The largest step (fraction of `delta`) from q_rad that the self pairs with a distance
-  /// table allow, and at least `min_ds`.
-  double TableStep(const JointVector& q_rad, const JointVector& delta, double min_ds) const;
+  /// table allow.
+  double TableStep(const JointVector& q_rad, const JointVector& delta) const;
 
   const FastChecker& checker_;
   MotionCheckOptions options_;

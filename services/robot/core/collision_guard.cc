@@ -73,6 +73,7 @@ CollisionGuard::CollisionGuard(const ur10::Ur10Kinematics& kinematics, const wor
   fast_ = std::make_unique<planner::FastChecker>(*robot_, *cell_, nullptr);
   planner::MotionCheckOptions motion;
   motion.max_travel_m = options_.max_travel_m;
+  motion.max_step_m = std::max(motion.max_step_m, options_.max_travel_m);
   motion_ = std::make_unique<planner::MotionChecker>(*fast_, motion);
 }
 
