@@ -235,7 +235,7 @@ void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
         const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
         const ExactChecker fcl_only(s.planner->robot(), s.planner->cell(), scene.obstacles.get(),
                                     /*sphere_broad_phase=*/false);
-        for (const ExactChecker* checker : {&exact, getenv("NOPEER") ? &exact : &fcl_only}) {
+        for (const ExactChecker* checker : {&exact, &fcl_only}) {
           const auto v = Clock::now();
           for (const Trajectory* tr : {&plan.approach, &plan.descend, &plan.retreat}) {
             for (const auto& sample : tr->samples) {

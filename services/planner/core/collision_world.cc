@@ -236,6 +236,22 @@ Leaves LeavesOf(const SphereTree& tree, const Sphere& s) {
 
 }  // namespace
 
+FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot, const BodyPoses& X,
+                                        const CarriedItem* carried) {
+  num_bodies = carried ? kNumBodies : kNumArmBodies;
+  int n = 0;
+  for (int b = 0; b < num_bodies; ++b) {
+    first[b] = n;
+    trees[b] = b == kBodyItem ? &carried->spheres_Item : &robot.spheres(b);
+    Xf[b] = X[b].cast<float>();
+    for (const Sphere& s : trees[b]->coarse) {
+      if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
+      centres[n++] = Xf[b] * s.center_B;
+    }
+  }
+  first[num_bodies] = n;
+}
+
 int FastChecker::num_obstacles() const {
   return kObstacleFirstMesh + static_cast<int>(cell_.grids().size()) + (scan_ ? 1 : 0);
 }
@@ -268,10 +284,7 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
 }
 
 float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
-                                 const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
-                                 const std::array<const SphereTree*, kNumBodies>& trees,
-                                 const Eigen::Vector3f* centres, const int* first, float padding_m,
-                                 float cap_m) const {
+                                 const PosedSpheres& posed, float padding_m, float cap_m) const {
   const auto [a, b] = robot_.self_pairs()[pair];
   if (const PairDistanceTable* table = robot_.pair_table(a, b)) {
     // No padding here: the padding covers travel in the workspace, and these two bodies
@@ -280,6 +293,10 @@ float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
     const float d = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
     return d > 0.f ? cap_m : std::min(d, -std::numeric_limits<float>::denorm_min());
   }
+  const auto& Xf = posed.Xf;
+  const auto& trees = posed.trees;
+  const auto& centres = posed.centres;
+  const auto& first = posed.first;
   float slack = cap_m;
   for (int i = first[a]; i < first[a + 1]; ++i) {
     const Sphere& si = trees[a]->coarse[i - first[a]];
@@ -332,22 +349,13 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
     }
   };
-  std::array<Eigen::Isometry3f, kNumBodies> Xf;
-  std::array<const SphereTree*, kNumBodies> trees{};
-  constexpr int kMaxCoarse = 256;
-  Eigen::Vector3f centres[kMaxCoarse];
-  int first[kNumBodies + 1] = {0};
-  int n = 0;
-  for (int b = 0; b < num_bodies; ++b) {
-    first[b] = n;
-    trees[b] = b == kBodyItem ? &carried->spheres_Item : &robot_.spheres(b);
-    Xf[b] = X[b].cast<float>();
-    for (const Sphere& s : trees[b]->coarse) {
-      if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
-      const Eigen::Vector3f c = Xf[b] * s.center_B;
-      centres[n++] = c;
-      // The base is fixed to the pedestal; it is only checked against the moving bodies.
-      if (b == kBodyBase) continue;
+  const PosedSpheres posed(robot_, X, carried);
+  for (int b = 1; b < num_bodies; ++b) {
+    // The base (body 0) is fixed to the pedestal; it is only checked against the moving bodies.
+    const SphereTree& tree = *posed.trees[b];
+    for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
+      const Sphere& s = tree.coarse[i];
+      const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
       int which = 0;
       const float m = Margin(c, s.radius_m + padding_m, false, all_obstacles, &which);
       if (m >= slack) continue;
@@ -355,10 +363,10 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
         slack = m;
         continue;
       }
-      const Leaves leaves = LeavesOf(*trees[b], s);
+      const Leaves leaves = LeavesOf(tree, s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-        const float ml =
-            Margin(Xf[b] * leaf->center_B, leaf->radius_m + padding_m, true, all_obstacles, &which);
+        const float ml = Margin(posed.Xf[b] * leaf->center_B, leaf->radius_m + padding_m, true,
+                                all_obstacles, &which);
         if (ml >= 0.f) {
           slack = std::min(slack, ml);
           continue;
@@ -369,13 +377,11 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
     }
   }
-  first[num_bodies] = n;
   const auto& pairs = robot_.self_pairs();
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     if (pairs[p].second >= num_bodies) continue;
     // Two bodies close in on each other from both sides: half their distance each.
-    const float d =
-        SelfPairSlack(p, q_rad, Xf, trees, centres, first, padding_m, std::max(0.f, 2.f * slack));
+    const float d = SelfPairSlack(p, q_rad, posed, padding_m, std::max(0.f, 2.f * slack));
     if (d >= 0.f) {
       slack = std::min(slack, 0.5f * d);
       continue;
@@ -391,30 +397,21 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
   const int num_bodies = carried ? kNumBodies : kNumArmBodies;
   const int num = num_obstacles();
   Proximity near;
-  std::array<Eigen::Isometry3f, kNumBodies> Xf;
-  std::array<const SphereTree*, kNumBodies> trees{};
-  constexpr int kMaxCoarse = 256;
-  Eigen::Vector3f centres[kMaxCoarse];
-  int first[kNumBodies + 1] = {0};
-  int n = 0;
-  for (int b = 0; b < num_bodies; ++b) {
-    first[b] = n;
-    trees[b] = b == kBodyItem ? &carried->spheres_Item : &robot_.spheres(b);
-    Xf[b] = X[b].cast<float>();
-    for (const Sphere& s : trees[b]->coarse) {
-      if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
-      const Eigen::Vector3f c = Xf[b] * s.center_B;
-      centres[n++] = c;
-      if (b == kBodyBase) continue;
+  const PosedSpheres posed(robot_, X, carried);
+  for (int b = 1; b < num_bodies; ++b) {
+    const SphereTree& tree = *posed.trees[b];
+    for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
+      const Sphere& s = tree.coarse[i];
+      const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
       // Each obstacle on its own: a coarse sphere clear of it, or else every leaf.
       for (int o = 0; o < num; ++o) {
         const std::uint32_t bit = 1u << o;
         if (near.near_obstacles[b] & bit) continue;
         int which = 0;
         if (Margin(c, s.radius_m, false, bit, &which) >= 0.f) continue;
-        const Leaves leaves = LeavesOf(*trees[b], s);
+        const Leaves leaves = LeavesOf(tree, s);
         for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-          if (Margin(Xf[b] * leaf->center_B, leaf->radius_m, true, bit, &which) < 0.f) {
+          if (Margin(posed.Xf[b] * leaf->center_B, leaf->radius_m, true, bit, &which) < 0.f) {
             near.near_obstacles[b] |= bit;
             break;
           }
@@ -422,12 +419,11 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
       }
     }
   }
-  first[num_bodies] = n;
   const auto& pairs = robot_.self_pairs();
   near.near_self.assign(pairs.size(), 0);
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     if (pairs[p].second >= num_bodies) continue;
-    near.near_self[p] = SelfPairSlack(p, q_rad, Xf, trees, centres, first, 0.f, 0.f) < 0.f;
+    near.near_self[p] = SelfPairSlack(p, q_rad, posed, 0.f, 0.f) < 0.f;
   }
   return near;
 }

@@ -149,15 +149,22 @@ class FastChecker final {
   /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
   /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell.
   float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which) const;
+  /// The bodies at one state: their poses in float, their sphere trees and their coarse
+  /// spheres' centres in base, body b's from `first[b]` on.
+  struct PosedSpheres {
+    static constexpr int kMaxCoarse = 256;
+    PosedSpheres(const RobotGeometry& robot, const BodyPoses& X, const CarriedItem* carried);
+    int num_bodies = 0;
+    std::array<Eigen::Isometry3f, kNumBodies> Xf;
+    std::array<const SphereTree*, kNumBodies> trees{};
+    std::array<Eigen::Vector3f, kMaxCoarse> centres;
+    std::array<int, kNumBodies + 1> first{};
+  };
   /// The distance of self pair `pair` (an index of robot().self_pairs()) beyond its spheres
-  /// grown by `padding_m` each, capped at `cap_m`; negative when they touch. `centres` are
-  /// the coarse spheres' centres in base, body b's from `first[b]` on. A pair with a distance
-  /// table answers `cap_m` or its negative bound.
-  float SelfPairSlack(std::size_t pair, const JointVector& q_rad,
-                      const std::array<Eigen::Isometry3f, kNumBodies>& Xf,
-                      const std::array<const SphereTree*, kNumBodies>& trees,
-                      const Eigen::Vector3f* centres, const int* first, float padding_m,
-                      float cap_m) const;
+  /// grown by `padding_m` each, capped at `cap_m`; negative when they touch. A pair with a
+  /// distance table answers `cap_m` or its negative bound.
+  float SelfPairSlack(std::size_t pair, const JointVector& q_rad, const PosedSpheres& posed,
+                      float padding_m, float cap_m) const;
 
   const RobotGeometry& robot_;
   const StaticCell& cell_;
