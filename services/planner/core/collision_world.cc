@@ -201,7 +201,11 @@ StaticCell::~StaticCell() = default;
 
 FastChecker::FastChecker(const RobotGeometry& robot, const StaticCell& cell,
                          const ScanObstacles* scan)
-    : robot_(robot), cell_(cell), scan_(scan) {}
+    : robot_(robot),
+      cell_(cell),
+      scan_(scan),
+      floor_z_m_(static_cast<float>(cell.floor_z_m())),
+      pedestal_Base_(cell.pedestal_Base().cast<float>()) {}
 
 bool FastChecker::IsFree(const JointVector& q_rad, const CarriedItem* carried,
                          float padding_m) const {
@@ -264,10 +268,10 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
     if (d < worst) worst = d, *which = obstacle;
   };
   if (mask & (1u << kObstacleFloor)) {
-    consider(kObstacleFloor, c.z() - static_cast<float>(cell_.floor_z_m()) - r);
+    consider(kObstacleFloor, c.z() - floor_z_m_ - r);
   }
-  if ((mask & (1u << kObstaclePedestal)) && !cell_.pedestal_Base().isEmpty()) {
-    consider(kObstaclePedestal, BoxDistance(cell_.pedestal_Base().cast<float>(), c) - r);
+  if ((mask & (1u << kObstaclePedestal)) && !pedestal_Base_.isEmpty()) {
+    consider(kObstaclePedestal, BoxDistance(pedestal_Base_, c) - r);
   }
   const auto& grids = cell_.grids();
   for (std::size_t g = 0; g < grids.size(); ++g) {

@@ -169,6 +169,9 @@ class FastChecker final {
   const RobotGeometry& robot_;
   const StaticCell& cell_;
   const ScanObstacles* scan_;
+  // The floor and pedestal in float, as the spheres are (read on every sphere).
+  float floor_z_m_ = 0.f;
+  Eigen::AlignedBox3f pedestal_Base_;
 };
 
 /// The exact check that validates every returned trajectory: FCL on the link meshes, the

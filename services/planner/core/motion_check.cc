@@ -38,7 +38,10 @@ MotionChecker::MotionChecker(const FastChecker& checker, const MotionCheckOption
   for (int j = 0; j < 6; ++j) reach_arm_m_[j] = lengths[j] + tool;
 }
 
-double MotionChecker::reach_m(int joint, const CarriedItem* carried) const {
+namespace {
+
+// How far the carried item's spheres reach beyond the tcp, metres (0 without an item).
+double ItemReach_m(const CarriedItem* carried) {
   double extra = 0.0;
   if (carried) {
     // The farthest corner of the item's spheres from the tcp.
@@ -47,14 +50,30 @@ double MotionChecker::reach_m(int joint, const CarriedItem* carried) const {
       extra = std::max(extra, c_Tcp.norm() + s.radius_m);
     }
   }
-  return reach_arm_m_[joint] + extra;
+  return extra;
+}
+
+}  // namespace
+
+double MotionChecker::reach_m(int joint, const CarriedItem* carried) const {
+  return reach_arm_m_[joint] + ItemReach_m(carried);
+}
+
+double MotionChecker::Travel_m(const JointVector& a_rad, const JointVector& b_rad,
+                               const CarriedItem* carried) const {
+  const double item = ItemReach_m(carried);
+  double travel = 0.0;
+  for (int j = 0; j < 6; ++j) travel += std::abs(b_rad[j] - a_rad[j]) * (reach_arm_m_[j] + item);
+  return travel;
 }
 
 int MotionChecker::StatesOnSegment(const JointVector& a_rad, const JointVector& b_rad,
                                    const CarriedItem* carried) const {
-  double travel = 0.0;
-  for (int j = 0; j < 6; ++j) travel += std::abs(b_rad[j] - a_rad[j]) * reach_m(j, carried);
-  return 1 + static_cast<int>(std::ceil(travel / options_.max_travel_m));
+  return GridStates(Travel_m(a_rad, b_rad, carried));
+}
+
+int MotionChecker::GridStates(double travel_m) const {
+  return 1 + static_cast<int>(std::ceil(travel_m / options_.max_travel_m));
 }
 
 MotionCheckResult MotionChecker::CheckSegment(const JointVector& a_rad, const JointVector& b_rad,
@@ -72,9 +91,8 @@ MotionCheckResult MotionChecker::Walk(const JointVector& a_rad, const JointVecto
   // The fixed grid: states at k / (states - 1), no point travelling more than max_travel_m
   // between neighbours. Checked states are grid states, so the robot service, which checks
   // every grid state with at most this padding, passes what is planned here.
-  const int states = StatesOnSegment(a_rad, b_rad, carried);
-  double travel = 0.0;  // upper bound of any body point's travel over the segment
-  for (int j = 0; j < 6; ++j) travel += std::abs(delta[j]) * reach_m(j, carried);
+  const double travel = Travel_m(a_rad, b_rad, carried);
+  const int states = GridStates(travel);
   const float padding = static_cast<float>(0.5 * options_.max_travel_m);
   const float cap = static_cast<float>(options_.max_step_m);
   MotionCheckResult result;

@@ -49,10 +49,15 @@ class MotionChecker final {
                       const CarriedItem* carried) const;
 
   const FastChecker& checker() const { return checker_; }
+  /// Upper bound of the distance any body point travels on the straight motion a -> b, metres.
+  double Travel_m(const JointVector& a_rad, const JointVector& b_rad,
+                  const CarriedItem* carried) const;
   /// Upper bound of the distance any body point travels per radian of joint j, metres.
   double reach_m(int joint, const CarriedItem* carried) const;
 
  private:
+  /// States of the fixed grid on a motion whose points travel at most `travel_m`.
+  int GridStates(double travel_m) const;
   /// CheckSegment from a state whose slack is known (`*slack` >= 0; the state itself is not
   /// checked again) or not (`*slack` < 0); leaves the end state's slack in `*slack`.
   MotionCheckResult Walk(const JointVector& a_rad, const JointVector& b_rad,

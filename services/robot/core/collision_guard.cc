@@ -103,11 +103,7 @@ int CollisionGuard::StatesOnPath(const std::vector<JointVector>& path_rad) const
 float CollisionGuard::SegmentPadding_m(const JointVector& a_rad, const JointVector& b_rad,
                                        int states) const {
   if (states < 2) return 0.f;
-  double travel_m = 0.0;
-  for (int j = 0; j < ur10::kNumJoints; ++j) {
-    travel_m += std::abs(b_rad[j] - a_rad[j]) * motion_->reach_m(j, nullptr);
-  }
-  return static_cast<float>(0.5 * travel_m / (states - 1));
+  return static_cast<float>(0.5 * motion_->Travel_m(a_rad, b_rad, nullptr) / (states - 1));
 }
 
 SafetyCheck CollisionGuard::CheckPath(const std::vector<JointVector>& path_rad) const {

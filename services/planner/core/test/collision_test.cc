@@ -144,19 +144,25 @@ std::vector<JointVector> NearContactSamples(const ur10::Ur10Kinematics& kinemati
   return out;
 }
 
+// Joint vectors drawn uniformly within the UR10's limits.
+std::vector<JointVector> RandomStates(const ur10::Ur10Model& model, int count, std::mt19937& rng) {
+  const JointVector lo = model.min_position_rad();
+  const JointVector hi = model.max_position_rad();
+  std::vector<JointVector> states;
+  for (int i = 0; i < count; ++i) {
+    JointVector q;
+    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+    states.push_back(q);
+  }
+  return states;
+}
+
 TEST_F(CollisionTest, FastCheckIsNeverFreeWhereFclCollides) {
   const FastChecker fast(*robot_, *cell_, scan_->get());
   // FCL on every pair: the spheres must not judge themselves.
   const ExactChecker exact(*robot_, *cell_, scan_->get(), /*sphere_broad_phase=*/false);
   std::mt19937 rng(20161);
-  const JointVector lo = kinematics_->model().min_position_rad();
-  const JointVector hi = kinematics_->model().max_position_rad();
-  std::vector<JointVector> states;
-  for (int i = 0; i < 40000; ++i) {
-    JointVector q;
-    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
-    states.push_back(q);
-  }
+  std::vector<JointVector> states = RandomStates(kinematics_->model(), 40000, rng);
   const auto near = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 60000, rng);
   states.insert(states.end(), near.begin(), near.end());
   const CarriedItem item = MakeCarriedItem(
@@ -212,14 +218,7 @@ TEST_F(CollisionTest, SphereBroadPhaseGivesFclsAnswer) {
   const ExactChecker full(*robot_, *cell_, scan_->get(), /*sphere_broad_phase=*/false);
   const FastChecker fast(*robot_, *cell_, scan_->get());
   std::mt19937 rng(2016);
-  const JointVector lo = kinematics_->model().min_position_rad();
-  const JointVector hi = kinematics_->model().max_position_rad();
-  std::vector<JointVector> states;
-  for (int i = 0; i < 2000; ++i) {
-    JointVector q;
-    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
-    states.push_back(q);
-  }
+  std::vector<JointVector> states = RandomStates(kinematics_->model(), 2000, rng);
   const auto near = NearContactSamples(*kinematics_, *cell_model_, robot_->gripper(), 6000, rng);
   states.insert(states.end(), near.begin(), near.end());
   const CarriedItem item = MakeCarriedItem(
