@@ -8,7 +8,8 @@
 // The scans are the simulator's ground-truth depth from the planner's scan poses.
 //
 // Arguments: `--picks-only` skips the scene, state-check and joint-motion figures (the pick
-// figures and the infeasible refusal only); `--layouts=1,2` plans those layouts only;
+// figures and the infeasible refusal only); `--checks-only` gives the state checks only;
+// `--layouts=1,2` plans those layouts only;
 // `--all-failures` lists every grasp's failure of a target without a plan, not just the
 // most advanced one. pick_layout_3 is held out: the planner is developed on layouts 1 and 2
 // and the figures are given per layout.
@@ -178,6 +179,7 @@ void StateChecks(const Setup& s, const PlanningScene& scene, const std::string& 
 
 struct BenchArgs {
   bool picks_only = false;
+  bool checks_only = false;
   bool all_failures = false;
   std::vector<int> layouts = {1, 2, 3};
 };
@@ -343,6 +345,8 @@ int main(int argc, char** argv) {
     const std::string arg = argv[i];
     if (arg == "--picks-only") {
       args.picks_only = true;
+    } else if (arg == "--checks-only") {
+      args.checks_only = true;
     } else if (arg == "--all-failures") {
       args.all_failures = true;
     } else if (arg.rfind("--layouts=", 0) == 0) {
@@ -351,7 +355,8 @@ int main(int argc, char** argv) {
         if (c >= '1' && c <= '3') args.layouts.push_back(c - '0');
       }
     } else {
-      std::fprintf(stderr, "usage: %s [--picks-only] [--layouts=1,2,3] [--all-failures]\n",
+      std::fprintf(stderr,
+                   "usage: %s [--picks-only | --checks-only] [--layouts=1,2,3] [--all-failures]\n",
                    argv[0]);
       return 2;
     }
@@ -395,11 +400,14 @@ int main(int argc, char** argv) {
       s.kinematics->ForwardKinematics(Named(*s.planner, "scan/" + bin + "/0").q_rad) *
       s.X_ToolCamera;
   const std::vector<float> xyz = Scan(renderer, camera, X_BaseCamera);
-  SceneBuild(s, xyz, bin, in_bin.front().name, in_bin.front().X_BaseItem,
-             X_BaseCamera.translation());
+  if (!args.checks_only) {
+    SceneBuild(s, xyz, bin, in_bin.front().name, in_bin.front().X_BaseItem,
+               X_BaseCamera.translation());
+  }
   const PlanningScene scene = s.planner->BuildScene(bin, xyz.data(), xyz.size() / 3,
                                                     in_bin.front().name, in_bin.front().X_BaseItem);
   StateChecks(s, scene, bin);
+  if (args.checks_only) return 0;
   JointMotions(s);
   Infeasible(s);
   Picks(s, &world, args);
