@@ -400,6 +400,7 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
                             const CarriedItem* carried) const {
   const int num_bodies = carried ? kNumBodies : kNumArmBodies;
   const int num = num_obstacles();
+  const std::uint32_t all_obstacles = (1u << num) - 1u;
   Proximity near;
   const PosedSpheres posed(robot_, X, carried);
   for (int b = 1; b < num_bodies; ++b) {
@@ -407,11 +408,13 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
     for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
       const Sphere& s = tree.coarse[i];
       const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
-      // Each obstacle on its own: a coarse sphere clear of it, or else every leaf.
+      // Most coarse spheres are clear of everything at once; the others are looked at for
+      // each obstacle on its own: the coarse sphere clear of it, or else every leaf.
+      int which = 0;
+      if (Margin(c, s.radius_m, false, all_obstacles, &which) >= 0.f) continue;
       for (int o = 0; o < num; ++o) {
         const std::uint32_t bit = 1u << o;
         if (near.near_obstacles[b] & bit) continue;
-        int which = 0;
         if (Margin(c, s.radius_m, false, bit, &which) >= 0.f) continue;
         const Leaves leaves = LeavesOf(tree, s);
         for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {

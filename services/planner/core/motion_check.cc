@@ -114,6 +114,13 @@ MotionCheckResult MotionChecker::Walk(const JointVector& a_rad, const JointVecto
     // states that close (the next grid state otherwise).
     double ds = travel > 0.0 ? *slack / travel : 1.0;
     if (ds >= 2.0 * grid_ds) ds = std::min(ds, TableStep(a_rad + (k * grid_ds) * delta, delta));
+    const double rest = 1.0 - k * grid_ds;
+    if (ds >= rest) {
+      // The rest of the segment lies within the slack, its end too: what is left of the slack
+      // carries over to the next segment of a path (a short timed sample step costs nothing).
+      *slack -= static_cast<float>(rest * travel);
+      return result;
+    }
     const int k_next = std::min(states - 1, k + std::max(1, static_cast<int>(ds / grid_ds)));
     const JointVector q = a_rad + (k_next * grid_ds) * delta;
     *slack = checker_.Slack(q, carried, padding, cap);

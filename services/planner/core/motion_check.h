@@ -59,7 +59,8 @@ class MotionChecker final {
   /// States of the fixed grid on a motion whose points travel at most `travel_m`.
   int GridStates(double travel_m) const;
   /// CheckSegment from a state whose slack is known (`*slack` >= 0; the state itself is not
-  /// checked again) or not (`*slack` < 0); leaves the end state's slack in `*slack`.
+  /// checked again) or not (`*slack` < 0); leaves a slack of the end state in `*slack` (its
+  /// own, or what is left of an earlier state's when the end lies within it).
   MotionCheckResult Walk(const JointVector& a_rad, const JointVector& b_rad,
                          const CarriedItem* carried, float* slack) const;
 

@@ -11,6 +11,21 @@
 namespace picking::planner {
 namespace {
 
+// Whether two joint vectors differ by whole turns only: the same arm pose, so the same
+// collision answer and the same IK branch (IK's 2 pi variants).
+bool SameArmPose(const JointVector& a_rad, const JointVector& b_rad) {
+  for (int j = 0; j < 6; ++j) {
+    if (std::abs(ur10::WrapToPi(a_rad[j] - b_rad[j])) > 1e-9) return false;
+  }
+  return true;
+}
+
+// Whether `q_rad` is a whole-turn variant of one of `tried`.
+bool TriedAlready(const std::vector<JointVector>& tried, const JointVector& q_rad) {
+  return std::any_of(tried.begin(), tried.end(),
+                     [&](const JointVector& t) { return SameArmPose(t, q_rad); });
+}
+
 std::string Fixed(double v, int digits) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), "%.*f", digits, v);
@@ -462,7 +477,10 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
     return (a.q_rad - seed).cwiseAbs().sum() < (b.q_rad - seed).cwiseAbs().sum();
   });
   CollisionReport first;
+  std::vector<JointVector> tried;  // a colliding pose collides in every whole-turn variant
   for (const auto& s : ik.solutions) {
+    if (TriedAlready(tried, s.q_rad)) continue;
+    tried.push_back(s.q_rad);
     const CollisionReport report = checker.Check(s.q_rad, carried);
     if (!report.in_collision) return s.q_rad;
     if (!first.in_collision) first = report;
@@ -556,7 +574,11 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   std::string first_reason;
   CollisionReport first_hit;
   bool any_free_pre = false;
+  // A whole-turn variant of a solution tried has its arm pose and branch: the same answers.
+  std::vector<JointVector> tried;
   for (const auto& s : ik.solutions) {
+    if (TriedAlready(tried, s.q_rad)) continue;
+    tried.push_back(s.q_rad);
     const CollisionReport at_pre = fast.Check(s.q_rad);
     if (at_pre.in_collision) {
       if (!first_hit.in_collision) first_hit = at_pre;
