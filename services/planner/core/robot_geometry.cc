@@ -164,32 +164,53 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
   item.box_Item = box_Item;
   item.X_TcpItem = X_TcpItem;
   // The box's surface layer as cubes of at most 1.5 cm, each in the sphere through its
-  // corners (it sticks out of the box's faces by at most 0.37 of a cube's edge, 5.5 mm), under
-  // one coarse sphere through the box's corners. Inner cubes are left out: an obstacle meets
-  // the surface layer before it could lie inside (scan voxels inside the item are cut out).
+  // corners (it sticks out of the box's faces by at most 0.37 of a cube's edge, 5.5 mm). Inner
+  // cubes are left out: an obstacle meets the surface layer before it could lie inside (scan
+  // voxels inside the item are cut out). The cubes are grouped in blocks of at most 4 x 4 x 4,
+  // each block's a coarse sphere enclosing its cubes' spheres, so that only the blocks near
+  // an obstacle have their cubes looked at.
   const Eigen::Vector3d size = box_Item.sizes();
   Eigen::Array3i n;
   for (int i = 0; i < 3; ++i) n[i] = std::max(1, static_cast<int>(std::ceil(size[i] / 0.015)));
   const Eigen::Vector3d cube = size.array() / n.cast<double>();
   const float cube_radius = static_cast<float>(0.5 * cube.norm() * (1.0 + 1e-6) + 1e-6);
-  Sphere coarse;
-  coarse.center_B = box_Item.center().cast<float>();
-  coarse.radius_m = static_cast<float>(0.5 * size.norm() * (1.0 + 1e-6) + 1e-6);
-  for (int i = 0; i < n.x(); ++i) {
-    for (int j = 0; j < n.y(); ++j) {
-      for (int k = 0; k < n.z(); ++k) {
-        const bool surface =
-            i == 0 || j == 0 || k == 0 || i == n.x() - 1 || j == n.y() - 1 || k == n.z() - 1;
-        if (!surface) continue;
-        const Eigen::Vector3d centre =
-            box_Item.min() + (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(cube);
-        item.spheres_Item.fine.push_back({centre.cast<float>(), cube_radius, 0, 0});
+  constexpr int kBlock = 4;
+  const Eigen::Array3i blocks = (n + kBlock - 1) / kBlock;
+  auto& tree = item.spheres_Item;
+  for (int bi = 0; bi < blocks.x(); ++bi) {
+    for (int bj = 0; bj < blocks.y(); ++bj) {
+      for (int bk = 0; bk < blocks.z(); ++bk) {
+        Sphere coarse;
+        coarse.first_child = static_cast<std::uint32_t>(tree.fine.size());
+        Eigen::AlignedBox3f block;
+        for (int i = bi * kBlock; i < std::min(n.x(), (bi + 1) * kBlock); ++i) {
+          for (int j = bj * kBlock; j < std::min(n.y(), (bj + 1) * kBlock); ++j) {
+            for (int k = bk * kBlock; k < std::min(n.z(), (bk + 1) * kBlock); ++k) {
+              const bool surface =
+                  i == 0 || j == 0 || k == 0 || i == n.x() - 1 || j == n.y() - 1 || k == n.z() - 1;
+              if (!surface) continue;
+              const Eigen::Vector3f centre =
+                  (box_Item.min() +
+                   (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(cube))
+                      .cast<float>();
+              tree.fine.push_back({centre, cube_radius, 0, 0});
+              block.extend(centre);
+            }
+          }
+        }
+        coarse.num_children = static_cast<std::uint32_t>(tree.fine.size()) - coarse.first_child;
+        if (coarse.num_children == 0) continue;
+        coarse.center_B = block.center();
+        for (std::uint32_t c = 0; c < coarse.num_children; ++c) {
+          const Sphere& child = tree.fine[coarse.first_child + c];
+          coarse.radius_m =
+              std::max(coarse.radius_m, (child.center_B - coarse.center_B).norm() + child.radius_m);
+        }
+        coarse.radius_m = coarse.radius_m * (1.f + 1e-6f) + 1e-6f;
+        tree.coarse.push_back(coarse);
       }
     }
   }
-  coarse.first_child = 0;
-  coarse.num_children = static_cast<std::uint32_t>(item.spheres_Item.fine.size());
-  item.spheres_Item.coarse.push_back(coarse);
   return item;
 }
 

@@ -338,6 +338,39 @@ TEST_F(CollisionTest, MotionsCheckedByTheirSlackAreFreeForFcl) {
   EXPECT_GT(blocked, 20);
 }
 
+// A carried item's spheres: blocks of its box's surface cubes, each block's sphere around
+// its cubes, the cubes around every point of the box's surface.
+TEST_F(CollisionTest, ACarriedItemsSpheresEncloseItsSurfaceInBlocks) {
+  const Eigen::AlignedBox3d box(Eigen::Vector3d(-0.14, -0.065, 0.0),
+                                Eigen::Vector3d(0.14, 0.065, 0.13));
+  const CarriedItem item = MakeCarriedItem("towels", box, Eigen::Isometry3d::Identity());
+  const SphereTree& tree = item.spheres_Item;
+  EXPECT_GT(tree.coarse.size(), 8u);
+  std::size_t children = 0;
+  for (const Sphere& c : tree.coarse) {
+    ASSERT_GT(c.num_children, 0u);
+    for (std::uint32_t k = 0; k < c.num_children; ++k) {
+      const Sphere& f = tree.fine[c.first_child + k];
+      EXPECT_LE((f.center_B - c.center_B).norm() + f.radius_m, c.radius_m);
+    }
+    children += c.num_children;
+  }
+  EXPECT_EQ(children, tree.fine.size());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int i = 0; i < 5000; ++i) {
+    // A point on a random face of the box.
+    Eigen::Vector3d p =
+        box.min() + box.sizes().cwiseProduct(Eigen::Vector3d(u(rng), u(rng), u(rng)));
+    const int axis = i % 3;
+    p[axis] = (i / 3) % 2 ? box.max()[axis] : box.min()[axis];
+    const bool covered = std::any_of(tree.fine.begin(), tree.fine.end(), [&](const Sphere& f) {
+      return (f.center_B.cast<double>() - p).norm() <= f.radius_m;
+    });
+    ASSERT_TRUE(covered) << p.transpose();
+  }
+}
+
 // A state whose spheres touch nothing flags nothing; a state with the tool in a shelf wall
 // flags the gripper and the shelf.
 TEST_F(CollisionTest, ProximityFlagsOnlyWhatTheSpheresTouch) {
