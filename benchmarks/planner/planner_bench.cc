@@ -224,9 +224,11 @@ void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
         times.push_back(Ms(t));
         ++planned;
         ++per_layout.back().first;
-        std::printf("  planned: layout %d %s %s: grasp '%s' in %.1f ms, %d grasps tried\n", layout,
-                    entry.bin.c_str(), entry.item.c_str(), plan.grasp.surface.c_str(), Ms(t),
-                    plan.grasps_tried);
+        std::printf(
+            "  planned: layout %d %s %s: grasp '%s' in %.1f ms, %d grasps tried, %d search "
+            "nodes\n",
+            layout, entry.bin.c_str(), entry.item.c_str(), plan.grasp.surface.c_str(), Ms(t),
+            plan.grasps_tried, plan.nodes_expanded);
         // Exact validation of the pick's three trajectories at every sample (PlanPick
         // validates every 8th and the path's nodes), with and without the broad phase.
         // The item hangs from the cup as it was at the grasp (the retreat's first sample).
