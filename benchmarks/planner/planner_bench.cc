@@ -373,10 +373,7 @@ int main(int argc, char** argv) {
   auto grasps = std::make_shared<const GraspTable>(
       GraspTable::FromYamlFile(DefaultGraspTablePath(), catalogue));
   s.items = std::make_shared<world::ItemModelLibrary>(catalogue);
-  GripperGeometry gripper;
-  gripper.X_ToolTcp = config.gripper.X_ToolTcp;
-  gripper.tube_radius_m = config.gripper.tube_radius_m;
-  gripper.cup_length_m = config.gripper.cup_length_m;
+  const GripperGeometry gripper = GripperGeometry::FromCell(config.gripper);
   auto t = Clock::now();
   s.planner = std::make_unique<MotionPlanner>(*s.kinematics, s.cell, gripper, s.X_ToolCamera,
                                               grasps, s.items);

@@ -160,7 +160,8 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
   config.table_size_m = Eigen::Vector3d(size[0], size[1], size[2]);
 
   const YAML::Node gripper =
-      rd.Map(root, "gripper", "gripper", {"X_ToolTcp", "tube_radius_m", "cup_length_m"});
+      rd.Map(root, "gripper", "gripper",
+             {"X_ToolTcp", "tube_radius_m", "cup_length_m", "head_length_m", "max_head_angle_deg"});
   GripperConfig& g = config.gripper;
   g.X_ToolTcp = rd.Pose(gripper, "X_ToolTcp", "gripper.X_ToolTcp");
   g.tube_radius_m = rd.Number(gripper, "tube_radius_m", "gripper.tube_radius_m");
@@ -174,7 +175,35 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
         << " m from the flange to the TCP of X_ToolTcp)";
     rd.Fail("gripper.cup_length_m", msg.str());
   }
+  if (gripper["head_length_m"]) {
+    g.head_length_m = rd.Number(gripper, "head_length_m", "gripper.head_length_m");
+    if (!(g.head_length_m > g.cup_length_m && g.head_length_m < tube_length_m)) {
+      std::ostringstream msg;
+      msg << "must be longer than the cup (" << g.cup_length_m << " m) and shorter than the tube ("
+          << tube_length_m << " m)";
+      rd.Fail("gripper.head_length_m", msg.str());
+    }
+    const double max_deg = rd.Number(gripper, "max_head_angle_deg", "gripper.max_head_angle_deg");
+    if (!(max_deg >= 0.0 && max_deg <= 180.0)) {
+      rd.Fail("gripper.max_head_angle_deg", "must lie in [0, 180]");
+    }
+    g.max_head_angle_rad = max_deg * M_PI / 180.0;
+  } else if (gripper["max_head_angle_deg"]) {
+    rd.Fail("gripper.max_head_angle_deg", "needs head_length_m (a gripper without a joint)");
+  }
   return config;
+}
+
+Eigen::Vector3d GripperConfig::p_ToolJoint() const {
+  return X_ToolTcp * Eigen::Vector3d(0.0, 0.0, -head_length_m);
+}
+
+Eigen::Isometry3d GripperConfig::X_ToolTcpAt(double head_angle_rad) const {
+  if (head_angle_rad == 0.0 || head_length_m == 0.0) return X_ToolTcp;
+  // The head turns about the joint's x axis (the tcp's x at angle 0).
+  const Eigen::Isometry3d X_ToolJoint = X_ToolTcp * Eigen::Translation3d(0.0, 0.0, -head_length_m);
+  return X_ToolJoint * Eigen::AngleAxisd(head_angle_rad, Eigen::Vector3d::UnitX()) *
+         Eigen::Translation3d(0.0, 0.0, head_length_m);
 }
 
 CellConfig ReadCellConfig(const std::string& path) {

@@ -26,9 +26,23 @@ class CellConfigError final : public std::runtime_error {
 /// the flange to the suction cup. Frames: `Tool` is the UR10 flange (tool0); `Tcp` is the
 /// tool centre point, the centre of the cup's lip, +z out of the cup (the approach direction).
 /// Every service that needs the tool centre point takes it from here.
+///
+/// The gripper may end in a head on a servo joint (the paper's tote gripper): the last
+/// `head_length_m` of the tube, up to the lip, turns about the joint's axis, the x axis of
+/// the tcp frame at the joint. At head angle 0 the gripper is straight and the tcp is
+/// X_ToolTcp; at angle a it is X_ToolTcpAt(a): the head turned by a about that axis.
 struct GripperConfig {
-  /// Pose of the TCP in the flange frame (rigid; metres).
+  /// Pose of the TCP in the flange frame with the head straight (rigid; metres).
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d::Identity();
+  /// From the head's joint to the lip, along the tcp's z axis, metres: 0 for a straight
+  /// gripper without a joint; otherwise longer than cup_length_m and shorter than the tube.
+  double head_length_m = 0.0;
+  /// The servo's range: head angles lie in [-max, +max], radians (0 without a joint).
+  double max_head_angle_rad = 0.0;
+  /// The tcp in the flange frame with the head at `head_angle_rad` (X_ToolTcp at 0).
+  Eigen::Isometry3d X_ToolTcpAt(double head_angle_rad) const;
+  /// The joint's centre in the flange frame (the tcp's origin at 0 for a straight gripper).
+  Eigen::Vector3d p_ToolJoint() const;
   /// Radius of the tube and the cup, metres (> 0).
   double tube_radius_m = 0.0;
   /// Length of the compliant cup at the end of the tube, metres (>= 0 and shorter than the

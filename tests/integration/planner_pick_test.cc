@@ -90,10 +90,7 @@ class PlannerPickTest : public ::testing::Test {
     const world::CellConfig config =
         world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
     cell_ = new world::CellModel(world::LoadCellModel(config));
-    planner::GripperGeometry gripper;
-    gripper.X_ToolTcp = config.gripper.X_ToolTcp;
-    gripper.tube_radius_m = config.gripper.tube_radius_m;
-    gripper.cup_length_m = config.gripper.cup_length_m;
+    const planner::GripperGeometry gripper = planner::GripperGeometry::FromCell(config.gripper);
     robot_geometry_ = new planner::RobotGeometry(*kinematics_, gripper);
     catalogue_ = new apc::Catalogue(apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath()));
     items_ = new world::ItemModelLibrary(*catalogue_);

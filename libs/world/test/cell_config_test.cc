@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "libs/world/mesh_utils.h"
@@ -177,6 +178,43 @@ TEST(CellConfigTest, DefaultCellLoadsAndItsBinsAreReachable) {
   EXPECT_FALSE(shelf.intersects(tote));
   EXPECT_FALSE(shelf.intersects(Bounds(cell.table, config.X_BaseTable)));
   EXPECT_NEAR(Bounds(cell.table, config.X_BaseTable).min().z(), config.floor_z_m(), 1e-6);
+}
+
+TEST(CellConfigTest, AHeadOnItsJointTurnsTheTcpAboutTheJoint) {
+  const std::string head =
+      "  cup_length_m: 0.02\n  head_length_m: 0.09\n  max_head_angle_deg: 90\n";
+  const CellConfig c =
+      ParseCellConfig(Replace(ValidYaml(), "  cup_length_m: 0.02\n", head), "test.yaml", kDataDir);
+  const GripperConfig& g = c.gripper;
+  EXPECT_EQ(g.head_length_m, 0.09);
+  EXPECT_NEAR(g.max_head_angle_rad, M_PI / 2, 1e-12);
+  EXPECT_TRUE(g.p_ToolJoint().isApprox(Eigen::Vector3d(0.0, 0.0, 0.26)));
+  EXPECT_TRUE(g.X_ToolTcpAt(0.0).isApprox(g.X_ToolTcp));
+  // A quarter turn: the lip 0.09 m from the joint along the flange's -y, the cup facing it.
+  const Eigen::Isometry3d X_ToolTcp = g.X_ToolTcpAt(M_PI / 2);
+  EXPECT_TRUE(X_ToolTcp.translation().isApprox(Eigen::Vector3d(0.0, -0.09, 0.26), 1e-9));
+  EXPECT_TRUE((X_ToolTcp.linear() * Eigen::Vector3d::UnitZ()).isApprox(-Eigen::Vector3d::UnitY()));
+  // Every angle keeps the lip head_length_m from the joint.
+  for (const double a : {-1.2, -0.3, 0.4, 1.5}) {
+    EXPECT_NEAR((g.X_ToolTcpAt(a).translation() - g.p_ToolJoint()).norm(), 0.09, 1e-12);
+  }
+  // A straight gripper has no joint: every angle is the straight tcp.
+  const CellConfig straight = ParseCellConfig(ValidYaml(), "test.yaml", kDataDir);
+  EXPECT_EQ(straight.gripper.head_length_m, 0.0);
+  EXPECT_TRUE(straight.gripper.X_ToolTcpAt(1.0).isApprox(straight.gripper.X_ToolTcp));
+
+  auto with_head = [&](const std::string& length, const std::string& angle) {
+    return Replace(ValidYaml(), "  cup_length_m: 0.02\n",
+                   "  cup_length_m: 0.02\n  head_length_m: " + length +
+                       "\n  max_head_angle_deg: " + angle + "\n");
+  };
+  EXPECT_EQ(FieldOfError(with_head("0.01", "90")), "gripper.head_length_m");  // inside the cup
+  EXPECT_EQ(FieldOfError(with_head("0.4", "90")), "gripper.head_length_m");   // past the flange
+  EXPECT_EQ(FieldOfError(with_head("0.09", "-5")), "gripper.max_head_angle_deg");
+  EXPECT_EQ(FieldOfError(with_head("0.09", "wide")), "gripper.max_head_angle_deg");
+  EXPECT_EQ(FieldOfError(Replace(ValidYaml(), "  cup_length_m: 0.02\n",
+                                 "  cup_length_m: 0.02\n  max_head_angle_deg: 90\n")),
+            "gripper.max_head_angle_deg");
 }
 
 }  // namespace

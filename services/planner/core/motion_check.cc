@@ -27,7 +27,7 @@ MotionChecker::MotionChecker(const FastChecker& checker, const MotionCheckOption
   }
   // 0.2 m of slack for the link housings that reach past their frames (the elbow and
   // shoulder caps).
-  const double tool = robot.gripper().X_ToolTcp.translation().norm() + largest_sphere + 0.2;
+  const double tool = robot.gripper().reach_m() + largest_sphere + 0.2;
   const double wrist = std::abs(dh.d4) + std::abs(dh.d5) + std::abs(dh.d6);
   const double lengths[6] = {std::abs(dh.a2) + std::abs(dh.a3) + wrist + std::abs(dh.d1),
                              std::abs(dh.a2) + std::abs(dh.a3) + wrist,

@@ -214,18 +214,70 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
   return item;
 }
 
+GripperGeometry GripperGeometry::FromCell(const world::GripperConfig& config,
+                                          double head_angle_rad) {
+  GripperGeometry g;
+  g.X_ToolTcp = config.X_ToolTcp;
+  g.tube_radius_m = config.tube_radius_m;
+  g.cup_length_m = config.cup_length_m;
+  g.head_length_m = config.head_length_m;
+  g.max_head_angle_rad = config.max_head_angle_rad;
+  return g.AtHeadAngle(head_angle_rad);
+}
+
+GripperGeometry GripperGeometry::AtHeadAngle(double angle_rad) const {
+  if (!std::isfinite(angle_rad) || std::abs(angle_rad) > max_head_angle_rad + 1e-12) {
+    throw std::invalid_argument("head angle " + std::to_string(angle_rad) +
+                                " rad is outside the servo's range of +-" +
+                                std::to_string(max_head_angle_rad) + " rad");
+  }
+  GripperGeometry g = *this;
+  g.head_angle_rad = angle_rad;
+  if (head_length_m == 0.0 || angle_rad == head_angle_rad) return g;
+  // The joint frame: z along the straight tube; the head turns about its x axis.
+  const Eigen::Isometry3d X_ToolJoint =
+      X_ToolTcp * Eigen::Translation3d(0.0, 0.0, -head_length_m) *
+      Eigen::AngleAxisd(-head_angle_rad, Eigen::Vector3d::UnitX());
+  g.X_ToolTcp = X_ToolJoint * Eigen::AngleAxisd(angle_rad, Eigen::Vector3d::UnitX()) *
+                Eigen::Translation3d(0.0, 0.0, head_length_m);
+  return g;
+}
+
+Eigen::Vector3d GripperGeometry::p_ToolJoint() const {
+  return X_ToolTcp * Eigen::Vector3d(0.0, 0.0, -head_length_m);
+}
+
+bool GripperGeometry::bent() const {
+  if (head_length_m == 0.0) return false;
+  const Eigen::Vector3d p_J = p_ToolJoint();
+  const Eigen::Vector3d z_Tcp = X_ToolTcp.linear().col(2);
+  return p_J.norm() > 1e-9 && p_J.normalized().cross(z_Tcp).norm() > 1e-9;
+}
+
+namespace {
+
+void ValidateGripper(const GripperGeometry& g) {
+  if (!(g.tube_radius_m > 0.0) || !std::isfinite(g.tube_radius_m)) {
+    throw std::invalid_argument("gripper tube radius must be finite and > 0");
+  }
+  if (!(g.cup_length_m >= 0.0) || !std::isfinite(g.cup_length_m)) {
+    throw std::invalid_argument("gripper cup length must be finite and >= 0");
+  }
+  if (!IsRigid(g.X_ToolTcp)) {
+    throw std::invalid_argument("gripper X_ToolTcp must be a finite rigid transform");
+  }
+  if (g.head_length_m != 0.0 &&
+      !(g.head_length_m > g.cup_length_m && g.head_length_m < g.reach_m())) {
+    throw std::invalid_argument("gripper head length must lie between the cup's and the tube's");
+  }
+}
+
+}  // namespace
+
 RobotGeometry::RobotGeometry(const ur10::Ur10Kinematics& kinematics, const GripperGeometry& gripper,
                              const SphereFitOptions& fit)
     : kinematics_(kinematics), gripper_(gripper) {
-  if (!(gripper_.tube_radius_m > 0.0) || !std::isfinite(gripper_.tube_radius_m)) {
-    throw std::invalid_argument("gripper tube radius must be finite and > 0");
-  }
-  if (!(gripper_.cup_length_m >= 0.0) || !std::isfinite(gripper_.cup_length_m)) {
-    throw std::invalid_argument("gripper cup length must be finite and >= 0");
-  }
-  if (!IsRigid(gripper_.X_ToolTcp)) {
-    throw std::invalid_argument("gripper X_ToolTcp must be a finite rigid transform");
-  }
+  ValidateGripper(gripper_);
   const ur10::Ur10Model& model = kinematics_.model();
   for (int i = 0; i < 7; ++i) {
     const auto link = static_cast<ur10::Link>(i);
@@ -237,20 +289,30 @@ RobotGeometry::RobotGeometry(const ur10::Ur10Kinematics& kinematics, const Gripp
     link_meshes_[i].triangles = mesh.triangles;
     spheres_[i] = FitSpheres(mesh, model.X_LinkMesh(link), fit);
   }
-  const Eigen::Vector3d p_ToolLip = gripper_.X_ToolTcp.translation();
-  tube_length_m_ = std::max(0.0, p_ToolLip.norm() - gripper_.cup_length_m);
-  if (tube_length_m_ > 1e-6) {
-    const Eigen::Vector3d axis = p_ToolLip.normalized();
-    Eigen::Isometry3d X_ToolAxis = Eigen::Isometry3d::Identity();
-    X_ToolAxis.linear() =
-        Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
-    X_ToolTube_ = X_ToolAxis * Eigen::Translation3d(0.0, 0.0, 0.5 * tube_length_m_);
-    for (Sphere s : CylinderSpheres(gripper_.tube_radius_m, tube_length_m_)) {
-      s.center_B = (X_ToolAxis.cast<float>() * s.center_B);
-      spheres_[kBodyTool].coarse.push_back(s);
+  BuildGripper();
+  ChooseSelfPairs();
+}
+
+RobotGeometry RobotGeometry::WithGripper(const GripperGeometry& gripper) const {
+  ValidateGripper(gripper);
+  RobotGeometry other = *this;
+  other.gripper_ = gripper;
+  other.BuildGripper();
+  // A bent head reaches where the straight tube the pairs were sampled with did not: pair the
+  // gripper with every link that is not its neighbour (the broad phase keeps the cost low).
+  auto& pairs = other.self_pairs_;
+  for (int a = 0; a <= kBodyWrist2; ++a) {
+    if (!other.fcl_geometry_[kBodyTool]) break;
+    const auto pair = std::make_pair(a, static_cast<int>(kBodyTool));
+    if (std::find(pairs.begin(), pairs.end(), pair) == pairs.end() &&
+        std::find(built_together_.begin(), built_together_.end(), pair) == built_together_.end()) {
+      // Before the carried item's pairs, which come last.
+      const auto first_item = std::find_if(pairs.begin(), pairs.end(),
+                                           [](const auto& p) { return p.second == kBodyItem; });
+      pairs.insert(first_item, pair);
     }
   }
-  ChooseSelfPairs();
+  return other;
 }
 
 std::size_t RobotGeometry::num_arm_spheres() const {

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "libs/ur10/kinematics.h"
+#include "libs/world/cell_config.h"
 #include "libs/world/mesh.h"
 
 namespace fcl {
@@ -58,15 +59,38 @@ struct SphereTree {
   bool empty() const { return coarse.empty(); }
 };
 
-/// The vacuum gripper on the flange: a straight tube from the flange to the suction cup.
+/// The vacuum gripper on the flange: a tube from the flange to the suction cup, straight or
+/// ending in a head on a servo joint (world::GripperConfig): the last `head_length_m` up to
+/// the lip, turned by `head_angle_rad` about the tcp's x axis at the joint. For a given head
+/// angle the gripper is rigid; AtHeadAngle gives it at another.
 struct GripperGeometry {
-  /// The suction cup's lip centre (`tcp`, +z out of the cup) in the flange frame (`tool`).
+  /// The suction cup's lip centre (`tcp`, +z out of the cup) in the flange frame (`tool`), with
+  /// the head at head_angle_rad.
   Eigen::Isometry3d X_ToolTcp = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, 0.35));
   /// Radius of the tube and cup, metres (> 0).
   double tube_radius_m = 0.02;
   /// The compliant cup at the end of the tube, metres (>= 0): left out of the collision
   /// bodies, since a cup pressed onto a surface is contact, not collision.
   double cup_length_m = 0.02;
+  /// From the head's joint to the lip along the tcp's z, metres: 0 for a straight gripper,
+  /// else in (cup_length_m, tube length).
+  double head_length_m = 0.0;
+  /// The servo's range, radians (head angles in [-max, max]); 0 without a joint.
+  double max_head_angle_rad = 0.0;
+  /// The head's present angle, radians (0: straight).
+  double head_angle_rad = 0.0;
+
+  /// The cell description's gripper with its head at `head_angle_rad`.
+  static GripperGeometry FromCell(const world::GripperConfig& config, double head_angle_rad = 0.0);
+  /// This gripper with its head at `head_angle_rad`. Throws std::invalid_argument for an angle
+  /// outside the servo's range (any angle but 0 without a joint).
+  GripperGeometry AtHeadAngle(double head_angle_rad) const;
+  /// The joint's centre in the flange frame (the lip's for a straight gripper).
+  Eigen::Vector3d p_ToolJoint() const;
+  /// No point of the gripper lies further than this from the flange's origin, metres.
+  double reach_m() const { return p_ToolJoint().norm() + head_length_m; }
+  /// Whether the head is turned off the tube's line (the tube is then two cylinders).
+  bool bent() const;
 };
 
 /// Options of FitSpheres.
@@ -134,16 +158,22 @@ class RobotGeometry final {
   RobotGeometry(const ur10::Ur10Kinematics& kinematics, const GripperGeometry& gripper,
                 const SphereFitOptions& fit = {});
 
+  /// The same arm with another gripper (or the same gripper's head at another angle): the
+  /// links' meshes, spheres, BVHs and distance tables shared, the gripper's bodies rebuilt,
+  /// and the gripper paired with every link it could reach. Takes well under a millisecond
+  /// plus the gripper's BVH. Throws std::invalid_argument for bad gripper geometry.
+  RobotGeometry WithGripper(const GripperGeometry& gripper) const;
+
   const ur10::Ur10Kinematics& kinematics() const { return kinematics_; }
   const GripperGeometry& gripper() const { return gripper_; }
   /// Link mesh of body 0..6 in its link frame.
   const world::TriangleMesh& link_mesh(int body) const { return link_meshes_[body]; }
-  /// The tube as a cylinder in the flange frame: from the flange to the cup's base.
-  double tube_length_m() const { return tube_length_m_; }
-  /// Pose of the tube's centre (cylinder axis along z) in the flange frame.
+  /// Pose of the gripper's FCL geometry in the flange frame: a straight tube's centre (a
+  /// cylinder along z from the flange to the cup's base); identity for a bent one (a mesh).
   const Eigen::Isometry3d& X_ToolTube() const { return X_ToolTube_; }
-  /// FCL geometry of body 0..7 (the links' meshes as BVHs in their link frames; the tube as
-  /// a cylinder in X_ToolTube(), null without a tube), shared by every exact check.
+  /// FCL geometry of body 0..7 (the links' meshes as BVHs in their link frames; the gripper
+  /// in X_ToolTube(): a cylinder, or for a bent head a BVH of the two cylinders' circumscribed
+  /// prisms; null without a tube), shared by every exact check.
   const std::shared_ptr<fcl::CollisionGeometry<double>>& fcl_geometry(int body) const {
     return fcl_geometry_[body];
   }
@@ -173,6 +203,8 @@ class RobotGeometry final {
 
  private:
   void ChooseSelfPairs();
+  // The gripper's spheres and FCL geometry from gripper_.
+  void BuildGripper();
   void BuildPairTables(
       const std::array<std::shared_ptr<fcl::CollisionGeometry<double>>, kNumArmBodies>& geometry,
       const std::array<Eigen::Isometry3d, kNumArmBodies>& X_BodyGeometry);
@@ -181,10 +213,10 @@ class RobotGeometry final {
   GripperGeometry gripper_;
   std::array<world::TriangleMesh, 7> link_meshes_;
   std::array<SphereTree, kNumArmBodies> spheres_;
-  double tube_length_m_ = 0.0;
   Eigen::Isometry3d X_ToolTube_ = Eigen::Isometry3d::Identity();
   std::array<std::shared_ptr<fcl::CollisionGeometry<double>>, kNumArmBodies> fcl_geometry_;
   std::vector<std::pair<int, int>> self_pairs_;
+  std::vector<std::pair<int, int>> built_together_;  // pairs touching in nearly every sample
   std::vector<PairDistanceTable> pair_tables_;
 };
 

@@ -76,6 +76,88 @@ void RobotGeometry::BuildPairTables(
   pair_tables_.push_back(std::move(table));
 }
 
+namespace {
+
+// A solid cylinder's circumscribed prism (so it holds the cylinder) from `p0_m` along the unit
+// `axis` for `length_m`, appended to `mesh`; `radius_m` is the prism's circumradius.
+void AddPrism(const Eigen::Vector3d& p0_m, const Eigen::Vector3d& axis, double length_m,
+              double radius_m, world::TriangleMesh* mesh) {
+  constexpr int kSides = 32;
+  const Eigen::Vector3d u = axis.unitOrthogonal(), v = axis.cross(u);
+  const auto base = static_cast<std::uint32_t>(mesh->vertices.size());
+  for (int end = 0; end < 2; ++end) {
+    for (int k = 0; k < kSides; ++k) {
+      const double a = 2.0 * M_PI * k / kSides;
+      const Eigen::Vector3d p =
+          p0_m + end * length_m * axis + radius_m * (std::cos(a) * u + std::sin(a) * v);
+      mesh->vertices.push_back(p.cast<float>());
+    }
+  }
+  for (int end = 0; end < 2; ++end) {
+    mesh->vertices.push_back((p0_m + end * length_m * axis).cast<float>());
+  }
+  const std::uint32_t c0 = base + 2 * kSides, c1 = c0 + 1;
+  for (std::uint32_t k = 0; k < kSides; ++k) {
+    const std::uint32_t k1 = (k + 1) % kSides;
+    const std::uint32_t a0 = base + k, b0 = base + k1, a1 = base + kSides + k,
+                        b1 = base + kSides + k1;
+    mesh->triangles.push_back({a0, b0, b1});
+    mesh->triangles.push_back({a0, b1, a1});
+    mesh->triangles.push_back({c0, b0, a0});
+    mesh->triangles.push_back({c1, a1, b1});
+  }
+}
+
+}  // namespace
+
+void RobotGeometry::BuildGripper() {
+  const GripperGeometry& g = gripper_;
+  const double r = g.tube_radius_m;
+  SphereTree& spheres = spheres_[kBodyTool];
+  spheres = SphereTree();
+  fcl_geometry_[kBodyTool].reset();
+  X_ToolTube_ = Eigen::Isometry3d::Identity();
+  // Spheres along a cylinder from p0 along `axis` (unit) for `length`, of radius `radius`.
+  auto add_spheres = [&](const Eigen::Vector3d& p0, const Eigen::Vector3d& axis, double length,
+                         double radius) {
+    Eigen::Isometry3d X_ToolAxis = Eigen::Isometry3d::Identity();
+    X_ToolAxis.linear() =
+        Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+    X_ToolAxis.translation() = p0;
+    for (Sphere s : CylinderSpheres(radius, length)) {
+      s.center_B = X_ToolAxis.cast<float>() * s.center_B;
+      spheres.coarse.push_back(s);
+    }
+    return X_ToolAxis;
+  };
+  if (!g.bent()) {
+    // One cylinder from the flange to the cup's base.
+    const Eigen::Vector3d p_ToolLip = g.X_ToolTcp.translation();
+    const double length = std::max(0.0, p_ToolLip.norm() - g.cup_length_m);
+    if (length <= 1e-6) return;
+    const Eigen::Isometry3d X_ToolAxis =
+        add_spheres(Eigen::Vector3d::Zero(), p_ToolLip.normalized(), length, r);
+    X_ToolTube_ = X_ToolAxis * Eigen::Translation3d(0.0, 0.0, 0.5 * length);
+    fcl_geometry_[kBodyTool] = std::make_shared<fcl::Cylinderd>(r, length);
+    fcl_geometry_[kBodyTool]->computeLocalAABB();
+    return;
+  }
+  // The tube to the joint, carried on by a radius past it (that covers the joint's knuckle,
+  // a ball of the tube's radius), and the head from the joint to the cup's base: each a
+  // 32-sided prism around its cylinder, the spheres around the prism.
+  const double r_prism = r / std::cos(M_PI / 32);
+  const Eigen::Vector3d p_J = g.p_ToolJoint();
+  const Eigen::Vector3d z_Tcp = g.X_ToolTcp.linear().col(2);
+  world::TriangleMesh mesh;
+  mesh.name = "gripper";
+  AddPrism(Eigen::Vector3d::Zero(), p_J.normalized(), p_J.norm() + r, r_prism, &mesh);
+  AddPrism(p_J, z_Tcp, g.head_length_m - g.cup_length_m, r_prism, &mesh);
+  add_spheres(Eigen::Vector3d::Zero(), p_J.normalized(), p_J.norm() + r, r_prism);
+  add_spheres(p_J, z_Tcp, g.head_length_m - g.cup_length_m, r_prism);
+  fcl_geometry_[kBodyTool] = MakeMeshBvh(mesh);
+  fcl_geometry_[kBodyTool]->computeLocalAABB();
+}
+
 void RobotGeometry::ChooseSelfPairs() {
   // Built once here, shared by every exact check (a BVH takes milliseconds to build).
   auto& geometry = fcl_geometry_;
@@ -85,11 +167,7 @@ void RobotGeometry::ChooseSelfPairs() {
     geometry[i]->computeLocalAABB();
     X_BodyGeometry[i] = Eigen::Isometry3d::Identity();
   }
-  if (tube_length_m_ > 1e-6) {
-    geometry[kBodyTool] = std::make_shared<fcl::Cylinderd>(gripper_.tube_radius_m, tube_length_m_);
-    geometry[kBodyTool]->computeLocalAABB();
-    X_BodyGeometry[kBodyTool] = X_ToolTube_;
-  }
+  X_BodyGeometry[kBodyTool] = X_ToolTube_;
   std::vector<std::pair<int, int>> candidates;
   for (int a = 0; a < kNumArmBodies; ++a) {
     for (int b = a + 2; b < kNumArmBodies; ++b) {
@@ -121,6 +199,7 @@ void RobotGeometry::ChooseSelfPairs() {
   }
   for (std::size_t k = 0; k < candidates.size(); ++k) {
     if (touching[k] > 0 && touching[k] < kSamples * 95 / 100) self_pairs_.push_back(candidates[k]);
+    if (touching[k] >= kSamples * 95 / 100) built_together_.push_back(candidates[k]);
   }
   BuildPairTables(geometry, X_BodyGeometry);
   // The carried item against every body but the gripper and wrist_3 it hangs from.

@@ -436,10 +436,7 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   } catch (const world::CellConfigError& e) {
     throw std::invalid_argument(std::string("setting 'cell': ") + e.what());
   }
-  GripperGeometry gripper;
-  gripper.X_ToolTcp = cell_config.gripper.X_ToolTcp;
-  gripper.tube_radius_m = cell_config.gripper.tube_radius_m;
-  gripper.cup_length_m = cell_config.gripper.cup_length_m;
+  const GripperGeometry gripper = GripperGeometry::FromCell(cell_config.gripper);
   const world::CellModel cell = world::LoadCellModel(cell_config);
   const Eigen::Isometry3d X_ToolCamera =
       ReadHandEye(config.GetString("hand_eye", data_dir + "/scanner/sim_sensor/hand_eye.json"));

@@ -775,10 +775,7 @@ const std::vector<ZoneDefault>& DefaultZones() {
 // simulator load, with the planner's gripper tube and padding.
 std::shared_ptr<const CollisionGuard> BuildCollisionGuard(const ur10::Ur10Kinematics& kinematics,
                                                           const world::CellConfig& cell_config) {
-  planner::GripperGeometry gripper;
-  gripper.X_ToolTcp = cell_config.gripper.X_ToolTcp;
-  gripper.tube_radius_m = cell_config.gripper.tube_radius_m;
-  gripper.cup_length_m = cell_config.gripper.cup_length_m;
+  const planner::GripperGeometry gripper = planner::GripperGeometry::FromCell(cell_config.gripper);
   world::CellModel cell;
   try {
     cell = world::LoadCellModel(cell_config);

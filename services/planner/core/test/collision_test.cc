@@ -256,6 +256,72 @@ TEST_F(CollisionTest, SphereBroadPhaseGivesFclsAnswer) {
   EXPECT_LT(pairs_near, pairs_total / 4);
 }
 
+// The head on its joint, turned a quarter turn: the gripper is the tube to the joint and the
+// head to the cup, each a prism in FCL; its spheres hold both cylinders, and the spheres'
+// broad phase still gives FCL's answer.
+TEST_F(CollisionTest, ABentHeadIsTwoCylindersForBothChecks) {
+  GripperGeometry articulated;
+  articulated.head_length_m = 0.09;
+  articulated.max_head_angle_rad = M_PI / 2;
+  const GripperGeometry bent_gripper = articulated.AtHeadAngle(M_PI / 2);
+  EXPECT_TRUE(bent_gripper.bent());
+  EXPECT_FALSE(articulated.bent());
+  EXPECT_THROW(articulated.AtHeadAngle(2.0), std::invalid_argument);
+  EXPECT_TRUE(bent_gripper.AtHeadAngle(0.0).X_ToolTcp.isApprox(articulated.X_ToolTcp));
+  const RobotGeometry bent = robot_->WithGripper(bent_gripper);
+  // Points on both cylinders' surfaces and the knuckle lie in the gripper's spheres.
+  const Eigen::Vector3d p_J = bent_gripper.p_ToolJoint();
+  const Eigen::Vector3d z_Tcp = bent_gripper.X_ToolTcp.linear().col(2);
+  auto in_spheres = [&](const Eigen::Vector3d& p) {
+    for (const Sphere& s : bent.spheres(kBodyTool).coarse) {
+      if ((s.center_B.cast<double>() - p).norm() <= s.radius_m) return true;
+    }
+    return false;
+  };
+  const double r = bent_gripper.tube_radius_m;
+  int outside = 0;
+  for (int k = 0; k < 24; ++k) {
+    const double a = 2.0 * M_PI * k / 24;
+    for (int i = 0; i <= 20; ++i) {
+      const double t = i / 20.0;
+      const Eigen::Vector3d d1 = p_J.normalized();
+      const Eigen::Vector3d ring1 =
+          r * (std::cos(a) * d1.unitOrthogonal() + std::sin(a) * d1.cross(d1.unitOrthogonal()));
+      const Eigen::Vector3d ring2 = r * (std::cos(a) * z_Tcp.unitOrthogonal() +
+                                         std::sin(a) * z_Tcp.cross(z_Tcp.unitOrthogonal()));
+      outside += !in_spheres(t * p_J + ring1);
+      outside += !in_spheres(p_J + t * (bent_gripper.head_length_m - 0.02) * z_Tcp + ring2);
+      outside += !in_spheres(p_J + t * ring1.normalized() * r);  // the knuckle
+    }
+  }
+  EXPECT_EQ(outside, 0);
+  // The gripper is paired with the links it may now reach.
+  const auto& pairs = bent.self_pairs();
+  EXPECT_NE(
+      std::find(pairs.begin(), pairs.end(), std::make_pair(int(kBodyUpperArm), int(kBodyTool))),
+      pairs.end());
+
+  const ExactChecker culled(bent, *cell_, scan_->get());
+  const ExactChecker full(bent, *cell_, scan_->get(), /*sphere_broad_phase=*/false);
+  const FastChecker fast(bent, *cell_, scan_->get());
+  std::mt19937 rng(2017);
+  std::vector<JointVector> states = RandomStates(kinematics_->model(), 1000, rng);
+  const auto near = NearContactSamples(*kinematics_, *cell_model_, bent_gripper, 4000, rng);
+  states.insert(states.end(), near.begin(), near.end());
+  int collisions = 0, mismatches = 0, missed = 0;
+  for (const JointVector& q : states) {
+    const CollisionReport a = culled.Check(q, nullptr);
+    const CollisionReport b = full.Check(q, nullptr);
+    collisions += b.in_collision;
+    mismatches += a.in_collision != b.in_collision;
+    missed += b.in_collision && fast.IsFree(q, nullptr);
+  }
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_EQ(missed, 0);
+  EXPECT_GT(collisions, 500);
+  EXPECT_LT(collisions, 4500);
+}
+
 // The slack is a lower bound: every state whose body points all lie within the slack of a
 // checked state's stays free with the same padding (self pairs with a distance table aside:
 // the motion check bounds their step through their joints), and its sign is IsFree's.
