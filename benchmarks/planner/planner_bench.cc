@@ -182,6 +182,9 @@ struct BenchArgs {
   bool checks_only = false;
   bool all_failures = false;
   std::vector<int> layouts = {1, 2, 3};
+  /// The gripper's head on a servo joint (0: the cell's gripper as described).
+  double head_length_m = 0.0;
+  double max_head_angle_deg = 90.0;
 };
 
 void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
@@ -351,6 +354,10 @@ int main(int argc, char** argv) {
       args.checks_only = true;
     } else if (arg == "--all-failures") {
       args.all_failures = true;
+    } else if (arg.rfind("--head-length-m=", 0) == 0) {
+      args.head_length_m = std::stod(arg.substr(16));
+    } else if (arg.rfind("--max-head-angle-deg=", 0) == 0) {
+      args.max_head_angle_deg = std::stod(arg.substr(21));
     } else if (arg.rfind("--layouts=", 0) == 0) {
       args.layouts.clear();
       for (char c : arg.substr(10)) {
@@ -358,7 +365,9 @@ int main(int argc, char** argv) {
       }
     } else {
       std::fprintf(stderr,
-                   "usage: %s [--picks-only | --checks-only] [--layouts=1,2,3] [--all-failures]\n",
+                   "usage: %s [--picks-only | --checks-only] [--layouts=1,2,3] [--all-failures]\n"
+                   "       [--head-length-m=0.09 [--max-head-angle-deg=90]]  (an articulated "
+                   "gripper)\n",
                    argv[0]);
       return 2;
     }
@@ -366,8 +375,13 @@ int main(int argc, char** argv) {
   Setup s;
   s.kinematics =
       std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
-  const world::CellConfig config =
-      world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
+  world::CellConfig config = world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
+  if (args.head_length_m > 0.0) {
+    config.gripper.head_length_m = args.head_length_m;
+    config.gripper.max_head_angle_rad = args.max_head_angle_deg * M_PI / 180.0;
+    std::printf("gripper: a %.3f m head on a joint of +-%.0f deg\n", args.head_length_m,
+                args.max_head_angle_deg);
+  }
   s.cell = world::LoadCellModel(config);
   apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
   auto grasps = std::make_shared<const GraspTable>(

@@ -421,6 +421,15 @@ TEST_F(PlannerPickTest, ThePickExecutesOnTheSimRobotAndTheGuardedMoveTouchesTheI
   *motion.mutable_start() = ToProto(Joints(state.joints().positions_rad()));
   motion.set_goal_name("scan/" + bin + "/0");
   pl::PlanJointMotionResponse to_scan;
+  {
+    // The cell's straight gripper has no head to bend.
+    grpc::ClientContext bent_ctx;
+    pl::PlanJointMotionRequest bent = motion;
+    bent.set_head_angle_rad(0.5);
+    const grpc::Status refused = plan_->PlanJointMotion(&bent_ctx, bent, &to_scan);
+    EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << refused.error_message();
+    EXPECT_NE(refused.error_message().find("servo"), std::string::npos) << refused.error_message();
+  }
   const grpc::Status planned = plan_->PlanJointMotion(&ctx, motion, &to_scan);
   ASSERT_TRUE(planned.ok()) << planned.error_message();
   execute(to_scan.trajectory());

@@ -16,6 +16,12 @@ struct TubeReachOptions {
   /// The compliant cup at the lip end, not a collision body (GripperGeometry::cup_length_m).
   double cup_length_m = 0.02;
   double tube_radius_m = 0.02;
+  /// A head on a joint (GripperGeometry::head_length_m; 0: a straight tube) turned by
+  /// head_angle_rad about the grasp tcp's x axis: the head lies along -approach from the lip
+  /// to the joint, the rest of the tube from the joint toward the flange along the grasp
+  /// tcp's -(0, sin a, cos a).
+  double head_length_m = 0.0;
+  double head_angle_rad = 0.0;
   /// The container's inner box is its free box (world::BinGeometry::inner_S: the closest wall
   /// and the lowest ceiling point over the whole depth), so the real wall may lie a little
   /// beyond a face; a tube that crosses a face by no more than this is left to the collision
@@ -27,7 +33,7 @@ struct TubeReachOptions {
   double front_edge_m = 0.02;
 };
 
-/// Whether a straight tube can stand at a grasp.
+/// Whether the tube, straight or bent at its head, can stand at a grasp.
 struct TubeReachResult {
   bool reaches = true;
   /// The face the tube runs into: "ceiling", "floor", "back wall", "side wall" (a bin) or
@@ -50,10 +56,11 @@ struct TubeReachResult {
 };
 
 /// The geometric test of a grasp before any search: at the grasp the tube lies along
-/// -approach from the lip to the flange, whatever the arm does, so it must leave the
-/// container through its opening before it crosses one of the inner box's other faces (by
-/// more than wall_tolerance_m). A failure here means every descent to the grasp ends in
-/// collision. `grasp` is in the base frame; the container's box is its free inner box.
+/// -approach from the lip to the flange (or, bent, to the joint and on from there),
+/// whatever the arm does, so it must leave the container through its opening before it
+/// crosses one of the inner box's other faces (by more than wall_tolerance_m). A failure here means
+/// every descent to the grasp ends in collision. `grasp` is in the base frame; the container's box
+/// is its free inner box.
 TubeReachResult CheckTubeReach(const GraspContainer& container, const GraspCandidate& grasp,
                                const TubeReachOptions& options = {});
 

@@ -211,16 +211,28 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
                              std::shared_ptr<world::ItemModelLibrary> items,
                              const MotionPlannerOptions& options)
     : options_(options),
-      robot_(std::make_unique<RobotGeometry>(kinematics, gripper)),
       cell_(std::make_unique<StaticCell>(cell, options.cell)),
       grasps_(std::move(grasps)),
       items_(std::move(items)),
       X_ToolCamera_(X_ToolCamera) {
   if (!grasps_ || !items_) throw std::invalid_argument("MotionPlanner needs grasps and items");
   if (!IsRigid(X_ToolCamera_)) throw std::invalid_argument("X_ToolCamera must be rigid");
-  static_fast_ = std::make_unique<FastChecker>(*robot_, *cell_, nullptr);
-  static_motion_ = std::make_unique<MotionChecker>(*static_fast_, options_.motion);
-  static_exact_ = std::make_unique<ExactChecker>(*robot_, *cell_, nullptr);
+  if (!(options_.head_angle_step_rad > 0.0) || !(options_.min_bent_hover_m >= 0.0) ||
+      !(options_.bent_wrist_clearance_m >= 0.0)) {
+    throw std::invalid_argument(
+        "head_angle_step_rad must be > 0, min_bent_hover_m and bent_wrist_clearance_m >= 0");
+  }
+  auto straight = std::make_unique<Head>();
+  straight->angle_rad = gripper.head_angle_rad;
+  straight->robot = std::make_unique<RobotGeometry>(kinematics, gripper);
+  straight->fast = std::make_unique<FastChecker>(*straight->robot, *cell_, nullptr);
+  straight->motion = std::make_unique<MotionChecker>(*straight->fast, options_.motion);
+  straight->exact = std::make_unique<ExactChecker>(*straight->robot, *cell_, nullptr);
+  robot_ = straight->robot.get();
+  static_fast_ = straight->fast.get();
+  static_motion_ = straight->motion.get();
+  static_exact_ = straight->exact.get();
+  heads_.emplace(straight->angle_rad, std::move(straight));
   std::vector<std::string> missing;
   std::vector<NamedPose> named = ComputeNamedPoses(*robot_, *cell_, *static_fast_, *static_exact_,
                                                    DefaultHomeJoints(), X_ToolCamera_, &missing);
@@ -233,6 +245,30 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
 }
 
 MotionPlanner::~MotionPlanner() = default;
+
+struct MotionPlanner::RequestChecks {
+  RequestChecks(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan,
+                const MotionCheckOptions& options)
+      : fast(robot, cell, scan), motion(fast, options), exact(robot, cell, scan) {}
+  FastChecker fast;
+  MotionChecker motion;
+  ExactChecker exact;
+};
+
+const MotionPlanner::Head& MotionPlanner::HeadAt(double angle_rad) const {
+  if (!std::isfinite(angle_rad)) throw std::invalid_argument("the head angle must be finite");
+  std::lock_guard<std::mutex> lock(heads_mutex_);
+  auto it = heads_.find(angle_rad);
+  if (it != heads_.end()) return *it->second;
+  auto head = std::make_unique<Head>();
+  head->angle_rad = angle_rad;
+  head->robot = std::make_unique<RobotGeometry>(
+      robot_->WithGripper(robot_->gripper().AtHeadAngle(angle_rad)));
+  head->fast = std::make_unique<FastChecker>(*head->robot, *cell_, nullptr);
+  head->motion = std::make_unique<MotionChecker>(*head->fast, options_.motion);
+  head->exact = std::make_unique<ExactChecker>(*head->robot, *cell_, nullptr);
+  return *heads_.emplace(angle_rad, std::move(head)).first->second;
+}
 
 GraspContainer MotionPlanner::Container(const std::string& name) const {
   if (name == "tote") return ToteContainer(cell_->cell());
@@ -348,6 +384,7 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
     throw std::invalid_argument("speed_fraction must be in (0, 1]");
   }
   const ur10::Ur10Model& model = robot_->kinematics().model();
+  const RobotGeometry& robot = checker.checker().robot();  // the gripper's head as checked
   TimeOptimalOptions timing;
   timing.max_velocity_rad_s = model.max_velocity_rad_s() * speed_fraction;
   timing.max_acceleration_rad_s2 = model.max_acceleration_rad_s2() * speed_fraction;
@@ -378,8 +415,8 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
       for (std::size_t i = 1; i < timed.samples.size(); ++i) {
         const double dt = timed.samples[i].time_s - timed.samples[i - 1].time_s;
         if (dt <= 0.0) continue;
-        const double d = (robot_->X_BaseTcp(timed.samples[i].q_rad).translation() -
-                          robot_->X_BaseTcp(timed.samples[i - 1].q_rad).translation())
+        const double d = (robot.X_BaseTcp(timed.samples[i].q_rad).translation() -
+                          robot.X_BaseTcp(timed.samples[i - 1].q_rad).translation())
                              .norm();
         v_max = std::max(v_max, d / dt);
       }
@@ -425,21 +462,25 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
 
 JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
                                                const JointVector& goal_rad, double speed_fraction,
-                                               Deadline deadline) const {
+                                               Deadline deadline, double head_angle_rad) const {
   const auto started = std::chrono::steady_clock::now();
   ValidateStart(start_rad);
+  const Head& head = HeadAt(head_angle_rad);  // throws outside the servo's range
+  const bool straight = &head == &HeadAt(robot_->gripper().head_angle_rad);
   if (!goal_rad.allFinite()) throw std::invalid_argument("goal joints must be finite");
   if (const std::string out = robot_->kinematics().model().PositionLimitViolation(goal_rad);
       !out.empty()) {
     throw std::invalid_argument("the goal joints are outside the UR10's limits: " + out);
   }
-  if (const CollisionReport r = static_fast_->Check(start_rad); r.in_collision) {
+  if (const CollisionReport r = head.fast->Check(start_rad); r.in_collision) {
     throw PreconditionError("the start state collides: " + r.ToString());
   }
-  if (const CollisionReport r = static_fast_->Check(goal_rad); r.in_collision) {
+  if (const CollisionReport r = head.fast->Check(goal_rad); r.in_collision) {
     throw std::invalid_argument("the goal state collides: " + r.ToString());
   }
-  const JointPathResult path = roadmap_->Plan(start_rad, goal_rad, nullptr, deadline);
+  // The roadmap's edges were checked with the straight head; a bent one checks the path too.
+  const JointPathResult path =
+      roadmap_->Plan(start_rad, goal_rad, straight ? nullptr : head.motion.get(), deadline);
   CheckDeadline(deadline, "the joint motion");
   if (!path.ok) {
     PlanFailure f;
@@ -451,7 +492,7 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   JointMotionPlan plan;
   plan.path_rad = path.path_rad;
   plan.cached = path.cached;
-  plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *static_motion_, *static_exact_,
+  plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *head.motion, *head.exact,
                                     nullptr, "joint motion");
   plan.planning_time_s = Seconds(started);
   return plan;
@@ -467,8 +508,8 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
                                                  std::string* reason) const {
   ur10::IkOptions ik_options;
   ik_options.include_2pi_variants = true;
-  ur10::IkResult ik =
-      robot_->kinematics().Solve(X_BaseTcp * robot_->gripper().X_ToolTcp.inverse(), ik_options);
+  ur10::IkResult ik = robot_->kinematics().Solve(
+      X_BaseTcp * checker.robot().gripper().X_ToolTcp.inverse(), ik_options);
   if (ik.empty()) {
     *reason = "no IK solution: " + ik.reason;
     return std::nullopt;
@@ -491,15 +532,25 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
 
 std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContainer& container,
                                                              const GraspCandidate& grasp,
+                                                             double hover_m, bool bent,
                                                              std::string* reason) const {
   const bool tote = container.kind == GraspContainerKind::kTote;
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d a = grasp.approach_Base;
-  // Back along the approach line until outside the opening (or above the rim).
   const Eigen::Vector3d o = container.opening_direction_Base;
   const Eigen::Vector3d p_opening =
       container.X_BaseContainer.translation() +
       0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  if (bent && !tote) {
+    // The bent tube points out of the opening: hover over the grasp and draw straight back
+    // out of the bin, the cup still facing the grasp.
+    Eigen::Isometry3d X_pre = X_grasp;
+    const double out_m =
+        std::max(0.0, (p_opening - X_grasp.translation()).dot(o)) + options_.pregrasp_clearance_m;
+    X_pre.translation() += -a * hover_m + o * out_m;
+    return X_pre;
+  }
+  // Back along the approach line until outside the opening (or above the rim).
   const double back_per_m = (-a).dot(o);  // opening-normal distance per metre of back-off
   if (back_per_m < 0.1) {
     *reason = "the approach runs along the opening";
@@ -529,12 +580,75 @@ std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContaine
   return X_pre;
 }
 
+std::optional<std::pair<GraspCandidate, double>> MotionPlanner::BendHead(
+    const GraspContainer& container, const GraspCandidate& grasp, PlanFailure* blocked) const {
+  const GripperGeometry& gripper = robot_->gripper();
+  if (gripper.head_length_m == 0.0 || gripper.max_head_angle_rad == 0.0) return std::nullopt;
+  // The bent tube's direction -(sin t y_tcp + cos t z_tcp) lies nearest the opening direction
+  // o when y_tcp is o's part across the approach, reversed, and t the angle from -a to o.
+  const Eigen::Vector3d a = grasp.approach_Base;
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  const Eigen::Vector3d across = o - o.dot(a) * a;
+  if (across.norm() < 1e-6) return std::nullopt;  // straight out already
+  const double ideal_rad = std::acos(std::clamp(-a.dot(o), -1.0, 1.0));
+  const double step = options_.head_angle_step_rad;
+  Eigen::Matrix3d R;
+  R.col(2) = a;
+  R.col(1) = -across.normalized();
+  R.col(0) = R.col(1).cross(R.col(2));
+  GraspCandidate bent = grasp;
+  bent.X_BaseTcp.linear() = R;
+  bent.X_BaseTcpPreGrasp.linear() = R;
+  bent.roll_symmetric = false;  // the roll sets where the tube goes
+  // The servo's steps on either side of the ideal angle tip the tube a little up or down:
+  // take first the one that leaves the flange (and the wrist around it) nearer the middle
+  // of the container's height, away from its ceiling and floor.
+  std::vector<double> angles;
+  for (const double k : {std::floor(ideal_rad / step), std::ceil(ideal_rad / step)}) {
+    const double angle = std::min(k * step, gripper.max_head_angle_rad);
+    if (angle > 0.0 && std::find(angles.begin(), angles.end(), angle) == angles.end()) {
+      angles.push_back(angle);
+    }
+  }
+  const double middle_z = container.X_BaseContainer.translation().z();
+  auto flange_off_middle = [&](double angle) {
+    const Eigen::Isometry3d X_BaseTool =
+        bent.X_BaseTcp * gripper.AtHeadAngle(angle).X_ToolTcp.inverse();
+    return std::abs(X_BaseTool.translation().z() - middle_z);
+  };
+  std::sort(angles.begin(), angles.end(),
+            [&](double x, double y) { return flange_off_middle(x) < flange_off_middle(y); });
+  for (const double angle : angles) {
+    if (TubeReaches(container, bent, *HeadAt(angle).robot, blocked)) {
+      return std::make_pair(bent, angle);
+    }
+  }
+  return std::nullopt;
+}
+
+double MotionPlanner::BentHover(const GraspContainer& container, const GraspCandidate& grasp,
+                                const GripperGeometry& gripper) const {
+  // The joint stands head_length_m behind the lip; the tube runs from it out of the opening
+  // and the wrist around the flange must pass under the ceiling (the container box's top).
+  const Eigen::Vector3d back = -grasp.approach_Base;
+  if (back.z() < 0.3) return options_.guarded_distance_m;
+  const double ceiling_z = container.X_BaseContainer.translation().z() +
+                           0.5 * std::abs(Eigen::Vector3d::UnitZ().dot(
+                                     container.X_BaseContainer.linear() * container.inner_size_m));
+  const double joint_z = grasp.X_BaseTcp.translation().z() + gripper.head_length_m * back.z();
+  const double room_m = (ceiling_z - options_.bent_wrist_clearance_m - joint_z) / back.z();
+  return std::clamp(room_m, options_.min_bent_hover_m, options_.guarded_distance_m);
+}
+
 bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
-                                PlanFailure* failure) const {
+                                const RobotGeometry& robot, PlanFailure* failure) const {
+  const GripperGeometry& gripper = robot.gripper();
   TubeReachOptions options;
-  options.lip_to_flange_m = robot_->gripper().X_ToolTcp.translation().z();
-  options.cup_length_m = robot_->gripper().cup_length_m;
-  options.tube_radius_m = robot_->gripper().tube_radius_m;
+  options.lip_to_flange_m = gripper.reach_m();
+  options.cup_length_m = gripper.cup_length_m;
+  options.tube_radius_m = gripper.tube_radius_m;
+  options.head_length_m = gripper.head_length_m;
+  options.head_angle_rad = gripper.head_angle_rad;
   const TubeReachResult reach = CheckTubeReach(container, grasp, options);
   if (reach.reaches) return true;
   failure->stage = "descend";
@@ -558,7 +672,7 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   // pre-grasp solution nearest to the start whose branch also holds both ends of the descent
   // and the guarded move free.
   const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
-  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
   ur10::IkOptions ik_options;
   ik_options.include_2pi_variants = true;
   ur10::IkResult ik = kinematics.Solve(X_pre * X_TcpTool, ik_options);
@@ -679,7 +793,7 @@ bool MotionPlanner::LiftOff(const GraspContainer& container, const Eigen::Isomet
   // checked exactly. The highest lift (up to lift_m) that works: a tall item has little
   // room below a bin's ceiling.
   const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
-  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
   const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
   const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
   for (const double fraction : {1.0, 0.8, 0.6}) {
@@ -749,10 +863,14 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     return false;
   };
   std::string reason;
-  const std::optional<Eigen::Isometry3d> pre = PreGraspPose(container, grasp, &reason);
+  const bool bent = fast.robot().gripper().bent();
+  const double hover_m =
+      bent ? BentHover(container, grasp, fast.robot().gripper()) : options_.guarded_distance_m;
+  const std::optional<Eigen::Isometry3d> pre =
+      PreGraspPose(container, grasp, hover_m, bent, &reason);
   if (!pre) return fail("pre-grasp", "ik unreachable", reason);
   const Eigen::Isometry3d& X_pre = *pre;
-  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * options_.guarded_distance_m);
+  const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * hover_m);
   PlanFailure start_failure;
   const auto q_pre =
       DescentStart(X_pre, X_descend_end, X_grasp, request.start_rad, fast, &start_failure);
@@ -775,7 +893,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   // The guarded move and the lift: straight along the approach, the arm checked (the cup
   // touches the item, whose voxels are cut out).
   const ur10::Branch branch = robot_->kinematics().BranchOf(descend.path_rad.back());
-  const Eigen::Isometry3d X_TcpTool = robot_->gripper().X_ToolTcp.inverse();
+  const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
   const auto ik_grasp =
       robot_->kinematics().NearestSolution(X_grasp * X_TcpTool, descend.path_rad.back(), branch);
   if (!ik_grasp) return fail("descend", "ik unreachable", "the grasp pose has no IK solution");
@@ -798,7 +916,9 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const JointVector* q_lift = &lifted;
 
   // Retreat carrying the item, from the lift to the pre-grasp pose.
-  const Eigen::Isometry3d X_exit = tote ? X_pre : translated(X_pre, lift_Base);
+  // Out at the lift's height: along the approach line back, or (bent) straight out.
+  const Eigen::Isometry3d X_exit =
+      tote ? X_pre : translated(X_pre, bent ? Eigen::Vector3d(lift_Base + a * hover_m) : lift_Base);
   const CartesianSearchResult retreat =
       SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
   plan->nodes_expanded += retreat.nodes_expanded;
@@ -823,7 +943,8 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   plan->retreat = Joined(lift, TimeAndValidate(retreat.path_rad, request.speed_fraction, motion,
                                                exact, &carried, "retreat"));
   plan->guarded_direction_Base = a;
-  plan->guarded_distance_m = options_.guarded_distance_m + options_.guarded_overshoot_m;
+  plan->guarded_distance_m = hover_m + options_.guarded_overshoot_m;
+  plan->head_angle_rad = fast.robot().gripper().head_angle_rad;
   return true;
 }
 
@@ -844,12 +965,12 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   Container(request.container);  // throws NotFoundError
   CheckDeadline(deadline, "the pick's set-up");
   const ScanObstacles* scan = scene ? scene->obstacles.get() : nullptr;
-  const FastChecker fast(*robot_, *cell_, scan);
-  const MotionChecker motion(fast, options_.motion);
-  const ExactChecker exact(*robot_, *cell_, scan);
-  if (const CollisionReport r = fast.Check(request.start_rad); r.in_collision) {
+  RequestChecks straight(*robot_, *cell_, scan, options_.motion);
+  if (const CollisionReport r = straight.fast.Check(request.start_rad); r.in_collision) {
     throw PreconditionError("the start state collides: " + r.ToString());
   }
+  // The checks with the head bent, per angle, built when a grasp first needs them.
+  std::map<double, std::unique_ptr<RequestChecks>> bent_checks;
   const GraspResult grasps =
       ComputeGraspsFor(request.item, request.X_BaseItem, request.container, scene);
   if (grasps.empty()) {
@@ -863,22 +984,55 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   PickPlan plan;
   std::vector<PlanFailure> failures;
   const GraspContainer container = Container(request.container);
-  for (const GraspCandidate& candidate : grasps.candidates) {
+  for (const GraspCandidate& listed : grasps.candidates) {
     if (plan.grasps_tried >= options_.max_grasps_tried) break;
     // The tube's geometry at the grasp does not depend on the arm or the roll: a grasp it
-    // rules out is refused without IK or search, and does not count as tried.
+    // rules out, straight and bent, is refused without IK or search and does not count.
+    GraspCandidate candidate = listed;
+    const RequestChecks* checks = &straight;
     PlanFailure blocked;
-    if (!TubeReaches(container, candidate, &blocked)) {
-      failures.push_back(blocked);
-      continue;
+    if (!TubeReaches(container, candidate, *robot_, &blocked)) {
+      const auto bent = BendHead(container, listed, &blocked);
+      if (!bent) {
+        failures.push_back(blocked);
+        continue;
+      }
+      candidate = bent->first;
+      auto& slot = bent_checks[bent->second];
+      if (!slot) {
+        slot = std::make_unique<RequestChecks>(*HeadAt(bent->second).robot, *cell_, scan,
+                                               options_.motion);
+      }
+      checks = slot.get();
+      // The head turns at the start, before the approach.
+      if (const CollisionReport r = checks->fast.Check(request.start_rad); r.in_collision) {
+        PlanFailure f;
+        f.stage = "start";
+        f.kind = "collision";
+        f.grasp = listed.surface;
+        f.body = BodyName(r.body);
+        f.obstacle = r.obstacle;
+        f.message = "the head bent to " + Fixed(bent->second * 180.0 / M_PI, 0) +
+                    " deg for grasp '" + listed.surface +
+                    "' collides at the start: " + r.ToString();
+        failures.push_back(f);
+        continue;
+      }
     }
     ++plan.grasps_tried;
     // Suction is symmetric about the cup's axis: the wrist may take the grasp at another
     // roll where the first one runs into a joint limit, a wrist singularity or a wall.
     PlanFailure best;
     bool have_best = false;
-    for (const double roll : {0.0, M_PI / 2, -M_PI / 2, M_PI}) {
-      if (roll != 0.0 && !candidate.roll_symmetric) break;
+    // A bent head's roll sets where the tube leaves the bin: a little to either side keeps
+    // the wrist off a side wall or the tube off a neighbour.
+    const bool bent = checks != &straight;
+    const auto rolls =
+        bent ? std::array<double, 4>{0.0, options_.bent_roll_rad, -options_.bent_roll_rad, 0.0}
+             : std::array<double, 4>{0.0, M_PI / 2, -M_PI / 2, M_PI};
+    for (int k = 0; k < (bent ? 3 : 4); ++k) {
+      const double roll = rolls[k];
+      if (roll != 0.0 && !candidate.roll_symmetric && !bent) break;
       CheckDeadline(deadline, "the pick search");
       GraspCandidate rolled = candidate;
       const Eigen::Matrix3d R =
@@ -887,7 +1041,8 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
       rolled.X_BaseTcpPreGrasp.linear() = candidate.X_BaseTcpPreGrasp.linear() * R;
       PlanFailure failure;
       try {
-        if (TryGrasp(request, rolled, model, fast, motion, exact, deadline, &plan, &failure)) {
+        if (TryGrasp(request, rolled, model, checks->fast, checks->motion, checks->exact, deadline,
+                     &plan, &failure)) {
           plan.rejected = failures;
           plan.planning_time_s = Seconds(started);
           return plan;
@@ -930,6 +1085,8 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
   }
   if (!IsRigid(request.X_TcpItem)) throw std::invalid_argument("X_tcp_item must be rigid");
   const GraspContainer container = Container(request.container);
+  const Head& head = HeadAt(request.head_angle_rad);  // throws outside the servo's range
+  const bool straight = &head == &HeadAt(robot_->gripper().head_angle_rad);
   const CarriedItem carried = MakeCarriedItem(request.item, model->box_I, request.X_TcpItem);
   // The item's lowest point below the tcp when the tcp points straight down.
   const Eigen::Isometry3d X_down = DownAt(Eigen::Vector3d::Zero());
@@ -979,23 +1136,23 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
   for (const Eigen::Isometry3d& X_release : candidates) {
     CheckDeadline(deadline, "the place");
     std::string reason;
-    const auto q_release = FreeIk(X_release, request.start_rad, *static_fast_, &carried, &reason);
+    const auto q_release = FreeIk(X_release, request.start_rad, *head.fast, &carried, &reason);
     if (!q_release) {
       failures.push_back({"place", "ik unreachable", "", -1, 0.0, "", "",
                           "release pose over " + request.container + ": " + reason});
       continue;
     }
     // Every motion of the search checked with the item on the cup.
-    const JointPathResult path =
-        roadmap_->Plan(request.start_rad, *q_release, nullptr, deadline, &carried);
+    const JointPathResult path = roadmap_->Plan(
+        request.start_rad, *q_release, straight ? nullptr : head.motion.get(), deadline, &carried);
     if (!path.ok) {
       failures.push_back({"place", "no path", "", -1, 0.0, "", "",
                           "no free motion to the release pose carrying the item: " + path.reason});
       continue;
     }
     const std::vector<JointVector>& joints = path.path_rad;
-    plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *static_motion_,
-                                      *static_exact_, &carried, "place");
+    plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *head.motion, *head.exact,
+                                      &carried, "place");
     plan.X_BaseTcp_release = X_release;
     plan.drop_height_m = X_release.translation().z() - below_m - floor_z;
     plan.planning_time_s = Seconds(started);

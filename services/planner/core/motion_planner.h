@@ -3,7 +3,9 @@
 #include <Eigen/Geometry>
 
 #include <chrono>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -57,6 +59,20 @@ struct MotionPlannerOptions {
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
   double max_pregrasp_back_m = 0.45;
+  /// A gripper with a head on a joint bends it for a grasp the straight tube cannot stand
+  /// at: to the multiple of this step (up to the servo's range) nearest the angle between
+  /// the reversed approach and the opening direction, the rest of the tube then pointing out
+  /// of the opening (radians, > 0).
+  double head_angle_step_rad = 30.0 * M_PI / 180.0;
+  /// With the head bent, the descent ends at most guarded_distance_m above the grasp and at
+  /// least min_bent_hover_m, lower where the tube, level from the joint to the flange,
+  /// would bring the wrist within bent_wrist_clearance_m of the bin's ceiling (the UR10's
+  /// wrist housings reach about 6 cm around the flange's axis; metres).
+  double min_bent_hover_m = 0.015;
+  /// A bent grasp is also tried rolled by +- this about the approach (the tube leaving the
+  /// bin turned that much to a side), radians.
+  double bent_roll_rad = 20.0 * M_PI / 180.0;
+  double bent_wrist_clearance_m = 0.08;
   /// Grasps searched, best first, before the pick is given up. Grasps refused by the checks
   /// before the search (the tube through the opening, the descent's end pose) cost
   /// microseconds and are not counted.
@@ -116,6 +132,7 @@ struct PlanningScene {
 /// What a pick needs to know.
 struct PickRequest {
   std::string item;
+  // (The gripper's head is straight at the start; the plan says how to bend it.)
   Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
   std::string container;  ///< "bin_A".."bin_L" or "tote".
   JointVector start_rad = JointVector::Zero();
@@ -124,6 +141,9 @@ struct PickRequest {
 
 struct PickPlan {
   GraspCandidate grasp;
+  /// The gripper's head angle for the whole pick (radians; 0: straight): set it at the
+  /// start, before the approach, and keep it through the place.
+  double head_angle_rad = 0.0;
   Trajectory approach;  ///< start -> pre-grasp
   Trajectory descend;   ///< pre-grasp -> guarded_distance short of the grasp
   Trajectory retreat;   ///< grasp -> pre-grasp, carrying the item
@@ -141,6 +161,7 @@ struct PlaceRequest {
   std::string container;  ///< "tote" (pick task) or a bin (stow).
   JointVector start_rad = JointVector::Zero();
   double speed_fraction = 1.0;
+  double head_angle_rad = 0.0;  ///< The gripper's head as the pick left it.
 };
 
 struct PlacePlan {
@@ -194,10 +215,14 @@ class MotionPlanner final {
                                const PlanningScene* scene = nullptr) const;
 
   /// A collision-free trajectory from start to goal (joint values, or a named pose).
+  /// `head_angle_rad`: the gripper's head during the motion (within the servo's range).
   JointMotionPlan PlanJointMotion(const JointVector& start_rad, const JointVector& goal_rad,
-                                  double speed_fraction, Deadline deadline) const;
+                                  double speed_fraction, Deadline deadline,
+                                  double head_angle_rad = 0.0) const;
 
-  /// Approach, descent and retreat for picking `request.item`. Throws PlanFailedError when no
+  /// Approach, descent and retreat for picking `request.item`, with the gripper's head straight
+  /// or, where the straight tube cannot stand at a grasp, bent (PickPlan::head_angle_rad).
+  /// Throws PlanFailedError when no
   /// grasp can be planned, NotFoundError / std::invalid_argument / PreconditionError for bad
   /// requests, TimeoutError when the deadline passes.
   PickPlan PlanPick(const PickRequest& request, const PlanningScene* scene,
@@ -214,16 +239,38 @@ class MotionPlanner final {
 
  private:
   struct Attempt;
+  // The static cell's checks with the gripper's head at one angle.
+  struct Head {
+    double angle_rad = 0.0;
+    std::unique_ptr<RobotGeometry> robot;
+    std::unique_ptr<FastChecker> fast;
+    std::unique_ptr<MotionChecker> motion;
+    std::unique_ptr<ExactChecker> exact;
+  };
+  // The checks of one request (its scan) with the head at one angle.
+  struct RequestChecks;
+  // The head at `angle_rad`, its checks built the first time it is asked for.
+  // Throws std::invalid_argument outside the servo's range.
+  const Head& HeadAt(double angle_rad) const;
+  // For a grasp the straight tube cannot stand at: the grasp turned so that the bent tube
+  // points out of the opening, and the head angle; nullopt (and `blocked` saying why) if
+  // the gripper has no joint or the bent tube does not fit either.
+  std::optional<std::pair<GraspCandidate, double>> BendHead(const GraspContainer& container,
+                                                            const GraspCandidate& grasp,
+                                                            PlanFailure* blocked) const;
+  // How far above a bent grasp the descent ends (see min_bent_hover_m).
+  double BentHover(const GraspContainer& container, const GraspCandidate& grasp,
+                   const GripperGeometry& gripper) const;
   void ValidateStart(const JointVector& start_rad) const;
   GraspContainer Container(const std::string& name) const;
   std::optional<JointVector> FreeIk(const Eigen::Isometry3d& X_BaseTcp, const JointVector& seed,
                                     const FastChecker& checker, const CarriedItem* carried,
                                     std::string* reason) const;
   std::optional<Eigen::Isometry3d> PreGraspPose(const GraspContainer& container,
-                                                const GraspCandidate& grasp,
-                                                std::string* reason) const;
+                                                const GraspCandidate& grasp, double hover_m,
+                                                bool bent, std::string* reason) const;
   bool TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
-                   PlanFailure* failure) const;
+                   const RobotGeometry& robot, PlanFailure* failure) const;
   std::optional<JointVector> DescentStart(const Eigen::Isometry3d& X_pre,
                                           const Eigen::Isometry3d& X_descend_end,
                                           const Eigen::Isometry3d& X_grasp, const JointVector& seed,
@@ -240,11 +287,14 @@ class MotionPlanner final {
                 PickPlan* plan, PlanFailure* failure) const;
 
   MotionPlannerOptions options_;
-  std::unique_ptr<RobotGeometry> robot_;
   std::unique_ptr<StaticCell> cell_;
-  std::unique_ptr<FastChecker> static_fast_;
-  std::unique_ptr<MotionChecker> static_motion_;
-  std::unique_ptr<ExactChecker> static_exact_;
+  mutable std::mutex heads_mutex_;
+  // The head's checks by angle; the straight head's (at 0) built first, its parts named below.
+  mutable std::map<double, std::unique_ptr<Head>> heads_;
+  const RobotGeometry* robot_ = nullptr;
+  const FastChecker* static_fast_ = nullptr;
+  const MotionChecker* static_motion_ = nullptr;
+  const ExactChecker* static_exact_ = nullptr;
   std::unique_ptr<Roadmap> roadmap_;
   std::shared_ptr<const GraspTable> grasps_;
   std::shared_ptr<world::ItemModelLibrary> items_;

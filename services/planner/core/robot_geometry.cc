@@ -298,20 +298,20 @@ RobotGeometry RobotGeometry::WithGripper(const GripperGeometry& gripper) const {
   RobotGeometry other = *this;
   other.gripper_ = gripper;
   other.BuildGripper();
-  // A bent head reaches where the straight tube the pairs were sampled with did not: pair the
-  // gripper with every link that is not its neighbour (the broad phase keeps the cost low).
+  // The gripper's pairs chosen again for its new shape (a bent head reaches links the
+  // straight tube never did); the links' pairs and tables stay.
   auto& pairs = other.self_pairs_;
-  for (int a = 0; a <= kBodyWrist2; ++a) {
-    if (!other.fcl_geometry_[kBodyTool]) break;
-    const auto pair = std::make_pair(a, static_cast<int>(kBodyTool));
-    if (std::find(pairs.begin(), pairs.end(), pair) == pairs.end() &&
-        std::find(built_together_.begin(), built_together_.end(), pair) == built_together_.end()) {
-      // Before the carried item's pairs, which come last.
-      const auto first_item = std::find_if(pairs.begin(), pairs.end(),
-                                           [](const auto& p) { return p.second == kBodyItem; });
-      pairs.insert(first_item, pair);
-    }
+  pairs.erase(std::remove_if(pairs.begin(), pairs.end(),
+                             [](const auto& p) { return p.second == kBodyTool; }),
+              pairs.end());
+  std::vector<std::pair<int, int>> candidates;
+  for (int a = 0; a + 2 <= kBodyTool && other.fcl_geometry_[kBodyTool]; ++a) {
+    candidates.emplace_back(a, kBodyTool);
   }
+  const auto first_item =
+      std::find_if(pairs.begin(), pairs.end(), [](const auto& p) { return p.second == kBodyItem; });
+  const auto chosen = other.SelectTouchingPairs(candidates);
+  pairs.insert(first_item, chosen.begin(), chosen.end());
   return other;
 }
 

@@ -203,6 +203,9 @@ class RobotGeometry final {
 
  private:
   void ChooseSelfPairs();
+  // The candidates that touch in some but not nearly all of 2,000 seeded random states (FCL).
+  std::vector<std::pair<int, int>> SelectTouchingPairs(
+      const std::vector<std::pair<int, int>>& candidates) const;
   // The gripper's spheres and FCL geometry from gripper_.
   void BuildGripper();
   void BuildPairTables(
@@ -216,7 +219,6 @@ class RobotGeometry final {
   Eigen::Isometry3d X_ToolTube_ = Eigen::Isometry3d::Identity();
   std::array<std::shared_ptr<fcl::CollisionGeometry<double>>, kNumArmBodies> fcl_geometry_;
   std::vector<std::pair<int, int>> self_pairs_;
-  std::vector<std::pair<int, int>> built_together_;  // pairs touching in nearly every sample
   std::vector<PairDistanceTable> pair_tables_;
 };
 

@@ -158,6 +158,41 @@ void RobotGeometry::BuildGripper() {
   fcl_geometry_[kBodyTool]->computeLocalAABB();
 }
 
+std::vector<std::pair<int, int>> RobotGeometry::SelectTouchingPairs(
+    const std::vector<std::pair<int, int>>& candidates) const {
+  std::array<Eigen::Isometry3d, kNumArmBodies> X_BodyGeometry;
+  X_BodyGeometry.fill(Eigen::Isometry3d::Identity());
+  X_BodyGeometry[kBodyTool] = X_ToolTube_;
+  // 2,000 seeded samples, as MoveIt's setup assistant takes thousands: a pair that never
+  // touches is kept apart by the joint limits and the chain's offsets; one that always
+  // touches is built together.
+  std::mt19937 rng(20160101);
+  const JointVector lo = kinematics_.model().min_position_rad();
+  const JointVector hi = kinematics_.model().max_position_rad();
+  std::vector<int> touching(candidates.size(), 0);
+  constexpr int kSamples = 2000;
+  BodyPoses X;
+  for (int s = 0; s < kSamples; ++s) {
+    JointVector q;
+    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+    ComputePoses(q, nullptr, &X);
+    for (std::size_t k = 0; k < candidates.size(); ++k) {
+      const auto [a, b] = candidates[k];
+      fcl::CollisionObjectd oa(fcl_geometry_[a], X[a] * X_BodyGeometry[a]);
+      fcl::CollisionObjectd ob(fcl_geometry_[b], X[b] * X_BodyGeometry[b]);
+      fcl::CollisionRequestd request;
+      fcl::CollisionResultd result;
+      fcl::collide(&oa, &ob, request, result);
+      touching[k] += result.isCollision();
+    }
+  }
+  std::vector<std::pair<int, int>> pairs;
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    if (touching[k] > 0 && touching[k] < kSamples * 95 / 100) pairs.push_back(candidates[k]);
+  }
+  return pairs;
+}
+
 void RobotGeometry::ChooseSelfPairs() {
   // Built once here, shared by every exact check (a BVH takes milliseconds to build).
   auto& geometry = fcl_geometry_;
@@ -174,33 +209,7 @@ void RobotGeometry::ChooseSelfPairs() {
       if (geometry[a] && geometry[b]) candidates.emplace_back(a, b);
     }
   }
-  // 2,000 seeded samples, as MoveIt's setup assistant takes thousands: a pair that never
-  // touches is kept apart by the joint limits and the chain's offsets; one that always
-  // touches is built together.
-  std::mt19937 rng(20160101);
-  const JointVector lo = kinematics_.model().min_position_rad();
-  const JointVector hi = kinematics_.model().max_position_rad();
-  std::vector<int> touching(candidates.size(), 0);
-  constexpr int kSamples = 2000;
-  BodyPoses X;
-  for (int s = 0; s < kSamples; ++s) {
-    JointVector q;
-    for (int j = 0; j < 6; ++j) q[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
-    ComputePoses(q, nullptr, &X);
-    for (std::size_t k = 0; k < candidates.size(); ++k) {
-      const auto [a, b] = candidates[k];
-      fcl::CollisionObjectd oa(geometry[a], X[a] * X_BodyGeometry[a]);
-      fcl::CollisionObjectd ob(geometry[b], X[b] * X_BodyGeometry[b]);
-      fcl::CollisionRequestd request;
-      fcl::CollisionResultd result;
-      fcl::collide(&oa, &ob, request, result);
-      touching[k] += result.isCollision();
-    }
-  }
-  for (std::size_t k = 0; k < candidates.size(); ++k) {
-    if (touching[k] > 0 && touching[k] < kSamples * 95 / 100) self_pairs_.push_back(candidates[k]);
-    if (touching[k] >= kSamples * 95 / 100) built_together_.push_back(candidates[k]);
-  }
+  self_pairs_ = SelectTouchingPairs(candidates);
   BuildPairTables(geometry, X_BodyGeometry);
   // The carried item against every body but the gripper and wrist_3 it hangs from.
   for (int a = 0; a < kBodyWrist3; ++a) self_pairs_.emplace_back(a, kBodyItem);

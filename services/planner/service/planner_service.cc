@@ -210,8 +210,9 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
       } else {
         throw std::invalid_argument("set goal_joints or goal_name");
       }
-      const JointMotionPlan plan = planner_->PlanJointMotion(
-          start, goal, SpeedFraction(request->speed_fraction()), CallDeadline(ctx));
+      const JointMotionPlan plan =
+          planner_->PlanJointMotion(start, goal, SpeedFraction(request->speed_fraction()),
+                                    CallDeadline(ctx), request->head_angle_rad());
       ToProto(plan.trajectory, response->mutable_trajectory());
       response->set_planning_time_s(plan.planning_time_s);
     });
@@ -311,6 +312,7 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
       response->set_guarded_distance_m(plan.guarded_distance_m);
       response->set_planning_time_s(plan.planning_time_s);
       response->set_nodes_expanded(static_cast<std::uint32_t>(plan.nodes_expanded));
+      response->set_head_angle_rad(plan.head_angle_rad);
     });
   }
 
@@ -322,6 +324,7 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
       place.container = pc::ContainerName(request->container());
       place.start_rad = JointsFrom(request->start(), "start");
       place.speed_fraction = SpeedFraction(request->speed_fraction());
+      place.head_angle_rad = request->head_angle_rad();
       if (request->has_x_tcp_item()) {
         place.X_TcpItem = pc::PoseFromProto(request->x_tcp_item(), "X_tcp_item");
       } else {
