@@ -33,6 +33,41 @@ bool IsRigid(const Eigen::Isometry3d& X) {
          std::abs(R.determinant() - 1.0) < 1e-6;
 }
 
+// A piece of the gripper's tube: a cylinder in the flange frame.
+struct TubePiece {
+  std::shared_ptr<fcl::Cylinderd> shape;
+  Eigen::Isometry3d X_ToolPiece = Eigen::Isometry3d::Identity();
+};
+
+// The gripper's tube without its cup: one cylinder when straight, the tube to the joint and
+// the head when bent.
+std::vector<TubePiece> TubePieces(const world::GripperConfig& gripper, double head_angle_rad) {
+  // A cylinder from `p0` along the unit `axis` for `length`, in the flange frame.
+  std::vector<TubePiece> pieces;
+  auto add = [&](const Eigen::Vector3d& p0, const Eigen::Vector3d& axis, double length) {
+    if (length <= 1e-6) return;
+    TubePiece piece;
+    piece.shape = std::make_shared<fcl::Cylinderd>(gripper.tube_radius_m, length);
+    piece.X_ToolPiece.linear() =
+        Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+    piece.X_ToolPiece.translation() = p0 + 0.5 * length * axis;
+    pieces.push_back(std::move(piece));
+  };
+  const Eigen::Isometry3d X_ToolTcp = gripper.X_ToolTcpAt(head_angle_rad);
+  const Eigen::Vector3d z_Tcp = X_ToolTcp.linear().col(2);
+  const Eigen::Vector3d p_ToolJoint = gripper.p_ToolJoint();
+  if (gripper.head_length_m == 0.0 || head_angle_rad == 0.0) {
+    const Eigen::Vector3d p_ToolTcp = X_ToolTcp.translation();
+    add(Eigen::Vector3d::Zero(), p_ToolTcp.normalized(), p_ToolTcp.norm() - gripper.cup_length_m);
+  } else {
+    // The tube to the joint, on by a radius over the joint's knuckle, and the head.
+    add(Eigen::Vector3d::Zero(), p_ToolJoint.normalized(),
+        p_ToolJoint.norm() + gripper.tube_radius_m);
+    add(p_ToolJoint, z_Tcp, gripper.head_length_m - gripper.cup_length_m);
+  }
+  return pieces;
+}
+
 }  // namespace
 
 struct ArmCollisionChecker::Impl {
@@ -43,8 +78,7 @@ struct ArmCollisionChecker::Impl {
   std::vector<Obstacle> obstacles;
   std::shared_ptr<const ur10::Ur10Kinematics> kinematics;
   std::array<std::shared_ptr<Bvh>, ur10::kNumLinks> links;
-  std::shared_ptr<fcl::Cylinderd> tube;  // null for a tool too short to have a tube
-  Eigen::Isometry3d X_ToolTube = Eigen::Isometry3d::Identity();
+  std::vector<TubePiece> tube_pieces;  // with the head straight
   mutable int carried_id = 0;
   mutable const world::TriangleMesh* carried_mesh = nullptr;
   mutable std::shared_ptr<Bvh> carried;
@@ -89,22 +123,18 @@ ArmCollisionChecker::ArmCollisionChecker(const world::CellModel& cell,
   for (int i = 0; i < ur10::kNumLinks; ++i) {
     impl_->links[i] = MakeBvh(kinematics.model().LoadCollisionMesh(static_cast<ur10::Link>(i)));
   }
-  const Eigen::Vector3d p_ToolTcp = gripper_.X_ToolTcp.translation();
-  const double length = p_ToolTcp.norm() - gripper_.cup_length_m;
-  if (length > 1e-6) {
-    impl_->tube = std::make_shared<fcl::Cylinderd>(gripper_.tube_radius_m, length);
-    const Eigen::Vector3d axis = p_ToolTcp.normalized();
-    impl_->X_ToolTube.linear() =
-        Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
-    impl_->X_ToolTube.translation() = 0.5 * length * axis;
-  }
+  impl_->tube_pieces = TubePieces(gripper_, 0.0);
 }
 
 ArmCollisionChecker::~ArmCollisionChecker() = default;
 
-ArmCollision ArmCollisionChecker::Check(const ur10::JointVector& q_rad,
-                                        const CarriedItem* carried) const {
+ArmCollision ArmCollisionChecker::Check(const ur10::JointVector& q_rad, const CarriedItem* carried,
+                                        double head_angle_rad) const {
   if (!q_rad.allFinite()) throw std::invalid_argument("ArmCollisionChecker: non-finite joints");
+  if (!std::isfinite(head_angle_rad) ||
+      std::abs(head_angle_rad) > gripper_.max_head_angle_rad + 1e-12) {
+    throw std::invalid_argument("ArmCollisionChecker: head angle outside the servo's range");
+  }
   if (carried && !carried->mesh) {
     throw std::invalid_argument("ArmCollisionChecker: carried item without a mesh");
   }
@@ -125,8 +155,10 @@ ArmCollision ArmCollisionChecker::Check(const ur10::JointVector& q_rad,
     if (!hit.empty()) return report("carried item " + carried->name, hit);
   }
   const Eigen::Isometry3d X_BaseTool = impl_->kinematics->ForwardKinematics(q_rad);
-  if (impl_->tube) {
-    const std::string hit = impl_->Hit(impl_->tube, X_BaseTool * impl_->X_ToolTube);
+  const std::vector<TubePiece> bent =
+      head_angle_rad == 0.0 ? std::vector<TubePiece>{} : TubePieces(gripper_, head_angle_rad);
+  for (const TubePiece& piece : head_angle_rad == 0.0 ? impl_->tube_pieces : bent) {
+    const std::string hit = impl_->Hit(piece.shape, X_BaseTool * piece.X_ToolPiece);
     if (!hit.empty()) return report("gripper", hit);
   }
   const auto frames = impl_->kinematics->LinkFrames(q_rad);

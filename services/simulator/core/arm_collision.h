@@ -28,7 +28,8 @@ struct CarriedItem {
 };
 
 /// Collision test (FCL, exact mesh-mesh) of the UR10's links (ur_description collision meshes),
-/// the gripper's tube (a cylinder from the flange toward the TCP, the cell's
+/// the gripper's tube (a cylinder from the flange toward the TCP, two when its head is bent:
+/// the cell's
 /// world::GripperConfig, without its last cup_length_m: a cup pressed onto a surface is
 /// contact, not collision) and a carried item (its mesh) against the
 /// static cell: shelf, tote and table. Items in the bins and the tote are not obstacles here
@@ -48,7 +49,10 @@ class ArmCollisionChecker final {
   /// optional carried item. Bodies are tested from the tool back to the base, and the first
   /// hit is reported. Throws std::invalid_argument for non-finite joints or a carried item
   /// without a mesh.
-  ArmCollision Check(const ur10::JointVector& q_rad, const CarriedItem* carried = nullptr) const;
+  /// `head_angle_rad`: the gripper's head on its servo joint (world::GripperConfig), within
+  /// its range (std::invalid_argument otherwise; only 0 for a straight gripper).
+  ArmCollision Check(const ur10::JointVector& q_rad, const CarriedItem* carried = nullptr,
+                     double head_angle_rad = 0.0) const;
 
   /// The gripper checked with the arm (the cell's).
   const world::GripperConfig& gripper() const { return gripper_; }

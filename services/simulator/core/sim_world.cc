@@ -122,7 +122,7 @@ std::vector<ItemState> SimWorld::ItemsIn(const std::string& container) const {
 }
 
 SimState SimWorld::state() const {
-  return {items_, X_BaseTcp_, q_rad_, vacuum_on_, attached_, X_TcpItem_, events_};
+  return {items_, X_BaseTcp_, q_rad_, vacuum_on_, attached_, X_TcpItem_, events_, head_angle_rad_};
 }
 
 void SimWorld::SetTcpPose(const Eigen::Isometry3d& X_BaseTcp) {
@@ -146,6 +146,22 @@ void SimWorld::SetJointPositions(const ur10::JointVector& q_rad) {
   if (!q_rad.allFinite()) throw std::invalid_argument("SetJointPositions: non-finite angle");
   SetTcpPose(kinematics_->ForwardKinematics(q_rad) * X_ToolTcp());
   q_rad_ = q_rad;
+}
+
+void SimWorld::SetHeadAngle(double head_angle_rad) {
+  const world::GripperConfig& gripper = cell_.config.gripper;
+  if (!std::isfinite(head_angle_rad) ||
+      std::abs(head_angle_rad) > gripper.max_head_angle_rad + 1e-12) {
+    throw std::invalid_argument(
+        "SetHeadAngle: " + std::to_string(head_angle_rad) + " rad is outside the servo's range" +
+        (gripper.head_length_m == 0.0 ? " (the gripper has no joint)"
+                                      : " of +-" + std::to_string(gripper.max_head_angle_rad)));
+  }
+  const Eigen::Isometry3d X_BaseTool = this->X_BaseTool();
+  const std::optional<ur10::JointVector> q = q_rad_;
+  head_angle_rad_ = head_angle_rad;
+  SetTcpPose(X_BaseTool * X_ToolTcp());
+  q_rad_ = q;  // the arm has not moved
 }
 
 const ur10::Ur10Kinematics& SimWorld::kinematics() const {

@@ -73,11 +73,13 @@ struct SimState {
   int attached_item_id = 0;                                     ///< 0: none.
   Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();  ///< The attached item.
   std::vector<Event> events;
+  double head_angle_rad = 0.0;  ///< The gripper's head on its servo joint (0: straight).
 
   bool operator==(const SimState& o) const {
     return items == o.items && X_BaseTcp.matrix() == o.X_BaseTcp.matrix() && q_rad == o.q_rad &&
            vacuum_on == o.vacuum_on && attached_item_id == o.attached_item_id &&
-           X_TcpItem.matrix() == o.X_TcpItem.matrix() && events == o.events;
+           X_TcpItem.matrix() == o.X_TcpItem.matrix() && events == o.events &&
+           head_angle_rad == o.head_angle_rad;
   }
   bool operator!=(const SimState& o) const { return !(*this == o); }
 };
@@ -161,6 +163,12 @@ class SimWorld final {
   /// kinematics, std::invalid_argument for non-finite angles.
   void SetJointPositions(const ur10::JointVector& q_rad);
 
+  /// Turns the gripper's head on its servo joint (the cell's gripper; 0: straight): the
+  /// flange stays, the cup and an attached item move with the head. No collision checking.
+  /// Throws std::invalid_argument for a non-finite angle or one outside the servo's range.
+  void SetHeadAngle(double head_angle_rad);
+  double head_angle_rad() const { return head_angle_rad_; }
+
   /// Moves the cup along the TCP's +z axis by up to `max_distance_m` (> 0), stopping where
   /// the cup (centre and lip points) pressed on the first surface reaches the force
   /// threshold. Throws std::invalid_argument for a non-positive or non-finite distance.
@@ -200,8 +208,8 @@ class SimWorld final {
   const Eigen::Isometry3d& X_BaseTcp() const { return X_BaseTcp_; }
   /// The UR10's flange in Base: X_BaseTcp * X_ToolTcp^-1.
   Eigen::Isometry3d X_BaseTool() const { return X_BaseTcp_ * X_ToolTcp().inverse(); }
-  /// The TCP in the flange frame: the cell's gripper's.
-  const Eigen::Isometry3d& X_ToolTcp() const { return cell_.config.gripper.X_ToolTcp; }
+  /// The TCP in the flange frame: the cell's gripper's, with its head at head_angle_rad().
+  Eigen::Isometry3d X_ToolTcp() const { return cell_.config.gripper.X_ToolTcpAt(head_angle_rad_); }
   bool vacuum_on() const { return vacuum_on_; }
   int attached_item_id() const { return attached_; }
   SimState state() const;
@@ -250,6 +258,7 @@ class SimWorld final {
   std::vector<ItemState> items_;
   std::vector<std::shared_ptr<const world::ItemModel>> item_models_;  // parallel to items_
   Eigen::Isometry3d X_BaseTcp_ = Eigen::Isometry3d::Identity();
+  double head_angle_rad_ = 0.0;
   std::optional<ur10::JointVector> q_rad_;
   bool vacuum_on_ = false;
   int attached_ = 0;

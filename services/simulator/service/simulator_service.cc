@@ -369,6 +369,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
         *response->mutable_x_base_tcp() = pc::PoseToProto(state.X_BaseTcp);
         *response->mutable_x_base_tool() = pc::PoseToProto(world_->X_BaseTool());
       }
+      response->set_gripper_head_angle_rad(state.head_angle_rad);
       if (state.attached_item_id != 0) {
         *response->mutable_attached_item() = ItemRefOf(world_->item(state.attached_item_id).name,
                                                        instances.at(state.attached_item_id));
@@ -431,9 +432,9 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
         carried.name = world_->item(carried.id).name;
         carried.mesh = &world_->model(carried.id).mesh;
         carried.X_BaseItem = X_BaseTcp * state.X_TcpItem;
-        collision = collisions_->Check(q, &carried);
+        collision = collisions_->Check(q, &carried, world_->head_angle_rad());
       } else {
-        collision = collisions_->Check(q);
+        collision = collisions_->Check(q, nullptr, world_->head_angle_rad());
       }
       world_->SetJointPositions(q);
       // One event per contact episode, not per streamed sample.
@@ -443,6 +444,47 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       response->set_collision_detail(collision.detail);
       *response->mutable_x_base_tcp() = pc::PoseToProto(world_->X_BaseTcp());
       *response->mutable_x_base_tool() = pc::PoseToProto(X_BaseTool);
+      response->set_gripper_head_angle_rad(world_->head_angle_rad());
+      return grpc::Status::OK;
+    });
+  }
+
+  grpc::Status SetGripperHead(grpc::ServerContext*, const pb::SetGripperHeadRequest* request,
+                              pb::SetGripperHeadResponse* response) override {
+    return runtime::Guard([&] {
+      const double angle = request->angle_rad();
+      const world::GripperConfig& gripper = world_->cell().config.gripper;
+      if (!std::isfinite(angle) || std::abs(angle) > gripper.max_head_angle_rad + 1e-12) {
+        throw std::invalid_argument("angle_rad " + Num(angle) + " is outside the servo's range" +
+                                    (gripper.head_length_m == 0.0
+                                         ? std::string(" (the cell's gripper has no joint)")
+                                         : " of +-" + Num(gripper.max_head_angle_rad) + " rad"));
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      const SimState state = world_->state();
+      if (state.q_rad) {
+        // The head may not swing into the cell.
+        CarriedItem carried;
+        const CarriedItem* carrying = nullptr;
+        if (state.attached_item_id != 0) {
+          carried.id = state.attached_item_id;
+          carried.name = world_->item(carried.id).name;
+          carried.mesh = &world_->model(carried.id).mesh;
+          carried.X_BaseItem = collisions_kinematics().ForwardKinematics(*state.q_rad) *
+                               gripper.X_ToolTcpAt(angle) * state.X_TcpItem;
+          carrying = &carried;
+        }
+        const ArmCollision collision = collisions_->Check(*state.q_rad, carrying, angle);
+        if (collision.in_collision) {
+          throw PreconditionError("turning the head to " + Num(angle) +
+                                  " rad collides: " + collision.detail);
+        }
+        world_->SetHeadAngle(angle);
+        *response->mutable_x_base_tcp() = pc::PoseToProto(world_->X_BaseTcp());
+      } else {
+        world_->SetHeadAngle(angle);
+      }
+      response->set_angle_rad(world_->head_angle_rad());
       return grpc::Status::OK;
     });
   }
@@ -700,7 +742,8 @@ std::shared_ptr<v1::SimulatorService::Service> MakeSimulatorService(
   if (world && !world->has_kinematics()) {
     throw std::invalid_argument("SimulatorService: the world needs UR10 kinematics");
   }
-  if (world && collisions && !world->X_ToolTcp().isApprox(collisions->gripper().X_ToolTcp, 1e-12)) {
+  if (world && collisions &&
+      !world->cell().config.gripper.X_ToolTcp.isApprox(collisions->gripper().X_ToolTcp, 1e-12)) {
     throw std::invalid_argument(
         "SimulatorService: the world and the collision checker have different grippers "
         "(X_ToolTcp)");

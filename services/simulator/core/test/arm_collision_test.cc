@@ -75,6 +75,45 @@ TEST_F(ArmCollisionTest, GripperReachingIntoABinIsFreeUntilItMeetsTheBackWall) {
   EXPECT_EQ(deep.detail, "gripper hits shelf");
 }
 
+// The head bent down a quarter turn: the tube ends at the joint and the head hangs from it,
+// so it meets the bin's floor where the straight tube, level, passes over it.
+TEST_F(ArmCollisionTest, ABentHeadIsCheckedWhereItHangs) {
+  world::CellModel cell = *cell_;
+  cell.config.gripper.head_length_m = 0.09;
+  cell.config.gripper.max_head_angle_rad = M_PI / 2;
+  const ArmCollisionChecker checker(cell, *kinematics_);
+  const world::BinGeometry& bin = cell.bin("bin_E");
+  // The flange level with the bin's middle, the tube along +x of base into the bin, the
+  // joint 5 cm above the floor: a quarter turn of the head points the cup at the floor.
+  const Eigen::Vector3d floor_Base =
+      cell.config.X_BaseShelf *
+      Eigen::Vector3d(bin.opening_x_m - 0.12, bin.inner_S.center().y(), bin.floor_max_z_m);
+  const Eigen::Vector3d p_Joint = floor_Base + Eigen::Vector3d(0.0, 0.0, 0.05);
+  Eigen::Isometry3d X_BaseTool = Eigen::Isometry3d::Identity();
+  // The flange's x axis (the head's joint axis) level, across the tube.
+  X_BaseTool.linear() = (Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()) *
+                         Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()))
+                            .toRotationMatrix();
+  X_BaseTool.translation() = p_Joint - X_BaseTool.linear() * cell.config.gripper.p_ToolJoint();
+  const auto q = kinematics_->NearestSolution(X_BaseTool, kHome);
+  ASSERT_TRUE(q.has_value());
+  const ArmCollision straight = checker.Check(q->q_rad, nullptr, 0.0);
+  EXPECT_FALSE(straight.in_collision) << straight.detail;
+  // Which way the head turns: toward base -z at one sign of the angle.
+  const double down =
+      (X_BaseTool * cell.config.gripper.X_ToolTcpAt(M_PI / 2)).translation().z() < p_Joint.z()
+          ? M_PI / 2
+          : -M_PI / 2;
+  const ArmCollision bent = checker.Check(q->q_rad, nullptr, down);
+  EXPECT_TRUE(bent.in_collision);
+  EXPECT_EQ(bent.detail, "gripper hits shelf");
+  // Turned up instead, it stays clear of the 0.2 m-high bin's ceiling.
+  EXPECT_FALSE(checker.Check(q->q_rad, nullptr, -down).in_collision);
+  // Outside the servo's range, or any turn of a straight gripper, is refused.
+  EXPECT_THROW(checker.Check(q->q_rad, nullptr, 2.0), std::invalid_argument);
+  EXPECT_THROW(checker_->Check(q->q_rad, nullptr, 0.3), std::invalid_argument);
+}
+
 TEST_F(ArmCollisionTest, CarriedItemIsChecked) {
   const world::TriangleMesh box = world::MakeBox(Eigen::Vector3d(0.1, 0.1, 0.1));
   CarriedItem item;

@@ -294,5 +294,40 @@ TEST_F(SimWorldTest, JointPositionsPlaceTheCupByForwardKinematicsAndTheCellsTcp)
   EXPECT_THROW(SimWorld(bad, models_, SimOptions{}, kinematics), std::invalid_argument);
 }
 
+TEST_F(SimWorldTest, TurningTheHeadMovesTheCupAboutItsJoint) {
+  auto kinematics = std::make_shared<ur10::Ur10Kinematics>(
+      ur10::Ur10Model::Load(std::string(PICKING_DATA_DIR) + "/ur10"));
+  world::CellModel cell = *cell_;
+  cell.config.gripper.head_length_m = 0.09;
+  cell.config.gripper.max_head_angle_rad = M_PI / 2;
+  SimWorld world(cell, models_, SimOptions{}, kinematics);
+  ur10::JointVector q;
+  q << 0.1, -1.2, 1.4, -0.2, 1.5707963, 0.3;
+  world.SetJointPositions(q);
+  const Eigen::Isometry3d X_BaseTool = kinematics->ForwardKinematics(q);
+  world.SetHeadAngle(M_PI / 2);
+  EXPECT_EQ(world.head_angle_rad(), M_PI / 2);
+  EXPECT_EQ(world.state().head_angle_rad, M_PI / 2);
+  // The flange and joints stay; the cup is the head's length from the joint, its axis
+  // across the tube.
+  EXPECT_TRUE(world.X_BaseTool().isApprox(X_BaseTool, 1e-12));
+  ASSERT_TRUE(world.state().q_rad.has_value());
+  EXPECT_EQ(*world.state().q_rad, q);
+  const Eigen::Vector3d p_Joint = X_BaseTool * cell.config.gripper.p_ToolJoint();
+  EXPECT_NEAR((world.X_BaseTcp().translation() - p_Joint).norm(), 0.09, 1e-12);
+  EXPECT_NEAR(world.X_BaseTcp().linear().col(2).dot(X_BaseTool.linear().col(2)), 0.0, 1e-12);
+  // Later joint positions keep the head's angle.
+  world.SetJointPositions(q);
+  EXPECT_TRUE(
+      world.X_BaseTcp().isApprox(X_BaseTool * cell.config.gripper.X_ToolTcpAt(M_PI / 2), 1e-12));
+  // Out of range, NaN, or any turn of the straight gripper: refused, nothing changes.
+  const SimState before = world.state();
+  EXPECT_THROW(world.SetHeadAngle(2.0), std::invalid_argument);
+  EXPECT_THROW(world.SetHeadAngle(std::nan("")), std::invalid_argument);
+  EXPECT_EQ(world.state(), before);
+  SimWorld straight(*cell_, models_, SimOptions{}, kinematics);
+  EXPECT_THROW(straight.SetHeadAngle(0.2), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace picking::simulator
