@@ -31,6 +31,10 @@ void Check(const grpc::Status& status, const std::string& address, const char* r
   if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) {
     throw PreconditionError(message);
   }
+  if (status.error_code() == grpc::StatusCode::INVALID_ARGUMENT) {
+    // The simulated cell's gripper has no joint, or a smaller range than this gripper's.
+    throw PreconditionError(message);
+  }
   throw UnavailableError(message);
 }
 
@@ -141,6 +145,10 @@ GripperReading SimGripper::Read() {
   r.vacuum_kpa = vacuum_kpa_;
   r.joint_mode = mode_;
   r.joint_angle_rad = JointAngleLocked(g_tool);
+  // The simulated head follows a keep-vertical or limp joint when the gripper is read.
+  if (options_.kind == GripperKind::kTote) {
+    PushHeadLocked(r.joint_angle_rad, truth.gripper_head_angle_rad(), /*required=*/false);
+  }
   r.gravity_head_m_s2 = GravityInHead(g_tool, r.joint_angle_rad);
   return r;
 }
@@ -150,8 +158,32 @@ void SimGripper::SetJointMode(JointMode mode, double angle_rad) {
     throw PreconditionError("the simulated shelf gripper has no servo joint");
   }
   std::lock_guard<std::mutex> lock(mutex_);
+  const JointMode old_mode = mode_;
+  const double old_fixed = fixed_angle_rad_;
   mode_ = mode;
   if (mode == JointMode::kFixed) fixed_angle_rad_ = angle_rad;
+  try {
+    sim::GetGroundTruthResponse truth;
+    PushHeadLocked(JointAngleLocked(ToolGravity(&truth)), truth.gripper_head_angle_rad(),
+                   /*required=*/true);
+  } catch (...) {
+    mode_ = old_mode;  // the simulator refused: nothing changes
+    fixed_angle_rad_ = old_fixed;
+    throw;
+  }
+}
+
+void SimGripper::PushHeadLocked(double angle_rad, double world_angle_rad, bool required) {
+  if (std::abs(angle_rad - world_angle_rad) < 1e-9) return;
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, options_.timeout_s);
+  sim::SetGripperHeadRequest request;
+  request.set_angle_rad(angle_rad);
+  sim::SetGripperHeadResponse response;
+  const grpc::Status status = stub_->SetGripperHead(&ctx, request, &response);
+  // While the head follows gravity, a turn the cell blocks leaves it where it was.
+  if (!required && status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) return;
+  Check(status, address_, "SetGripperHead");
 }
 
 }  // namespace picking::gripper

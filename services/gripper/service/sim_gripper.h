@@ -32,7 +32,10 @@ struct SimGripperOptions {
 ///    UR10 flange, +z along the tube) with gravity along -z of base. Keep-vertical
 ///    sets the angle that makes the head vertical (clamped to the servo range); fixed holds
 ///    its angle; unactuated hangs vertically while the vacuum is off and stays where it was
-///    once the vacuum seals the joint's play.
+///    once the vacuum seals the joint's play. The simulator's head (SetGripperHead) is
+///    turned to the angle when the mode is set (a refusal, e.g. the head would hit the
+///    cell, fails the call and keeps the old mode) and, for the modes that follow gravity,
+///    whenever the gripper is read.
 /// An unreachable simulator makes each call throw UnavailableError; construction never
 /// contacts it. Thread safe.
 class SimGripper final : public GripperBackend {
@@ -57,6 +60,9 @@ class SimGripper final : public GripperBackend {
   Eigen::Vector3d ToolGravity(simulator::v1::GetGroundTruthResponse* truth);
   double JointAngleLocked(const Eigen::Vector3d& g_tool);
   double HangingAngle(const Eigen::Vector3d& g_tool) const;
+  // Turns the simulator's head to `angle_rad` unless it is there (`world_angle_rad`); a
+  // refusal throws when `required`, else leaves the head as it was.
+  void PushHeadLocked(double angle_rad, double world_angle_rad, bool required);
 
   std::unique_ptr<simulator::v1::SimulatorService::StubInterface> stub_;
   const std::string address_;

@@ -136,13 +136,51 @@ double GrpcCell::Execute(const cm::JointTrajectory& trajectory) {
   return Duration(trajectory);
 }
 
+double GrpcCell::HeadAngle() {
+  if (!head_angle_rad_) {
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, 5.0);
+    gr::GetStateResponse state;
+    ThrowIfFailed("gripper", "GetState", gripper_->GetState(&ctx, {}, &state));
+    head_angle_rad_ = state.joint_angle_rad();
+  }
+  return *head_angle_rad_;
+}
+
+bool GrpcCell::SetHead(double angle_rad, std::string* reason) {
+  if (head_angle_rad_ && *head_angle_rad_ == angle_rad) return true;
+  grpc::ClientContext ctx;
+  SetDeadline(ctx, 5.0);
+  gr::SetJointModeRequest request;
+  request.set_mode(gr::JOINT_MODE_FIXED);
+  request.set_angle_rad(angle_rad);
+  gr::SetJointModeResponse response;
+  const grpc::Status status = gripper_->SetJointMode(&ctx, request, &response);
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) {
+    *reason = "the gripper's head cannot turn to " + std::to_string(angle_rad) +
+              " rad: " + status.error_message();
+    head_angle_rad_.reset();  // read it again
+    return false;
+  }
+  ThrowIfFailed("gripper", "SetJointMode", status);
+  head_angle_rad_ = angle_rad;
+  return true;
+}
+
 StepOutcome GrpcCell::MoveToNamed(const std::string& name) {
+  // A head bent for the last pick is straightened first (the named poses' roadmap is the
+  // straight gripper's); where it cannot turn, the motion is planned with it as it is.
+  if (HeadAngle() != 0.0) {
+    std::string ignored;
+    SetHead(0.0, &ignored);
+  }
   const rb::GetStateResponse state = RobotState();
   grpc::ClientContext ctx;
   SetDeadline(ctx, options_.plan_deadline_s);
   pl::PlanJointMotionRequest request;
   *request.mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
   request.set_goal_name(name);
+  request.set_head_angle_rad(HeadAngle());
   pl::PlanJointMotionResponse motion;
   const grpc::Status status = planner_->PlanJointMotion(&ctx, request, &motion);
   if (status.error_code() == grpc::StatusCode::ABORTED) {
@@ -335,6 +373,10 @@ StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped
 
 StepOutcome GrpcCell::ExecuteApproach(const PlannedPick& pick) {
   const StoredPick& stored = Stored(pick);
+  // The head as the plan bent it, before the arm moves.
+  if (std::string reason; !SetHead(stored.response.head_angle_rad(), &reason)) {
+    return {false, reason, 0.0};
+  }
   const double approach_s = Execute(stored.response.approach());
   try {
     return {true, "", approach_s + Execute(stored.response.descend())};
@@ -449,6 +491,7 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
   request.set_container(pc::ContainerFromName(container));
   *request.mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
   if (pick.handle >= 0) *request.mutable_x_tcp_item() = pc::PoseToProto(Stored(pick).X_TcpItem);
+  request.set_head_angle_rad(HeadAngle());
   pl::PlanPlaceResponse response;
   const grpc::Status status = planner_->PlanPlace(&ctx, request, &response);
   if (status.error_code() == grpc::StatusCode::ABORTED) {

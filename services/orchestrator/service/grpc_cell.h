@@ -3,6 +3,7 @@
 #include <chrono>
 #include <functional>
 #include <map>
+#include <optional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -91,6 +92,11 @@ class GrpcCell final : public CellPort {
   StepOutcome Recover(const StoredPick& stored, const CellError& stopped);
   /// Vacuum off, then the robot's protective stop reset.
   void ReleaseAndResetStop();
+  /// The gripper's head angle as last set (read from the gripper the first time).
+  double HeadAngle();
+  /// Turns the gripper's head (its servo's fixed mode). False, with the reason, when the
+  /// gripper refuses (FAILED_PRECONDITION: no joint, or the head would hit the cell).
+  bool SetHead(double angle_rad, std::string* reason);
 
   GrpcCellOptions options_;
   std::unique_ptr<scanner::v1::ScannerService::Stub> scanner_;
@@ -100,6 +106,7 @@ class GrpcCell final : public CellPort {
   std::map<std::string, std::vector<std::string>> scan_poses_;
   std::map<int, StoredPick> picks_;
   int next_handle_ = 0;
+  std::optional<double> head_angle_rad_;  // unknown until read or set
 };
 
 /// Throws CellError for a failed call: retryable when the service did not answer.

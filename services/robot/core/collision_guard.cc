@@ -68,7 +68,18 @@ CollisionGuard::CollisionGuard(const ur10::Ur10Kinematics& kinematics, const wor
     : options_(options) {
   options_.Validate();
   robot_ = std::make_unique<planner::RobotGeometry>(kinematics, gripper);
-  cell_ = std::make_unique<planner::StaticCell>(cell, options_.cell);
+  cell_ = std::make_shared<const planner::StaticCell>(cell, options_.cell);
+  BuildCheckers();
+}
+
+CollisionGuard::CollisionGuard(const CollisionGuard& base, const planner::GripperGeometry& gripper)
+    : options_(base.options_),
+      robot_(std::make_unique<planner::RobotGeometry>(base.robot_->WithGripper(gripper))),
+      cell_(base.cell_) {
+  BuildCheckers();
+}
+
+void CollisionGuard::BuildCheckers() {
   // No scan: the robot guards against the fixed cell; the planner checks the scanned scene.
   fast_ = std::make_unique<planner::FastChecker>(*robot_, *cell_, nullptr);
   planner::MotionCheckOptions motion;
@@ -78,6 +89,16 @@ CollisionGuard::CollisionGuard(const ur10::Ur10Kinematics& kinematics, const wor
 }
 
 CollisionGuard::~CollisionGuard() = default;
+
+const CollisionGuard& CollisionGuard::ForHeadAngle(double head_angle_rad) const {
+  if (head_angle_rad == robot_->gripper().head_angle_rad) return *this;
+  // Validates the angle (finite, within the servo's range) before it is a key.
+  const planner::GripperGeometry bent = robot_->gripper().AtHeadAngle(head_angle_rad);
+  std::lock_guard<std::mutex> lock(heads_mutex_);
+  auto& slot = heads_[head_angle_rad];
+  if (!slot) slot.reset(new CollisionGuard(*this, bent));
+  return *slot;
+}
 
 SafetyCheck CollisionGuard::CheckState(const JointVector& q_rad) const {
   if (!q_rad.allFinite()) return SafetyCheck::Fail("joints are not finite");

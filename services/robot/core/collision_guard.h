@@ -2,7 +2,9 @@
 
 #include <Eigen/Geometry>
 
+#include <map>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "libs/ur10/kinematics.h"
@@ -84,6 +86,12 @@ class CollisionGuard final {
   /// States CheckPath tests on `path_rad` (for budgets and benchmarks).
   int StatesOnPath(const std::vector<JointVector>& path_rad) const;
 
+  /// This guard with the gripper's head at `head_angle_rad` (a gripper with a servo joint):
+  /// *this at its own angle, else a guard with the bent gripper's bodies over the same
+  /// static cell, built once per angle and kept as long as this guard. Throws
+  /// std::invalid_argument for an angle outside the servo's range.
+  const CollisionGuard& ForHeadAngle(double head_angle_rad) const;
+
   const planner::RobotGeometry& robot() const { return *robot_; }
   const planner::StaticCell& cell() const { return *cell_; }
   const CollisionGuardOptions& options() const { return options_; }
@@ -98,9 +106,16 @@ class CollisionGuard final {
   // Distance from p_Base to the nearest static surface, up to `max_m`.
   double StaticSurfaceDistance(const Eigen::Vector3d& p_Base, double max_m) const;
 
+  // The same cell and options with another gripper.
+  CollisionGuard(const CollisionGuard& base, const planner::GripperGeometry& gripper);
+  // The fast and motion checkers over robot_ and cell_.
+  void BuildCheckers();
+
   CollisionGuardOptions options_;
   std::unique_ptr<planner::RobotGeometry> robot_;
-  std::unique_ptr<planner::StaticCell> cell_;
+  std::shared_ptr<const planner::StaticCell> cell_;
+  mutable std::mutex heads_mutex_;
+  mutable std::map<double, std::unique_ptr<const CollisionGuard>> heads_;
   std::unique_ptr<planner::FastChecker> fast_;
   std::unique_ptr<planner::MotionChecker> motion_;
 };

@@ -32,6 +32,8 @@ struct RobotState {
   RobotStatus status = RobotStatus::kUnknown;
   /// Controller time of the sample, s.
   double timestamp_s = 0.0;
+  /// The gripper's head on its servo joint as last reported, radians (0: straight).
+  double gripper_head_angle_rad = 0.0;
 };
 
 /// How a motion ended.
@@ -103,6 +105,10 @@ class RobotBackend {
   virtual void ProtectiveStop() = 0;
   /// Clears a protective stop. @returns false with `reason` if it cannot be cleared.
   virtual bool ResetProtectiveStop(std::string* reason) = 0;
+  /// The gripper's head on its servo joint, radians, as the robot's world says now: motions
+  /// are checked and their tcp computed with it. 0 for a gripper without a joint; the UR
+  /// backend has no link to the gripper and answers 0. @throws UnavailableError.
+  virtual double GripperHeadAngle() { return 0.0; }
 };
 
 }  // namespace picking::robot

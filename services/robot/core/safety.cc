@@ -60,8 +60,28 @@ void SafetyLimits::Validate() const {
 }
 
 SafetyChecker::SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimits limits,
+                             const world::GripperConfig& gripper)
+    : SafetyChecker(kinematics, std::move(limits), gripper.X_ToolTcp) {
+  gripper_ = gripper;
+}
+
+SafetyChecker SafetyChecker::WithHeadAngle(double head_angle_rad) const {
+  if (!std::isfinite(head_angle_rad) ||
+      std::abs(head_angle_rad) > gripper_.max_head_angle_rad + 1e-12) {
+    throw std::invalid_argument("the gripper's head angle " + std::to_string(head_angle_rad) +
+                                " rad is outside its servo's range of +-" +
+                                std::to_string(gripper_.max_head_angle_rad) + " rad");
+  }
+  SafetyChecker bent = *this;
+  bent.head_angle_rad_ = head_angle_rad;
+  bent.X_ToolTcp_ = gripper_.X_ToolTcpAt(head_angle_rad);
+  return bent;
+}
+
+SafetyChecker::SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimits limits,
                              const Eigen::Isometry3d& X_ToolTcp)
     : kinematics_(kinematics), limits_(std::move(limits)), X_ToolTcp_(X_ToolTcp) {
+  gripper_.X_ToolTcp = X_ToolTcp;
   limits_.Validate();
   if (!X_ToolTcp_.matrix().allFinite()) {
     throw std::invalid_argument("SafetyChecker: X_ToolTcp is not finite");

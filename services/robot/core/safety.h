@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "libs/ur10/kinematics.h"
+#include "libs/world/cell_config.h"
 #include "services/robot/core/robot_backend.h"
 #include "services/robot/core/trajectory.h"
 
@@ -59,6 +60,20 @@ class SafetyChecker final {
   /// @throws std::invalid_argument if `limits` are invalid (see SafetyLimits::Validate).
   SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimits limits,
                 const Eigen::Isometry3d& X_ToolTcp = Eigen::Isometry3d::Identity());
+  /// With the cell's gripper: its tcp with the head straight, and its head on a servo joint
+  /// (world::GripperConfig) for WithHeadAngle.
+  SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimits limits,
+                const world::GripperConfig& gripper);
+
+  /// The same checks with the gripper's head at `head_angle_rad` (the tcp moves with the
+  /// head). Throws std::invalid_argument outside the servo's range (any angle but 0 for a
+  /// gripper without a joint).
+  SafetyChecker WithHeadAngle(double head_angle_rad) const;
+  double head_angle_rad() const { return head_angle_rad_; }
+  /// The tcp with the head at `head_angle_rad` (not checked against the servo's range).
+  Eigen::Isometry3d X_ToolTcpAt(double head_angle_rad) const {
+    return gripper_.X_ToolTcpAt(head_angle_rad);
+  }
 
   const SafetyLimits& limits() const { return limits_; }
   /// The kinematics (with the safety position limits applied to IK).
@@ -97,6 +112,8 @@ class SafetyChecker final {
   ur10::Ur10Kinematics kinematics_;
   SafetyLimits limits_;
   Eigen::Isometry3d X_ToolTcp_;
+  world::GripperConfig gripper_;  // X_ToolTcp with the head straight
+  double head_angle_rad_ = 0.0;
 };
 
 }  // namespace picking::robot

@@ -113,7 +113,7 @@ void SampleTrajectory(const JointTrajectory& trajectory, double t_s, JointVector
 
 SimBackend::SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
                        const SimBackendOptions& options)
-    : arm_(std::move(arm)), checker_(checker), options_(options) {
+    : arm_(std::move(arm)), base_checker_(checker), checker_(checker), options_(options) {
   if (!arm_) throw std::invalid_argument("SimBackend: the simulated arm is null");
   options_.Validate();
 }
@@ -126,7 +126,26 @@ RobotState SimBackend::StateLocked() const {
   s.wrench_base = wrench_;
   s.status = status_;
   s.timestamp_s = time_s_;
+  s.gripper_head_angle_rad = checker_.head_angle_rad();
   return s;
+}
+
+void SimBackend::RefreshTool() {
+  double angle = 0.0;
+  try {
+    std::lock_guard<std::mutex> arm(arm_mutex_);
+    angle = arm_->ReadHeadAngle();
+  } catch (const std::exception&) {
+    return;  // BeginMotion reports the world as unreachable
+  }
+  SafetyChecker tool = base_checker_.WithHeadAngle(angle);
+  std::lock_guard<std::mutex> lock(mutex_);
+  checker_ = std::move(tool);
+}
+
+double SimBackend::GripperHeadAngle() {
+  std::lock_guard<std::mutex> arm(arm_mutex_);
+  return arm_->ReadHeadAngle();
 }
 
 void SimBackend::SyncLocked() {
@@ -408,6 +427,7 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
 MotionResult SimBackend::MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
                                     double acceleration_rad_s2) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
+  RefreshTool();
   if (const SafetyCheck check =
           checker_.CheckJointMove(q_target_rad, speed_rad_s, acceleration_rad_s2);
       !check) {
@@ -431,6 +451,7 @@ MotionResult SimBackend::ExecuteTrajectory(
     const JointTrajectory& trajectory,
     const std::function<void(const TrajectoryProgress&)>& progress) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
+  RefreshTool();
   if (const SafetyCheck check = checker_.CheckTrajectory(trajectory); !check) {
     return Reject(check.reason);
   }
@@ -447,6 +468,7 @@ MotionResult SimBackend::ExecuteTrajectory(
 
 MotionResult SimBackend::GuardedMove(const GuardedMoveRequest& request) {
   std::lock_guard<std::mutex> motion(motion_mutex_);
+  RefreshTool();
   if (const SafetyCheck check = checker_.CheckGuardedMove(request); !check) {
     return Reject(check.reason);
   }

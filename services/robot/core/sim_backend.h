@@ -52,6 +52,9 @@ class SimulatedArm {
   virtual void CheckReachable() { ReadJoints(); }
   /// Puts the arm at `q_rad`. @throws as ReadJoints.
   virtual ArmPlacement PlaceArm(const JointVector& q_rad) = 0;
+  /// The gripper's head on its servo joint now, radians (0: straight, or no joint).
+  /// @throws as ReadJoints. Default: 0.
+  virtual double ReadHeadAngle() { return 0.0; }
   /// Probes a straight motion of the TCP from the flange pose `X_BaseTool` along
   /// `direction_tcp` (unit, TCP frame) over at most `max_distance_m`. @throws as ReadJoints.
   virtual ContactProbe Probe(const Eigen::Isometry3d& X_BaseTool,
@@ -117,8 +120,14 @@ class SimBackend final : public RobotBackend {
   /// @throws UnavailableError if the world cannot be asked whether the arm is still in
   /// collision.
   bool ResetProtectiveStop(std::string* reason) override;
+  /// The world's head angle, read now.
+  double GripperHeadAngle() override;
 
  private:
+  // Reads the gripper's head angle from the world and checks the motion that follows with
+  // it (checker_ from base_checker_); keeps the last angle when the world does not answer
+  // (the motion then fails to synchronise).
+  void RefreshTool();
   // Reads the joints from the world if not done yet. Caller holds arm_mutex_.
   void SyncLocked();
   // Asks the world whether it still answers (SyncLocked if not synced). Caller holds
@@ -152,6 +161,9 @@ class SimBackend final : public RobotBackend {
   RobotState StateLocked() const;
 
   std::shared_ptr<SimulatedArm> arm_;
+  const SafetyChecker base_checker_;  // the gripper's head straight
+  // At the head's angle; written by the motion thread under mutex_, read by it freely and
+  // by others under mutex_.
   SafetyChecker checker_;
   SimBackendOptions options_;
 

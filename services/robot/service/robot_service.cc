@@ -244,12 +244,14 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       const double acceleration_fraction =
           Fraction(request->options().acceleration_fraction(),
                    options_.default_acceleration_fraction, "acceleration_fraction");
-      if (const SafetyCheck check = checker_.CheckJointTarget(target); !check) {
-        return runtime::InvalidArgument("target: " + check.reason);
-      }
       const MotionSlot slot(this);
       const RobotState start = ReadyState();
-      const SafetyLimits& limits = checker_.limits();
+      const ToolChecks tool = ToolNow();
+      const SafetyChecker& checker = tool.checker;
+      if (const SafetyCheck check = checker.CheckJointTarget(target); !check) {
+        return runtime::InvalidArgument("target: " + check.reason);
+      }
+      const SafetyLimits& limits = checker.limits();
       double speed = speed_fraction * limits.max_velocity_rad_s.minCoeff();
       const double acceleration = acceleration_fraction * limits.max_acceleration_rad_s2.minCoeff();
       // The controller moves every joint synchronously on a trapezoid (UR movej); that path is
@@ -260,15 +262,15 @@ class RobotServiceImpl final : public pb::RobotService::Service {
         profile.max_velocity_rad_s = JointVector::Constant(speed);
         profile.max_acceleration_rad_s2 = JointVector::Constant(acceleration);
         path = TimeParametrizePath({start.q_rad, target}, profile);
-        const double peak = PeakToolSpeed(path, checker_);
+        const double peak = PeakToolSpeed(path, checker);
         if (peak <= limits.max_tool_speed_m_s) break;
         speed *= 0.95 * limits.max_tool_speed_m_s / peak;
       }
-      if (const SafetyCheck check = checker_.CheckTrajectory(path, 1e-6); !check) {
+      if (const SafetyCheck check = checker.CheckTrajectory(path, 1e-6); !check) {
         return runtime::InvalidArgument("path to the target: " + check.reason);
       }
       // The controller's path is the straight line in joint space.
-      if (const SafetyCheck check = guard_->CheckJointMotion(start.q_rad, target); !check) {
+      if (const SafetyCheck check = tool.guard->CheckJointMotion(start.q_rad, target); !check) {
         return runtime::InvalidArgument("path to the target: " + check.reason);
       }
       MotionResult result;
@@ -297,27 +299,29 @@ class RobotServiceImpl final : public pb::RobotService::Service {
                    options_.default_acceleration_fraction, "acceleration_fraction");
       const MotionSlot slot(this);
       const RobotState start = ReadyState();
-      const SafetyLimits& limits = checker_.limits();
+      const ToolChecks tool = ToolNow();
+      const SafetyChecker& checker = tool.checker;
+      const SafetyLimits& limits = checker.limits();
       const double tool_speed = speed_fraction * limits.max_tool_speed_m_s;
       if (const SafetyCheck check =
-              checker_.CheckLinearMove(start.q_rad, X_BaseTcp_goal, tool_speed);
+              checker.CheckLinearMove(start.q_rad, X_BaseTcp_goal, tool_speed);
           !check) {
         return runtime::InvalidArgument("X_base_tcp_target: " + check.reason);
       }
       LinearMoveOptions options;
-      options.X_ToolTcp = checker_.X_ToolTcp();
+      options.X_ToolTcp = checker.X_ToolTcp();
       options.max_tool_speed_m_s = tool_speed;
       options.max_tool_acceleration_m_s2 =
           acceleration_fraction * options_.max_tcp_acceleration_m_s2;
       options.max_velocity_rad_s = limits.max_velocity_rad_s;
       options.max_acceleration_rad_s2 = limits.max_acceleration_rad_s2;
       const LinearMoveResult plan =
-          PlanLinearMove(checker_.kinematics(), start.q_rad, X_BaseTcp_goal, options);
+          PlanLinearMove(checker.kinematics(), start.q_rad, X_BaseTcp_goal, options);
       if (!plan.ok) return runtime::InvalidArgument("linear move: " + plan.reason);
-      if (const SafetyCheck check = checker_.CheckTrajectory(plan.trajectory, 1e-6); !check) {
+      if (const SafetyCheck check = checker.CheckTrajectory(plan.trajectory, 1e-6); !check) {
         return runtime::InvalidArgument("linear move: " + check.reason);
       }
-      if (const SafetyCheck check = guard_->CheckPath(PathOf(plan.trajectory)); !check) {
+      if (const SafetyCheck check = tool.guard->CheckPath(PathOf(plan.trajectory)); !check) {
         return runtime::InvalidArgument("linear move: " + check.reason);
       }
       MotionResult result;
@@ -347,11 +351,12 @@ class RobotServiceImpl final : public pb::RobotService::Service {
                                         Num(options_.max_start_tolerance_rad) + "], got " +
                                         Num(tolerance));
       }
-      if (const SafetyCheck check = checker_.CheckTrajectory(trajectory, 1e-6); !check) {
-        return runtime::InvalidArgument("trajectory: " + check.reason);
-      }
       const MotionSlot slot(this);
       const RobotState start = ReadyState();
+      const ToolChecks tool = ToolNow();
+      if (const SafetyCheck check = tool.checker.CheckTrajectory(trajectory, 1e-6); !check) {
+        return runtime::InvalidArgument("trajectory: " + check.reason);
+      }
       const double start_error =
           (trajectory.points.front().q_rad - start.q_rad).cwiseAbs().maxCoeff();
       if (start_error > tolerance) {
@@ -360,7 +365,8 @@ class RobotServiceImpl final : public pb::RobotService::Service {
                                         Num(tolerance) + " rad)");
       }
       // Both backends move along the polyline of the waypoints, from where the arm is.
-      if (const SafetyCheck check = guard_->CheckPath(PathOf(trajectory, &start.q_rad)); !check) {
+      if (const SafetyCheck check = tool.guard->CheckPath(PathOf(trajectory, &start.q_rad));
+          !check) {
         return runtime::InvalidArgument("trajectory: " + check.reason);
       }
       auto report = [&](const TrajectoryProgress& progress) {
@@ -415,7 +421,9 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       }
       const MotionSlot slot(this);
       const RobotState start = ReadyState();
-      const Eigen::Isometry3d X_BaseTcp = start.X_BaseTool * checker_.X_ToolTcp();
+      const ToolChecks tool = ToolNow();
+      const SafetyChecker& checker = tool.checker;
+      const Eigen::Isometry3d X_BaseTcp = start.X_BaseTool * checker.X_ToolTcp();
       const Eigen::Vector3d direction_tcp =
           request->in_tool_frame()
               ? direction.normalized()
@@ -423,10 +431,10 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       const Eigen::Vector3d axis_base = X_BaseTcp.linear() * direction_tcp;
       Eigen::Isometry3d X_goal = X_BaseTcp;
       X_goal.translation() += axis_base * distance;
-      if (const SafetyCheck check = checker_.CheckLinearMove(start.q_rad, X_goal, speed); !check) {
+      if (const SafetyCheck check = checker.CheckLinearMove(start.q_rad, X_goal, speed); !check) {
         return runtime::InvalidArgument("guarded move over the full distance: " + check.reason);
       }
-      if (const SafetyCheck check = CheckGuardedPath(start.q_rad, X_BaseTcp, axis_base, distance);
+      if (const SafetyCheck check = CheckGuardedPath(tool, start.q_rad, X_BaseTcp, axis_base, distance);
           !check) {
         return runtime::InvalidArgument("guarded move: " + check.reason);
       }
@@ -445,7 +453,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       }
       if (!status.ok()) return status;
       const Eigen::Vector3d p_end =
-          (result.final_state.X_BaseTool * checker_.X_ToolTcp()).translation();
+          (result.final_state.X_BaseTool * checker.X_ToolTcp()).translation();
       response->set_contact(result.outcome == MotionOutcome::kContact);
       response->set_distance_travelled_m((p_end - X_BaseTcp.translation()).dot(axis_base));
       response->set_contact_force_n(
@@ -529,19 +537,35 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   // to where the cup would meet a static surface (board, tote, table, floor, pedestal), or
   // the full distance. The cup's touch is the contact the move is meant to find: the force
   // threshold stops it there, so the travel beyond is the contact's, not a collision's.
-  SafetyCheck CheckGuardedPath(const JointVector& q_start_rad, const Eigen::Isometry3d& X_BaseTcp,
-                               const Eigen::Vector3d& axis_Base, double distance_m) const {
+  // The checks of one motion, with the gripper's head where the robot's world has it now.
+  struct ToolChecks {
+    SafetyChecker checker;
+    const CollisionGuard* guard;
+  };
+  ToolChecks ToolNow() const {
+    const double head_rad = backend_->GripperHeadAngle();
+    try {
+      return {checker_.WithHeadAngle(head_rad), &guard_->ForHeadAngle(head_rad)};
+    } catch (const std::invalid_argument& e) {
+      throw PreconditionError(std::string("the gripper's head does not match the cell: ") +
+                              e.what());
+    }
+  }
+
+  SafetyCheck CheckGuardedPath(const ToolChecks& tool, const JointVector& q_start_rad,
+                               const Eigen::Isometry3d& X_BaseTcp, const Eigen::Vector3d& axis_Base,
+                               double distance_m) const {
     const double travel_m =
-        guard_->CupTravelToStaticContact(X_BaseTcp.translation(), axis_Base, distance_m);
-    if (travel_m <= 1e-9) return guard_->CheckPath({q_start_rad});
+        tool.guard->CupTravelToStaticContact(X_BaseTcp.translation(), axis_Base, distance_m);
+    if (travel_m <= 1e-9) return tool.guard->CheckPath({q_start_rad});
     Eigen::Isometry3d X_BaseTcp_contact = X_BaseTcp;
     X_BaseTcp_contact.translation() += axis_Base * travel_m;
     LinearMoveOptions options;
-    options.X_ToolTcp = checker_.X_ToolTcp();
-    const LinearMoveResult line = SampleLinearPath(checker_.kinematics(), q_start_rad,
+    options.X_ToolTcp = tool.checker.X_ToolTcp();
+    const LinearMoveResult line = SampleLinearPath(tool.checker.kinematics(), q_start_rad,
                                                    X_BaseTcp_contact, options, 0.005, 0.02);
     if (!line.ok) return SafetyCheck::Fail(line.reason);
-    return guard_->CheckPath(PathOf(line.trajectory));
+    return tool.guard->CheckPath(PathOf(line.trajectory));
   }
 
   // Polls the backend's state until `done` holds, at most kStatusWait.
@@ -621,7 +645,8 @@ class RobotServiceImpl final : public pb::RobotService::Service {
     pb::GetStateResponse out;
     *out.mutable_joints() = JointStateToProto(state);
     *out.mutable_x_base_tool() = pc::PoseToProto(state.X_BaseTool);
-    *out.mutable_x_base_tcp() = pc::PoseToProto(state.X_BaseTool * checker_.X_ToolTcp());
+    *out.mutable_x_base_tcp() =
+        pc::PoseToProto(state.X_BaseTool * checker_.X_ToolTcpAt(state.gripper_head_angle_rad));
     *out.mutable_tcp_wrench()->mutable_force_n() = pc::VectorToProto(state.wrench_base.head<3>());
     *out.mutable_tcp_wrench()->mutable_torque_nm() = pc::VectorToProto(state.wrench_base.tail<3>());
     out.set_backend(options_.backend_name);
@@ -982,8 +1007,7 @@ runtime::ServiceSet BuildRobotServices(const runtime::Config& config) {
   const ur10::Ur10Model model = ur10::Ur10Model::Load(data_dir + "/ur10", model_options);
   const world::CellConfig cell_config = CellConfigFrom(config, data_dir);
   const ur10::Ur10Kinematics kinematics(model);
-  const SafetyChecker checker(kinematics, SafetyLimitsFrom(config, model),
-                              cell_config.gripper.X_ToolTcp);
+  const SafetyChecker checker(kinematics, SafetyLimitsFrom(config, model), cell_config.gripper);
   const std::shared_ptr<const CollisionGuard> guard = BuildCollisionGuard(kinematics, cell_config);
   const RobotServiceOptions options = RobotServiceOptionsFrom(config);
 

@@ -70,6 +70,20 @@ SimulatorArmClient::SimulatorArmClient(
   }
 }
 
+double SimulatorArmClient::ReadHeadAngle() {
+  grpc::ClientContext ctx;
+  SetDeadline(&ctx, options_.timeout_s);
+  sim::GetGroundTruthResponse truth;
+  const grpc::Status status = stub_->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth);
+  // No layout yet (FAILED_PRECONDITION): the head is as the world started, straight.
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) return 0.0;
+  Check(status, address_, "GetGroundTruth");
+  if (!std::isfinite(truth.gripper_head_angle_rad())) {
+    throw std::runtime_error("simulator at " + address_ + " sent a non-finite head angle");
+  }
+  return truth.gripper_head_angle_rad();
+}
+
 JointVector SimulatorArmClient::ReadJoints() {
   grpc::ClientContext ctx;
   SetDeadline(&ctx, options_.timeout_s);

@@ -40,6 +40,8 @@ class SimulatorArmClient final : public SimulatedArm {
   /// GetGroundTruth answered, with or without an arm (FAILED_PRECONDITION: no layout yet).
   void CheckReachable() override;
   ArmPlacement PlaceArm(const JointVector& q_rad) override;
+  /// GetGroundTruth's gripper_head_angle_rad (0 before a layout is loaded).
+  double ReadHeadAngle() override;
   ContactProbe Probe(const Eigen::Isometry3d& X_BaseTool, const Eigen::Vector3d& direction_tcp,
                      double max_distance_m) override;
 

@@ -6,6 +6,7 @@
 
 #include <Eigen/Geometry>
 
+#include <cmath>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -86,7 +87,36 @@ class FakeSimulator final : public simulator::v1::SimulatorService::Service {
     if (no_layout_) return {grpc::StatusCode::FAILED_PRECONDITION, "no layout loaded"};
     *response->mutable_x_base_tool() = proto_convert::PoseToProto(X_BaseTool_);
     response->mutable_attached_item()->set_name(attached_);
+    response->set_gripper_head_angle_rad(head_angle_rad_);
     return grpc::Status::OK;
+  }
+
+  grpc::Status SetGripperHead(grpc::ServerContext*,
+                              const simulator::v1::SetGripperHeadRequest* request,
+                              simulator::v1::SetGripperHeadResponse* response) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (std::abs(request->angle_rad()) > max_head_angle_rad_) {
+      return {grpc::StatusCode::INVALID_ARGUMENT, "outside the servo's range"};
+    }
+    if (head_blocked_) return {grpc::StatusCode::FAILED_PRECONDITION, "the head hits the shelf"};
+    head_angle_rad_ = request->angle_rad();
+    ++head_calls_;
+    response->set_angle_rad(head_angle_rad_);
+    return grpc::Status::OK;
+  }
+  /// The simulated head's angle, and how often it was turned.
+  double head_angle_rad() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return head_angle_rad_;
+  }
+  int head_calls() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return head_calls_;
+  }
+  /// Every turn of the head is refused as a collision.
+  void BlockHead(bool blocked) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    head_blocked_ = blocked;
   }
 
  private:
@@ -99,6 +129,10 @@ class FakeSimulator final : public simulator::v1::SimulatorService::Service {
   bool no_layout_ = false;
   bool suction_on_ = false;
   int suction_calls_ = 0;
+  double head_angle_rad_ = 0.0;
+  double max_head_angle_rad_ = 1.5707963267948966;
+  bool head_blocked_ = false;
+  int head_calls_ = 0;
   int port_ = 0;
   std::unique_ptr<grpc::Server> server_;
 };

@@ -101,6 +101,7 @@ TEST_F(SimGripperTest, FixedAndUnactuatedModes) {
   GripperState state = gripper->SetJointMode(JointMode::kFixed, 0.7);
   EXPECT_DOUBLE_EQ(state.reading.joint_angle_rad, 0.7);
   EXPECT_NEAR(HeadTilt(state.reading.gravity_head_m_s2), 1.0, 1e-9);  // 0.3 + 0.7.
+  EXPECT_DOUBLE_EQ(sim_.head_angle_rad(), 0.7);  // the simulated head turned with the servo
 
   state = gripper->SetJointMode(JointMode::kUnactuated);
   EXPECT_NEAR(state.reading.joint_angle_rad, -0.3, 1e-9);  // Hangs along gravity.
@@ -112,6 +113,26 @@ TEST_F(SimGripperTest, FixedAndUnactuatedModes) {
   EXPECT_NEAR(HeadTilt(state.reading.gravity_head_m_s2), -0.8, 1e-9);
   gripper->SetVacuum(false);
   EXPECT_NEAR(gripper->State().reading.joint_angle_rad, 0.5, 1e-9);  // Free again.
+}
+
+// The simulated head follows the servo; a turn the simulator refuses (the head would hit
+// the cell, or the cell's gripper has no such range) fails and keeps the mode.
+TEST_F(SimGripperTest, TheSimulatedHeadFollowsTheServo) {
+  auto gripper = MakeGripper(GripperKind::kTote);
+  sim_.SetToolPose(TiltedDownTool(0.0));
+  gripper->SetJointMode(JointMode::kFixed, 1.2);
+  EXPECT_DOUBLE_EQ(sim_.head_angle_rad(), 1.2);
+  const int turns = sim_.head_calls();
+  gripper->State();  // a fixed head is not turned again
+  EXPECT_EQ(sim_.head_calls(), turns);
+  sim_.BlockHead(true);
+  EXPECT_THROW(backend_->SetJointMode(JointMode::kFixed, 0.4), PreconditionError);
+  EXPECT_DOUBLE_EQ(sim_.head_angle_rad(), 1.2);
+  EXPECT_EQ(gripper->State().reading.joint_mode, JointMode::kFixed);
+  EXPECT_DOUBLE_EQ(gripper->State().reading.joint_angle_rad, 1.2);
+  sim_.BlockHead(false);
+  gripper->SetJointMode(JointMode::kFixed, 0.0);
+  EXPECT_DOUBLE_EQ(sim_.head_angle_rad(), 0.0);
 }
 
 TEST_F(SimGripperTest, ShelfGripperHasNoJoint) {

@@ -111,7 +111,11 @@ TEST_F(ArmCollisionTest, ABentHeadIsCheckedWhereItHangs) {
   EXPECT_FALSE(checker.Check(q->q_rad, nullptr, -down).in_collision);
   // Outside the servo's range, or any turn of a straight gripper, is refused.
   EXPECT_THROW(checker.Check(q->q_rad, nullptr, 2.0), std::invalid_argument);
-  EXPECT_THROW(checker_->Check(q->q_rad, nullptr, 0.3), std::invalid_argument);
+  world::CellModel straight_cell = *cell_;
+  straight_cell.config.gripper.head_length_m = 0.0;
+  straight_cell.config.gripper.max_head_angle_rad = 0.0;
+  const ArmCollisionChecker straight_checker(straight_cell, *kinematics_);
+  EXPECT_THROW(straight_checker.Check(q->q_rad, nullptr, 0.3), std::invalid_argument);
 }
 
 TEST_F(ArmCollisionTest, CarriedItemIsChecked) {

@@ -325,7 +325,10 @@ TEST_F(SimWorldTest, TurningTheHeadMovesTheCupAboutItsJoint) {
   EXPECT_THROW(world.SetHeadAngle(2.0), std::invalid_argument);
   EXPECT_THROW(world.SetHeadAngle(std::nan("")), std::invalid_argument);
   EXPECT_EQ(world.state(), before);
-  SimWorld straight(*cell_, models_, SimOptions{}, kinematics);
+  world::CellModel straight_cell = *cell_;
+  straight_cell.config.gripper.head_length_m = 0.0;
+  straight_cell.config.gripper.max_head_angle_rad = 0.0;
+  SimWorld straight(straight_cell, models_, SimOptions{}, kinematics);
   EXPECT_THROW(straight.SetHeadAngle(0.2), std::invalid_argument);
 }
 
