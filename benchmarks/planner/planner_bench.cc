@@ -183,8 +183,10 @@ struct BenchArgs {
   bool all_failures = false;
   std::vector<int> layouts = {1, 2, 3};
   /// The gripper's head on a servo joint (0: the cell's gripper as described).
-  double head_length_m = 0.0;
+  double head_length_m = -1.0;
   double max_head_angle_deg = 90.0;
+  /// The tube's length to the lip (0: the cell's).
+  double tube_length_m = 0.0;
 };
 
 void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
@@ -356,6 +358,8 @@ int main(int argc, char** argv) {
       args.all_failures = true;
     } else if (arg.rfind("--head-length-m=", 0) == 0) {
       args.head_length_m = std::stod(arg.substr(16));
+    } else if (arg.rfind("--tube-length-m=", 0) == 0) {
+      args.tube_length_m = std::stod(arg.substr(16));
     } else if (arg.rfind("--max-head-angle-deg=", 0) == 0) {
       args.max_head_angle_deg = std::stod(arg.substr(21));
     } else if (arg.rfind("--layouts=", 0) == 0) {
@@ -366,8 +370,8 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--picks-only | --checks-only] [--layouts=1,2,3] [--all-failures]\n"
-                   "       [--head-length-m=0.09 [--max-head-angle-deg=90]]  (an articulated "
-                   "gripper)\n",
+                   "       [--head-length-m=0.09 [--max-head-angle-deg=90]] [--tube-length-m=0.35]"
+                   "  (the gripper; --head-length-m=0: straight)\n",
                    argv[0]);
       return 2;
     }
@@ -376,12 +380,15 @@ int main(int argc, char** argv) {
   s.kinematics =
       std::make_shared<ur10::Ur10Kinematics>(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
   world::CellConfig config = world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
-  if (args.head_length_m > 0.0) {
+  if (args.head_length_m >= 0.0) {
     config.gripper.head_length_m = args.head_length_m;
-    config.gripper.max_head_angle_rad = args.max_head_angle_deg * M_PI / 180.0;
-    std::printf("gripper: a %.3f m head on a joint of +-%.0f deg\n", args.head_length_m,
-                args.max_head_angle_deg);
+    config.gripper.max_head_angle_rad =
+        args.head_length_m > 0.0 ? args.max_head_angle_deg * M_PI / 180.0 : 0.0;
   }
+  if (args.tube_length_m > 0.0) config.gripper.X_ToolTcp.translation().z() = args.tube_length_m;
+  std::printf("gripper: %.3f m to the lip, a %.3f m head on a joint of +-%.0f deg\n",
+              config.gripper.X_ToolTcp.translation().z(), config.gripper.head_length_m,
+              config.gripper.max_head_angle_rad * 180.0 / M_PI);
   s.cell = world::LoadCellModel(config);
   apc::Catalogue catalogue = apc::Catalogue::FromCsvFile(apc::DefaultCataloguePath());
   auto grasps = std::make_shared<const GraspTable>(

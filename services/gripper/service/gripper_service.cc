@@ -127,7 +127,7 @@ runtime::ServiceSet BuildGripperServices(const runtime::Config& config) {
   // Every setting is read whichever backend is chosen, so one configuration file can hold
   // both backends' sections.
   const std::string backend = config.GetString("backend", "sim");
-  const GripperKind kind = GripperKindFromName(config.GetString("kind", "shelf"), "setting 'kind'");
+  const GripperKind kind = GripperKindFromName(config.GetString("kind", "tote"), "setting 'kind'");
   const std::string device = config.GetString("serial.device", "/dev/ttyUSB0");
   const int baud = IntSetting(config, "serial.baud", 115200, 1, 4000000);
   serial::SerialLinkOptions link;

@@ -72,7 +72,9 @@ class SimGripper final : public GripperBackend {
   bool vacuum_on_ = false;
   double vacuum_kpa_ = 0.0;
   bool sealed_on_item_ = false;  // SetSuction attached an item.
-  JointMode mode_ = JointMode::kUnactuated;
+  // The servo holds the head straight until told otherwise: a limp head would swing into
+  // whatever the planner took to be clear.
+  JointMode mode_ = JointMode::kFixed;
   double fixed_angle_rad_ = 0.0;
   double angle_rad_ = 0.0;  // Last angle reported (held when the tilt is unobservable).
 };

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <optional>
 #include <sstream>
 
@@ -353,6 +354,14 @@ GraspResult MotionPlanner::ComputeGraspsFor(const std::string& item,
   if (!grasps_->find(item)) throw NotFoundError("unknown item '" + item.substr(0, 60) + "'");
   if (!IsRigid(X_BaseItem)) throw std::invalid_argument("X_base_item must be a rigid pose");
   GraspOptions options = options_.grasp;
+  const GripperGeometry& gripper = robot_->gripper();
+  if (gripper.head_length_m > 0.0) {
+    // A bent head takes faces up to its servo's range off the opening direction (a top
+    // face lies at 90 degrees), and a little past it with the tube tipped.
+    options.max_approach_angle_rad =
+        std::max(options.max_approach_angle_rad,
+                 gripper.max_head_angle_rad + options_.head_reach_past_servo_rad);
+  }
   if (scene && scene->obstacles) {
     // Free distance behind the point: march back along -approach through the scan's and the
     // cell's grids (clearance bounds are conservative, so is the distance).
@@ -638,6 +647,62 @@ double MotionPlanner::BentHover(const GraspContainer& container, const GraspCand
   const double joint_z = grasp.X_BaseTcp.translation().z() + gripper.head_length_m * back.z();
   const double room_m = (ceiling_z - options_.bent_wrist_clearance_m - joint_z) / back.z();
   return std::clamp(room_m, options_.min_bent_hover_m, options_.guarded_distance_m);
+}
+
+MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
+                                                  const CarriedItem& carried, const Head& head,
+                                                  Deadline deadline) const {
+  DrawOut out;
+  out.path_rad = {request.start_rad};
+  const Eigen::Isometry3d X_BaseTcp = head.robot->X_BaseTcp(request.start_rad);
+  const Eigen::Isometry3d X_BaseItem = X_BaseTcp * carried.X_TcpItem;
+  double back_m = 0.0;
+  Eigen::Vector3d out_Base = Eigen::Vector3d::Zero();
+  for (const auto& bin : cell_->cell().bins) {
+    const GraspContainer container = ShelfBinContainer(cell_->cell(), bin.name);
+    // Only the bin the item is in: a corner of its box inside the bin's inner box.
+    const Eigen::Vector3d half = 0.5 * container.inner_size_m;
+    bool inside = false;
+    const Eigen::AlignedBox3d& b = carried.box_Item;
+    for (int i = 0; i < 8 && !inside; ++i) {
+      const Eigen::Vector3d corner((i & 1) ? b.max().x() : b.min().x(),
+                                   (i & 2) ? b.max().y() : b.min().y(),
+                                   (i & 4) ? b.max().z() : b.min().z());
+      const Eigen::Vector3d p = container.X_BaseContainer.inverse() * (X_BaseItem * corner);
+      inside = (p.cwiseAbs().array() <= half.array()).all();
+    }
+    if (!inside) continue;
+    back_m = ItemDepthBehindOpening(container, X_BaseItem, carried);
+    out_Base = container.opening_direction_Base;
+    break;
+  }
+  if (back_m <= 0.0) return out;
+  Eigen::Isometry3d X_goal = X_BaseTcp;
+  X_goal.translation() += back_m * out_Base;
+  CartesianSearchOptions search = options_.search;
+  search.deadline = deadline;
+  const CartesianSearchResult drawn =
+      SearchCartesianPath(*head.motion, request.start_rad, X_goal, &carried, search);
+  if (drawn.ok) out.path_rad = drawn.path_rad;  // else the roadmap tries from the start
+  return out;
+}
+
+double MotionPlanner::ItemDepthBehindOpening(const GraspContainer& container,
+                                             const Eigen::Isometry3d& X_BaseItem,
+                                             const CarriedItem& carried) const {
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  const Eigen::Vector3d p_opening =
+      container.X_BaseContainer.translation() +
+      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  double deepest = -std::numeric_limits<double>::infinity();
+  const Eigen::AlignedBox3d& b = carried.box_Item;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d corner((i & 1) ? b.max().x() : b.min().x(),
+                                 (i & 2) ? b.max().y() : b.min().y(),
+                                 (i & 4) ? b.max().z() : b.min().z());
+    deepest = std::max(deepest, (p_opening - X_BaseItem * corner).dot(o));
+  }
+  return std::max(0.0, deepest + options_.item_exit_clearance_m);
 }
 
 bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCandidate& grasp,
@@ -1133,10 +1198,14 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
       }
     }
   }
+  // A long item may still reach into the bin it came from: draw it straight out first, so
+  // that the arm's first turn does not swing it into the shelf.
+  const DrawOut draw_out = DrawItemOut(request, carried, head, deadline);
+  const JointVector& start_rad = draw_out.path_rad.back();
   for (const Eigen::Isometry3d& X_release : candidates) {
     CheckDeadline(deadline, "the place");
     std::string reason;
-    const auto q_release = FreeIk(X_release, request.start_rad, *head.fast, &carried, &reason);
+    const auto q_release = FreeIk(X_release, start_rad, *head.fast, &carried, &reason);
     if (!q_release) {
       failures.push_back({"place", "ik unreachable", "", -1, 0.0, "", "",
                           "release pose over " + request.container + ": " + reason});
@@ -1144,13 +1213,14 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
     }
     // Every motion of the search checked with the item on the cup.
     const JointPathResult path = roadmap_->Plan(
-        request.start_rad, *q_release, straight ? nullptr : head.motion.get(), deadline, &carried);
+        start_rad, *q_release, straight ? nullptr : head.motion.get(), deadline, &carried);
     if (!path.ok) {
       failures.push_back({"place", "no path", "", -1, 0.0, "", "",
                           "no free motion to the release pose carrying the item: " + path.reason});
       continue;
     }
-    const std::vector<JointVector>& joints = path.path_rad;
+    std::vector<JointVector> joints = draw_out.path_rad;
+    joints.insert(joints.end(), path.path_rad.begin() + 1, path.path_rad.end());
     plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *head.motion, *head.exact,
                                       &carried, "place");
     plan.X_BaseTcp_release = X_release;

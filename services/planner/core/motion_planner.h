@@ -55,6 +55,9 @@ struct MotionPlannerOptions {
   /// The pre-grasp pose lies on the approach line this far outside the bin's opening plane,
   /// or this far above the tote's rim.
   double pregrasp_clearance_m = 0.10;
+  /// The place starts by drawing a carried item that still reaches into its bin straight out,
+  /// until its box is this far out of the opening plane.
+  double item_exit_clearance_m = 0.10;
   double tote_pregrasp_height_m = 0.20;
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
@@ -64,6 +67,9 @@ struct MotionPlannerOptions {
   /// the reversed approach and the opening direction, the rest of the tube then pointing out
   /// of the opening (radians, > 0).
   double head_angle_step_rad = 30.0 * M_PI / 180.0;
+  /// With a head, grasps are taken up to the servo's range plus this from the opening
+  /// direction (the tube then tipped a little off level), radians.
+  double head_reach_past_servo_rad = 10.0 * M_PI / 180.0;
   /// With the head bent, the descent ends at most guarded_distance_m above the grasp and at
   /// least min_bent_hover_m, lower where the tube, level from the joint to the flange,
   /// would bring the wrist within bent_wrist_clearance_m of the bin's ceiling (the UR10's
@@ -258,6 +264,18 @@ class MotionPlanner final {
   std::optional<std::pair<GraspCandidate, double>> BendHead(const GraspContainer& container,
                                                             const GraspCandidate& grasp,
                                                             PlanFailure* blocked) const;
+  // The carried item drawn straight out of the bin it still reaches into, as a joint path
+  // from the place's start (just the start when it is out, or the way out is blocked).
+  struct DrawOut {
+    std::vector<JointVector> path_rad;
+  };
+  DrawOut DrawItemOut(const PlaceRequest& request, const CarriedItem& carried, const Head& head,
+                      Deadline deadline) const;
+  // How far the item's box at X_BaseItem must still move out along the opening direction to
+  // be item_exit_clearance_m out of the container (0 if it is already).
+  double ItemDepthBehindOpening(const GraspContainer& container,
+                                const Eigen::Isometry3d& X_BaseItem,
+                                const CarriedItem& carried) const;
   // How far above a bent grasp the descent ends (see min_bent_hover_m).
   double BentHover(const GraspContainer& container, const GraspCandidate& grasp,
                    const GripperGeometry& gripper) const;

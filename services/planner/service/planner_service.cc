@@ -66,12 +66,20 @@ void ToProto(const GraspCandidate& g, pb::Grasp* out) {
   out->set_clearance_m(g.clearance_m);
 }
 
-// ABORTED with one PlanFailure per attempt in the rich error details.
+// ABORTED with one PlanFailure per attempt in the rich error details, the most advanced
+// first, as many as fit: the details travel in the trailing metadata, which clients cap (8 KiB
+// by default, base64 taking a third more).
 grpc::Status Aborted(const PlanFailedError& error) {
+  constexpr std::size_t kMaxDetailBytes = 4096;
   google::rpc::Status details;
   details.set_code(grpc::StatusCode::ABORTED);
-  details.set_message(error.what());
+  details.set_message(runtime::CutMessage(error.what(), 1024));
   for (const PlanFailure& f : error.failures()) {
+    if (details.details_size() > 0 &&
+        details.ByteSizeLong() + std::min<std::size_t>(f.message.size(), 1024) + 256 >
+            kMaxDetailBytes) {
+      break;
+    }
     pb::PlanFailure message;
     message.set_stage(f.stage);
     message.set_kind(f.kind);
@@ -80,12 +88,17 @@ grpc::Status Aborted(const PlanFailedError& error) {
     message.set_fraction_achieved(f.fraction_achieved);
     message.set_body(f.body);
     message.set_obstacle(f.obstacle);
-    message.set_message(f.message);
+    message.set_message(runtime::CutMessage(f.message, 1024));
     details.add_details()->PackFrom(message);
   }
-  std::string message = error.what();
+  std::string message = runtime::CutMessage(error.what(), 1024);
   if (error.failures().size() > 1) {
-    message += " (and " + std::to_string(error.failures().size() - 1) + " more attempts)";
+    message += " (and " + std::to_string(error.failures().size() - 1) + " more attempts";
+    const std::size_t listed = static_cast<std::size_t>(details.details_size());
+    if (listed < error.failures().size()) {
+      message += ", " + std::to_string(listed) + " in the details";
+    }
+    message += ")";
   }
   return grpc::Status(grpc::StatusCode::ABORTED, message, details.SerializeAsString());
 }
