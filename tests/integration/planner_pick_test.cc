@@ -345,9 +345,7 @@ TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
       for (double time = 0.0; time <= end; time += 0.001) {
         const JointVector q = At(retreat, time);
         const double lifted =
-            (kinematics_->ForwardKinematics(q) * robot.gripper().X_ToolTcp)
-                .translation()
-                .z() -
+            (kinematics_->ForwardKinematics(q) * robot.gripper().X_ToolTcp).translation().z() -
             X_BaseTcp.translation().z();
         if (lifted < 0.01) continue;
         const planner::CollisionReport r = exact.Check(q, &carried);
