@@ -434,7 +434,8 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       if (const SafetyCheck check = checker.CheckLinearMove(start.q_rad, X_goal, speed); !check) {
         return runtime::InvalidArgument("guarded move over the full distance: " + check.reason);
       }
-      if (const SafetyCheck check = CheckGuardedPath(tool, start.q_rad, X_BaseTcp, axis_base, distance);
+      if (const SafetyCheck check =
+              CheckGuardedPath(tool, start.q_rad, X_BaseTcp, axis_base, distance);
           !check) {
         return runtime::InvalidArgument("guarded move: " + check.reason);
       }
