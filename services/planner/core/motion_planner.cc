@@ -660,16 +660,23 @@ MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
   Eigen::Vector3d out_Base = Eigen::Vector3d::Zero();
   for (const auto& bin : cell_->cell().bins) {
     const GraspContainer container = ShelfBinContainer(cell_->cell(), bin.name);
-    // Only the bin the item is in: a corner of its box inside the bin's inner box.
+    // Only the bin the item is in or before: a corner of its box in the bin's inner box
+    // grown out of the opening by the clearance.
     const Eigen::Vector3d half = 0.5 * container.inner_size_m;
+    const Eigen::Vector3d o_Container =
+        container.X_BaseContainer.linear().transpose() * container.opening_direction_Base;
+    Eigen::AlignedBox3d region(-half, half);
+    for (int axis = 0; axis < 3; ++axis) {
+      if (o_Container[axis] > 0.5) region.max()[axis] += options_.item_exit_clearance_m;
+      if (o_Container[axis] < -0.5) region.min()[axis] -= options_.item_exit_clearance_m;
+    }
     bool inside = false;
     const Eigen::AlignedBox3d& b = carried.box_Item;
     for (int i = 0; i < 8 && !inside; ++i) {
       const Eigen::Vector3d corner((i & 1) ? b.max().x() : b.min().x(),
                                    (i & 2) ? b.max().y() : b.min().y(),
                                    (i & 4) ? b.max().z() : b.min().z());
-      const Eigen::Vector3d p = container.X_BaseContainer.inverse() * (X_BaseItem * corner);
-      inside = (p.cwiseAbs().array() <= half.array()).all();
+      inside = region.contains(container.X_BaseContainer.inverse() * (X_BaseItem * corner));
     }
     if (!inside) continue;
     back_m = ItemDepthBehindOpening(container, X_BaseItem, carried);
@@ -679,8 +686,21 @@ MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
   if (back_m <= 0.0) return out;
   Eigen::Isometry3d X_goal = X_BaseTcp;
   X_goal.translation() += back_m * out_Base;
+  // A straight joint motion to the drawn-out pose on the start's branch moves the item
+  // nearly straight out over such a distance: take it when it is free; else search the
+  // cartesian line, with a small budget (wrist singularities often lie across it).
+  const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
+  const auto q_out =
+      kinematics.NearestSolution(X_goal * head.robot->gripper().X_ToolTcp.inverse(),
+                                 request.start_rad, kinematics.BranchOf(request.start_rad));
+  if (q_out && (q_out->q_rad - request.start_rad).cwiseAbs().maxCoeff() < 1.0 &&
+      head.motion->CheckSegment(request.start_rad, q_out->q_rad, &carried).free) {
+    out.path_rad = {request.start_rad, q_out->q_rad};
+    return out;
+  }
   CartesianSearchOptions search = options_.search;
   search.deadline = deadline;
+  search.node_budget = std::min(search.node_budget, 300);
   const CartesianSearchResult drawn =
       SearchCartesianPath(*head.motion, request.start_rad, X_goal, &carried, search);
   if (drawn.ok) out.path_rad = drawn.path_rad;  // else the roadmap tries from the start

@@ -55,9 +55,11 @@ struct MotionPlannerOptions {
   /// The pre-grasp pose lies on the approach line this far outside the bin's opening plane,
   /// or this far above the tote's rim.
   double pregrasp_clearance_m = 0.10;
-  /// The place starts by drawing a carried item that still reaches into its bin straight out,
-  /// until its box is this far out of the opening plane.
-  double item_exit_clearance_m = 0.10;
+  /// The place starts by drawing a carried item that still reaches into its bin, or lies
+  /// less than this in front of it, straight out until its box is this far out of the
+  /// opening plane: the arm's first turn toward the roadmap then cannot swing it into the
+  /// shelf.
+  double item_exit_clearance_m = 0.25;
   double tote_pregrasp_height_m = 0.20;
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
