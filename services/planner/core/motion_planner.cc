@@ -233,7 +233,8 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
   static_fast_ = straight->fast.get();
   static_motion_ = straight->motion.get();
   static_exact_ = straight->exact.get();
-  heads_.emplace(straight->angle_rad, std::move(straight));
+  straight_head_ = std::move(straight);
+  heads_.emplace(straight_head_->angle_rad, straight_head_);
   std::vector<std::string> missing;
   std::vector<NamedPose> named = ComputeNamedPoses(*robot_, *cell_, *static_fast_, *static_exact_,
                                                    DefaultHomeJoints(), X_ToolCamera_, &missing);
@@ -248,19 +249,28 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
 MotionPlanner::~MotionPlanner() = default;
 
 struct MotionPlanner::RequestChecks {
-  RequestChecks(const RobotGeometry& robot, const StaticCell& cell, const ScanObstacles* scan,
+  RequestChecks(std::shared_ptr<const Head> h, const StaticCell& cell, const ScanObstacles* scan,
                 const MotionCheckOptions& options)
-      : fast(robot, cell, scan), motion(fast, options), exact(robot, cell, scan) {}
+      : head(std::move(h)),
+        fast(*head->robot, cell, scan),
+        motion(fast, options),
+        exact(*head->robot, cell, scan) {}
+  std::shared_ptr<const Head> head;  // kept while the request runs
   FastChecker fast;
   MotionChecker motion;
   ExactChecker exact;
 };
 
-const MotionPlanner::Head& MotionPlanner::HeadAt(double angle_rad) const {
+std::shared_ptr<const MotionPlanner::Head> MotionPlanner::HeadAt(double angle_rad) const {
   if (!std::isfinite(angle_rad)) throw std::invalid_argument("the head angle must be finite");
   std::lock_guard<std::mutex> lock(heads_mutex_);
   auto it = heads_.find(angle_rad);
-  if (it != heads_.end()) return *it->second;
+  if (it != heads_.end()) return it->second;
+  if (heads_.size() > kMaxHeads) {
+    // Many angles asked for: start again from the straight head (requests keep theirs).
+    heads_.clear();
+    heads_.emplace(straight_head_->angle_rad, straight_head_);
+  }
   auto head = std::make_unique<Head>();
   head->angle_rad = angle_rad;
   head->robot = std::make_unique<RobotGeometry>(
@@ -268,7 +278,9 @@ const MotionPlanner::Head& MotionPlanner::HeadAt(double angle_rad) const {
   head->fast = std::make_unique<FastChecker>(*head->robot, *cell_, nullptr);
   head->motion = std::make_unique<MotionChecker>(*head->fast, options_.motion);
   head->exact = std::make_unique<ExactChecker>(*head->robot, *cell_, nullptr);
-  return *heads_.emplace(angle_rad, std::move(head)).first->second;
+  std::shared_ptr<const Head> shared = std::move(head);
+  heads_.emplace(angle_rad, shared);
+  return shared;
 }
 
 GraspContainer MotionPlanner::Container(const std::string& name) const {
@@ -474,8 +486,9 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
                                                Deadline deadline, double head_angle_rad) const {
   const auto started = std::chrono::steady_clock::now();
   ValidateStart(start_rad);
-  const Head& head = HeadAt(head_angle_rad);  // throws outside the servo's range
-  const bool straight = &head == &HeadAt(robot_->gripper().head_angle_rad);
+  const std::shared_ptr<const Head> head_ptr = HeadAt(head_angle_rad);  // throws out of range
+  const Head& head = *head_ptr;
+  const bool straight = head_ptr == straight_head_;
   if (!goal_rad.allFinite()) throw std::invalid_argument("goal joints must be finite");
   if (const std::string out = robot_->kinematics().model().PositionLimitViolation(goal_rad);
       !out.empty()) {
@@ -628,7 +641,7 @@ std::optional<std::pair<GraspCandidate, double>> MotionPlanner::BendHead(
   std::sort(angles.begin(), angles.end(),
             [&](double x, double y) { return flange_off_middle(x) < flange_off_middle(y); });
   for (const double angle : angles) {
-    if (TubeReaches(container, bent, *HeadAt(angle).robot, blocked)) {
+    if (TubeReaches(container, bent, *HeadAt(angle)->robot, blocked)) {
       return std::make_pair(bent, angle);
     }
   }
@@ -1050,7 +1063,7 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   Container(request.container);  // throws NotFoundError
   CheckDeadline(deadline, "the pick's set-up");
   const ScanObstacles* scan = scene ? scene->obstacles.get() : nullptr;
-  RequestChecks straight(*robot_, *cell_, scan, options_.motion);
+  RequestChecks straight(straight_head_, *cell_, scan, options_.motion);
   if (const CollisionReport r = straight.fast.Check(request.start_rad); r.in_collision) {
     throw PreconditionError("the start state collides: " + r.ToString());
   }
@@ -1085,8 +1098,7 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
       candidate = bent->first;
       auto& slot = bent_checks[bent->second];
       if (!slot) {
-        slot = std::make_unique<RequestChecks>(*HeadAt(bent->second).robot, *cell_, scan,
-                                               options_.motion);
+        slot = std::make_unique<RequestChecks>(HeadAt(bent->second), *cell_, scan, options_.motion);
       }
       checks = slot.get();
       // The head turns at the start, before the approach.
@@ -1170,8 +1182,9 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
   }
   if (!IsRigid(request.X_TcpItem)) throw std::invalid_argument("X_tcp_item must be rigid");
   const GraspContainer container = Container(request.container);
-  const Head& head = HeadAt(request.head_angle_rad);  // throws outside the servo's range
-  const bool straight = &head == &HeadAt(robot_->gripper().head_angle_rad);
+  const std::shared_ptr<const Head> head_ptr = HeadAt(request.head_angle_rad);  // throws
+  const Head& head = *head_ptr;
+  const bool straight = head_ptr == straight_head_;
   const CarriedItem carried = MakeCarriedItem(request.item, model->box_I, request.X_TcpItem);
   // The item's lowest point below the tcp when the tcp points straight down.
   const Eigen::Isometry3d X_down = DownAt(Eigen::Vector3d::Zero());

@@ -257,9 +257,11 @@ class MotionPlanner final {
   };
   // The checks of one request (its scan) with the head at one angle.
   struct RequestChecks;
-  // The head at `angle_rad`, its checks built the first time it is asked for.
+  // The head at `angle_rad`, its checks built the first time it is asked for and kept
+  // (at most kMaxHeads angles besides the straight head: a request holds on to its own).
   // Throws std::invalid_argument outside the servo's range.
-  const Head& HeadAt(double angle_rad) const;
+  std::shared_ptr<const Head> HeadAt(double angle_rad) const;
+  static constexpr std::size_t kMaxHeads = 16;
   // For a grasp the straight tube cannot stand at: the grasp turned so that the bent tube
   // points out of the opening, and the head angle; nullopt (and `blocked` saying why) if
   // the gripper has no joint or the bent tube does not fit either.
@@ -310,7 +312,8 @@ class MotionPlanner final {
   std::unique_ptr<StaticCell> cell_;
   mutable std::mutex heads_mutex_;
   // The head's checks by angle; the straight head's (at 0) built first, its parts named below.
-  mutable std::map<double, std::unique_ptr<Head>> heads_;
+  mutable std::map<double, std::shared_ptr<const Head>> heads_;
+  std::shared_ptr<const Head> straight_head_;
   const RobotGeometry* robot_ = nullptr;
   const FastChecker* static_fast_ = nullptr;
   const MotionChecker* static_motion_ = nullptr;

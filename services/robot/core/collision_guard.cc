@@ -90,14 +90,25 @@ void CollisionGuard::BuildCheckers() {
 
 CollisionGuard::~CollisionGuard() = default;
 
-const CollisionGuard& CollisionGuard::ForHeadAngle(double head_angle_rad) const {
-  if (head_angle_rad == robot_->gripper().head_angle_rad) return *this;
+std::shared_ptr<const CollisionGuard> CollisionGuard::ForHeadAngle(double head_angle_rad) const {
+  if (head_angle_rad == robot_->gripper().head_angle_rad) {
+    return std::shared_ptr<const CollisionGuard>(std::shared_ptr<const CollisionGuard>(), this);
+  }
   // Validates the angle (finite, within the servo's range) before it is a key.
   const planner::GripperGeometry bent = robot_->gripper().AtHeadAngle(head_angle_rad);
   std::lock_guard<std::mutex> lock(heads_mutex_);
   auto& slot = heads_[head_angle_rad];
-  if (!slot) slot.reset(new CollisionGuard(*this, bent));
-  return *slot;
+  if (!slot) {
+    if (heads_.size() > kMaxHeads) {
+      // A head that follows gravity turns to ever new angles: start the cache again.
+      heads_.clear();
+      std::shared_ptr<const CollisionGuard> guard(new CollisionGuard(*this, bent));
+      heads_.emplace(head_angle_rad, guard);
+      return guard;
+    }
+    slot.reset(new CollisionGuard(*this, bent));
+  }
+  return slot;
 }
 
 SafetyCheck CollisionGuard::CheckState(const JointVector& q_rad) const {

@@ -87,10 +87,11 @@ class CollisionGuard final {
   int StatesOnPath(const std::vector<JointVector>& path_rad) const;
 
   /// This guard with the gripper's head at `head_angle_rad` (a gripper with a servo joint):
-  /// *this at its own angle, else a guard with the bent gripper's bodies over the same
-  /// static cell, built once per angle and kept as long as this guard. Throws
-  /// std::invalid_argument for an angle outside the servo's range.
-  const CollisionGuard& ForHeadAngle(double head_angle_rad) const;
+  /// this guard at its own angle (not owned), else a guard with the bent gripper's bodies
+  /// over the same static cell, built once per angle and kept (at most kMaxHeads angles; a
+  /// caller keeps its own alive). Throws std::invalid_argument outside the servo's range.
+  std::shared_ptr<const CollisionGuard> ForHeadAngle(double head_angle_rad) const;
+  static constexpr std::size_t kMaxHeads = 16;
 
   const planner::RobotGeometry& robot() const { return *robot_; }
   const planner::StaticCell& cell() const { return *cell_; }
@@ -115,7 +116,7 @@ class CollisionGuard final {
   std::unique_ptr<planner::RobotGeometry> robot_;
   std::shared_ptr<const planner::StaticCell> cell_;
   mutable std::mutex heads_mutex_;
-  mutable std::map<double, std::unique_ptr<const CollisionGuard>> heads_;
+  mutable std::map<double, std::shared_ptr<const CollisionGuard>> heads_;
   std::unique_ptr<planner::FastChecker> fast_;
   std::unique_ptr<planner::MotionChecker> motion_;
 };

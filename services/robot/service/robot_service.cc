@@ -541,12 +541,12 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   // The checks of one motion, with the gripper's head where the robot's world has it now.
   struct ToolChecks {
     SafetyChecker checker;
-    const CollisionGuard* guard;
+    std::shared_ptr<const CollisionGuard> guard;
   };
   ToolChecks ToolNow() const {
     const double head_rad = backend_->GripperHeadAngle();
     try {
-      return {checker_.WithHeadAngle(head_rad), &guard_->ForHeadAngle(head_rad)};
+      return {checker_.WithHeadAngle(head_rad), guard_->ForHeadAngle(head_rad)};
     } catch (const std::invalid_argument& e) {
       throw PreconditionError(std::string("the gripper's head does not match the cell: ") +
                               e.what());

@@ -40,10 +40,7 @@ class CollisionGuardTest : public ::testing::Test {
     const world::CellConfig config =
         world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml");
     cell_ = new world::CellModel(world::LoadCellModel(config));
-    gripper_ = new planner::GripperGeometry;
-    gripper_->X_ToolTcp = config.gripper.X_ToolTcp;
-    gripper_->tube_radius_m = config.gripper.tube_radius_m;
-    gripper_->cup_length_m = config.gripper.cup_length_m;
+    gripper_ = new planner::GripperGeometry(planner::GripperGeometry::FromCell(config.gripper));
     guard_ = new CollisionGuard(*kinematics_, *cell_, *gripper_);
   }
 
@@ -198,6 +195,35 @@ TEST(CollisionGuardOptionsTest, Validates) {
   options = {};
   options.cup_contact_m = std::nan("");
   EXPECT_THROW(options.Validate(), std::invalid_argument);
+}
+
+// The default cell's gripper has a head on a servo joint: turned down inside a bin, it meets
+// the board the straight tube passes over.
+TEST_F(CollisionGuardTest, TheHeadIsCheckedWhereItIsTurned) {
+  ASSERT_GT(gripper_->head_length_m, 0.0);
+  EXPECT_EQ(guard_->ForHeadAngle(0.0).get(), guard_);
+  const double quarter = 0.5 * M_PI;
+  const auto turned = guard_->ForHeadAngle(quarter);
+  EXPECT_EQ(guard_->ForHeadAngle(quarter), turned);  // built once
+  EXPECT_THROW(guard_->ForHeadAngle(2.0), std::invalid_argument);
+  EXPECT_THROW(guard_->ForHeadAngle(std::nan("")), std::invalid_argument);
+  // The tcp 4 cm above the board, 15 cm into bin_H: the straight tube is clear of the board,
+  // the head turned down a quarter (one of the two signs) goes through it.
+  // The tool into the shelf with its x axis (the head's joint axis) level.
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+  X_BaseTcp.linear() << Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitZ(),
+      Eigen::Vector3d::UnitX();
+  X_BaseTcp.translation() = BoardPoint() + Eigen::Vector3d(0.0, 0.0, 0.045);
+  const auto ik =
+      kinematics_->NearestSolution(X_BaseTcp * gripper_->X_ToolTcp.inverse(), StartJoints());
+  ASSERT_TRUE(ik.has_value());
+  const JointVector q = ik->q_rad;
+  EXPECT_TRUE(guard_->CheckState(q)) << guard_->CheckState(q).reason;
+  const SafetyCheck up = turned->CheckState(q);
+  const SafetyCheck down = guard_->ForHeadAngle(-quarter)->CheckState(q);
+  EXPECT_NE(up.ok, down.ok) << up.reason << " / " << down.reason;
+  EXPECT_NE((up.ok ? down : up).reason.find("gripper hits shelf"), std::string::npos)
+      << (up.ok ? down : up).reason;
 }
 
 }  // namespace
