@@ -194,6 +194,20 @@ CellConfig ParseCellConfig(const std::string& yaml_text, const std::string& sour
   return config;
 }
 
+std::string HeadAngleProblem(double head_angle_rad, double max_head_angle_rad) {
+  if (std::isfinite(head_angle_rad) && std::abs(head_angle_rad) <= max_head_angle_rad + 1e-12) {
+    return "";
+  }
+  std::ostringstream msg;
+  msg << head_angle_rad << " rad is outside the servo's range";
+  if (max_head_angle_rad == 0.0) {
+    msg << " (the gripper has no joint)";
+  } else {
+    msg << " of +-" << max_head_angle_rad << " rad";
+  }
+  return msg.str();
+}
+
 Eigen::Vector3d GripperConfig::p_ToolJoint() const {
   return X_ToolTcp * Eigen::Vector3d(0.0, 0.0, -head_length_m);
 }

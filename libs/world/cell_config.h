@@ -51,6 +51,11 @@ struct GripperConfig {
   double cup_length_m = 0.0;
 };
 
+/// Why a head angle cannot be set on a servo of range +-`max_head_angle_rad` (0: a gripper
+/// without a joint): "" when it can, else e.g. "2 rad is outside the servo's range of
+/// +-1.5708 rad". NaN and infinities are refused. Every service checks angles with this.
+std::string HeadAngleProblem(double head_angle_rad, double max_head_angle_rad);
+
 /// Layout of the static cell and the robot's gripper. Every pose is in the UR10 base frame
 /// (Base), metres, except X_WorldBase and the gripper's X_ToolTcp. World is the floor frame
 /// (z = 0 on the floor, z up).

@@ -27,6 +27,13 @@ bool TriedAlready(const std::vector<JointVector>& tried, const JointVector& q_ra
                      [&](const JointVector& t) { return SameArmPose(t, q_rad); });
 }
 
+// A point of a container's opening plane (the centre of its opening face), base frame.
+Eigen::Vector3d OpeningPoint(const GraspContainer& container) {
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  return container.X_BaseContainer.translation() +
+         0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+}
+
 std::string Fixed(double v, int digits) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), "%.*f", digits, v);
@@ -560,9 +567,7 @@ std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContaine
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d a = grasp.approach_Base;
   const Eigen::Vector3d o = container.opening_direction_Base;
-  const Eigen::Vector3d p_opening =
-      container.X_BaseContainer.translation() +
-      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  const Eigen::Vector3d p_opening = OpeningPoint(container);
   if (bent && !tote) {
     // The bent tube points out of the opening: hover over the grasp and draw straight back
     // out of the bin, the cup still facing the grasp.
@@ -724,9 +729,7 @@ double MotionPlanner::ItemDepthBehindOpening(const GraspContainer& container,
                                              const Eigen::Isometry3d& X_BaseItem,
                                              const CarriedItem& carried) const {
   const Eigen::Vector3d o = container.opening_direction_Base;
-  const Eigen::Vector3d p_opening =
-      container.X_BaseContainer.translation() +
-      0.5 * std::abs(o.dot(container.X_BaseContainer.linear() * container.inner_size_m)) * o;
+  const Eigen::Vector3d p_opening = OpeningPoint(container);
   double deepest = -std::numeric_limits<double>::infinity();
   const Eigen::AlignedBox3d& b = carried.box_Item;
   for (int i = 0; i < 8; ++i) {
@@ -1046,6 +1049,71 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   return true;
 }
 
+const MotionPlanner::RequestChecks* MotionPlanner::ChecksForGrasp(
+    const PickRequest& request, const GraspContainer& container, const ScanObstacles* scan,
+    const RequestChecks& straight, std::map<double, std::unique_ptr<RequestChecks>>* bent_checks,
+    GraspCandidate* candidate, PlanFailure* refused) const {
+  if (TubeReaches(container, *candidate, *robot_, refused)) return &straight;
+  const GraspCandidate listed = *candidate;
+  const auto bent = BendHead(container, listed, refused);
+  if (!bent) return nullptr;
+  *candidate = bent->first;
+  auto& slot = (*bent_checks)[bent->second];
+  if (!slot) {
+    slot = std::make_unique<RequestChecks>(HeadAt(bent->second), *cell_, scan, options_.motion);
+  }
+  // The head turns at the start, before the approach.
+  if (const CollisionReport r = slot->fast.Check(request.start_rad); r.in_collision) {
+    *refused = PlanFailure();
+    refused->stage = "start";
+    refused->kind = "collision";
+    refused->grasp = listed.surface;
+    refused->body = BodyName(r.body);
+    refused->obstacle = r.obstacle;
+    refused->message = "the head bent to " + Fixed(bent->second * 180.0 / M_PI, 0) +
+                       " deg for grasp '" + listed.surface +
+                       "' collides at the start: " + r.ToString();
+    return nullptr;
+  }
+  return slot.get();
+}
+
+bool MotionPlanner::TryRolls(const PickRequest& request, const GraspCandidate& candidate,
+                             const std::shared_ptr<const world::ItemModel>& model,
+                             const RequestChecks& checks, bool bent, Deadline deadline,
+                             PickPlan* plan, PlanFailure* best) const {
+  // Suction is symmetric about the cup's axis: the wrist may take the grasp at another roll
+  // where the first one runs into a joint limit, a wrist singularity or a wall. A bent head's
+  // roll sets where the tube leaves the bin: a little to either side keeps the wrist off a
+  // side wall or the tube off a neighbour.
+  bool have_best = false;
+  const auto rolls =
+      bent ? std::array<double, 4>{0.0, options_.bent_roll_rad, -options_.bent_roll_rad, 0.0}
+           : std::array<double, 4>{0.0, M_PI / 2, -M_PI / 2, M_PI};
+  for (int k = 0; k < (bent ? 3 : 4); ++k) {
+    const double roll = rolls[k];
+    if (roll != 0.0 && !candidate.roll_symmetric && !bent) break;
+    CheckDeadline(deadline, "the pick search");
+    GraspCandidate rolled = candidate;
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    rolled.X_BaseTcp.linear() = candidate.X_BaseTcp.linear() * R;
+    rolled.X_BaseTcpPreGrasp.linear() = candidate.X_BaseTcpPreGrasp.linear() * R;
+    PlanFailure failure;
+    try {
+      if (TryGrasp(request, rolled, model, checks.fast, checks.motion, checks.exact, deadline, plan,
+                   &failure)) {
+        return true;
+      }
+    } catch (const PlanFailedError& e) {
+      failure = e.failures().front();
+      failure.grasp = candidate.surface;
+    }
+    if (!have_best || failure.fraction_achieved > best->fraction_achieved) *best = failure;
+    have_best = true;
+  }
+  return false;
+}
+
 PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene* scene,
                                  Deadline deadline) const {
   const auto started = std::chrono::steady_clock::now();
@@ -1087,69 +1155,19 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
     // The tube's geometry at the grasp does not depend on the arm or the roll: a grasp it
     // rules out, straight and bent, is refused without IK or search and does not count.
     GraspCandidate candidate = listed;
-    const RequestChecks* checks = &straight;
-    PlanFailure blocked;
-    if (!TubeReaches(container, candidate, *robot_, &blocked)) {
-      const auto bent = BendHead(container, listed, &blocked);
-      if (!bent) {
-        failures.push_back(blocked);
-        continue;
-      }
-      candidate = bent->first;
-      auto& slot = bent_checks[bent->second];
-      if (!slot) {
-        slot = std::make_unique<RequestChecks>(HeadAt(bent->second), *cell_, scan, options_.motion);
-      }
-      checks = slot.get();
-      // The head turns at the start, before the approach.
-      if (const CollisionReport r = checks->fast.Check(request.start_rad); r.in_collision) {
-        PlanFailure f;
-        f.stage = "start";
-        f.kind = "collision";
-        f.grasp = listed.surface;
-        f.body = BodyName(r.body);
-        f.obstacle = r.obstacle;
-        f.message = "the head bent to " + Fixed(bent->second * 180.0 / M_PI, 0) +
-                    " deg for grasp '" + listed.surface +
-                    "' collides at the start: " + r.ToString();
-        failures.push_back(f);
-        continue;
-      }
+    PlanFailure refused;
+    const RequestChecks* checks =
+        ChecksForGrasp(request, container, scan, straight, &bent_checks, &candidate, &refused);
+    if (!checks) {
+      failures.push_back(refused);
+      continue;
     }
     ++plan.grasps_tried;
-    // Suction is symmetric about the cup's axis: the wrist may take the grasp at another
-    // roll where the first one runs into a joint limit, a wrist singularity or a wall.
     PlanFailure best;
-    bool have_best = false;
-    // A bent head's roll sets where the tube leaves the bin: a little to either side keeps
-    // the wrist off a side wall or the tube off a neighbour.
-    const bool bent = checks != &straight;
-    const auto rolls =
-        bent ? std::array<double, 4>{0.0, options_.bent_roll_rad, -options_.bent_roll_rad, 0.0}
-             : std::array<double, 4>{0.0, M_PI / 2, -M_PI / 2, M_PI};
-    for (int k = 0; k < (bent ? 3 : 4); ++k) {
-      const double roll = rolls[k];
-      if (roll != 0.0 && !candidate.roll_symmetric && !bent) break;
-      CheckDeadline(deadline, "the pick search");
-      GraspCandidate rolled = candidate;
-      const Eigen::Matrix3d R =
-          Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-      rolled.X_BaseTcp.linear() = candidate.X_BaseTcp.linear() * R;
-      rolled.X_BaseTcpPreGrasp.linear() = candidate.X_BaseTcpPreGrasp.linear() * R;
-      PlanFailure failure;
-      try {
-        if (TryGrasp(request, rolled, model, checks->fast, checks->motion, checks->exact, deadline,
-                     &plan, &failure)) {
-          plan.rejected = failures;
-          plan.planning_time_s = Seconds(started);
-          return plan;
-        }
-      } catch (const PlanFailedError& e) {
-        failure = e.failures().front();
-        failure.grasp = candidate.surface;
-      }
-      if (!have_best || failure.fraction_achieved > best.fraction_achieved) best = failure;
-      have_best = true;
+    if (TryRolls(request, candidate, model, *checks, checks != &straight, deadline, &plan, &best)) {
+      plan.rejected = failures;
+      plan.planning_time_s = Seconds(started);
+      return plan;
     }
     failures.push_back(best);
   }

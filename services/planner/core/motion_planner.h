@@ -303,6 +303,17 @@ class MotionPlanner final {
                const JointVector& q_grasp, const CarriedItem& carried, const FastChecker& fast,
                const MotionChecker& motion, const ExactChecker& exact, JointVector* q_lift,
                Eigen::Vector3d* lift_Base, PlanFailure* failure, std::string* reason) const;
+  // The checks a grasp is tried with: the straight head's, or (the grasp turned in
+  // `candidate`) a bent head's, built once per angle in `bent_checks`; nullptr, with the
+  // reason in `refused`, when neither tube fits or the bent head collides at the start.
+  const RequestChecks* ChecksForGrasp(const PickRequest& request, const GraspContainer& container,
+                                      const ScanObstacles* scan, const RequestChecks& straight,
+                                      std::map<double, std::unique_ptr<RequestChecks>>* bent_checks,
+                                      GraspCandidate* candidate, PlanFailure* refused) const;
+  // TryGrasp at the grasp's rolls; the most advanced failure in `best` when none works.
+  bool TryRolls(const PickRequest& request, const GraspCandidate& candidate,
+                const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
+                bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                 const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
                 const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,

@@ -226,10 +226,9 @@ GripperGeometry GripperGeometry::FromCell(const world::GripperConfig& config,
 }
 
 GripperGeometry GripperGeometry::AtHeadAngle(double angle_rad) const {
-  if (!std::isfinite(angle_rad) || std::abs(angle_rad) > max_head_angle_rad + 1e-12) {
-    throw std::invalid_argument("head angle " + std::to_string(angle_rad) +
-                                " rad is outside the servo's range of +-" +
-                                std::to_string(max_head_angle_rad) + " rad");
+  if (const std::string problem = world::HeadAngleProblem(angle_rad, max_head_angle_rad);
+      !problem.empty()) {
+    throw std::invalid_argument("head angle " + problem);
   }
   GripperGeometry g = *this;
   g.head_angle_rad = angle_rad;

@@ -66,11 +66,10 @@ SafetyChecker::SafetyChecker(const ur10::Ur10Kinematics& kinematics, SafetyLimit
 }
 
 SafetyChecker SafetyChecker::WithHeadAngle(double head_angle_rad) const {
-  if (!std::isfinite(head_angle_rad) ||
-      std::abs(head_angle_rad) > gripper_.max_head_angle_rad + 1e-12) {
-    throw std::invalid_argument("the gripper's head angle " + std::to_string(head_angle_rad) +
-                                " rad is outside its servo's range of +-" +
-                                std::to_string(gripper_.max_head_angle_rad) + " rad");
+  if (const std::string problem =
+          world::HeadAngleProblem(head_angle_rad, gripper_.max_head_angle_rad);
+      !problem.empty()) {
+    throw std::invalid_argument("the gripper's head angle " + problem);
   }
   SafetyChecker bent = *this;
   bent.head_angle_rad_ = head_angle_rad;

@@ -131,9 +131,10 @@ ArmCollisionChecker::~ArmCollisionChecker() = default;
 ArmCollision ArmCollisionChecker::Check(const ur10::JointVector& q_rad, const CarriedItem* carried,
                                         double head_angle_rad) const {
   if (!q_rad.allFinite()) throw std::invalid_argument("ArmCollisionChecker: non-finite joints");
-  if (!std::isfinite(head_angle_rad) ||
-      std::abs(head_angle_rad) > gripper_.max_head_angle_rad + 1e-12) {
-    throw std::invalid_argument("ArmCollisionChecker: head angle outside the servo's range");
+  if (const std::string problem =
+          world::HeadAngleProblem(head_angle_rad, gripper_.max_head_angle_rad);
+      !problem.empty()) {
+    throw std::invalid_argument("ArmCollisionChecker: head angle " + problem);
   }
   if (carried && !carried->mesh) {
     throw std::invalid_argument("ArmCollisionChecker: carried item without a mesh");

@@ -150,12 +150,10 @@ void SimWorld::SetJointPositions(const ur10::JointVector& q_rad) {
 
 void SimWorld::SetHeadAngle(double head_angle_rad) {
   const world::GripperConfig& gripper = cell_.config.gripper;
-  if (!std::isfinite(head_angle_rad) ||
-      std::abs(head_angle_rad) > gripper.max_head_angle_rad + 1e-12) {
-    throw std::invalid_argument(
-        "SetHeadAngle: " + std::to_string(head_angle_rad) + " rad is outside the servo's range" +
-        (gripper.head_length_m == 0.0 ? " (the gripper has no joint)"
-                                      : " of +-" + std::to_string(gripper.max_head_angle_rad)));
+  if (const std::string problem =
+          world::HeadAngleProblem(head_angle_rad, gripper.max_head_angle_rad);
+      !problem.empty()) {
+    throw std::invalid_argument("SetHeadAngle: " + problem);
   }
   const Eigen::Isometry3d X_BaseTool = this->X_BaseTool();
   const std::optional<ur10::JointVector> q = q_rad_;

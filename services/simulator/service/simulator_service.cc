@@ -454,11 +454,9 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
     return runtime::Guard([&] {
       const double angle = request->angle_rad();
       const world::GripperConfig& gripper = world_->cell().config.gripper;
-      if (!std::isfinite(angle) || std::abs(angle) > gripper.max_head_angle_rad + 1e-12) {
-        throw std::invalid_argument("angle_rad " + Num(angle) + " is outside the servo's range" +
-                                    (gripper.head_length_m == 0.0
-                                         ? std::string(" (the cell's gripper has no joint)")
-                                         : " of +-" + Num(gripper.max_head_angle_rad) + " rad"));
+      if (const std::string problem = world::HeadAngleProblem(angle, gripper.max_head_angle_rad);
+          !problem.empty()) {
+        throw std::invalid_argument("angle_rad " + problem);
       }
       std::lock_guard<std::mutex> lock(mutex_);
       const SimState state = world_->state();
