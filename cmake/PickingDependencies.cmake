@@ -17,6 +17,8 @@ find_package(octomap REQUIRED)
 find_package(fcl REQUIRED)
 find_package(embree 3 REQUIRED)
 pkg_check_modules(ARAVIS REQUIRED IMPORTED_TARGET aravis-0.8)
+# The viewer's HTTP server (Debian builds it as a library; its flags select the same ABI).
+pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)
 find_package(GTest REQUIRED)
 find_package(benchmark REQUIRED)
 

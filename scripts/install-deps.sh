@@ -17,6 +17,8 @@ packages=(
   libaravis-dev aravis-tools
   # configuration formats
   nlohmann-json3-dev libyaml-cpp-dev
+  # the viewer: its HTTP server and three.js for its page
+  libcpp-httplib-dev libjs-three
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   # the peers the benchmarks compare against read their sample data from here
@@ -28,6 +30,9 @@ packages=(
   # style check
   clang-format
 )
+# The browser the viewer's page test drives (headless, through the DevTools protocol); an
+# image that only builds the servers leaves it out with PICKING_NO_BROWSER=1.
+[[ ${PICKING_NO_BROWSER:-0} == 1 ]] || packages+=(chromium python3-websocket)
 # The Node.js client example and its test. Only when missing: a Node.js from elsewhere
 # (e.g. NodeSource's, which bundles npm) conflicts with Debian's npm package.
 command -v node >/dev/null || packages+=(nodejs)

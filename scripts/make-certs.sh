@@ -10,7 +10,7 @@
 # DIR/picking.pem, .key  a client certificate for the `picking` command line
 #
 # Without names: the services of deploy/compose (simulator robot gripper scanner detector
-# detector-1 detector-2 detector-3 planner orchestrator). Keys are EC P-256, readable only by
+# detector-1 detector-2 detector-3 planner orchestrator viewer). Keys are EC P-256, readable only by
 # their owner; certificates are valid for DAYS days (default 825, env PICKING_CERT_DAYS).
 set -euo pipefail
 
@@ -29,7 +29,7 @@ dir=$1
 shift
 names=("$@")
 [ ${#names[@]} -gt 0 ] || names=(simulator robot gripper scanner detector detector-1 detector-2
-  detector-3 planner orchestrator)
+  detector-3 planner orchestrator viewer)
 days=${PICKING_CERT_DAYS:-825}
 for name in "${names[@]}" picking; do
   # A name becomes a DNS SAN and a file name: keep to what both accept.

@@ -22,9 +22,12 @@
 #   --bin DIR         use the servers already built in DIR (nothing is installed or built)
 #   --detector-budget-scale X  the detector's --time_budget_scale (default 1; more time
 #                     for each detection on a loaded machine)
+#   --viewer-port N   serve the live view of the task on this port (default: a free one;
+#                     run.sh prints the page's address)
 #   --client CMD      run CMD (a shell command) instead of `picking run TASK`, with {address}
 #                     replaced by the orchestrator's HOST:PORT, {task} by the task file's
-#                     path and {out} by the output folder; its exit status is run.sh's
+#                     path, {out} by the output folder and {viewer} by the page's
+#                     http://HOST:PORT; its exit status is run.sh's
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -38,6 +41,7 @@ install=1
 bin=""
 budget_scale=1
 client=""
+viewer_port=""
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --task) task=$2; shift 2 ;;
@@ -50,12 +54,15 @@ while [[ $# -gt 0 ]]; do
     --bin) bin=$2; install=0; shift 2 ;;
     --detector-budget-scale) budget_scale=$2; shift 2 ;;
     --client) client=$2; shift 2 ;;
+    --viewer-port) viewer_port=$2; shift 2 ;;
     -h|--help) awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
 [[ -r "$task" ]] || { echo "run.sh: cannot read task file $task" >&2; exit 2; }
 [[ "$detectors" =~ ^[1-9][0-9]*$ ]] || { echo "run.sh: --detectors must be >= 1" >&2; exit 2; }
+[[ -z "$viewer_port" || "$viewer_port" =~ ^[1-9][0-9]*$ ]] || {
+  echo "run.sh: --viewer-port must be a port number" >&2; exit 2; }
 [[ -z "$bin" || -x "$bin/picking-orchestrator" ]] || {
   echo "run.sh: no picking-orchestrator in --bin $bin" >&2; exit 2; }
 
@@ -69,7 +76,7 @@ if [[ -z "$bin" ]]; then
   build_dir=${BUILD_DIR:-build}
   export CCACHE_DIR=${CCACHE_DIR:-$HOME/.cache/ccache}
   targets=(picking picking-simulator picking-robot picking-gripper picking-scanner
-           picking-detector picking-planner picking-orchestrator)
+           picking-detector picking-planner picking-orchestrator picking-viewer)
   if [[ ! -f "$build_dir/build.ninja" ]]; then
     cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=Release \
       ${CMAKE_ARGS:-} > "$out/logs/cmake.log"
@@ -107,6 +114,11 @@ cleanup() {
 trap cleanup EXIT
 trap 'exit 130' INT TERM
 
+# A free TCP port on this machine (the kernel's pick, released at once for the server).
+free_port() {
+  /usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
+}
+
 # Starts a server on a free port; its address lands in the variable named by $1.
 start() {
   local var=$1 name=$2; shift 2
@@ -138,9 +150,18 @@ for i in $(seq "$detectors"); do
   detector_list=${detector_list:+$detector_list,}$det
 done
 start planner planner picking-planner
+# The viewer's page port is chosen first: the orchestrator's report links to the page.
+viewer_port=${viewer_port:-$(free_port)}
+viewer_url=http://127.0.0.1:$viewer_port/
 start orch orchestrator picking-orchestrator --tasks_dir="$out/tasks" \
   --scanner.address="$scanner" --detector.endpoints="$detector_list" \
-  --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper"
+  --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper" \
+  --viewer.url="$viewer_url"
+start viewer_grpc viewer picking-viewer --http_listen="127.0.0.1:$viewer_port" \
+  --orchestrator.address="$orch" --robot.address="$robot"
+echo
+echo "watch the task in a browser: $viewer_url"
+echo
 
 status=0
 if [[ -n "$client" ]]; then
@@ -148,6 +169,7 @@ if [[ -n "$client" ]]; then
   command=${client//\{address\}/$orch}
   command=${command//\{task\}/$task}
   command=${command//\{out\}/$out}
+  command=${command//\{viewer\}/${viewer_url%/}}
   run_client() { bash -c "$command" | tee "$out/progress.txt"; }
 else
   # --out: output.json, score.txt and task.json from the orchestrator's answer.

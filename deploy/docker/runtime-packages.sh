@@ -10,6 +10,11 @@ libs=$(ldd "$@" 2>/dev/null | awk '$2 == "=>" && $3 ~ /^\// { print $3 }' | sort
 [[ -n "$libs" ]] || { echo "runtime-packages.sh: no shared libraries found in $*" >&2; exit 1; }
 missing=$(ldd "$@" 2>/dev/null | awk '/not found/ { print $1 }' | sort -u)
 [[ -z "$missing" ]] || { echo "runtime-packages.sh: unresolved libraries: $missing" >&2; exit 1; }
+{
+# Files a server reads that no library pulls in: the viewer serves Debian's three.js.
+for exe in "$@"; do
+  [[ $(basename "$exe") == picking-viewer ]] && echo libjs-three
+done
 for lib in $libs; do
   # Debian 12 merges /lib into /usr/lib; dpkg records a library under either path.
   real=$(readlink -f "$lib")
@@ -21,4 +26,5 @@ for lib in $libs; do
   done
   echo "runtime-packages.sh: no package holds $lib" >&2
   exit 1
-done | sort -u
+done
+} | sort -u

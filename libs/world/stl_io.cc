@@ -1,6 +1,7 @@
 #include "libs/world/stl_io.h"
 
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -118,26 +119,31 @@ TriangleMesh ReadStl(const std::string& path) {
   return mesh;
 }
 
-void WriteStlBinary(const std::string& path, const TriangleMesh& mesh) {
+std::string EncodeStlBinary(const TriangleMesh& mesh) {
   Validate(mesh);
-  std::ofstream out(path, std::ios::binary);
-  if (!out) throw std::runtime_error("STL '" + path + "': cannot open for writing");
-  char header[80] = {};
-  std::snprintf(header, sizeof(header), "binary STL %s", mesh.name.c_str());
-  out.write(header, 80);
+  std::string out(84 + 50 * mesh.triangles.size(), '\0');
+  std::snprintf(out.data(), 80, "binary STL %s", mesh.name.c_str());
+  out[79] = '\0';  // the header is 80 bytes, not a terminated string
   const auto count = static_cast<std::uint32_t>(mesh.triangles.size());
-  out.write(reinterpret_cast<const char*>(&count), 4);
-  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+  std::memcpy(out.data() + 80, &count, 4);
+  char* record = out.data() + 84;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t, record += 50) {
     float rec[12];
     const Eigen::Vector3f n = FaceNormal(mesh, t);
     for (int k = 0; k < 3; ++k) rec[k] = n[k];
     for (int v = 0; v < 3; ++v) {
       for (int k = 0; k < 3; ++k) rec[3 + 3 * v + k] = mesh.vertices[mesh.triangles[t][v]][k];
     }
-    out.write(reinterpret_cast<const char*>(rec), sizeof(rec));
-    const std::uint16_t attr = 0;
-    out.write(reinterpret_cast<const char*>(&attr), 2);
+    std::memcpy(record, rec, sizeof(rec));  // the 2 attribute bytes stay 0
   }
+  return out;
+}
+
+void WriteStlBinary(const std::string& path, const TriangleMesh& mesh) {
+  const std::string bytes = EncodeStlBinary(mesh);
+  std::ofstream out(path, std::ios::binary);
+  if (!out) throw std::runtime_error("STL '" + path + "': cannot open for writing");
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
   if (!out) throw std::runtime_error("STL '" + path + "': write failed");
 }
 

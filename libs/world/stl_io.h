@@ -18,4 +18,7 @@ TriangleMesh ReadStl(const std::string& path);
 /// not stored. Throws std::runtime_error if the file cannot be written.
 void WriteStlBinary(const std::string& path, const TriangleMesh& mesh);
 
+/// The binary STL file of `mesh` as bytes (what WriteStlBinary writes), e.g. to serve it.
+std::string EncodeStlBinary(const TriangleMesh& mesh);
+
 }  // namespace picking::world

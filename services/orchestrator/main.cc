@@ -27,6 +27,8 @@ int main(int argc, char** argv) {
       "max_attempts=N          attempts per target (default 2)",
       "min_time_per_item_s=S   skip a target with less task time left (default 25)",
       "shutdown_wait_s=S       how long SIGTERM waits for a task's current step (default 3)",
+      "viewer.url=URL          the viewer's page (picking-viewer): the report links each",
+      "                        item to its view there (default: no links)",
   };
   spec.build = picking::orchestrator::BuildOrchestratorServices;
   return picking::runtime::RunServerMain(argc, argv, spec);

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <array>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -58,6 +59,9 @@ struct PlannedPick {
   std::string grasp;    ///< The grasp's surface.
   int handle = -1;
   double approach_s = 0.0, descend_s = 0.0, retreat_s = 0.0;
+  /// The joint waypoints of the approach, descent and retreat, thinned (for a viewer).
+  std::vector<std::array<double, 6>> path_q;
+  double head_angle_rad = 0.0;
 };
 
 struct TouchOutcome {

@@ -2,12 +2,17 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <thread>
 
 namespace picking::orchestrator {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// A scan view as events carry it for a viewer: enough to see the bin's contents, small
+// enough to journal every view of a task (about 60 KB each).
+constexpr std::size_t kViewerScanPoints = 4000;
 
 double Seconds(Clock::time_point since) {
   return std::chrono::duration<double>(Clock::now() - since).count();
@@ -106,6 +111,96 @@ std::vector<std::string> StowBins(const std::string& item, const apc::Task& init
   return out;
 }
 
+std::vector<Eigen::Vector3f> ThinPoints(const geometry::PointCloud& cloud, std::size_t max_points) {
+  std::vector<Eigen::Vector3f> valid;
+  valid.reserve(cloud.points.size());
+  for (const Eigen::Vector3f& p : cloud.points) {
+    if (p.allFinite()) valid.push_back(p);
+  }
+  if (valid.size() <= max_points) return valid;
+  std::vector<Eigen::Vector3f> out;
+  out.reserve(max_points);
+  const double step = static_cast<double>(valid.size()) / static_cast<double>(max_points);
+  for (std::size_t i = 0; i < max_points; ++i) {
+    out.push_back(valid[static_cast<std::size_t>(static_cast<double>(i) * step)]);
+  }
+  return out;
+}
+
+namespace {
+
+// Journal numbers are rounded so that a scan of 4,000 points stays about 60 KB of text.
+double Rounded(double value, double unit) { return std::round(value / unit) * unit; }
+
+}  // namespace
+
+nlohmann::json EventScene::ToJson() const {
+  nlohmann::json out = nlohmann::json::object();
+  if (!scan_Base.empty()) {
+    std::vector<int> mm;
+    mm.reserve(scan_Base.size() * 3);
+    for (const Eigen::Vector3f& p : scan_Base) {
+      for (int k = 0; k < 3; ++k) mm.push_back(static_cast<int>(std::lround(p[k] * 1000.0f)));
+    }
+    out["scan_mm"] = std::move(mm);
+  }
+  if (detected) {
+    const Eigen::Quaterniond q(X_BaseItem.rotation());
+    const Eigen::Vector3d& t = X_BaseItem.translation();
+    out["detection"] = {{"position_m", {t.x(), t.y(), t.z()}},
+                        {"orientation_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+                        {"score", detection_score},
+                        {"method", method}};
+  }
+  if (!planned_path_q.empty()) {
+    nlohmann::json path = nlohmann::json::array();
+    for (const auto& q : planned_path_q) {
+      nlohmann::json row = nlohmann::json::array();
+      for (double v : q) row.push_back(Rounded(v, 1e-5));
+      path.push_back(std::move(row));
+    }
+    out["path_rad"] = std::move(path);
+    out["head_angle_rad"] = head_angle_rad;
+  }
+  return out;
+}
+
+EventScene EventScene::FromJson(const nlohmann::json& json) {
+  EventScene scene;
+  if (!json.is_object()) return scene;
+  if (json.contains("scan_mm")) {
+    const std::vector<int> mm = json.at("scan_mm").get<std::vector<int>>();
+    for (std::size_t i = 0; i + 2 < mm.size(); i += 3) {
+      scene.scan_Base.emplace_back(mm[i] * 1e-3f, mm[i + 1] * 1e-3f, mm[i + 2] * 1e-3f);
+    }
+  }
+  if (json.contains("detection")) {
+    const nlohmann::json& d = json.at("detection");
+    const auto t = d.at("position_m").get<std::vector<double>>();
+    const auto q = d.at("orientation_wxyz").get<std::vector<double>>();
+    if (t.size() == 3 && q.size() == 4) {
+      scene.detected = true;
+      scene.X_BaseItem = Eigen::Isometry3d::Identity();
+      scene.X_BaseItem.translation() = Eigen::Vector3d(t[0], t[1], t[2]);
+      scene.X_BaseItem.linear() =
+          Eigen::Quaterniond(q[0], q[1], q[2], q[3]).normalized().toRotationMatrix();
+      scene.detection_score = d.value("score", 0.0);
+      scene.method = d.value("method", "");
+    }
+  }
+  if (json.contains("path_rad")) {
+    for (const nlohmann::json& row : json.at("path_rad")) {
+      const auto q = row.get<std::vector<double>>();
+      if (q.size() != 6) continue;
+      std::array<double, 6> joints{};
+      std::copy(q.begin(), q.end(), joints.begin());
+      scene.planned_path_q.push_back(joints);
+    }
+    scene.head_angle_rad = json.value("head_angle_rad", 0.0);
+  }
+  return scene;
+}
+
 std::vector<std::string> PickTaskRunner::Destinations(const Target& target) const {
   if (task_.kind != apc::TaskKind::kStow) return {apc::kToteLocation};
   return StowBins(target.item, task_, contents_, catalogue_, options_.bin_volume_m3,
@@ -113,7 +208,7 @@ std::vector<std::string> PickTaskRunner::Destinations(const Target& target) cons
 }
 
 void PickTaskRunner::Emit(const Target* target, Step step, bool ok, const std::string& message,
-                          const std::string& to) {
+                          const std::string& to, EventScene scene) {
   TaskEvent event;
   event.time_s = clock_s_;
   if (target != nullptr) event.item = target->item, event.from = target->bin;
@@ -123,15 +218,22 @@ void PickTaskRunner::Emit(const Target* target, Step step, bool ok, const std::s
   event.message = message;
   event.items_done = done_;
   event.items_total = static_cast<int>(order_.size());
-  journal_.Append("event", "", clock_s_,
-                  {{"item", event.item},
-                   {"from", event.from},
-                   {"to", event.to},
-                   {"step", StepName(step)},
-                   {"ok", ok},
-                   {"message", message},
-                   {"done", done_},
-                   {"total", event.items_total}});
+  event.score = ScoreBelief(task_, events_, contents_, catalogue_).total;
+  event.time_limit_s = options_.time_limit_s;
+  event.scene = std::move(scene);
+  nlohmann::json record = {{"item", event.item},
+                           {"from", event.from},
+                           {"to", event.to},
+                           {"step", StepName(step)},
+                           {"ok", ok},
+                           {"message", message},
+                           {"done", done_},
+                           {"total", event.items_total},
+                           {"score", event.score},
+                           {"time_limit_s", event.time_limit_s}};
+  nlohmann::json scene_json = event.scene.ToJson();
+  if (!scene_json.empty()) record["scene"] = std::move(scene_json);
+  journal_.Append("event", "", clock_s_, std::move(record));
   event.sequence = next_event_++;
   if (emit_) emit_(event);
 }
@@ -258,6 +360,12 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
     const auto start = Clock::now();
     views.push_back(WithRetries("scan", [&] { return cell_.Scan(); }));
     AddTime(report, "scan", std::max(views.back().capture_s, Seconds(start)));
+    EventScene scene;
+    if (views.back().cloud_Base) {
+      scene.scan_Base = ThinPoints(*views.back().cloud_Base, kViewerScanPoints);
+    }
+    Emit(&target, Step::kScan, true,
+         "captured view " + std::to_string(views.size()) + " (" + pose + ")", "", std::move(scene));
   }
   Emit(&target, Step::kDetect, true, "detecting in " + std::to_string(views.size()) + " views");
   const auto start = Clock::now();
@@ -272,8 +380,14 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
   report.method = found.method;
   report.detection_score = found.score;
   report.X_BaseItem_detected = found.X_BaseItem;
+  EventScene scene;
+  scene.detected = true;
+  scene.X_BaseItem = found.X_BaseItem;
+  scene.detection_score = found.score;
+  scene.method = found.method;
   Emit(&target, Step::kDetect, true,
-       "found by " + found.method + " (score " + std::to_string(found.score) + ")");
+       "found by " + found.method + " (score " + std::to_string(found.score) + ")", "",
+       std::move(scene));
   return true;
 }
 
@@ -415,6 +529,10 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
     return Attempt::kFailed;
   }
   report.grasp = plan.grasp;
+  EventScene scene;
+  scene.planned_path_q = plan.path_q;
+  scene.head_angle_rad = plan.head_angle_rad;
+  Emit(&target, Step::kPlan, true, "planned grasp '" + plan.grasp + "'", "", std::move(scene));
   return GraspAndPlace(target, report, plan);
 }
 

@@ -19,6 +19,21 @@ namespace picking::orchestrator {
 enum class Step { kNone, kScan, kDetect, kPlan, kGrasp, kVerify, kPlace };
 enum class TaskState { kRunning, kSucceeded, kFailed, kCancelled };
 
+/// What a viewer draws of the step an event ends; empty on most events.
+struct EventScene {
+  std::vector<Eigen::Vector3f> scan_Base;  ///< A scan view's points, down-sampled.
+  bool detected = false;                   ///< The target found at X_BaseItem:
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  double detection_score = 0.0;
+  std::string method;
+  std::vector<std::array<double, 6>> planned_path_q;  ///< A planned pick's waypoints.
+  double head_angle_rad = 0.0;                        ///< The gripper head along them.
+
+  /// The journal's form of the scene (points in millimetres); {} when empty.
+  nlohmann::json ToJson() const;
+  static EventScene FromJson(const nlohmann::json& json);
+};
+
 /// One progress event of a task (journaled, replayed to watchers).
 struct TaskEvent {
   std::uint64_t sequence = 0;
@@ -29,7 +44,14 @@ struct TaskEvent {
   std::string message;
   int items_done = 0, items_total = 0;
   TaskState state = TaskState::kRunning;
+  int score = 0;  ///< The rules' score of what has been moved so far.
+  double time_limit_s = 0.0;
+  EventScene scene;
 };
+
+/// At most `max_points` of a view's points, evenly spaced over the cloud's order (an
+/// organised cloud keeps its rows' spread); invalid (non-finite) points are left out.
+std::vector<Eigen::Vector3f> ThinPoints(const geometry::PointCloud& cloud, std::size_t max_points);
 
 struct PickTaskOptions {
   /// The rules' 15 minutes, in robot time (motion and capture durations as the robot reports
@@ -119,7 +141,7 @@ class PickTaskRunner final {
   /// Where the item goes: the tote, or for a stow the bins in order of preference.
   std::vector<std::string> Destinations(const Target& target) const;
   void Emit(const Target* target, Step step, bool ok, const std::string& message,
-            const std::string& to = "");
+            const std::string& to = "", EventScene scene = {});
   /// Runs a cell operation, retrying a service that does not answer; rethrows the last error.
   template <typename F>
   auto WithRetries(const std::string& what, F&& operation) -> decltype(operation());

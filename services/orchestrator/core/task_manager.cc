@@ -5,6 +5,7 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "libs/errors/errors.h"
@@ -49,7 +50,39 @@ TaskEvent EventFromRecord(const JournalRecord& r) {
   e.message = r.data.value("message", "");
   e.items_done = r.data.value("done", 0);
   e.items_total = r.data.value("total", 0);
+  e.score = r.data.value("score", 0);
+  e.time_limit_s = r.data.value("time_limit_s", 0.0);
+  if (r.data.contains("scene")) e.scene = EventScene::FromJson(r.data.at("scene"));
   return e;
+}
+
+// The journal's work order, [[item, container], ...]; what is not in that form is left out
+// (a journal from an older orchestrator has none).
+std::vector<std::pair<std::string, std::string>> WorkOrderFromJson(const nlohmann::json& json) {
+  std::vector<std::pair<std::string, std::string>> out;
+  if (!json.is_array()) return out;
+  for (const nlohmann::json& entry : json) {
+    if (entry.is_array() && entry.size() == 2 && entry[0].is_string() && entry[1].is_string()) {
+      out.emplace_back(entry[0].get<std::string>(), entry[1].get<std::string>());
+    }
+  }
+  return out;
+}
+
+// The last event of a task: its end state, and the score or the error.
+TaskEvent FinalEvent(const std::vector<TaskEvent>& events, TaskState state,
+                     const std::string& error, int score, double duration_s, int items_done,
+                     int items_total) {
+  TaskEvent last;
+  last.sequence = events.empty() ? 0 : events.back().sequence + 1;
+  last.time_s = duration_s;
+  last.message = state == TaskState::kFailed ? error : "score " + std::to_string(score);
+  last.items_done = items_done;
+  last.items_total = items_total;
+  last.state = state;
+  last.score = score;
+  if (!events.empty()) last.time_limit_s = events.back().time_limit_s;
+  return last;
 }
 
 }  // namespace
@@ -91,20 +124,29 @@ void TaskManager::LoadFromDisk() {
     entry->info.task_id = dir.filename().string();
     entry->info.state = TaskState::kFailed;
     entry->info.error = "interrupted (the orchestrator stopped); resume it with resume_task_id";
+    std::optional<JournalRecord> end;
     for (const JournalRecord& r : Journal::Read((dir / "journal.jsonl").string())) {
-      if (r.type == "task") entry->info.kind = r.data.value("kind", "pick");
+      if (r.type == "task") {
+        entry->info.kind = r.data.value("kind", "pick");
+        entry->info.work_order = WorkOrderFromJson(r.data.value("work_order", nlohmann::json()));
+      }
       if (r.type == "event") {
         entry->events.push_back(EventFromRecord(r));
         entry->events.back().sequence = entry->events.size() - 1;  // events count 0, 1, ...
       }
-      if (r.type == "end") {
-        entry->info.state = static_cast<TaskState>(r.data.value("state", 3));
-        entry->info.error = r.data.value("error", "");
-      }
+      if (r.type == "end") end = r;
     }
     if (!entry->events.empty()) {
       entry->info.items_done = entry->events.back().items_done;
       entry->info.items_total = entry->events.back().items_total;
+    }
+    if (end) {
+      entry->info.state = static_cast<TaskState>(end->data.value("state", 3));
+      entry->info.error = end->data.value("error", "");
+      // Watchers of a finished task see how it ended, as they would have live.
+      entry->events.push_back(FinalEvent(
+          entry->events, entry->info.state, entry->info.error, end->data.value("score", 0),
+          end->time_s, end->data.value("moved", entry->info.items_done), entry->info.items_total));
     }
     if (fs::exists(dir / "output.json")) {
       entry->info.output_json = ReadText(dir / "output.json");
@@ -193,6 +235,8 @@ std::string TaskManager::Start(const StartSpec& spec) {
   entry->info.state = TaskState::kRunning;
   entry->info.error.clear();
   entry->info.items_total = static_cast<int>(order.size());
+  entry->info.work_order.clear();
+  for (const Target& t : order) entry->info.work_order.emplace_back(t.item, t.bin);
   entry->cancel = false;
   if (worker_.joinable()) worker_.join();
   running_ = true;
@@ -205,7 +249,10 @@ void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vec
   PickTaskResult result;
   try {
     Journal journal((fs::path(entry->dir) / "journal.jsonl").string());
-    if (journal.Records().empty()) journal.Append("task", "", 0.0, {{"kind", entry->info.kind}});
+    if (journal.Records().empty()) {
+      journal.Append("task", "", 0.0,
+                     {{"kind", entry->info.kind}, {"work_order", entry->info.work_order}});
+    }
     std::unique_ptr<CellPort> cell = cell_factory_();
     auto emit = [&](const TaskEvent& e) {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -217,9 +264,12 @@ void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vec
                           entry->cancel);
     result = runner.Run();
     const auto [output, report] =
-        WriteTaskFiles(entry->dir, entry->info.task_id, result, entry->events);
+        WriteTaskFiles(entry->dir, entry->info.task_id, result, entry->events, options_.viewer_url);
     journal.Append("end", "", result.duration_s,
-                   {{"state", static_cast<int>(result.state)}, {"error", result.error}});
+                   {{"state", static_cast<int>(result.state)},
+                    {"error", result.error},
+                    {"score", result.score.total},
+                    {"moved", result.items_moved}});
     std::lock_guard<std::mutex> lock(mutex_);
     entry->info.output_file = output;
     entry->info.report_file = report;
@@ -234,15 +284,9 @@ void TaskManager::RunTask(std::shared_ptr<Entry> entry, apc::Task task, std::vec
   entry->info.items_done = result.items_moved;
   entry->info.has_result = true;
   entry->info.result = result;
-  TaskEvent last;
-  last.sequence = entry->events.empty() ? 0 : entry->events.back().sequence + 1;
-  last.time_s = result.duration_s;
-  last.message = result.state == TaskState::kFailed ? result.error
-                                                    : "score " + std::to_string(result.score.total);
-  last.items_done = result.items_moved;
-  last.items_total = entry->info.items_total;
-  last.state = result.state;
-  entry->events.push_back(last);
+  entry->events.push_back(FinalEvent(entry->events, result.state, result.error, result.score.total,
+                                     result.duration_s, result.items_moved,
+                                     entry->info.items_total));
   running_ = false;
   changed_.notify_all();
 }

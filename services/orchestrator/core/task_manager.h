@@ -22,6 +22,9 @@ struct TaskManagerOptions {
   PickTaskOptions pick;
   EaseTable ease;
   std::map<std::string, std::string> preferred_method;  ///< ReadPreferredMethods.
+  /// The viewer's page (e.g. http://localhost:8080/): the report links each item to its view
+  /// there; empty for no links.
+  std::string viewer_url;
 };
 
 struct StartSpec {
@@ -37,6 +40,8 @@ struct TaskInfo {
   std::string kind = "pick";
   TaskState state = TaskState::kRunning;
   int items_done = 0, items_total = 0;
+  /// The targets in the order they are attempted: (item, container).
+  std::vector<std::pair<std::string, std::string>> work_order;
   std::string error;
   bool has_result = false;
   PickTaskResult result;
@@ -104,10 +109,12 @@ class TaskManager final {
 };
 
 /// Writes output.json (the APC output file), report.json and report.html of a finished task
-/// into `dir`; returns the paths of the output and the HTML report.
+/// into `dir`; returns the paths of the output and the HTML report. With a `viewer_url`, the
+/// report links each item to the task's view there (`<viewer_url>?task=ID&item=NAME`).
 std::pair<std::string, std::string> WriteTaskFiles(const std::string& dir,
                                                    const std::string& task_id,
                                                    const PickTaskResult& result,
-                                                   const std::vector<TaskEvent>& events);
+                                                   const std::vector<TaskEvent>& events,
+                                                   const std::string& viewer_url = "");
 
 }  // namespace picking::orchestrator

@@ -66,8 +66,15 @@ nlohmann::json TargetJson(const TargetReport& t) {
   return j;
 }
 
+// The viewer's page for one item of a task (names and ids are URL-safe: [a-z0-9_-]).
+std::string ViewLink(const std::string& viewer_url, const std::string& task_id,
+                     const std::string& item) {
+  return viewer_url + (viewer_url.find('?') == std::string::npos ? "?" : "&") + "task=" + task_id +
+         "&item=" + item;
+}
+
 std::string Html(const std::string& task_id, const PickTaskResult& result,
-                 const std::vector<TaskEvent>& events) {
+                 const std::vector<TaskEvent>& events, const std::string& viewer_url) {
   std::ostringstream h;
   h << "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>" << Escape(task_id)
     << "</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
@@ -80,7 +87,11 @@ std::string Html(const std::string& task_id, const PickTaskResult& result,
     << " s.</p>\n<h2>Items</h2>\n<table><tr><th>item</th><th>bin</th><th>result</th><th>"
        "attempts</th><th>method (score)</th><th>grasp</th><th>time per step (s)</th></tr>\n";
   for (const TargetReport& t : result.targets) {
-    h << "<tr><td>" << Escape(t.item) << "</td><td>" << t.bin << "</td><td class=\""
+    const std::string name = viewer_url.empty()
+                                 ? Escape(t.item)
+                                 : "<a href=\"" + Escape(ViewLink(viewer_url, task_id, t.item)) +
+                                       "\">" + Escape(t.item) + "</a>";
+    h << "<tr><td>" << name << "</td><td>" << t.bin << "</td><td class=\""
       << (t.picked ? "ok\">picked" : "no\">" + Escape(t.failure)) << "</td><td>" << t.attempts
       << "</td><td>" << Escape(t.method)
       << (t.detected ? " (" + std::to_string(t.detection_score) + ")" : "") << "</td><td>"
@@ -114,7 +125,8 @@ void Write(const fs::path& path, const std::string& text) {
 std::pair<std::string, std::string> WriteTaskFiles(const std::string& dir,
                                                    const std::string& task_id,
                                                    const PickTaskResult& result,
-                                                   const std::vector<TaskEvent>& events) {
+                                                   const std::vector<TaskEvent>& events,
+                                                   const std::string& viewer_url) {
   const fs::path output = fs::path(dir) / "output.json";
   apc::WriteTaskFile(output.string(), apc::ToOutput(result.final_contents));
   nlohmann::json report = {{"task_id", task_id},
@@ -132,10 +144,13 @@ std::pair<std::string, std::string> WriteTaskFiles(const std::string& dir,
                                      {"reason", line.reason}});
   }
   report["items"] = nlohmann::json::array();
-  for (const TargetReport& t : result.targets) report["items"].push_back(TargetJson(t));
+  for (const TargetReport& t : result.targets) {
+    report["items"].push_back(TargetJson(t));
+    if (!viewer_url.empty()) report["items"].back()["view"] = ViewLink(viewer_url, task_id, t.item);
+  }
   Write(fs::path(dir) / "report.json", report.dump(2) + "\n");
   const fs::path html = fs::path(dir) / "report.html";
-  Write(html, Html(task_id, result, events));
+  Write(html, Html(task_id, result, events, viewer_url));
   return {output.string(), html.string()};
 }
 

@@ -27,6 +27,26 @@ double Duration(const cm::JointTrajectory& t) {
   return t.points_size() == 0 ? 0.0 : t.points(t.points_size() - 1).time_from_start_s();
 }
 
+// A trajectory's joints thinned to at most `max_points` (its ends kept), for a viewer.
+void AppendThinned(const cm::JointTrajectory& t, int max_points,
+                   std::vector<std::array<double, 6>>& path_q) {
+  const int n = t.points_size();
+  if (n == 0) return;
+  const int stride = std::max(1, (n + max_points - 1) / max_points);
+  for (int i = 0; i < n; i += stride) {
+    if (t.points(i).positions_rad_size() != 6) continue;
+    std::array<double, 6> q{};
+    std::copy(t.points(i).positions_rad().begin(), t.points(i).positions_rad().end(), q.begin());
+    path_q.push_back(q);
+  }
+  if ((n - 1) % stride != 0 && t.points(n - 1).positions_rad_size() == 6) {
+    std::array<double, 6> q{};
+    const auto& last = t.points(n - 1).positions_rad();
+    std::copy(last.begin(), last.end(), q.begin());
+    path_q.push_back(q);
+  }
+}
+
 // The planner's typed failure from the status details, else the status message.
 std::string PlanFailureMessage(const grpc::Status& status) {
   google::rpc::Status details;
@@ -330,6 +350,11 @@ PlannedPick GrpcCell::PlanPick(const std::string& container, const std::string& 
   out.approach_s = Duration(stored.response.approach());
   out.descend_s = Duration(stored.response.descend());
   out.retreat_s = Duration(stored.response.retreat());
+  out.head_angle_rad = stored.response.head_angle_rad();
+  for (const cm::JointTrajectory* t :
+       {&stored.response.approach(), &stored.response.descend(), &stored.response.retreat()}) {
+    AppendThinned(*t, 40, out.path_q);
+  }
   picks_[out.handle] = std::move(stored);
   return out;
 }

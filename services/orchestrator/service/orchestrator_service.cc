@@ -56,6 +56,28 @@ common::v1::Container ContainerOrUnspecified(const std::string& name) {
   return proto_convert::ContainerFromName(name);
 }
 
+void SceneToProto(const EventScene& scene, pb::TaskEvent* out) {
+  if (!scene.scan_Base.empty()) {
+    auto* positions = out->mutable_scan()->mutable_positions_m();
+    positions->Reserve(static_cast<int>(scene.scan_Base.size() * 3));
+    for (const Eigen::Vector3f& p : scene.scan_Base) {
+      positions->Add(p.x());
+      positions->Add(p.y());
+      positions->Add(p.z());
+    }
+  }
+  if (scene.detected) {
+    pb::ItemDetection* detection = out->mutable_detection();
+    *detection->mutable_x_base_item() = proto_convert::PoseToProto(scene.X_BaseItem);
+    detection->set_score(scene.detection_score);
+    detection->set_method(scene.method);
+  }
+  for (const auto& q : scene.planned_path_q) {
+    out->add_planned_path()->mutable_positions_rad()->Add(q.begin(), q.end());
+  }
+  out->set_planned_head_angle_rad(scene.head_angle_rad);
+}
+
 pb::TaskEvent ToProto(const TaskEvent& e) {
   pb::TaskEvent out;
   out.set_sequence(e.sequence);
@@ -69,6 +91,9 @@ pb::TaskEvent ToProto(const TaskEvent& e) {
   out.set_items_done(e.items_done);
   out.set_items_total(e.items_total);
   out.set_state(ToProto(e.state));
+  out.set_score(e.score);
+  out.set_time_limit_s(e.time_limit_s);
+  SceneToProto(e.scene, &out);
   return out;
 }
 
@@ -78,6 +103,11 @@ void ToProto(const TaskInfo& info, pb::GetTaskResponse* out) {
   out->set_state(ToProto(info.state));
   out->set_items_done(info.items_done);
   out->set_items_total(info.items_total);
+  for (const auto& [item, from] : info.work_order) {
+    pb::WorkItem* w = out->add_work_order();
+    w->set_item(item);
+    w->set_from(ContainerOrUnspecified(from));
+  }
   out->set_error(info.error);
   if (info.state == TaskState::kRunning) return;
   auto* result = out->mutable_result();
@@ -258,6 +288,11 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
       EaseTable::FromYamlFile(config.GetPath("ease", data_dir + "/orchestrator/ease.yaml"));
   options.preferred_method =
       ReadPreferredMethods(config.GetPath("detector_models", data_dir + "/detector/models.json"));
+  options.viewer_url = config.GetString("viewer.url", "");
+  if (!options.viewer_url.empty() && options.viewer_url.rfind("http://", 0) != 0 &&
+      options.viewer_url.rfind("https://", 0) != 0) {
+    throw std::invalid_argument("setting 'viewer.url': must start with http:// or https://");
+  }
   options.pick.time_limit_s = config.GetDouble("time_limit_s", options.pick.time_limit_s);
   options.pick.max_attempts =
       static_cast<int>(config.GetInt("max_attempts", options.pick.max_attempts));

@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <filesystem>
 #include <map>
 #include <set>
@@ -51,7 +53,10 @@ class ScriptedCell final : public CellPort {
       throw CellError("scanner", true, "connection refused");
     }
     ScanView v;
-    v.cloud_Base = std::make_shared<geometry::PointCloud>();
+    auto cloud = std::make_shared<geometry::PointCloud>();
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    cloud->points = {{1.0f, 0.2f, 0.9f}, {nan, nan, nan}, {1.1f, 0.25f, 0.95f}};
+    v.cloud_Base = cloud;
     v.capture_s = 1.0;
     return v;
   }
@@ -77,6 +82,8 @@ class ScriptedCell final : public CellPort {
     p.ok = scripts[item].plannable;
     p.message = p.ok ? "" : "descend: gripper hits shelf";
     p.grasp = "+x face";
+    if (p.ok) p.path_q = {{0.0, -1.5, 1.5, -1.5, -1.57, 0.0}, {0.1, -1.4, 1.4, -1.6, -1.57, 0.0}};
+    p.head_angle_rad = 0.5;
     return p;
   }
   StepOutcome ExecuteApproach(const PlannedPick&) override { return {true, "", 3.0}; }
@@ -177,6 +184,64 @@ TEST_F(PickTaskTest, PicksEveryTargetAndScoresTheRules) {
   for (std::size_t i = 1; i < events.size(); ++i) {
     EXPECT_EQ(events[i].sequence, events[i - 1].sequence + 1);
   }
+}
+
+TEST_F(PickTaskTest, EventsCarryWhatAViewerDrawsAndTheJournalKeepsIt) {
+  ScriptedCell cell;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  int scans = 0, detections = 0, paths = 0, last_score = 0;
+  for (const TaskEvent& e : events) {
+    EXPECT_EQ(e.time_limit_s, options_.time_limit_s);
+    EXPECT_GE(e.score, last_score);  // nothing is lost in this task
+    last_score = e.score;
+    if (!e.scene.scan_Base.empty()) {
+      ++scans;
+      EXPECT_EQ(e.step, Step::kScan);
+      EXPECT_EQ(e.scene.scan_Base.size(), 2u);  // the invalid point is left out
+    }
+    if (e.scene.detected) {
+      ++detections;
+      EXPECT_EQ(e.step, Step::kDetect);
+      EXPECT_EQ(e.scene.method, "ppf");
+    }
+    if (!e.scene.planned_path_q.empty()) {
+      ++paths;
+      EXPECT_EQ(e.step, Step::kPlan);
+      EXPECT_EQ(e.scene.head_angle_rad, 0.5);
+    }
+  }
+  EXPECT_EQ(scans, 9);  // three views of each of three bins
+  EXPECT_EQ(detections, 3);
+  EXPECT_EQ(paths, 3);
+  EXPECT_EQ(last_score, result.score.total);
+  // The journal holds the same scenes (points to the millimetre): a replay shows them.
+  std::size_t next = 0;
+  for (const JournalRecord& r : Journal::Read((dir_ / "journal.jsonl").string())) {
+    if (r.type != "event") continue;
+    ASSERT_LT(next, events.size());
+    const EventScene& live = events[next++].scene;
+    const EventScene replayed = EventScene::FromJson(r.data.value("scene", nlohmann::json()));
+    ASSERT_EQ(replayed.scan_Base.size(), live.scan_Base.size());
+    for (std::size_t i = 0; i < live.scan_Base.size(); ++i) {
+      EXPECT_LT((replayed.scan_Base[i] - live.scan_Base[i]).norm(), 1e-3);
+    }
+    EXPECT_EQ(replayed.detected, live.detected);
+    EXPECT_TRUE(replayed.X_BaseItem.isApprox(live.X_BaseItem, 1e-9));
+    EXPECT_EQ(replayed.planned_path_q.size(), live.planned_path_q.size());
+    EXPECT_EQ(r.data.value("score", -1), events[next - 1].score);
+  }
+  EXPECT_EQ(next, events.size());
+}
+
+TEST(ThinPoints, KeepsAtMostTheAskedNumberSpreadOverTheCloud) {
+  geometry::PointCloud cloud;
+  for (int i = 0; i < 1000; ++i) cloud.points.emplace_back(i * 0.001f, 0.0f, 1.0f);
+  const std::vector<Eigen::Vector3f> thin = ThinPoints(cloud, 100);
+  ASSERT_EQ(thin.size(), 100u);
+  EXPECT_FLOAT_EQ(thin.front().x(), 0.0f);
+  EXPECT_GT(thin.back().x(), 0.98f);  // the whole cloud, not its first tenth
+  EXPECT_EQ(ThinPoints(cloud, 5000).size(), 1000u);
 }
 
 TEST_F(PickTaskTest, AFailedTargetIsRetriedAfterTheOthersAndGivenUpAtTheLimit) {
