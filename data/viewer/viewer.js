@@ -403,6 +403,9 @@
     scanPoints = 0;
     const flat = scan && scan.points_m ? scan.points_m : [];
     const n = Math.floor(flat.length / 3);
+    // Until the task's first view there is nothing to draw: the legend says so.
+    setText('scan-legend', n > 0 ? 'latest scan' + (scan.item ? ' (' + scan.item + ')' : '')
+                                 : 'latest scan: none yet');
     if (n > 0) {
       const geometry = new THREE.BufferGeometry();
       setPositions(geometry, new Float32Array(flat.slice(0, n * 3)));

@@ -105,7 +105,7 @@ PY
 # when asked).
 wait_healthy() {
   local service id ok
-  for service in simulator robot gripper scanner detector planner orchestrator; do
+  for service in simulator robot gripper scanner detector planner orchestrator viewer; do
     for id in $(compose ps -q "$service"); do
       ok=0
       for _ in $(seq 120); do
@@ -133,6 +133,33 @@ print("compose_test: task %s %s, score %s, %d items in the tote" %
 PY
 }
 
+# The viewer, published on the host, shows the finished task through the orchestrator (over
+# mutual TLS in the second run) with its score, and serves its page.
+check_viewer() {
+  /usr/bin/python3 - "$1" "$out" <<'PY'
+import json, os, sys, time, urllib.request
+viewer, out = sys.argv[1], sys.argv[2]
+task = json.load(open(os.path.join(out, "task.json")))
+view = None
+for _ in range(120):
+    try:
+        view = json.load(urllib.request.urlopen(viewer + "/api/view", timeout=5))
+        if view["task"] and view["task"]["state"] == "succeeded":
+            break
+    except OSError:
+        pass
+    time.sleep(1)
+assert view and view["task"] and view["task"]["state"] == "succeeded", view and view["status"]
+assert view["task"]["task_id"] == task["task_id"], (view["task"]["task_id"], task["task_id"])
+assert view["status"]["robot"] == "connected", view["status"]
+page = urllib.request.urlopen(viewer + "/", timeout=5).read().decode()
+assert "viewer.js" in page
+urllib.request.urlopen(viewer + "/three/three.min.js", timeout=5).read()
+print("compose_test: the viewer shows task %s %s, score %d" %
+      (view["task"]["task_id"], view["task"]["state"], view["task"]["score"]))
+PY
+}
+
 # Brings the cell up with the compose files in `files`, runs the short task through the task
 # service, checks its results and that detection reached more than one replica, tears down.
 run_cell() {
@@ -141,6 +168,8 @@ run_cell() {
   mkdir -p "$out"
   make_task "$out/short_task.json"
   export PICKING_OUT=$out PICKING_TASK=/out/short_task.json PICKING_DETECTOR_BUDGET_SCALE=10
+  PICKING_VIEWER_PORT=$(/usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+  export PICKING_VIEWER_PORT
   log "$name: docker-compose up"
   keep_logs=1
   compose up -d --no-build >"$work/up.log" 2>&1 || { cat "$work/up.log" >&2; exit 1; }
@@ -167,6 +196,7 @@ run_cell() {
   podman logs "$task_container" 2>&1 | tail -n 6
   [[ $status == 0 ]] || { echo "compose_test: the task service exited with $status" >&2; exit 1; }
   check_results "$out"
+  check_viewer "http://127.0.0.1:$PICKING_VIEWER_PORT"
   # Detection went through the one name "detector" to more than one replica (round_robin).
   serving=0
   for id in $(compose ps -q detector); do
