@@ -126,7 +126,8 @@ start() {
   "$bin/$@" --listen=127.0.0.1:0 > "$log.stdout" 2> "$log" &
   pids+=($!)
   for _ in $(seq 3000); do
-    if grep -q '^listening on ' "$log.stdout" 2>/dev/null; then
+    # The whole line: HOST:PORT and its end (a line read while still being written is not).
+    if grep -Eq '^listening on .+:[0-9]+$' "$log.stdout" 2>/dev/null; then
       printf -v "$var" '%s' "$(sed -n 's/^listening on //p' "$log.stdout" | head -1)"
       echo "  $name on ${!var}"
       return

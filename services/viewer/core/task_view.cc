@@ -9,9 +9,16 @@ constexpr std::size_t kLogLines = 50;
 
 }  // namespace
 
+TaskView::ItemState TaskView::NewItem(const std::string& item, const std::string& bin) {
+  ItemState state;
+  state.item = item;
+  state.bin = bin;
+  return state;
+}
+
 TaskView::TaskView(const ViewerModel& model, TaskHeader header)
     : model_(model), header_(std::move(header)) {
-  for (const auto& [item, bin] : header_.work_order) items_.push_back({item, bin});
+  for (const auto& [item, bin] : header_.work_order) items_.push_back(NewItem(item, bin));
   last_.state = header_.state;
   last_.items_total = static_cast<int>(items_.size());
 }
@@ -21,7 +28,7 @@ TaskView::ItemState& TaskView::Item(const std::string& item, const std::string& 
     if (s.item == item && (bin.empty() || s.bin == bin)) return s;
   }
   // Not in the work order the orchestrator listed (an older orchestrator): add it.
-  items_.push_back({item, bin});
+  items_.push_back(NewItem(item, bin));
   return items_.back();
 }
 

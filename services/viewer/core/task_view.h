@@ -79,6 +79,7 @@ class TaskView final {
     double score = 0.0;
     int attempts = 0;
   };
+  static ItemState NewItem(const std::string& item, const std::string& bin);
   ItemState& Item(const std::string& item, const std::string& bin);
   static std::string NextState(const ItemState& item, const ViewEvent& event);
 

@@ -135,10 +135,14 @@ nlohmann::json ViewerModel::DetectionJson(const std::string& item,
                         {"box_m", {0.05, 0.05, 0.05}},
                         {"box_center_m", {0.0, 0.0, 0.0}}};
   if (items_ && items_->catalogue().find(item) != nullptr) {
-    const std::shared_ptr<const world::ItemModel> model = items_->Get(item);
-    out["model"] = "/files/items/" + item + ".stl";
-    out["box_m"] = VectorJson(model->box_I.sizes());
-    out["box_center_m"] = VectorJson(model->box_I.center());
+    try {
+      const std::shared_ptr<const world::ItemModel> model = items_->Get(item);
+      out["model"] = "/files/items/" + item + ".stl";
+      out["box_m"] = VectorJson(model->box_I.sizes());
+      out["box_center_m"] = VectorJson(model->box_I.center());
+    } catch (const std::exception&) {
+      // A model that cannot be built (an unreadable scan file): the item is drawn as a box.
+    }
   }
   return out;
 }

@@ -24,37 +24,14 @@ void SetDeadline(grpc::ClientContext& ctx, double seconds) {
                    std::chrono::milliseconds(static_cast<long long>(seconds * 1000)));
 }
 
-std::string StepName(pb::Step step) {
-  switch (step) {
-    case pb::STEP_SCAN:
-      return "scan";
-    case pb::STEP_DETECT:
-      return "detect";
-    case pb::STEP_PLAN:
-      return "plan";
-    case pb::STEP_GRASP:
-      return "grasp";
-    case pb::STEP_VERIFY:
-      return "verify";
-    case pb::STEP_PLACE:
-      return "place";
-    default:
-      return "";
-  }
+// The contract's enum value as the page says it: "STEP_SCAN" -> "scan"; "" when unspecified.
+std::string Word(const std::string& enum_name, const std::string& prefix) {
+  std::string word = enum_name.rfind(prefix, 0) == 0 ? enum_name.substr(prefix.size()) : enum_name;
+  for (char& c : word) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return word == "unspecified" ? "" : word;
 }
 
-std::string StateName(pb::TaskState state) {
-  switch (state) {
-    case pb::TASK_STATE_SUCCEEDED:
-      return "succeeded";
-    case pb::TASK_STATE_FAILED:
-      return "failed";
-    case pb::TASK_STATE_CANCELLED:
-      return "cancelled";
-    default:
-      return "running";
-  }
-}
+std::string StepName(pb::Step step) { return Word(pb::Step_Name(step), "STEP_"); }
 
 std::string ContainerOrEmpty(picking::common::v1::Container container) {
   if (container == picking::common::v1::CONTAINER_UNSPECIFIED) return "";
@@ -63,13 +40,6 @@ std::string ContainerOrEmpty(picking::common::v1::Container container) {
   } catch (const std::exception&) {
     return "";
   }
-}
-
-// "METHOD_PPF" (the detector contract's enum name) -> "ppf".
-std::string MethodName(std::string method) {
-  if (method.rfind("METHOD_", 0) == 0) method = method.substr(7);
-  for (char& c : method) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return method;
 }
 
 ViewEvent FromProto(const pb::TaskEvent& e) {
@@ -92,7 +62,7 @@ ViewEvent FromProto(const pb::TaskEvent& e) {
       ViewEvent::Found found;
       found.X_BaseItem = pc::PoseFromProto(e.detection().x_base_item(), "detection.X_base_item");
       found.score = e.detection().score();
-      found.method = MethodName(e.detection().method());
+      found.method = Word(e.detection().method(), "METHOD_");
       out.detection = found;
     } catch (const std::exception& error) {
       runtime::LogWarning("event with an invalid detection pose", {{"error", error.what()}});
@@ -120,6 +90,11 @@ TaskHeader HeaderFromProto(const pb::GetTaskResponse& task) {
 }
 
 }  // namespace
+
+std::string StateName(orchestrator::v1::TaskState state) {
+  const std::string word = Word(pb::TaskState_Name(state), "TASK_STATE_");
+  return word.empty() ? "running" : word;
+}
 
 TaskFollower::TaskFollower(std::shared_ptr<grpc::Channel> orchestrator, const ViewerModel& model,
                            std::string task_id)
@@ -161,20 +136,27 @@ void TaskFollower::Run() {
   double retry_s = kRetryMinS;
   std::string shown;  // the task whose finished stream has been shown in full
   while (!stop_) {
-    TaskHeader header;
-    if (!ChooseTask(header)) {
-      Pause(retry_s);
-      retry_s = std::min(kRetryMaxS, retry_s * 2);
-      continue;
+    try {
+      TaskHeader header;
+      if (!ChooseTask(header)) {
+        Pause(retry_s);
+        retry_s = std::min(kRetryMaxS, retry_s * 2);
+        continue;
+      }
+      retry_s = kRetryMinS;
+      // A finished task is replayed once; then only a newer task (when following the
+      // newest) or a resumed one changes what is shown.
+      if (header.state != "running" && header.task_id == shown) {
+        Pause(1.0);
+        continue;
+      }
+      if (Watch(header)) shown = header.task_id;
+    } catch (const std::exception& e) {
+      // Whatever a peer sends, the viewer goes on: it says what went wrong and tries again.
+      runtime::LogWarning("following the task failed", {{"error", e.what()}});
+      SetStatus(false, std::string("viewer: ") + e.what() + ": retrying");
+      Pause(kRetryMaxS);
     }
-    retry_s = kRetryMinS;
-    // A finished task is replayed once; then only a newer task (when following the newest)
-    // or a resumed one changes what is shown.
-    if (header.state != "running" && header.task_id == shown) {
-      Pause(1.0);
-      continue;
-    }
-    if (Watch(header)) shown = header.task_id;
   }
 }
 
@@ -230,6 +212,14 @@ bool TaskFollower::Watch(const TaskHeader& header) {
     if (stop_) return false;
     watch_ = &ctx;
   }
+  // Stop() cancels the call through watch_: cleared however this function ends.
+  struct Unwatch {
+    TaskFollower* follower;
+    ~Unwatch() {
+      std::lock_guard<std::mutex> lock(follower->mutex_);
+      follower->watch_ = nullptr;
+    }
+  } unwatch{this};
   TaskView view(model_, header);
   Publish(view, ~0u);
   SetStatus(true, "");
@@ -239,10 +229,6 @@ bool TaskFollower::Watch(const TaskHeader& header) {
   pb::TaskEvent event;
   while (reader->Read(&event)) Publish(view, view.Apply(FromProto(event)));
   const grpc::Status status = reader->Finish();
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    watch_ = nullptr;
-  }
   if (!status.ok() && !stop_) {
     SetStatus(false, "orchestrator: " + status.error_message() + ": retrying");
     Pause(kRetryMinS);

@@ -10,11 +10,15 @@
 #include <string>
 #include <thread>
 
+#include "picking/orchestrator/v1/orchestrator.pb.h"
 #include "services/viewer/core/part_store.h"
 #include "services/viewer/core/task_view.h"
 #include "services/viewer/core/viewer_model.h"
 
 namespace picking::viewer {
+
+/// A task's state as the page says it: "running", "succeeded", "failed", "cancelled".
+std::string StateName(orchestrator::v1::TaskState state);
 
 /// Follows one task of the orchestrator (`task_id`, or "" for the newest, switching to each
 /// new task as it starts): replays its events from the journal, then live, into a TaskView,

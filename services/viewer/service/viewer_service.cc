@@ -236,13 +236,9 @@ void ViewerHttp::Tasks(httplib::Response& res) {
   if (!status.ok()) return Error(res, 503, "orchestrator: " + status.error_message());
   nlohmann::json tasks = nlohmann::json::array();
   for (const auto& t : list.tasks()) {
-    const char* state = t.state() == orchestrator::v1::TASK_STATE_SUCCEEDED   ? "succeeded"
-                        : t.state() == orchestrator::v1::TASK_STATE_FAILED    ? "failed"
-                        : t.state() == orchestrator::v1::TASK_STATE_CANCELLED ? "cancelled"
-                                                                              : "running";
     tasks.push_back({{"task_id", t.task_id()},
                      {"kind", t.kind() == orchestrator::v1::TASK_KIND_STOW ? "stow" : "pick"},
-                     {"state", state},
+                     {"state", StateName(t.state())},
                      {"items_done", t.items_done()},
                      {"items_total", t.items_total()}});
   }
