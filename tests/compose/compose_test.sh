@@ -65,13 +65,14 @@ service_pid=$!
 export DOCKER_HOST=unix://$sock
 for _ in $(seq 100); do [[ -S $sock ]] && break; sleep 0.1; done
 # podman-compose reads the same file: the commands it would run give three detector
-# replicas under the one network alias and every server its health check.
+# replicas under the one network alias and every server its health check (the simulator,
+# robot, gripper, scanner, three detectors, planner, orchestrator and viewer: 10).
 dry=$(cd "$top" && podman-compose -p "$project-dry" --dry-run up -d 2>/dev/null | grep '^podman run')
 # (its dry run still creates the named volumes)
 podman volume ls -q | grep "^$project-dry_" | xargs -r podman volume rm >/dev/null
 [[ $(grep -c -- '--network-alias detector ' <<<"$dry") == 3 ]] || {
   echo "compose_test: podman-compose would not start three detector replicas" >&2; exit 1; }
-[[ $(grep -c -- '--healthcheck-command' <<<"$dry") == 9 ]] || {
+[[ $(grep -c -- '--healthcheck-command' <<<"$dry") == 10 ]] || {
   echo "compose_test: podman-compose would not give every server its health check" >&2; exit 1; }
 
 files=(-f "$top/docker-compose.yml")
