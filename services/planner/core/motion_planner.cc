@@ -942,6 +942,20 @@ bool MotionPlanner::LiftOff(const GraspContainer& container, const Eigen::Isomet
   return false;
 }
 
+void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
+                                  const CarriedItem& carried, const MotionChecker& motion,
+                                  const ExactChecker& exact, PickPlan* plan) const {
+  plan->approach =
+      TimeAndValidate(paths.approach, speed_fraction, motion, exact, nullptr, "approach");
+  plan->descend = TimeAndValidate(paths.descend, speed_fraction, motion, exact, nullptr, "descend");
+  // The lift is checked here without the item: LiftOff checked the item's box along it
+  // exactly; the fast check takes the item from the lift's end on.
+  const Trajectory lift =
+      TimeAndValidate(paths.lift, speed_fraction, motion, exact, nullptr, "retreat");
+  plan->retreat = Joined(
+      lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact, &carried, "retreat"));
+}
+
 bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                              const std::shared_ptr<const world::ItemModel>& model,
                              const FastChecker& fast, const MotionChecker& motion,
@@ -1033,16 +1047,8 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   CheckDeadline(deadline, "the pick's trajectories");
 
   plan->grasp = grasp;
-  plan->approach = TimeAndValidate(approach.path_rad, request.speed_fraction, motion, exact,
-                                   nullptr, "approach");
-  plan->descend =
-      TimeAndValidate(descend.path_rad, request.speed_fraction, motion, exact, nullptr, "descend");
-  // The lift is checked here without the item: LiftOff checked the item's box along it
-  // exactly; the fast check takes the item from the lift's end on.
-  const Trajectory lift = TimeAndValidate({*q_grasp, *q_lift}, request.speed_fraction, motion,
-                                          exact, nullptr, "retreat");
-  plan->retreat = Joined(lift, TimeAndValidate(retreat.path_rad, request.speed_fraction, motion,
-                                               exact, &carried, "retreat"));
+  TimePickPaths({approach.path_rad, descend.path_rad, {*q_grasp, *q_lift}, retreat.path_rad},
+                request.speed_fraction, carried, motion, exact, plan);
   plan->guarded_direction_Base = a;
   plan->guarded_distance_m = hover_m + options_.guarded_overshoot_m;
   plan->head_angle_rad = fast.robot().gripper().head_angle_rad;

@@ -314,6 +314,14 @@ class MotionPlanner final {
   bool TryRolls(const PickRequest& request, const GraspCandidate& candidate,
                 const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
                 bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best) const;
+  /// The joint paths of a pick, in the order the arm runs them.
+  struct PickPaths {
+    std::vector<JointVector> approach, descend, lift, retreat;
+  };
+  /// Times each path and validates it exactly (the retreat with the item on the cup) into
+  /// `plan`'s trajectories, the lift and the retreat joined.
+  void TimePickPaths(const PickPaths& paths, double speed_fraction, const CarriedItem& carried,
+                     const MotionChecker& motion, const ExactChecker& exact, PickPlan* plan) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                 const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
                 const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,

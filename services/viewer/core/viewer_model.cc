@@ -13,6 +13,13 @@ namespace fs = std::filesystem;
 
 nlohmann::json VectorJson(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 
+// A URL for a mesh file: "/files/" + `folder` + its file name.
+std::string MeshUrl(const std::string& folder, const std::string& path) {
+  return "/files/" + folder + fs::path(path).filename().string();
+}
+
+}  // namespace
+
 std::string ReadBytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error("cannot read '" + path + "'");
@@ -20,13 +27,6 @@ std::string ReadBytes(const std::string& path) {
   out << in.rdbuf();
   return out.str();
 }
-
-// A URL for a mesh file: "/files/" + `folder` + its file name.
-std::string MeshUrl(const std::string& folder, const std::string& path) {
-  return "/files/" + folder + fs::path(path).filename().string();
-}
-
-}  // namespace
 
 nlohmann::json PoseJson(const Eigen::Isometry3d& X) {
   nlohmann::json out = nlohmann::json::array();

@@ -17,6 +17,9 @@
 
 namespace picking::viewer {
 
+/// The whole file at `path`; throws std::runtime_error naming it when it cannot be read.
+std::string ReadBytes(const std::string& path);
+
 /// A 4x4 pose as the page takes it: 16 numbers, column-major (three.js Matrix4.fromArray).
 nlohmann::json PoseJson(const Eigen::Isometry3d& X);
 

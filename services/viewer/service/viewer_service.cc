@@ -32,14 +32,6 @@ constexpr auto kStreamPoll = std::chrono::milliseconds(100);
 constexpr double kKeepAliveS = 15.0;
 constexpr std::size_t kHttpWorkers = 32;
 
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("cannot read '" + path + "'");
-  std::ostringstream out;
-  out << in.rdbuf();
-  return out.str();
-}
-
 std::string ContentType(const std::string& path) {
   const std::string ext = fs::path(path).extension().string();
   if (ext == ".html") return "text/html; charset=utf-8";
@@ -190,7 +182,7 @@ class ViewerHttp final {
     const auto it = static_files_.find(path);
     if (it == static_files_.end()) return Error(res, 404, "no such page: " + path);
     try {
-      res.set_content(ReadFile(it->second), ContentType(it->second));
+      res.set_content(ReadBytes(it->second), ContentType(it->second));
     } catch (const std::exception& e) {
       Error(res, 500, e.what());
     }
