@@ -182,6 +182,9 @@ run_client &
 client_pid=$!
 wait "$client_pid" || status=$?
 client_pid=""
+# What really happened in the simulated cell, to hold the output file against.
+"$bin/picking" call "$sim" picking.simulator.v1.SimulatorService/GetGroundTruth \
+  > "$out/truth.json" 2>/dev/null || rm -f "$out/truth.json"
 task_dir=$(ls -d "$out"/tasks/task-* 2>/dev/null | tail -1)
 if [[ -n "$task_dir" ]]; then
   cp "$task_dir/output.json" "$task_dir/report.html" "$task_dir/report.json" "$out/" 2>/dev/null || true
@@ -189,5 +192,6 @@ fi
 echo
 echo "output folder: $out"
 echo "  output.json (the APC output file), score.txt (the score line by line), report.html and"
-echo "  report.json (per item: method, grasp, attempts, times, score), logs/ (every server's log)"
+echo "  report.json (per item: method, grasp, attempts, times, score), truth.json (the simulated"
+echo "  cell's ground truth at the end), logs/ (every server's log)"
 exit $status

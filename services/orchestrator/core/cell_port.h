@@ -15,7 +15,7 @@ namespace picking::orchestrator {
 /// A service of the cell did not answer as it should (it is down, timed out, or refused the
 /// request for a reason that is not the item's). `retryable` failures (the service did not
 /// answer: UNAVAILABLE, DEADLINE_EXCEEDED) are retried with backoff by the task.
-class CellError final : public std::runtime_error {
+class CellError : public std::runtime_error {
  public:
   CellError(std::string service, bool retryable, const std::string& what)
       : std::runtime_error(service + ": " + what),
@@ -27,6 +27,13 @@ class CellError final : public std::runtime_error {
  private:
   std::string service_;
   bool retryable_;
+};
+
+/// The robot refused a motion before it started (its own checks of the path): nothing
+/// moved.
+class MotionRefused final : public CellError {
+ public:
+  explicit MotionRefused(const std::string& what) : CellError("robot", false, what) {}
 };
 
 /// A physical step: ok, or why not, and the robot time it took (seconds).
@@ -43,6 +50,13 @@ struct ScanView {
   double capture_s = 0.0;  ///< Robot time the capture held the arm still.
 };
 
+/// Where the detector put another item of the container, looked for beside the target.
+struct OtherDetection {
+  std::string item;
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  double score = 0.0;
+};
+
 struct Detection {
   bool found = false;
   Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
@@ -50,6 +64,8 @@ struct Detection {
   std::string method;
   std::string replica;  ///< Which detector answered.
   std::string message;  ///< Why not found, when not.
+  /// The best pose of each of the `others` asked for that the detector found.
+  std::vector<OtherDetection> others;
 };
 
 /// A planned pick; `handle` lets the port find its trajectories again.
@@ -62,12 +78,16 @@ struct PlannedPick {
   /// The joint waypoints of the approach, descent and retreat, thinned (for a viewer).
   std::vector<std::array<double, 6>> path_q;
   double head_angle_rad = 0.0;
+  /// How far along the guarded move the grasp's surface lies as detected (0: unknown).
+  double contact_distance_m = 0.0;
 };
 
 struct TouchOutcome {
   bool contact = false;
   double distance_m = 0.0;
   double robot_s = 0.0;
+  /// Why the robot refused the move before it started (its own check of the path), or "".
+  std::string refused;
 };
 
 /// The gripper's reading: is the cup sealed on something.
@@ -98,9 +118,11 @@ class CellPort {
   virtual StepOutcome MoveToNamed(const std::string& name) = 0;
   /// Captures one view at the current pose.
   virtual ScanView Scan() = 0;
-  /// Finds `item` in `container` from the views (merged by the detector).
+  /// Finds `item` in `container` from the views (merged by the detector), and in the same
+  /// call the best pose of each of `others` (other items of the container).
   virtual Detection Detect(const std::string& container, const std::string& item,
-                           const std::vector<ScanView>& views) = 0;
+                           const std::vector<ScanView>& views,
+                           const std::vector<std::string>& others = {}) = 0;
   /// Builds the planner's scene from the views with the item cut out and plans the pick from
   /// the current joints.
   virtual PlannedPick PlanPick(const std::string& container, const std::string& item,
@@ -115,9 +137,10 @@ class CellPort {
   virtual SealReading ReadSeal() = 0;
   /// Back to the planned grasp joints and out of the container along the retreat.
   virtual StepOutcome ExecuteRetreat(const PlannedPick& pick) = 0;
-  /// Plans from the current joints to the drop pose over `container` and moves there.
+  /// Plans from the current joints to the drop pose over `container` and moves there;
+  /// `placed_before`: items already let go there by this task (each gets its own spot).
   virtual PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
-                                   const PlannedPick& pick) = 0;
+                                   const PlannedPick& pick, int placed_before) = 0;
   virtual void VacuumOff() = 0;
   /// Puts a held item back where it was grasped (the retreat backwards), releases it and
   /// leaves the container again: the way out when no place can be planned.

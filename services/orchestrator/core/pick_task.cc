@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <thread>
 
 namespace picking::orchestrator {
@@ -201,6 +202,57 @@ EventScene EventScene::FromJson(const nlohmann::json& json) {
   return scene;
 }
 
+double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3d& size_a_m,
+                          const Eigen::Isometry3d& X_BaseB, const Eigen::Vector3d& size_b_m) {
+  const bool a_smaller = size_a_m.prod() <= size_b_m.prod();
+  const Eigen::Isometry3d& X_small = a_smaller ? X_BaseA : X_BaseB;
+  const Eigen::Vector3d half_small = 0.5 * (a_smaller ? size_a_m : size_b_m);
+  const Eigen::Isometry3d X_LargeSmall = (a_smaller ? X_BaseB : X_BaseA).inverse() * X_small;
+  const Eigen::Vector3d half_large = 0.5 * (a_smaller ? size_b_m : size_a_m);
+  constexpr int kSteps = 6;  // cell centres of a 6 x 6 x 6 grid over the smaller box
+  int inside = 0;
+  for (int i = 0; i < kSteps; ++i) {
+    for (int j = 0; j < kSteps; ++j) {
+      for (int k = 0; k < kSteps; ++k) {
+        const Eigen::Vector3d f((i + 0.5) / kSteps, (j + 0.5) / kSteps, (k + 0.5) / kSteps);
+        const Eigen::Vector3d p_Small = (2.0 * f.array() - 1.0).matrix().cwiseProduct(half_small);
+        const Eigen::Vector3d p_Large = X_LargeSmall * p_Small;
+        inside += (p_Large.cwiseAbs().array() <= half_large.array()).all();
+      }
+    }
+  }
+  return double(inside) / (kSteps * kSteps * kSteps);
+}
+
+std::string ConfusedWith(const std::string& item, const Detection& found,
+                         const apc::Catalogue& catalogue, double min_overlap, double margin) {
+  auto size = [&](const std::string& name) {
+    const apc::Item& it = catalogue.at(name);
+    return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
+  };
+  for (const OtherDetection& other : found.others) {
+    if (other.item == item || other.score < found.score - margin) continue;
+    const double overlap =
+        BoxOverlapFraction(found.X_BaseItem, size(item), other.X_BaseItem, size(other.item));
+    if (overlap < min_overlap) continue;
+    char text[300];
+    std::snprintf(text, sizeof(text),
+                  "the place %s was found at holds %s as well (score %.2f against %.2f, %.0f%% "
+                  "of the smaller box shared): one of the two poses is wrong",
+                  item.c_str(), other.item.c_str(), other.score, found.score, 100.0 * overlap);
+    return text;
+  }
+  return "";
+}
+
+int PickTaskRunner::PlacedIn(const std::string& container) const {
+  int placed = 0;
+  for (const apc::Event& e : events_) {
+    placed += e.kind == apc::EventKind::kMove && e.to == container;
+  }
+  return placed;
+}
+
 std::vector<std::string> PickTaskRunner::Destinations(const Target& target) const {
   if (task_.kind != apc::TaskKind::kStow) return {apc::kToteLocation};
   return StowBins(target.item, task_, contents_, catalogue_, options_.bin_volume_m3,
@@ -330,8 +382,8 @@ void PickTaskRunner::FinishCarriedItem() {
     }
     journal_.Append("begin", Key(target, "place"), clock_s_);
     for (const std::string& to : Destinations(target)) {
-      const PlaceOutcome placed =
-          WithRetries("place", [&] { return cell_.MoveToPlace(target.item, to, {}); });
+      const PlaceOutcome placed = WithRetries(
+          "place", [&] { return cell_.MoveToPlace(target.item, to, {}, PlacedIn(to)); });
       clock_s_ += placed.robot_s;
       if (!placed.ok) continue;
       cell_.VacuumOff();
@@ -369,11 +421,32 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
   }
   Emit(&target, Step::kDetect, true, "detecting in " + std::to_string(views.size()) + " views");
   const auto start = Clock::now();
+  std::vector<std::string> others;
+  if (options_.detect_others) {
+    const auto bin = contents_.bin_contents.find(target.bin);
+    const std::vector<std::string> none;
+    const std::vector<std::string>& in_container =
+        target.bin == apc::kToteLocation      ? contents_.tote_contents
+        : bin != contents_.bin_contents.end() ? bin->second
+                                              : none;
+    for (const std::string& item : in_container) {
+      if (item != target.item && std::find(others.begin(), others.end(), item) == others.end()) {
+        others.push_back(item);
+      }
+    }
+  }
   const Detection found =
-      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views); });
+      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views, others); });
   AddTime(report, "detect", Seconds(start));
   if (!found.found) {
     target.last_failure = "not detected: " + found.message;
+    return false;
+  }
+  if (const std::string other = ConfusedWith(target.item, found, catalogue_,
+                                             options_.confusion_overlap, options_.confusion_margin);
+      !other.empty()) {
+    target.last_failure = "not taken: " + other;
+    Emit(&target, Step::kDetect, false, target.last_failure);
     return false;
   }
   report.detected = true;
@@ -405,6 +478,14 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   }
   const TouchOutcome touched = WithRetries("touch", [&] { return cell_.Touch(plan); });
   AddTime(report, "grasp", touched.robot_s);
+  const std::string early = EarlyContact(plan, touched);
+  if (!touched.refused.empty() || !early.empty()) {
+    const StepOutcome out = WithRetries("retreat", [&] { return cell_.ExecuteRetreat(plan); });
+    AddTime(report, "grasp", out.robot_s);
+    target.last_failure = touched.refused.empty() ? early : "touch: " + touched.refused;
+    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kFailed;
+  }
   const SealReading seal = WithRetries("vacuum", [&] { return cell_.VacuumOn(); });
   if (!seal.attached) {
     cell_.VacuumOff();
@@ -441,8 +522,9 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   for (const std::string& destination : Destinations(target)) {
     Emit(&target, Step::kPlace, true, "carrying to " + destination);
     const auto start = Clock::now();
-    placed =
-        WithRetries("place", [&] { return cell_.MoveToPlace(target.item, destination, plan); });
+    placed = WithRetries("place", [&] {
+      return cell_.MoveToPlace(target.item, destination, plan, PlacedIn(destination));
+    });
     // A place that cannot be planned costs the planning time only.
     AddTime(report, "place", placed.ok ? placed.robot_s : Seconds(start));
     if (placed.ok) {
@@ -478,6 +560,21 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   report.placed_in = to;
   RecordPlaced(target, to, placed.drop_height_m);
   return Attempt::kPicked;
+}
+
+// The cup's contact is a first sign of what it touches, before anything is taken: where the
+// guarded move stops, compared with where the grasp's surface was detected along it.
+std::string PickTaskRunner::EarlyContact(const PlannedPick& plan,
+                                         const TouchOutcome& touched) const {
+  if (!touched.contact || plan.contact_distance_m <= 0.0) return "";
+  const double early_m = plan.contact_distance_m - touched.distance_m;
+  if (early_m <= options_.early_contact_m) return "";
+  char text[200];
+  std::snprintf(text, sizeof(text),
+                "the cup met something %.1f cm before the target's surface (another item over "
+                "it, or the target moved); the vacuum was not tried",
+                100.0 * early_m);
+  return text;
 }
 
 // The vacuum says something is held, not what: a second sign from the wrist camera, which

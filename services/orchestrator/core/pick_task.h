@@ -82,6 +82,16 @@ struct PickTaskOptions {
   /// supports almost none of the model (0.04-0.06, with one 0.20): the threshold rejects
   /// only clear mismatches.
   double verify_min_score = 0.1;
+  /// The guarded move stopping this much sooner than the grasp's surface as detected
+  /// (PlannedPick::contact_distance_m) has met something in front of it (a neighbour
+  /// standing over the target, or the target is not where it was found): the vacuum is not
+  /// tried, so no other item is taken. A detection is off by a centimetre or so.
+  double early_contact_m = 0.02;
+  /// The other items of the target's container are looked for in the same detection: a
+  /// target whose detected place one of them fills as well (ConfusedWith) is not taken.
+  bool detect_others = true;
+  double confusion_overlap = 0.3;
+  double confusion_margin = 0.05;
 };
 
 /// What happened to one target.
@@ -135,9 +145,13 @@ class PickTaskRunner final {
   /// The look back after the lift: "" when the held item may be the target (or the view
   /// cannot tell), else why it is not.
   std::string LookBack(Target& target, TargetReport& report, const PlannedPick& plan);
+  // Why the touch met something other than the target's surface ("" when it may be it).
+  std::string EarlyContact(const PlannedPick& plan, const TouchOutcome& touched) const;
   void ResumeFromJournal();
   void FinishCarriedItem();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
+  /// Items this task has let go in `container` so far.
+  int PlacedIn(const std::string& container) const;
   /// Where the item goes: the tote, or for a stow the bins in order of preference.
   std::vector<std::string> Destinations(const Target& target) const;
   void Emit(const Target* target, Step step, bool ok, const std::string& message,
@@ -170,6 +184,19 @@ apc::ScoreReport ScoreBelief(const apc::Task& initial, const std::vector<apc::Ev
                              const apc::Task& contents, const apc::Catalogue& catalogue);
 
 std::string StepName(Step step);
+
+/// Fraction of the smaller of two item boxes (catalogue sides, centred on the item frame)
+/// that lies inside the other, sampled on a grid; 0 for boxes that only touch.
+double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3d& size_a_m,
+                          const Eigen::Isometry3d& X_BaseB, const Eigen::Vector3d& size_b_m);
+
+/// The other item of the container whose detected box takes up the target's place (at least
+/// `min_overlap` of the smaller box inside the other) with a score no worse than the
+/// target's less `margin`, or "" when there is none. Two items cannot fill the same space:
+/// one of the two poses is wrong, and a flat box matched on another flat box scores about
+/// as well; taking it would take the wrong item.
+std::string ConfusedWith(const std::string& item, const Detection& found,
+                         const apc::Catalogue& catalogue, double min_overlap, double margin);
 
 /// Stow: the bins an item may go to, best first. A bin is a candidate while its items (their
 /// catalogue volumes, the new one included) fill at most `max_fill` of its volume; candidates

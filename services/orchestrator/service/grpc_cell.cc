@@ -149,9 +149,18 @@ double GrpcCell::Execute(const cm::JointTrajectory& trajectory) {
   request.set_start_tolerance_rad(0.01);
   auto reader = robot_->ExecuteTrajectory(&ctx, request);
   rb::ExecuteTrajectoryProgress progress;
-  bool done = false;
-  while (reader->Read(&progress)) done = done || progress.done();
-  ThrowIfFailed("robot", "ExecuteTrajectory", reader->Finish());
+  bool done = false, moved = false;
+  while (reader->Read(&progress)) {
+    moved = true;
+    done = done || progress.done();
+  }
+  const grpc::Status status = reader->Finish();
+  // Refused by the robot's own checks before it moved: nothing happened.
+  if (!moved && (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION ||
+                 status.error_code() == grpc::StatusCode::INVALID_ARGUMENT)) {
+    throw MotionRefused("ExecuteTrajectory: " + status.error_message());
+  }
+  ThrowIfFailed("robot", "ExecuteTrajectory", status);
   if (!done) throw CellError("robot", false, "the trajectory ended without reaching its end");
   return Duration(trajectory);
 }
@@ -241,11 +250,12 @@ ScanView GrpcCell::Scan() {
 }
 
 Detection GrpcCell::Detect(const std::string& container, const std::string& item,
-                           const std::vector<ScanView>& views) {
+                           const std::vector<ScanView>& views,
+                           const std::vector<std::string>& others) {
   if (views.empty()) throw CellError("scanner", false, "no views to detect in");
   dt::DetectParams params;
-  auto* query = params.add_queries();
-  query->set_item(item);
+  params.add_queries()->set_item(item);
+  for (const std::string& other : others) params.add_queries()->set_item(other);
   // The region: the bin's or the tote's free inner box.
   Eigen::Isometry3d X_BaseRegion;
   Eigen::Vector3d size_m;
@@ -270,7 +280,16 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
   dt::DetectResponse response;
   Detection out;
   ThrowIfFailed("detector", "Detect", options_.detect(params, chunks, &response, &out.replica));
-  if (response.results_size() != 1) throw CellError("detector", false, "expected one result");
+  if (response.results_size() != params.queries_size()) {
+    throw CellError("detector", false, "expected one result per query");
+  }
+  for (int i = 1; i < response.results_size(); ++i) {
+    const dt::ItemResult& other = response.results(i);
+    if (other.status().code() != 0 || other.detections_size() == 0) continue;
+    out.others.push_back({params.queries(i).item(),
+                          pc::PoseFromProto(other.detections(0).x_frame_item(), "X_frame_item"),
+                          other.detections(0).score()});
+  }
   const dt::ItemResult& result = response.results(0);
   if (result.status().code() != 0) {
     throw CellError("detector", false, item + ": " + result.status().message());
@@ -351,6 +370,7 @@ PlannedPick GrpcCell::PlanPick(const std::string& container, const std::string& 
   out.descend_s = Duration(stored.response.descend());
   out.retreat_s = Duration(stored.response.retreat());
   out.head_angle_rad = stored.response.head_angle_rad();
+  out.contact_distance_m = stored.response.contact_distance_m();
   for (const cm::JointTrajectory* t :
        {&stored.response.approach(), &stored.response.descend(), &stored.response.retreat()}) {
     AppendThinned(*t, 40, out.path_q);
@@ -375,7 +395,10 @@ void GrpcCell::ReleaseAndResetStop() {
   grpc::ClientContext ctx;
   SetDeadline(ctx, 10.0);
   rb::ResetProtectiveStopResponse reset;
-  ThrowIfFailed("robot", "ResetProtectiveStop", robot_->ResetProtectiveStop(&ctx, {}, &reset));
+  const grpc::Status status = robot_->ResetProtectiveStop(&ctx, {}, &reset);
+  // Not in a protective stop (the motion ended otherwise): nothing to reset.
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION) return;
+  ThrowIfFailed("robot", "ResetProtectiveStop", status);
 }
 
 StepOutcome GrpcCell::Recover(const StoredPick& stored, const CellError& stopped) {
@@ -421,7 +444,15 @@ TouchOutcome GrpcCell::Touch(const PlannedPick& pick) {
   request.set_force_threshold_n(options_.guarded_force_n);
   request.set_speed_m_s(options_.guarded_speed_m_s);
   rb::GuardedMoveResponse response;
-  ThrowIfFailed("robot", "GuardedMove", robot_->GuardedMove(&ctx, request, &response));
+  const grpc::Status status = robot_->GuardedMove(&ctx, request, &response);
+  // Refused before anything moved (the robot's own check of the path): the item's failure.
+  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION ||
+      status.error_code() == grpc::StatusCode::INVALID_ARGUMENT) {
+    TouchOutcome refused;
+    refused.refused = "the robot refused the guarded move: " + status.error_message();
+    return refused;
+  }
+  ThrowIfFailed("robot", "GuardedMove", status);
   TouchOutcome out;
   out.contact = response.contact();
   out.distance_m = response.distance_travelled_m();
@@ -507,7 +538,7 @@ StepOutcome GrpcCell::PutBack(const PlannedPick& pick) {
 }
 
 PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& container,
-                                   const PlannedPick& pick) {
+                                   const PlannedPick& pick, int placed_before) {
   const rb::GetStateResponse state = RobotState();
   grpc::ClientContext ctx;
   SetDeadline(ctx, options_.plan_deadline_s);
@@ -517,6 +548,7 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
   *request.mutable_start()->mutable_positions_rad() = state.joints().positions_rad();
   if (pick.handle >= 0) *request.mutable_x_tcp_item() = pc::PoseToProto(Stored(pick).X_TcpItem);
   request.set_head_angle_rad(HeadAngle());
+  request.set_placed_before(static_cast<std::uint32_t>(std::clamp(placed_before, 0, 1000)));
   pl::PlanPlaceResponse response;
   const grpc::Status status = planner_->PlanPlace(&ctx, request, &response);
   if (status.error_code() == grpc::StatusCode::ABORTED) {
@@ -525,6 +557,8 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
   ThrowIfFailed("planner", "PlanPlace", status);
   try {
     return {true, "", response.drop_height_m(), Execute(response.trajectory())};
+  } catch (const MotionRefused& e) {
+    return {false, e.what(), 0.0, 0.0};  // still held where it was: put back or elsewhere
   } catch (const CellError& e) {
     if (e.retryable()) throw;
     // Stopped with the item on the cup: it is let go where the arm stopped.

@@ -62,7 +62,8 @@ class GrpcCell final : public CellPort {
   StepOutcome MoveToNamed(const std::string& name) override;
   ScanView Scan() override;
   Detection Detect(const std::string& container, const std::string& item,
-                   const std::vector<ScanView>& views) override;
+                   const std::vector<ScanView>& views,
+                   const std::vector<std::string>& others) override;
   PlannedPick PlanPick(const std::string& container, const std::string& item,
                        const Eigen::Isometry3d& X_BaseItem,
                        const std::vector<ScanView>& views) override;
@@ -72,7 +73,7 @@ class GrpcCell final : public CellPort {
   SealReading ReadSeal() override;
   StepOutcome ExecuteRetreat(const PlannedPick& pick) override;
   PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
-                           const PlannedPick& pick) override;
+                           const PlannedPick& pick, int placed_before) override;
   void VacuumOff() override;
   StepOutcome PutBack(const PlannedPick& pick) override;
   double VerifyHeld(const std::string& item, const PlannedPick& pick,

@@ -74,6 +74,9 @@ struct ScanObstacles {
   DistanceGrid grid;                              ///< Over the occupied voxels' centres.
   std::shared_ptr<const octomap::OcTree> octree;  ///< For the exact check; may be null.
   std::size_t num_occupied_voxels = 0;
+  /// The occupied voxels' centres and edge (a carried item's contacts, VoxelContacts).
+  std::vector<Eigen::Vector3f> voxel_centres_Base;
+  double voxel_m = 0.0;
 };
 
 /// What a state check found.

@@ -1,4 +1,5 @@
 #include "services/planner/core/motion_planner.h"
+#include "services/planner/core/voxel_contacts.h"
 
 #include <algorithm>
 #include <cmath>
@@ -257,15 +258,20 @@ MotionPlanner::~MotionPlanner() = default;
 
 struct MotionPlanner::RequestChecks {
   RequestChecks(std::shared_ptr<const Head> h, const StaticCell& cell, const ScanObstacles* scan,
-                const MotionCheckOptions& options)
+                const MotionCheckOptions& options, double contact_margin_m)
       : head(std::move(h)),
         fast(*head->robot, cell, scan),
         motion(fast, options),
-        exact(*head->robot, cell, scan) {}
-  std::shared_ptr<const Head> head;  // kept while the request runs
+        exact(*head->robot, cell, scan) {
+    if (scan && scan->voxel_m > 0.0) {
+      contacts.emplace(scan->voxel_centres_Base, scan->voxel_m, contact_margin_m);
+    }
+  }
+  std::shared_ptr<const Head> head;  // kept while the request runs; its exact check: the cell
   FastChecker fast;
   MotionChecker motion;
   ExactChecker exact;
+  std::optional<VoxelContacts> contacts;  // the scan's voxels a carried item touches
 };
 
 std::shared_ptr<const MotionPlanner::Head> MotionPlanner::HeadAt(double angle_rad) const {
@@ -879,67 +885,228 @@ Eigen::Vector3d MotionPlanner::WallRelease(const GraspContainer& container,
   return container.X_BaseContainer.linear() * shift;
 }
 
-bool MotionPlanner::LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
-                            const JointVector& q_grasp, const CarriedItem& carried,
-                            const FastChecker& fast, const MotionChecker& motion,
-                            const ExactChecker& exact, JointVector* q_lift,
-                            Eigen::Vector3d* lift_Base, PlanFailure* failure,
-                            std::string* reason) const {
-  // Straight up off the support, and away from a bin wall the item leans against: it rests
-  // on the floor (or other items) and may touch a wall, so the fast check with the item
-  // starts where the lift ends, and must see the item free there by the motion check's
-  // padding (else no move of the retreat could start). The item's spheres stand up to
-  // 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift to
-  // draw it away (WallRelease). On the way, from lift_item_check_m up, the item's box is
-  // checked exactly. The highest lift (up to lift_m) that works: a tall item has little
-  // room below a bin's ceiling.
-  const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
-  const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
-  const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
-  const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
+namespace {
+
+// The carried item's box with the face it rests on drawn in by `raise_m` (the face whose
+// normal points most nearly down at X_BaseItem): it may slide on its support, which the
+// exact check would otherwise call a collision, but not into anything higher.
+CarriedItem RaisedOffSupport(const CarriedItem& carried, const Eigen::Isometry3d& X_BaseItem,
+                             double raise_m) {
+  const Eigen::Vector3d down_Item = X_BaseItem.linear().transpose() * -Eigen::Vector3d::UnitZ();
+  int axis = 0;
+  down_Item.cwiseAbs().maxCoeff(&axis);
+  Eigen::AlignedBox3d box = carried.box_Item;
+  const double room = box.sizes()[axis] - 1e-3;
+  if (down_Item[axis] > 0.0) {
+    box.max()[axis] -= std::min(raise_m, room);
+  } else {
+    box.min()[axis] += std::min(raise_m, room);
+  }
+  return MakeCarriedItem(carried.name, box, carried.X_TcpItem);
+}
+
+}  // namespace
+
+std::vector<std::vector<Eigen::Vector3d>> MotionPlanner::LiftCandidates(
+    const GraspContainer& container, const Eigen::Vector3d& release_Base) const {
+  // Straight up off the support (the highest that works: a tall item has little room below
+  // a bin's ceiling), then, for an item a neighbour overhangs or that lies against one,
+  // slid out toward the opening just above its support and lifted there.
+  const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+  std::vector<std::vector<Eigen::Vector3d>> candidates;
   for (const double fraction : {1.0, 0.8, 0.6}) {
-    const double lift_m = fraction * options_.lift_m;
-    *lift_Base = lift_m * Eigen::Vector3d::UnitZ() + release_Base;
-    Eigen::Isometry3d X_lift = X_grasp;
-    X_lift.translation() += *lift_Base;
-    const auto ik_lift = robot_->kinematics().NearestSolution(X_lift * X_TcpTool, q_grasp, branch);
-    if (!ik_lift) {
-      *reason = "the lift pose has no IK solution";
-      continue;
+    candidates.push_back({fraction * options_.lift_m * up + release_Base});
+  }
+  if (container.kind != GraspContainerKind::kShelfBin) return candidates;
+  Eigen::Vector3d out = container.opening_direction_Base;
+  out.z() = 0.0;
+  if (out.norm() < 0.5) return candidates;
+  out.normalize();
+  // Just above the support first; then out, level or rising (by slide_rise per metre out:
+  // level passes under an overhang, rising clears the lip at the bin's front edge); then up
+  // to the full lift.
+  const Eigen::Vector3d skim = options_.slide_height_m * up + release_Base;
+  for (const double slide_m : options_.slide_out_m) {
+    for (const double rise : options_.slide_rise) {
+      const Eigen::Vector3d slid =
+          skim + slide_m * out + std::min(rise * slide_m, options_.lift_m) * up;
+      std::vector<Eigen::Vector3d> waypoints = {skim, slid};
+      if (slid.z() < options_.lift_m) {
+        waypoints.push_back(slid + (options_.lift_m - slid.z()) * up);
+      }
+      candidates.push_back(std::move(waypoints));
     }
-    if (const MotionCheckResult m = motion.CheckSegment(q_grasp, ik_lift->q_rad); !m.free) {
+  }
+  return candidates;
+}
+
+bool MotionPlanner::CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+                                  const std::vector<Eigen::Vector3d>& waypoints_Base,
+                                  const CarriedItem& carried, const RequestChecks& checks,
+                                  std::vector<JointVector>* path_rad, PlanFailure* failure,
+                                  std::string* reason) const {
+  const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
+  const RobotGeometry& robot = checks.fast.robot();
+  const Eigen::Isometry3d X_TcpTool = robot.gripper().X_ToolTcp.inverse();
+  const CarriedItem skimming =
+      RaisedOffSupport(carried, X_grasp * carried.X_TcpItem, options_.lift_item_check_m);
+  const std::vector<int> touched =
+      checks.contacts ? checks.contacts->Touching(X_grasp * carried.X_TcpItem, carried.box_Item)
+                      : std::vector<int>{};
+  *path_rad = {q_grasp};
+  for (const Eigen::Vector3d& d : waypoints_Base) {
+    Eigen::Isometry3d X = X_grasp;
+    X.translation() += d;
+    const auto ik = robot_->kinematics().NearestSolution(X * X_TcpTool, path_rad->back(), branch);
+    if (!ik) {
+      *reason = "the lift pose has no IK solution";
+      return false;
+    }
+    const JointVector q_from = path_rad->back();
+    path_rad->push_back(ik->q_rad);
+    // The arm and gripper: the continuous check (the cup is at the cut-out target).
+    if (const MotionCheckResult m = checks.motion.CheckSegment(q_from, ik->q_rad); !m.free) {
       failure->body = BodyName(m.report.body);
       failure->obstacle = m.report.obstacle;
       *reason = "the lift collides: " + m.report.ToString();
-      continue;
+      return false;
     }
-    if (const CollisionReport r = fast.Check(ik_lift->q_rad, &carried, padding); r.in_collision) {
-      failure->body = BodyName(r.body);
-      failure->obstacle = r.obstacle;
-      *reason = "after a lift of " + Fixed(lift_m, 3) + " m (and " + Fixed(release_Base.norm(), 3) +
-                " m away from the walls) " + r.ToString() + " (clearance " +
-                Fixed(r.clearance_m, 4) + " m, " + Fixed(padding, 4) +
-                " m needed to move on): the item is wedged in";
-      continue;
+    // The item's box every 2 mm: against the cell exactly (drawn in from its support until
+    // it is lift_item_check_m up), against the scan by the contacts it did not have.
+    const Eigen::Vector3d from = robot.X_BaseTcp(q_from).translation();
+    const int steps =
+        std::max(2, static_cast<int>(std::ceil((X.translation() - from).norm() / 0.002)));
+    for (int k = 1; k <= steps; ++k) {
+      const JointVector q = q_from + (ik->q_rad - q_from) * (double(k) / steps);
+      const Eigen::Isometry3d X_BaseItem = robot.X_BaseTcp(q) * carried.X_TcpItem;
+      const bool low =
+          X_BaseItem.translation().z() - (X_grasp * carried.X_TcpItem).translation().z() <
+          options_.lift_item_check_m;
+      if (const CollisionReport r = checks.head->exact->Check(q, low ? &skimming : &carried);
+          r.in_collision) {
+        failure->body = BodyName(r.body);
+        failure->obstacle = r.obstacle;
+        *reason = "lifting the item: " + r.ToString() + " (exact check of the item's box)";
+        return false;
+      }
+      if (!checks.contacts) continue;
+      if (const int v = checks.contacts->NewContact(X_BaseItem, carried.box_Item, touched);
+          v >= 0) {
+        const Eigen::Vector3f& c = checks.contacts->centre(v);
+        failure->body = "item";
+        failure->obstacle = "scan";
+        *reason = "lifting the item: its box meets the scan at (" + Fixed(c.x(), 3) + ", " +
+                  Fixed(c.y(), 3) + ", " + Fixed(c.z(), 3) +
+                  ") m, which it did not touch at the grasp";
+        return false;
+      }
     }
-    const int steps = std::max(2, static_cast<int>(std::ceil(lift_Base->norm() / 0.002)));
-    std::optional<CollisionReport> hit;
-    for (int k = 1; k <= steps && !hit; ++k) {
-      if (lift_m * k / steps < options_.lift_item_check_m) continue;
-      const JointVector q = q_grasp + (ik_lift->q_rad - q_grasp) * (double(k) / steps);
-      if (const CollisionReport r = exact.Check(q, &carried); r.in_collision) hit = r;
-    }
-    if (hit) {
-      failure->body = BodyName(hit->body);
-      failure->obstacle = hit->obstacle;
-      *reason = "lifting the item " + Fixed(lift_m, 3) + " m: " + hit->ToString() +
-                " (exact check of the item's box)";
-      continue;
-    }
-    *q_lift = ik_lift->q_rad;
-    return true;
   }
+  return true;
+}
+
+bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+                            const std::vector<Eigen::Vector3d>& waypoints_Base,
+                            const CarriedItem& carried, const RequestChecks& checks,
+                            std::vector<JointVector>* lift_rad, PlanFailure* failure,
+                            std::string* reason) const {
+  // The item rests on its support and may touch a wall or a neighbour, so the fast check
+  // with the item takes over where the lift ends, and must see it free there by the motion
+  // check's padding (else no move of the retreat could start). The item's spheres stand up
+  // to 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift
+  // to draw it away (WallRelease). Along the lift the item may keep touching what it touched
+  // at the grasp, but meet nothing new (CheckLiftPath).
+  if (!CheckLiftPath(X_grasp, q_grasp, waypoints_Base, carried, checks, lift_rad, failure,
+                     reason)) {
+    return false;
+  }
+  const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
+  if (const CollisionReport r = checks.fast.Check(lift_rad->back(), &carried, padding);
+      r.in_collision) {
+    const Eigen::Vector3d& d = waypoints_Base.back();
+    failure->body = BodyName(r.body);
+    failure->obstacle = r.obstacle;
+    *reason = "after a lift of " + Fixed(d.z(), 3) + " m (and " +
+              Fixed(Eigen::Vector3d(d.x(), d.y(), 0.0).norm(), 3) + " m across) " + r.ToString() +
+              " (clearance " + Fixed(r.clearance_m, 4) + " m, " + Fixed(padding, 4) +
+              " m needed to move on): the item is wedged in";
+    return false;
+  }
+  return true;
+}
+
+bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspCandidate& grasp,
+                                   const Eigen::Isometry3d& X_pre, double hover_m,
+                                   const JointVector& q_grasp, const CarriedItem& carried,
+                                   const RequestChecks& checks,
+                                   const CartesianSearchOptions& search, PickPaths* paths,
+                                   int* nodes_expanded, PlanFailure* failure) const {
+  // Each lift in turn, with the retreat out of the container from where it ends: the first
+  // pair that works. The failure kept is the straight lift's (or its retreat's), with the
+  // furthest slide's reason added.
+  const bool tote = container.kind == GraspContainerKind::kTote;
+  const bool bent = checks.fast.robot().gripper().bent();
+  const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
+  const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
+  bool first = true;
+  std::string slide_reason;
+  for (const auto& waypoints : LiftCandidates(container, release_Base)) {
+    PlanFailure attempt;
+    std::string why;
+    std::vector<JointVector> lift_path;
+    if (LiftOff(X_grasp, q_grasp, waypoints, carried, checks, &lift_path, &attempt, &why)) {
+      // Out at the lift's height: along the approach line back, or (bent) straight out.
+      const Eigen::Vector3d& lift_Base = waypoints.back();
+      Eigen::Isometry3d X_exit = X_pre;
+      if (!tote)
+        X_exit.translation() +=
+            bent ? Eigen::Vector3d(lift_Base + grasp.approach_Base * hover_m) : lift_Base;
+      const CartesianSearchResult retreat =
+          SearchCartesianPath(checks.motion, lift_path.back(), X_exit, &carried, search);
+      *nodes_expanded += retreat.nodes_expanded;
+      if (retreat.ok) {
+        paths->lift = std::move(lift_path);
+        paths->retreat = retreat.path_rad;
+        return true;
+      }
+      attempt = FromSearch("retreat", grasp.surface, retreat);
+      why = attempt.message;
+    } else {
+      attempt.stage = "retreat";
+      attempt.kind = "collision";
+      attempt.grasp = grasp.surface;
+      why = "retreat for grasp '" + grasp.surface + "': " + why;
+    }
+    if (first) {
+      *failure = attempt;
+      failure->message = why;
+      first = false;
+    } else if (waypoints.size() > 1) {
+      slide_reason = why;  // the furthest slide's
+    }
+  }
+  if (!slide_reason.empty()) failure->message += "; slid out first: " + slide_reason;
   return false;
+}
+
+double MotionPlanner::GuardedOvershoot(const Eigen::Isometry3d& X_grasp,
+                                       const Eigen::Vector3d& approach_Base,
+                                       const JointVector& q_grasp,
+                                       const RequestChecks& checks) const {
+  // The robot checks a guarded move's whole path against the cell before it moves, and a
+  // thin item's face lies closer to the floor under it than the full overshoot: the longest
+  // of the overshoot's fractions the arm can run without the cell (the item itself gives way
+  // to the cup, its voxels cut out).
+  const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
+  const Eigen::Isometry3d X_TcpTool = checks.fast.robot().gripper().X_ToolTcp.inverse();
+  for (const double fraction : {1.0, 0.75, 0.5, 0.25}) {
+    const double overshoot_m = fraction * options_.guarded_overshoot_m;
+    Eigen::Isometry3d X = X_grasp;
+    X.translation() += overshoot_m * approach_Base;
+    const auto ik = robot_->kinematics().NearestSolution(X * X_TcpTool, q_grasp, branch);
+    if (ik && checks.head->motion->CheckSegment(q_grasp, ik->q_rad).free) return overshoot_m;
+  }
+  return 0.0;
 }
 
 void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
@@ -958,9 +1125,10 @@ void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
 
 bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                              const std::shared_ptr<const world::ItemModel>& model,
-                             const FastChecker& fast, const MotionChecker& motion,
-                             const ExactChecker& exact, Deadline deadline, PickPlan* plan,
+                             const RequestChecks& checks, Deadline deadline, PickPlan* plan,
                              PlanFailure* failure) const {
+  const FastChecker& fast = checks.fast;
+  const MotionChecker& motion = checks.motion;
   const GraspContainer container = Container(request.container);
   const bool tote = container.kind == GraspContainerKind::kTote;
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
@@ -1021,24 +1189,9 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
-  JointVector lifted;
-  Eigen::Vector3d lift_Base = Eigen::Vector3d::Zero();
-  std::string lift_reason;
-  if (!LiftOff(container, X_grasp, *q_grasp, carried, fast, motion, exact, &lifted, &lift_Base,
-               failure, &lift_reason)) {
-    return fail("retreat", "collision", lift_reason);
-  }
-  const JointVector* q_lift = &lifted;
-
-  // Retreat carrying the item, from the lift to the pre-grasp pose.
-  // Out at the lift's height: along the approach line back, or (bent) straight out.
-  const Eigen::Isometry3d X_exit =
-      tote ? X_pre : translated(X_pre, bent ? Eigen::Vector3d(lift_Base + a * hover_m) : lift_Base);
-  const CartesianSearchResult retreat =
-      SearchCartesianPath(motion, *q_lift, X_exit, &carried, search);
-  plan->nodes_expanded += retreat.nodes_expanded;
-  if (!retreat.ok) {
-    *failure = FromSearch("retreat", grasp.surface, retreat);
+  PickPaths paths;
+  if (!LiftAndRetreat(container, grasp, X_pre, hover_m, *q_grasp, carried, checks, search, &paths,
+                      &plan->nodes_expanded, failure)) {
     return false;
   }
   // Approach: a joint motion from the start to the pre-grasp configuration.
@@ -1047,10 +1200,12 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   CheckDeadline(deadline, "the pick's trajectories");
 
   plan->grasp = grasp;
-  TimePickPaths({approach.path_rad, descend.path_rad, {*q_grasp, *q_lift}, retreat.path_rad},
-                request.speed_fraction, carried, motion, exact, plan);
+  paths.approach = approach.path_rad;
+  paths.descend = descend.path_rad;
+  TimePickPaths(paths, request.speed_fraction, carried, motion, checks.exact, plan);
   plan->guarded_direction_Base = a;
-  plan->guarded_distance_m = hover_m + options_.guarded_overshoot_m;
+  plan->guarded_distance_m = hover_m + GuardedOvershoot(X_grasp, a, *q_grasp, checks);
+  plan->contact_distance_m = hover_m;
   plan->head_angle_rad = fast.robot().gripper().head_angle_rad;
   return true;
 }
@@ -1066,7 +1221,8 @@ const MotionPlanner::RequestChecks* MotionPlanner::ChecksForGrasp(
   *candidate = bent->first;
   auto& slot = (*bent_checks)[bent->second];
   if (!slot) {
-    slot = std::make_unique<RequestChecks>(HeadAt(bent->second), *cell_, scan, options_.motion);
+    slot = std::make_unique<RequestChecks>(HeadAt(bent->second), *cell_, scan, options_.motion,
+                                           options_.item_contact_margin_m);
   }
   // The head turns at the start, before the approach.
   if (const CollisionReport r = slot->fast.Check(request.start_rad); r.in_collision) {
@@ -1106,8 +1262,7 @@ bool MotionPlanner::TryRolls(const PickRequest& request, const GraspCandidate& c
     rolled.X_BaseTcpPreGrasp.linear() = candidate.X_BaseTcpPreGrasp.linear() * R;
     PlanFailure failure;
     try {
-      if (TryGrasp(request, rolled, model, checks.fast, checks.motion, checks.exact, deadline, plan,
-                   &failure)) {
+      if (TryGrasp(request, rolled, model, checks, deadline, plan, &failure)) {
         return true;
       }
     } catch (const PlanFailedError& e) {
@@ -1137,7 +1292,8 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   Container(request.container);  // throws NotFoundError
   CheckDeadline(deadline, "the pick's set-up");
   const ScanObstacles* scan = scene ? scene->obstacles.get() : nullptr;
-  RequestChecks straight(straight_head_, *cell_, scan, options_.motion);
+  RequestChecks straight(straight_head_, *cell_, scan, options_.motion,
+                         options_.item_contact_margin_m);
   if (const CollisionReport r = straight.fast.Check(request.start_rad); r.in_collision) {
     throw PreconditionError("the start state collides: " + r.ToString());
   }
@@ -1195,6 +1351,32 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
 // ---------------------------------------------------------------------------------------
 // Place
 
+std::vector<Eigen::Vector2d> ToteReleaseSpots(const Eigen::Vector2d& inner_size_m,
+                                              double margin_m) {
+  // The cells' centres of a 3 x 2 grid, pulled in where a cell is narrower than the item.
+  const Eigen::Vector2d reach = (0.5 * inner_size_m.array() - margin_m).max(0.0).matrix();
+  const double cx = std::min(inner_size_m.x() / 3.0, reach.x());
+  const double cy = std::min(inner_size_m.y() / 4.0, reach.y());
+  return {{0.0, -cy}, {-cx, cy}, {cx, -cy}, {0.0, cy}, {-cx, -cy}, {cx, cy}};
+}
+
+namespace {
+
+// Half the item's footprint when it hangs from the cup pointing down: its largest horizontal
+// distance from the cup's axis.
+double HalfFootprint(const Eigen::AlignedBox3d& box_I, const Eigen::Isometry3d& X_TcpItem) {
+  double half = 0.0;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d corner((i & 1) ? box_I.max().x() : box_I.min().x(),
+                                 (i & 2) ? box_I.max().y() : box_I.min().y(),
+                                 (i & 4) ? box_I.max().z() : box_I.min().z());
+    half = std::max(half, (X_TcpItem * corner).head<2>().norm());
+  }
+  return half;
+}
+
+}  // namespace
+
 PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadline) const {
   const auto started = std::chrono::steady_clock::now();
   ValidateStart(request.start_rad);
@@ -1227,10 +1409,17 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
   // Release over the tote (item 5 cm above the rim), or just inside a bin's opening.
   std::vector<Eigen::Isometry3d> candidates;
   if (container.kind == GraspContainerKind::kTote) {
+    // The item's spot first (items let go one over the other stand and stack up above the
+    // rim), then the others in turn, should the arm not reach it.
     const Eigen::Vector3d x = container.X_BaseContainer.linear().col(0);
-    for (double dx : {0.0, -0.1, 0.1}) {
-      candidates.push_back(
-          DownAt(centre + dx * x + Eigen::Vector3d(0, 0, rim_z - centre.z() + 0.05 + below_m)));
+    const Eigen::Vector3d y = container.X_BaseContainer.linear().col(1);
+    const double half_footprint_m = HalfFootprint(model->box_I, request.X_TcpItem);
+    const std::vector<Eigen::Vector2d> spots =
+        ToteReleaseSpots(container.inner_size_m.head<2>(), half_footprint_m);
+    for (std::size_t k = 0; k < spots.size(); ++k) {
+      const Eigen::Vector2d& spot = spots[(request.placed_before + k) % spots.size()];
+      candidates.push_back(DownAt(centre + spot.x() * x + spot.y() * y +
+                                  Eigen::Vector3d(0, 0, rim_z - centre.z() + 0.05 + below_m)));
     }
   } else {
     // The cup points into the bin (horizontal); the item hanging from it is let go in the

@@ -39,7 +39,8 @@ struct MotionPlannerOptions {
   /// The target's convex hull is grown by this before its points and voxels are cut out.
   double cut_margin_m = 0.02;
   /// The descent ends this far short of the grasp; the robot's guarded move covers it and
-  /// may go `guarded_overshoot_m` beyond (the item may sit a little deeper than detected).
+  /// may go `guarded_overshoot_m` beyond (the item may sit a little deeper than detected),
+  /// less where the arm would meet the cell (a thin item on a bin's floor).
   double guarded_distance_m = 0.05;
   double guarded_overshoot_m = 0.04;
   /// The retreat's first straight lift, upward; the carried item is checked against the scene
@@ -47,6 +48,17 @@ struct MotionPlannerOptions {
   /// box, FCL) from `lift_item_check_m` of lift on.
   double lift_m = 0.05;
   double lift_item_check_m = 0.01;
+  /// Where the straight lift meets something, the item is raised slide_height_m off its
+  /// support, slid out toward the opening by each of slide_out_m in turn, level or rising by
+  /// each of slide_rise (metres up per metre out), then lifted to lift_m. Level, it passes
+  /// under an overhanging neighbour; rising, it clears the voxels of an item it rests on (a
+  /// voxel says only that a surface lies somewhere in it) and a bin's front lip.
+  std::vector<double> slide_out_m = {0.04, 0.08};
+  std::vector<double> slide_rise = {0.0, 0.5, 1.0};
+  double slide_height_m = 0.004;
+  /// A scan voxel within this of the carried item's box (beyond the voxel's half diagonal)
+  /// touches it: the lift may keep the contacts of the grasp but make no new one (metres).
+  double item_contact_margin_m = 0.002;
   /// An item within this of a bin's back or side wall is drawn away from it during the lift,
   /// to this distance: the fast check's spheres stand up to 5.5 mm proud of the item's box
   /// and the motion check pads them by max_travel_m / 2, so nearer than that to a wall no
@@ -157,6 +169,9 @@ struct PickPlan {
   Trajectory retreat;   ///< grasp -> pre-grasp, carrying the item
   Eigen::Vector3d guarded_direction_Base = Eigen::Vector3d::Zero();
   double guarded_distance_m = 0.0;
+  /// How far along the guarded move the grasp's surface lies, as detected (the cup meeting
+  /// something much sooner has met something else).
+  double contact_distance_m = 0.0;
   int nodes_expanded = 0;
   int grasps_tried = 0;
   double planning_time_s = 0.0;
@@ -170,7 +185,14 @@ struct PlaceRequest {
   JointVector start_rad = JointVector::Zero();
   double speed_fraction = 1.0;
   double head_angle_rad = 0.0;  ///< The gripper's head as the pick left it.
+  /// Items already let go in the tote: the release spot is the next of ToteReleaseSpots.
+  int placed_before = 0;
 };
+
+/// Where items are let go over the tote, in turn: the centres of a 3 x 2 grid over the tote
+/// floor (tote frame, metres), each kept `margin_m` inside the walls (the item's half
+/// footprint), the middle first, then the corners, then the last two.
+std::vector<Eigen::Vector2d> ToteReleaseSpots(const Eigen::Vector2d& inner_size_m, double margin_m);
 
 struct PlacePlan {
   Trajectory trajectory;
@@ -299,10 +321,20 @@ class MotionPlanner final {
                                           const FastChecker& fast, PlanFailure* failure) const;
   Eigen::Vector3d WallRelease(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
                               const CarriedItem& carried) const;
-  bool LiftOff(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
-               const JointVector& q_grasp, const CarriedItem& carried, const FastChecker& fast,
-               const MotionChecker& motion, const ExactChecker& exact, JointVector* q_lift,
-               Eigen::Vector3d* lift_Base, PlanFailure* failure, std::string* reason) const;
+  // The lifts LiftOff tries, each as waypoints (displacements of the cup from the grasp).
+  std::vector<std::vector<Eigen::Vector3d>> LiftCandidates(
+      const GraspContainer& container, const Eigen::Vector3d& release_Base) const;
+  // One lift: IK at each waypoint, the arm's motion, the item's box against the cell and
+  // against scan voxels it did not touch at the grasp. The joint path in `path_rad`.
+  bool CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+                     const std::vector<Eigen::Vector3d>& waypoints_Base, const CarriedItem& carried,
+                     const RequestChecks& checks, std::vector<JointVector>* path_rad,
+                     PlanFailure* failure, std::string* reason) const;
+  // One lift (CheckLiftPath) that ends where the item is free for the retreat.
+  bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+               const std::vector<Eigen::Vector3d>& waypoints_Base, const CarriedItem& carried,
+               const RequestChecks& checks, std::vector<JointVector>* lift_rad,
+               PlanFailure* failure, std::string* reason) const;
   // The checks a grasp is tried with: the straight head's, or (the grasp turned in
   // `candidate`) a bent head's, built once per angle in `bent_checks`; nullptr, with the
   // reason in `refused`, when neither tube fits or the bent head collides at the start.
@@ -323,9 +355,18 @@ class MotionPlanner final {
   void TimePickPaths(const PickPaths& paths, double speed_fraction, const CarriedItem& carried,
                      const MotionChecker& motion, const ExactChecker& exact, PickPlan* plan) const;
   bool TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
-                const std::shared_ptr<const world::ItemModel>& model, const FastChecker& fast,
-                const MotionChecker& motion, const ExactChecker& exact, Deadline deadline,
-                PickPlan* plan, PlanFailure* failure) const;
+                const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
+                Deadline deadline, PickPlan* plan, PlanFailure* failure) const;
+  // How far past the grasp the guarded move may go without the arm meeting the cell.
+  double GuardedOvershoot(const Eigen::Isometry3d& X_grasp, const Eigen::Vector3d& approach_Base,
+                          const JointVector& q_grasp, const RequestChecks& checks) const;
+  // The first lift whose end a retreat out of the container starts from (the lift and the
+  // retreat into `paths`).
+  bool LiftAndRetreat(const GraspContainer& container, const GraspCandidate& grasp,
+                      const Eigen::Isometry3d& X_pre, double hover_m, const JointVector& q_grasp,
+                      const CarriedItem& carried, const RequestChecks& checks,
+                      const CartesianSearchOptions& search, PickPaths* paths, int* nodes_expanded,
+                      PlanFailure* failure) const;
 
   MotionPlannerOptions options_;
   std::unique_ptr<StaticCell> cell_;

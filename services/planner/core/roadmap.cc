@@ -242,11 +242,22 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
       JoinNodes(start_rad, carried, &result.edges_checked, &first_block);
   const std::vector<int> goal_nodes =
       JoinNodes(goal_rad, carried, &result.edges_checked, &first_block);
+  // Where the roadmap does not serve: two trees grown between start and goal.
+  auto by_trees = [&](const std::string& why) {
+    std::vector<JointVector> path =
+        ConnectTrees(start_rad, goal_rad, final_checker, carried, deadline);
+    if (path.empty()) {
+      result.reason = why + "; no path either by trees grown from start and goal (" +
+                      std::to_string(options_.tree_nodes) + " nodes)";
+      return result;
+    }
+    result.by_trees = true;
+    return finish(Shortcut(std::move(path), final_checker, carried));
+  };
   if (start_nodes.empty() || goal_nodes.empty()) {
-    result.reason = std::string("no free straight motion joins the ") +
+    return by_trees(std::string("no free straight motion joins the ") +
                     (start_nodes.empty() ? "start" : "goal") +
-                    " to the roadmap (nearest: " + first_block + ")";
-    return result;
+                    " to the roadmap (nearest: " + first_block + ")");
   }
   // Lazy A*: search over edges not known to be blocked, check the path's edges, repeat.
   CarriedEdges carried_edges;
@@ -257,10 +268,7 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     }
     const std::vector<std::pair<int, int>> chain =
         ShortestChain(start_rad, goal_rad, start_nodes, goal_nodes, carried, carried_edges);
-    if (chain.empty()) {
-      result.reason = "the roadmap has no free path between start and goal";
-      return result;
-    }
+    if (chain.empty()) return by_trees("the roadmap has no free path between start and goal");
     bool blocked = false;
     for (std::size_t i = 1; i < chain.size(); ++i) {
       if (!EdgeFree(chain[i - 1].first, chain[i].second, &result.edges_checked, carried,
@@ -277,8 +285,78 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     remember(path);
     return finish(std::move(path));
   }
-  result.reason = "the roadmap search gave up after 200 rounds of blocked edges";
-  return result;
+  return by_trees("the roadmap search gave up after 200 rounds of blocked edges");
+}
+
+std::vector<JointVector> Roadmap::ConnectTrees(
+    const JointVector& start_rad, const JointVector& goal_rad, const MotionChecker& checker,
+    const CarriedItem* carried, std::chrono::steady_clock::time_point deadline) const {
+  struct Tree {
+    std::vector<JointVector> q;
+    std::vector<int> parent;
+    int Nearest(const JointVector& to, const Roadmap& map) const {
+      int best = 0;
+      double best_d = map.Distance(q[0], to);
+      for (std::size_t i = 1; i < q.size(); ++i) {
+        const double d = map.Distance(q[i], to);
+        if (d < best_d) best_d = d, best = static_cast<int>(i);
+      }
+      return best;
+    }
+  };
+  // One step from `from` toward `to`: at most tree_step_rad on any joint.
+  auto steer = [&](const JointVector& from, const JointVector& to) -> JointVector {
+    const JointVector delta = to - from;
+    const double largest = delta.cwiseAbs().maxCoeff();
+    return largest <= options_.tree_step_rad ? to
+                                             : from + delta * (options_.tree_step_rad / largest);
+  };
+  const ur10::Ur10Model& model = checker.checker().robot().kinematics().model();
+  const Eigen::Array<double, 6, 1> lo =
+      (start_rad.array().min(goal_rad.array()) - options_.sample_margin_rad)
+          .max(model.min_position_rad().array());
+  const Eigen::Array<double, 6, 1> hi =
+      (start_rad.array().max(goal_rad.array()) + options_.sample_margin_rad)
+          .min(model.max_position_rad().array());
+  std::mt19937 rng(options_.seed);
+  Tree from_start{{start_rad}, {-1}}, from_goal{{goal_rad}, {-1}};
+  Tree* a = &from_start;
+  Tree* b = &from_goal;
+  // Grows `tree` one step toward `target`; the new node's index, or -1 when blocked.
+  auto extend = [&](Tree& tree, const JointVector& target) {
+    const int near = tree.Nearest(target, *this);
+    const JointVector q = steer(tree.q[near], target);
+    if (!checker.CheckSegment(tree.q[near], q, carried).free) return -1;
+    tree.q.push_back(q);
+    tree.parent.push_back(near);
+    return static_cast<int>(tree.q.size()) - 1;
+  };
+  while (static_cast<int>(from_start.q.size() + from_goal.q.size()) < options_.tree_nodes) {
+    if (std::chrono::steady_clock::now() > deadline) return {};
+    JointVector sample;
+    for (int j = 0; j < 6; ++j)
+      sample[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);
+    const int added = extend(*a, sample);
+    if (added >= 0) {
+      // The other tree goes straight for the new node, step by step, until blocked.
+      const JointVector& target = a->q[added];
+      for (int reached = extend(*b, target); reached >= 0; reached = extend(*b, target)) {
+        if (!SameJoints(b->q[reached], target)) continue;
+        // Met: start's chain up to its meeting node, then goal's chain back from its own.
+        std::vector<JointVector> path;
+        const Tree& s = (a == &from_start) ? *a : *b;
+        const Tree& g = (a == &from_start) ? *b : *a;
+        const int s_meet = (a == &from_start) ? added : reached;
+        const int g_meet = (a == &from_start) ? reached : added;
+        for (int i = s_meet; i >= 0; i = s.parent[i]) path.push_back(s.q[i]);
+        std::reverse(path.begin(), path.end());
+        for (int i = g.parent[g_meet]; i >= 0; i = g.parent[i]) path.push_back(g.q[i]);
+        return path;
+      }
+    }
+    std::swap(a, b);
+  }
+  return {};
 }
 
 }  // namespace picking::planner

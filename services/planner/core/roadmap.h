@@ -27,6 +27,13 @@ struct RoadmapOptions {
   int neighbours = 12;
   /// Shortcut attempts on a found path (seeded).
   int shortcut_attempts = 40;
+  /// Where the roadmap cannot be joined or has no free path (a long carried item close to
+  /// the shelf, which the roadmap's edges, made for the bare arm, swing into), two trees
+  /// grown from start and goal toward each other (RRT-Connect) within the joint box around
+  /// both grown by `sample_margin_rad`: at most `tree_nodes` nodes, `tree_step_rad` apart
+  /// at most on any joint.
+  int tree_nodes = 1500;
+  double tree_step_rad = 0.2;
   std::uint32_t seed = 2016;
 };
 
@@ -36,6 +43,7 @@ struct JointPathResult {
   std::vector<JointVector> path_rad;  ///< Start, intermediate nodes, goal.
   std::string reason;                 ///< Why not, naming the blocked state.
   bool cached = false;                ///< Served from the cache of named-pose paths.
+  bool by_trees = false;              ///< Found by ConnectTrees, not through the roadmap.
   int edges_checked = 0;
 };
 
@@ -68,6 +76,15 @@ class Roadmap final {
       const CarriedItem* carried = nullptr) const;
 
   std::size_t num_nodes() const { return nodes_.size(); }
+
+  /// A path from `start` to `goal` by two trees grown toward each other (RRT-Connect,
+  /// seeded: the same request gives the same path), each motion checked by `checker` with
+  /// `carried`: start, the trees' nodes, goal. Empty when the trees do not meet within
+  /// RoadmapOptions::tree_nodes or by the deadline. Plan's way where the roadmap does not
+  /// serve.
+  std::vector<JointVector> ConnectTrees(const JointVector& start_rad, const JointVector& goal_rad,
+                                        const MotionChecker& checker, const CarriedItem* carried,
+                                        std::chrono::steady_clock::time_point deadline) const;
 
  private:
   enum class EdgeState : std::uint8_t { kUnknown, kFree, kBlocked };

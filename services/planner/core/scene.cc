@@ -258,7 +258,9 @@ std::shared_ptr<const ScanObstacles> ScanScene::Snapshot() const {
   grid_options.margin_m = options_.grid_margin_m;
   grid_options.seed_allowance_m = 0.0;  // voxel centres are cell centres (aligned grid)
   grid_options.align_to_resolution = true;
-  obstacles->grid = DistanceGrid::Build(VoxelCentres(), grid_options);
+  obstacles->voxel_centres_Base = VoxelCentres();
+  obstacles->voxel_m = options_.resolution_m;
+  obstacles->grid = DistanceGrid::Build(obstacles->voxel_centres_Base, grid_options);
   if (options_.build_octree) {
     auto tree = std::make_shared<octomap::OcTree>(options_.resolution_m);
     const float occupied = tree->getClampingThresMaxLog();

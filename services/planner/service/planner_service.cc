@@ -323,6 +323,7 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
       ToProto(plan.retreat, response->mutable_retreat());
       *response->mutable_guarded_direction() = pc::VectorToProto(plan.guarded_direction_Base);
       response->set_guarded_distance_m(plan.guarded_distance_m);
+      response->set_contact_distance_m(plan.contact_distance_m);
       response->set_planning_time_s(plan.planning_time_s);
       response->set_nodes_expanded(static_cast<std::uint32_t>(plan.nodes_expanded));
       response->set_head_angle_rad(plan.head_angle_rad);
@@ -338,6 +339,11 @@ class PlannerServiceImpl final : public pb::PlannerService::Service {
       place.start_rad = JointsFrom(request->start(), "start");
       place.speed_fraction = SpeedFraction(request->speed_fraction());
       place.head_angle_rad = request->head_angle_rad();
+      if (request->placed_before() > 1000) {
+        throw std::invalid_argument("placed_before: at most 1000, got " +
+                                    std::to_string(request->placed_before()));
+      }
+      place.placed_before = static_cast<int>(request->placed_before());
       if (request->has_x_tcp_item()) {
         place.X_TcpItem = pc::PoseFromProto(request->x_tcp_item(), "X_tcp_item");
       } else {

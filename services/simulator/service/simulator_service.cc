@@ -23,6 +23,7 @@
 #include "libs/camera/pinhole_camera.h"
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
+#include "libs/runtime/log.h"
 #include "libs/runtime/server.h"
 #include "libs/runtime/status.h"
 #include "libs/ur10/ur10_model.h"
@@ -538,6 +539,9 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       std::lock_guard<std::mutex> lock(mutex_);
       if (request->on()) {
         const SuctionResult seal = world_->SuctionOn();
+        // Why the cup did not seal is the simulated world's to say (a real gripper only reads
+        // its vacuum): logged, for whoever wonders why a grasp failed.
+        if (!seal.sealed) runtime::LogInfo("no seal", {{"reason", seal.reason}});
         response->set_sealed(seal.sealed);
         response->set_vacuum_kpa(seal.sealed ? options_.sealed_kpa : options_.open_kpa);
         if (seal.attached_item_id != 0) {

@@ -27,6 +27,9 @@ struct Script {
   bool drop_on_the_way = false;  // seal lost on the way to the tote
   bool no_place = false;         // no motion to the tote can be planned
   bool wrong_item_held = false;  // the look back after the lift still sees the target
+  int early_touches = 0;         // the first n guarded moves stop 4 cm before the surface
+  bool touch_refused = false;    // the robot refuses the guarded move
+  std::string confused_with;     // the first detection finds this item at the same place
 };
 
 class ScriptedCell final : public CellPort {
@@ -36,10 +39,13 @@ class ScriptedCell final : public CellPort {
   std::vector<std::string> placed;        // items released over the tote
   std::vector<std::string> put_back;      // items put back where they were grasped
   std::vector<std::string> destinations;  // every MoveToPlace's container
+  std::vector<int> placed_before_each;    // ... and how many items it held from this task
   std::set<std::string> refused_destinations;  // no place can be planned there
   bool held_looks_wrong = false;               // Verify of the held item scores low (once)
   std::map<std::string, int> vacuum_ons;
-  std::string current;  // item being worked on
+  std::map<std::string, int> touches;
+  std::map<std::string, std::vector<std::string>> others_asked;  // per target, last Detect
+  std::string current;                                           // item being worked on
   bool held = false;
 
   std::vector<std::string> ScanPoses(const std::string& c) override {
@@ -60,11 +66,16 @@ class ScriptedCell final : public CellPort {
     v.capture_s = 1.0;
     return v;
   }
-  Detection Detect(const std::string&, const std::string& item,
-                   const std::vector<ScanView>& views) override {
+  Detection Detect(const std::string&, const std::string& item, const std::vector<ScanView>& views,
+                   const std::vector<std::string>& others) override {
     EXPECT_GE(views.size(), 1u);
     current = item;
+    if (views.size() > 1) others_asked[item] = others;
     Detection d;
+    if (!scripts[item].confused_with.empty()) {  // the other item found where this one is
+      d.others.push_back({scripts[item].confused_with, Eigen::Isometry3d::Identity(), 0.95});
+      scripts[item].confused_with.clear();  // the next attempt tells them apart
+    }
     if (views.size() == 1) {  // the look back after the lift
       d.found = held && scripts[item].wrong_item_held;
       if (d.found) scripts[item].wrong_item_held = false;  // the next attempt takes the right one
@@ -84,10 +95,19 @@ class ScriptedCell final : public CellPort {
     p.grasp = "+x face";
     if (p.ok) p.path_q = {{0.0, -1.5, 1.5, -1.5, -1.57, 0.0}, {0.1, -1.4, 1.4, -1.6, -1.57, 0.0}};
     p.head_angle_rad = 0.5;
+    p.contact_distance_m = 0.035;
     return p;
   }
   StepOutcome ExecuteApproach(const PlannedPick&) override { return {true, "", 3.0}; }
-  TouchOutcome Touch(const PlannedPick&) override { return {true, 0.04, 1.0}; }
+  TouchOutcome Touch(const PlannedPick& plan) override {
+    ++touches[current];
+    if (scripts[current].touch_refused) return {false, 0.0, 0.0, "the swept path collides"};
+    if (scripts[current].early_touches > 0) {
+      --scripts[current].early_touches;
+      return {true, plan.contact_distance_m - 0.04, 1.0};
+    }
+    return {true, plan.contact_distance_m + 0.005, 1.0};  // the cup compressed
+  }
   SealReading VacuumOn() override {
     Script& s = scripts[current];
     held = ++vacuum_ons[current] > s.no_seal_attempts;
@@ -102,8 +122,9 @@ class ScriptedCell final : public CellPort {
     return {true, "", 3.0};
   }
   PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
-                           const PlannedPick&) override {
+                           const PlannedPick&, int placed_before) override {
     destinations.push_back(container);
+    placed_before_each.push_back(placed_before);
     if (refused_destinations.count(container)) return {false, "no free motion", 0.0, 0.0};
     if (scripts[item].drop_on_the_way) held = false;
     if (scripts[item].no_place) return {false, "no free motion to the release pose", 0.0, 0.0};
@@ -181,6 +202,8 @@ TEST_F(PickTaskTest, PicksEveryTargetAndScoresTheRules) {
   EXPECT_GE(result.duration_s, 3 * (3 * 2.0 + 3 * 1.0 + 3.0 + 1.0 + 3.0 + 1.0 + 4.0) + 2.0);
   ASSERT_FALSE(events.empty());
   EXPECT_EQ(events.back().items_done, 3);
+  // Each item let go over its own spot: the count of those before it in the tote.
+  EXPECT_EQ(cell.placed_before_each, (std::vector<int>{0, 1, 2}));
   for (std::size_t i = 1; i < events.size(); ++i) {
     EXPECT_EQ(events[i].sequence, events[i - 1].sequence + 1);
   }
@@ -262,6 +285,91 @@ TEST_F(PickTaskTest, ASealLostDuringTheLiftIsNoticedAndTheItemRetried) {
   EXPECT_EQ(result.items_moved, 3);
   EXPECT_EQ(result.targets[1].attempts, 2);
   EXPECT_EQ(cell.vacuum_ons["rawlings_baseball"], 2);
+}
+
+// A guarded move that stops well before the grasp's surface has met another item: the
+// vacuum is not tried there (it would take that item), the target is tried again later.
+TEST_F(PickTaskTest, ATouchFarShortOfTheSurfaceTakesNothing) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].early_touches = 1;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(result.targets[1].attempts, 2);
+  EXPECT_EQ(cell.touches["rawlings_baseball"], 2);
+  EXPECT_EQ(cell.vacuum_ons["rawlings_baseball"], 1);
+  bool said = false;
+  for (const TaskEvent& e : events) said |= e.message.find("4.0 cm before") != std::string::npos;
+  EXPECT_TRUE(said);
+}
+
+TEST_F(PickTaskTest, AGuardedMoveTheRobotRefusesFailsTheItemNotTheTask) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].touch_refused = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  EXPECT_EQ(result.items_moved, 2);
+  EXPECT_FALSE(result.targets[1].picked);
+  EXPECT_NE(result.targets[1].failure.find("touch: the swept path collides"), std::string::npos)
+      << result.targets[1].failure;
+  EXPECT_EQ(cell.vacuum_ons.count("rawlings_baseball"), 0u);  // no vacuum without a touch
+}
+
+// Boxes that share their place, that touch, that cross.
+TEST(BoxOverlapFraction, IsTheShareOfTheSmallerBoxInsideTheOther) {
+  const Eigen::Vector3d book(0.178, 0.109, 0.010), hooks(0.166, 0.120, 0.046);
+  Eigen::Isometry3d X_hooks = Eigen::Isometry3d::Identity();
+  X_hooks.translation() = Eigen::Vector3d(1.0, 0.0, 0.63);
+  // The book matched on the hooks' top: inside them but for its ends.
+  Eigen::Isometry3d X_book = X_hooks;
+  X_book.translation().z() += 0.5 * (hooks.z() - book.z()) - 0.001;
+  EXPECT_GT(BoxOverlapFraction(X_book, book, X_hooks, hooks), 0.8);
+  EXPECT_DOUBLE_EQ(BoxOverlapFraction(X_book, book, X_hooks, hooks),
+                   BoxOverlapFraction(X_hooks, hooks, X_book, book));
+  // The book lying on the hooks: they touch, nothing shared.
+  X_book.translation().z() = 0.63 + 0.5 * (hooks.z() + book.z()) + 0.0005;
+  EXPECT_EQ(BoxOverlapFraction(X_book, book, X_hooks, hooks), 0.0);
+  // Side by side.
+  X_book.translation() = Eigen::Vector3d(1.0, 0.12, 0.63);
+  EXPECT_EQ(BoxOverlapFraction(X_book, book, X_hooks, hooks), 0.0);
+  EXPECT_DOUBLE_EQ(BoxOverlapFraction(X_hooks, hooks, X_hooks, hooks), 1.0);
+}
+
+TEST(ConfusedWith, NamesAnotherItemFoundInTheTargetsPlaceAsWell) {
+  Detection found;
+  found.found = true;
+  found.score = 0.92;
+  found.X_BaseItem.translation() = Eigen::Vector3d(1.0, 0.0, 0.65);
+  OtherDetection dove{"dove_beauty_bar", found.X_BaseItem, 0.90};
+  found.others = {dove};
+  EXPECT_NE(
+      ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05).find("dove_beauty_bar"),
+      std::string::npos);
+  // The target scores clearly better: its pose stands.
+  found.others[0].score = 0.80;
+  EXPECT_EQ(ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05), "");
+  // Found elsewhere: no doubt.
+  found.others[0].score = 0.99;
+  found.others[0].X_BaseItem.translation().y() += 0.3;
+  EXPECT_EQ(ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05), "");
+}
+
+TEST_F(PickTaskTest, ATargetWhosePlaceAnotherItemFillsAsWellIsNotTaken) {
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  // The other items of bin_A were looked for with the target.
+  EXPECT_EQ(cell.others_asked["kleenex_tissue_box"], std::vector<std::string>{"dove_beauty_bar"});
+  EXPECT_TRUE(cell.others_asked["rawlings_baseball"].empty());
+  // The first attempt took nothing; the second, told apart, picked it.
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(result.targets[0].attempts, 2);
+  EXPECT_EQ(cell.touches["kleenex_tissue_box"], 1);
+  bool said = false;
+  for (const TaskEvent& e : events)
+    said |= e.message.find("holds dove_beauty_bar") != std::string::npos;
+  EXPECT_TRUE(said);
 }
 
 TEST_F(PickTaskTest, AnItemDroppedOnTheWayIsNotReportedInTheTote) {

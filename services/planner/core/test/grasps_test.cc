@@ -469,8 +469,8 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance
   const GraspContainer container = ShelfBinContainer(f.cell, "bin_E");
   const Eigen::Isometry3d X_BaseItem = PlaceInBin(f.cell.bin("bin_E"), SizeOf(item), 0.0);
   const GraspOptions defaults;
-  EXPECT_NEAR(defaults.max_tilt_rad, kSealAngleToleranceRad - kSealAngleMarginRad, 1e-12);
-  // Tilted by the largest tilt the seal allows, the top face is still 73 deg from the
+  EXPECT_LE(defaults.max_tilt_rad, kSealAngleToleranceRad - kSealAngleMarginRad);
+  // Tilted by the largest tilt the planner takes, the top face is still 78 deg from the
   // opening direction: out with a 70 deg limit, ...
   GraspOptions narrow;
   narrow.max_approach_angle_rad = 70.0 * kDeg;

@@ -13,23 +13,30 @@ namespace {
 class MotionPlannerTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
-    const world::CellModel cell =
-        world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
     apc::Catalogue catalogue =
         apc::Catalogue::FromCsvFile(PICKING_DATA_DIR "/apc2016/items/item_data.csv");
-    auto grasps = std::make_shared<const GraspTable>(
+    grasps_ = std::make_shared<const GraspTable>(
         GraspTable::FromYamlFile(PICKING_DATA_DIR "/planner/grasps.yaml", catalogue));
-    auto items = std::make_shared<world::ItemModelLibrary>(std::move(catalogue));
-    items_ = items;
-    Eigen::Isometry3d X_ToolCamera = Eigen::Isometry3d::Identity();
-    X_ToolCamera.translation() = Eigen::Vector3d(-0.075, 0.06, 0.04);
-    planner_ = new MotionPlanner(kinematics, cell, GripperGeometry{}, X_ToolCamera, grasps, items);
-    // The same cell with the tote gripper's head on its servo joint (9 cm, +-90 deg).
+    items_ = std::make_shared<world::ItemModelLibrary>(std::move(catalogue));
+    planner_ = MakePlanner(GripperGeometry{}).release();
+    articulated_ = MakePlanner(Articulated()).release();
+  }
+  // The gripper with the tote gripper's head on its servo joint (9 cm, +-90 deg).
+  static GripperGeometry Articulated() {
     GripperGeometry articulated;
     articulated.head_length_m = 0.09;
     articulated.max_head_angle_rad = M_PI / 2;
-    articulated_ = new MotionPlanner(kinematics, cell, articulated, X_ToolCamera, grasps, items);
+    return articulated;
+  }
+  static std::unique_ptr<MotionPlanner> MakePlanner(const GripperGeometry& gripper,
+                                                    const MotionPlannerOptions& options = {}) {
+    const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
+    const world::CellModel cell =
+        world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
+    Eigen::Isometry3d X_ToolCamera = Eigen::Isometry3d::Identity();
+    X_ToolCamera.translation() = Eigen::Vector3d(-0.075, 0.06, 0.04);
+    return std::make_unique<MotionPlanner>(kinematics, cell, gripper, X_ToolCamera, grasps_, items_,
+                                           options);
   }
   static void TearDownTestSuite() {
     delete planner_;
@@ -89,10 +96,12 @@ class MotionPlannerTest : public ::testing::Test {
   static MotionPlanner* planner_;
   static MotionPlanner* articulated_;
   static std::shared_ptr<world::ItemModelLibrary> items_;
+  static std::shared_ptr<const GraspTable> grasps_;
 };
 MotionPlanner* MotionPlannerTest::planner_ = nullptr;
 MotionPlanner* MotionPlannerTest::articulated_ = nullptr;
 std::shared_ptr<world::ItemModelLibrary> MotionPlannerTest::items_;
+std::shared_ptr<const GraspTable> MotionPlannerTest::grasps_;
 
 Deadline Far() { return std::chrono::steady_clock::now() + std::chrono::seconds(30); }
 
@@ -316,6 +325,77 @@ TEST_F(MotionPlannerTest, ATopFaceDeepInABinTakesTheHeadBent) {
   ExpectWithinLimits(placed.trajectory, model);
 }
 
+// A book whose back lies under a neighbour's overhang (a slab of scan 4 cm above it over
+// its back 3 cm and on to the bin's back): lifting it straight up would press it into the
+// overhang, so the lift slides it out toward the opening just above the floor first, then
+// lifts it clear.
+TEST_F(MotionPlannerTest, AnItemUnderAnOverhangIsSlidOutBeforeTheLift) {
+  const std::string item = "i_am_a_bunny_book";
+  auto [X_BaseItem, xyz] = ItemInBin("bin_E", item, -1.0, 0.14);
+  const auto& cell = articulated_->cell().cell();
+  const world::BinGeometry& geometry = cell.bin("bin_E");
+  const Eigen::Vector3d size = items_->Get(item)->box_I.sizes();
+  const Eigen::Vector3d c_S = cell.config.X_BaseShelf.inverse() * X_BaseItem.translation();
+  const double back_x_S = c_S.x() - 0.5 * size.y();  // the item's middle side along the depth
+  const double top_z_S = c_S.z() + 0.5 * size.z();
+  for (double x = geometry.inner_S.min().x(); x < back_x_S + 0.03; x += 0.004) {
+    for (double y = c_S.y() - 0.12; y < c_S.y() + 0.12; y += 0.004) {
+      const Eigen::Vector3d p = cell.config.X_BaseShelf * Eigen::Vector3d(x, y, top_z_S + 0.04);
+      xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+    }
+  }
+  const PlanningScene scene =
+      articulated_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, item, X_BaseItem);
+  PickRequest request;
+  request.item = item;
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan plan = articulated_->PlanPick(request, &scene, Far());
+  // By the time the cup has risen 3 cm above the grasp (where the book's back would meet
+  // the overhang) it has come out toward the opening (shelf +x) by 3 cm.
+  const RobotGeometry bent = articulated_->robot().WithGripper(
+      articulated_->robot().gripper().AtHeadAngle(plan.head_angle_rad));
+  const Eigen::Isometry3d X_ShelfBase = cell.config.X_BaseShelf.inverse();
+  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
+  double out_m = 0.0;
+  for (const TrajectorySample& s : plan.retreat.samples) {
+    const Eigen::Vector3d p_S = X_ShelfBase * bent.X_BaseTcp(s.q_rad).translation();
+    if (p_S.z() - p0_S.z() > 0.03) break;
+    out_m = std::max(out_m, p_S.x() - p0_S.x());
+  }
+  EXPECT_GT(out_m, 0.03);
+  ExpectWithinLimits(plan.retreat, articulated_->robot().kinematics().model());
+  // The book is 4 mm thick: the guarded move's overshoot past its face is cut short of the
+  // floor, so the robot's own check of the move's path passes.
+  const double overshoot_m = plan.guarded_distance_m - plan.contact_distance_m;
+  EXPECT_LT(overshoot_m, articulated_->options().guarded_overshoot_m);
+  const Eigen::Isometry3d X_end = bent.X_BaseTcp(plan.descend.samples.back().q_rad);
+  Eigen::Isometry3d X_deepest = X_end;
+  X_deepest.translation() += plan.guarded_distance_m * plan.guarded_direction_Base;
+  const auto q_deepest = bent.kinematics().NearestSolution(
+      X_deepest * bent.gripper().X_ToolTcp.inverse(), plan.descend.samples.back().q_rad);
+  ASSERT_TRUE(q_deepest);
+  const FastChecker cell_only(bent, articulated_->cell(), nullptr);
+  EXPECT_TRUE(MotionChecker(cell_only, articulated_->options().motion)
+                  .CheckSegment(plan.descend.samples.back().q_rad, q_deepest->q_rad)
+                  .free);
+
+  // Without the slides the item is wedged under the overhang, and the failure says where.
+  MotionPlannerOptions straight_up = articulated_->options();
+  straight_up.slide_out_m.clear();
+  const auto lift_only = MakePlanner(Articulated(), straight_up);
+  const PlanningScene same =
+      lift_only->BuildScene("bin_E", xyz.data(), xyz.size() / 3, item, X_BaseItem);
+  try {
+    lift_only->PlanPick(request, &same, Far());
+    ADD_FAILURE() << "the book was lifted straight into the overhang";
+  } catch (const PlanFailedError& e) {
+    EXPECT_NE(std::string(e.what()).find("did not touch at the grasp"), std::string::npos)
+        << e.what();
+  }
+}
+
 TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
   // The item pose is inside the shelf's side wall between bins D and E: every grasp fails,
   // each with a stage and a kind, before any search.
@@ -371,6 +451,28 @@ TEST_F(MotionPlannerTest, BadRequestsAreRefused) {
   EXPECT_THROW(planner_->PlanPick(late, nullptr, std::chrono::steady_clock::now()), TimeoutError);
   EXPECT_THROW(planner_->PlanJointMotion(request.start_rad, colliding.start_rad, 1.0, Far()),
                std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace picking::planner
+
+namespace picking::planner {
+namespace {
+
+// Items let go over the tote land on spots of their own, each with the item's footprint
+// inside the walls, the six spots apart from each other.
+TEST(ToteReleaseSpotsTest, SpotsLieInsideTheToteApartFromEachOther) {
+  const Eigen::Vector2d tote(0.56, 0.36);
+  const double margin = 0.06;
+  const std::vector<Eigen::Vector2d> spots = ToteReleaseSpots(tote, margin);
+  ASSERT_EQ(spots.size(), 6u);
+  for (std::size_t i = 0; i < spots.size(); ++i) {
+    EXPECT_LE(std::abs(spots[i].x()), 0.5 * tote.x() - margin + 1e-12);
+    EXPECT_LE(std::abs(spots[i].y()), 0.5 * tote.y() - margin + 1e-12);
+    for (std::size_t j = 0; j < i; ++j) EXPECT_GT((spots[i] - spots[j]).norm(), 0.08);
+  }
+  // An item as wide as the tote: every spot is its centre line.
+  for (const Eigen::Vector2d& s : ToteReleaseSpots(tote, 0.3)) EXPECT_TRUE(s.isZero());
 }
 
 }  // namespace

@@ -4,6 +4,8 @@
 
 #include <octomap/OcTree.h>
 
+#include "services/planner/core/voxel_contacts.h"
+
 namespace picking::planner {
 namespace {
 
@@ -110,6 +112,55 @@ TEST(ScanSceneTest, Moveit2_3614_CutOutVoxelsAreFreeInTheSameUpdate) {
   ASSERT_NE(kept, nullptr);
   EXPECT_TRUE(after->octree->isNodeOccupied(kept));
   EXPECT_GT(after->grid.Clearance(item_centre.cast<float>()), 0.f);
+}
+
+// A box beside a neighbour's voxels, on a floor of voxels: the neighbour's side touches it;
+// drawing it away from the neighbour keeps only old contacts, lifting it along the
+// neighbour's side makes new ones, and so does sliding it along the floor of voxels (a
+// voxel says only that a surface lies somewhere in it). The snapshot carries the voxels.
+TEST(VoxelContactsTest, TellsContactsAMotionKeepsFromNewOnes) {
+  ScanScene scene(ScanSceneOptions{});
+  std::vector<float> xyz;
+  for (double x = -0.3; x <= 0.0; x += 0.004) {
+    for (double y = -0.2; y <= 0.2; y += 0.004) {
+      xyz.insert(xyz.end(), {float(x), float(y), 0.196f});  // a floor, under a second box
+    }
+  }
+  for (double y = -0.2; y <= 0.2; y += 0.004) {
+    for (double z = 0.0; z <= 0.06; z += 0.004) {
+      xyz.insert(xyz.end(), {0.094f, float(y), float(z)});  // a neighbour's face
+    }
+  }
+  scene.Insert(xyz.data(), xyz.size() / 3, {});
+  const auto obstacles = scene.Snapshot();
+  ASSERT_EQ(obstacles->voxel_centres_Base.size(), scene.num_voxels());
+  const VoxelContacts contacts(obstacles->voxel_centres_Base, obstacles->voxel_m, 0.002);
+  const Eigen::AlignedBox3d box_Item(Eigen::Vector3d(-0.09, -0.05, 0.0),
+                                     Eigen::Vector3d(0.09, 0.05, 0.03));
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  const std::vector<int> touched = contacts.Touching(X_BaseItem, box_Item);
+  ASSERT_FALSE(touched.empty());
+  for (const int i : touched) EXPECT_GT(contacts.centre(i).x(), 0.09f);
+  // Drawn 3 cm away from the neighbour: nothing new.
+  X_BaseItem.translation() = Eigen::Vector3d(-0.03, 0.0, 0.002);
+  EXPECT_EQ(contacts.NewContact(X_BaseItem, box_Item, touched), -1);
+  // Lifted 4 cm along the neighbour's side: its higher voxels are new.
+  X_BaseItem.translation() = Eigen::Vector3d(0.0, 0.0, 0.04);
+  const int hit = contacts.NewContact(X_BaseItem, box_Item, touched);
+  ASSERT_GE(hit, 0);
+  EXPECT_GT(contacts.centre(hit).z(), 0.035f);
+  // A box on the floor of voxels, slid along it 4 mm above the floor's points.
+  Eigen::Isometry3d X_BaseOther = Eigen::Isometry3d::Identity();
+  X_BaseOther.translation() = Eigen::Vector3d(-0.15, 0.0, 0.197);
+  const std::vector<int> under = contacts.Touching(X_BaseOther, box_Item);
+  ASSERT_FALSE(under.empty());
+  X_BaseOther.translation() += Eigen::Vector3d(-0.04, 0.0, 0.004);
+  EXPECT_GE(contacts.NewContact(X_BaseOther, box_Item, under), 0);
+  // A voxel above the floor's clears it.
+  X_BaseOther.translation().z() += 0.01;
+  EXPECT_EQ(contacts.NewContact(X_BaseOther, box_Item, under), -1);
+  EXPECT_THROW(VoxelContacts({}, 0.0, 0.0), std::invalid_argument);
+  EXPECT_THROW(VoxelContacts({}, 0.01, -1.0), std::invalid_argument);
 }
 
 TEST(ScanSceneTest, RejectsBadOptions) {
