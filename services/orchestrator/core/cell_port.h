@@ -50,11 +50,17 @@ struct ScanView {
   double capture_s = 0.0;  ///< Robot time the capture held the arm still.
 };
 
-/// Where the detector put another item of the container, looked for beside the target.
-struct OtherDetection {
-  std::string item;
+/// One pose the detector found for an item, with its score.
+struct PoseHypothesis {
   Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
   double score = 0.0;
+};
+
+/// Where the detector put another item of the container, looked for beside the target: its
+/// distinct poses above the item's threshold, best first.
+struct OtherDetection {
+  std::string item;
+  std::vector<PoseHypothesis> poses;
 };
 
 struct Detection {
@@ -64,7 +70,10 @@ struct Detection {
   std::string method;
   std::string replica;  ///< Which detector answered.
   std::string message;  ///< Why not found, when not.
-  /// The best pose of each of the `others` asked for that the detector found.
+  /// The target's further distinct poses above its threshold, best first (asked for with
+  /// `others`).
+  std::vector<PoseHypothesis> alternatives;
+  /// Each of the `others` asked for that the detector found.
   std::vector<OtherDetection> others;
 };
 
@@ -119,7 +128,8 @@ class CellPort {
   /// Captures one view at the current pose.
   virtual ScanView Scan() = 0;
   /// Finds `item` in `container` from the views (merged by the detector), and in the same
-  /// call the best pose of each of `others` (other items of the container).
+  /// call the poses of each of `others` (other items of the container); with others, a few
+  /// poses of the target too.
   virtual Detection Detect(const std::string& container, const std::string& item,
                            const std::vector<ScanView>& views,
                            const std::vector<std::string>& others = {}) = 0;

@@ -224,25 +224,49 @@ double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3
   return double(inside) / (kSteps * kSteps * kSteps);
 }
 
-std::string ConfusedWith(const std::string& item, const Detection& found,
-                         const apc::Catalogue& catalogue, double min_overlap, double margin) {
+std::string ResolveAgainstOthers(const std::string& item, Detection* found,
+                                 const apc::Catalogue& catalogue, double min_overlap,
+                                 double margin) {
   auto size = [&](const std::string& name) {
     const apc::Item& it = catalogue.at(name);
     return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
   };
-  for (const OtherDetection& other : found.others) {
-    if (other.item == item || other.score < found.score - margin) continue;
-    const double overlap =
-        BoxOverlapFraction(found.X_BaseItem, size(item), other.X_BaseItem, size(other.item));
-    if (overlap < min_overlap) continue;
-    char text[300];
-    std::snprintf(text, sizeof(text),
-                  "the place %s was found at holds %s as well (score %.2f against %.2f, %.0f%% "
-                  "of the smaller box shared): one of the two poses is wrong",
-                  item.c_str(), other.item.c_str(), other.score, found.score, 100.0 * overlap);
-    return text;
+  const Eigen::Vector3d size_item = size(item);
+  // Why `pose` of the target is doubtful, or "".
+  auto doubt = [&](const PoseHypothesis& pose) -> std::string {
+    for (const OtherDetection& other : found->others) {
+      if (other.item == item || other.poses.empty()) continue;
+      const PoseHypothesis& best = other.poses.front();
+      if (best.score < pose.score - margin) continue;
+      const Eigen::Vector3d size_other = size(other.item);
+      const double overlap =
+          BoxOverlapFraction(pose.X_BaseItem, size_item, best.X_BaseItem, size_other);
+      // (That the other item also has a pose elsewhere about as good does not clear the
+      // doubt: two cylinders or two flat boxes fit each other's places both ways round, and
+      // a wrong item in the tote costs more than a target left for later.)
+      if (overlap < min_overlap) continue;
+      char text[300];
+      std::snprintf(text, sizeof(text),
+                    "the place %s was found at holds %s as well (score %.2f against %.2f, %.0f%% "
+                    "of the smaller box shared): one of the two poses is wrong",
+                    item.c_str(), other.item.c_str(), best.score, pose.score, 100.0 * overlap);
+      return text;
+    }
+    return "";
+  };
+  std::vector<PoseHypothesis> poses = {{found->X_BaseItem, found->score}};
+  poses.insert(poses.end(), found->alternatives.begin(), found->alternatives.end());
+  std::string first_doubt;
+  for (const PoseHypothesis& pose : poses) {
+    const std::string why = doubt(pose);
+    if (why.empty()) {
+      found->X_BaseItem = pose.X_BaseItem;
+      found->score = pose.score;
+      return "";
+    }
+    if (first_doubt.empty()) first_doubt = why;
   }
-  return "";
+  return first_doubt;
 }
 
 int PickTaskRunner::PlacedIn(const std::string& container) const {
@@ -435,15 +459,15 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
       }
     }
   }
-  const Detection found =
+  Detection found =
       WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views, others); });
   AddTime(report, "detect", Seconds(start));
   if (!found.found) {
     target.last_failure = "not detected: " + found.message;
     return false;
   }
-  if (const std::string other = ConfusedWith(target.item, found, catalogue_,
-                                             options_.confusion_overlap, options_.confusion_margin);
+  if (const std::string other = ResolveAgainstOthers(
+          target.item, &found, catalogue_, options_.confusion_overlap, options_.confusion_margin);
       !other.empty()) {
     target.last_failure = "not taken: " + other;
     Emit(&target, Step::kDetect, false, target.last_failure);

@@ -87,8 +87,9 @@ struct PickTaskOptions {
   /// standing over the target, or the target is not where it was found): the vacuum is not
   /// tried, so no other item is taken. A detection is off by a centimetre or so.
   double early_contact_m = 0.02;
-  /// The other items of the target's container are looked for in the same detection: a
-  /// target whose detected place one of them fills as well (ConfusedWith) is not taken.
+  /// The other items of the target's container are looked for in the same detection, and
+  /// the target's pose held against theirs (ResolveAgainstOthers): a target whose every
+  /// pose another item fills as well is not taken.
   bool detect_others = true;
   double confusion_overlap = 0.3;
   double confusion_margin = 0.05;
@@ -190,13 +191,17 @@ std::string StepName(Step step);
 double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3d& size_a_m,
                           const Eigen::Isometry3d& X_BaseB, const Eigen::Vector3d& size_b_m);
 
-/// The other item of the container whose detected box takes up the target's place (at least
-/// `min_overlap` of the smaller box inside the other) with a score no worse than the
-/// target's less `margin`, or "" when there is none. Two items cannot fill the same space:
-/// one of the two poses is wrong, and a flat box matched on another flat box scores about
-/// as well; taking it would take the wrong item.
-std::string ConfusedWith(const std::string& item, const Detection& found,
-                         const apc::Catalogue& catalogue, double min_overlap, double margin);
+/// Two items cannot fill one place, and a flat box matched on another flat box (or a
+/// cylinder on another cylinder) scores about as well as on itself: the target's poses are
+/// held against the container's other items found in the same detection. A pose of the
+/// target is doubtful when another item's best pose takes up its place (at least
+/// `min_overlap` of the smaller box inside the other) with a score no worse than the pose's
+/// less `margin`. The first pose of the target, best first, that is not doubtful is kept in `found`
+/// (its pose and score); "" is returned. When every pose is doubtful, the reason, naming the
+/// other item, for the best one.
+std::string ResolveAgainstOthers(const std::string& item, Detection* found,
+                                 const apc::Catalogue& catalogue, double min_overlap,
+                                 double margin);
 
 /// Stow: the bins an item may go to, best first. A bin is a candidate while its items (their
 /// catalogue volumes, the new one included) fill at most `max_fill` of its volume; candidates

@@ -254,8 +254,16 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
                            const std::vector<std::string>& others) {
   if (views.empty()) throw CellError("scanner", false, "no views to detect in");
   dt::DetectParams params;
-  params.add_queries()->set_item(item);
-  for (const std::string& other : others) params.add_queries()->set_item(other);
+  // With other items to tell the target from, a few distinct poses of each.
+  const int poses = others.empty() ? 1 : options_.poses_per_item;
+  auto* target_query = params.add_queries();
+  target_query->set_item(item);
+  target_query->set_max_results(poses);
+  for (const std::string& other : others) {
+    auto* query = params.add_queries();
+    query->set_item(other);
+    query->set_max_results(poses);
+  }
   // The region: the bin's or the tote's free inner box.
   Eigen::Isometry3d X_BaseRegion;
   Eigen::Vector3d size_m;
@@ -283,12 +291,18 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
   if (response.results_size() != params.queries_size()) {
     throw CellError("detector", false, "expected one result per query");
   }
+  auto hypotheses = [](const dt::ItemResult& result, int from) {
+    std::vector<PoseHypothesis> out;
+    for (int k = from; k < result.detections_size(); ++k) {
+      out.push_back({pc::PoseFromProto(result.detections(k).x_frame_item(), "X_frame_item"),
+                     result.detections(k).score()});
+    }
+    return out;
+  };
   for (int i = 1; i < response.results_size(); ++i) {
     const dt::ItemResult& other = response.results(i);
     if (other.status().code() != 0 || other.detections_size() == 0) continue;
-    out.others.push_back({params.queries(i).item(),
-                          pc::PoseFromProto(other.detections(0).x_frame_item(), "X_frame_item"),
-                          other.detections(0).score()});
+    out.others.push_back({params.queries(i).item(), hypotheses(other, 0)});
   }
   const dt::ItemResult& result = response.results(0);
   if (result.status().code() != 0) {
@@ -304,6 +318,7 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
   out.X_BaseItem = pc::PoseFromProto(best.x_frame_item(), "X_frame_item");
   out.score = best.score();
   out.method = dt::Method_Name(best.method());
+  out.alternatives = hypotheses(result, 1);
   return out;
 }
 
@@ -553,6 +568,15 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
   const grpc::Status status = planner_->PlanPlace(&ctx, request, &response);
   if (status.error_code() == grpc::StatusCode::ABORTED) {
     return {false, PlanFailureMessage(status), 0.0, 0.0};
+  }
+  // A planner that finds no motion within the deadline has none to offer for this item: the
+  // item is put back rather than the task given up (a planner that is down answers
+  // UNAVAILABLE, which is retried).
+  if (status.error_code() == grpc::StatusCode::DEADLINE_EXCEEDED) {
+    return {false,
+            "the planner found no motion to " + container + " within " +
+                std::to_string(static_cast<int>(options_.plan_deadline_s)) + " s",
+            0.0, 0.0};
   }
   ThrowIfFailed("planner", "PlanPlace", status);
   try {

@@ -39,6 +39,9 @@ struct GrpcCellOptions {
   VerifyFn verify;
   /// A held item's Verify needs this many of its model points in view to tell.
   int min_visible_points_to_verify = 200;
+  /// Distinct poses asked of the detector per item when the container's other items are
+  /// looked for with the target (the orchestrator tells them apart, ResolveAgainstOthers).
+  int poses_per_item = 3;
   world::CellModel cell;  ///< For the bins' boxes (the detector's regions).
   /// Per-call deadlines, seconds.
   double scan_deadline_s = 120.0;

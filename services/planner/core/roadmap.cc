@@ -331,8 +331,12 @@ std::vector<JointVector> Roadmap::ConnectTrees(
     tree.parent.push_back(near);
     return static_cast<int>(tree.q.size()) - 1;
   };
+  const auto stop =
+      std::min(deadline, std::chrono::steady_clock::now() +
+                             std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                 std::chrono::duration<double>(options_.tree_time_s)));
   while (static_cast<int>(from_start.q.size() + from_goal.q.size()) < options_.tree_nodes) {
-    if (std::chrono::steady_clock::now() > deadline) return {};
+    if (std::chrono::steady_clock::now() > stop) return {};
     JointVector sample;
     for (int j = 0; j < 6; ++j)
       sample[j] = std::uniform_real_distribution<double>(lo[j], hi[j])(rng);

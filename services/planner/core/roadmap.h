@@ -34,6 +34,9 @@ struct RoadmapOptions {
   /// at most on any joint.
   int tree_nodes = 1500;
   double tree_step_rad = 0.2;
+  /// ... and for at most this long (seconds): a place tries several release spots, each of
+  /// which may need the trees, within the caller's deadline.
+  double tree_time_s = 1.0;
   std::uint32_t seed = 2016;
 };
 

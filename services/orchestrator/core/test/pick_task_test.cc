@@ -73,7 +73,7 @@ class ScriptedCell final : public CellPort {
     if (views.size() > 1) others_asked[item] = others;
     Detection d;
     if (!scripts[item].confused_with.empty()) {  // the other item found where this one is
-      d.others.push_back({scripts[item].confused_with, Eigen::Isometry3d::Identity(), 0.95});
+      d.others.push_back({scripts[item].confused_with, {{Eigen::Isometry3d::Identity(), 0.95}}});
       scripts[item].confused_with.clear();  // the next attempt tells them apart
     }
     if (views.size() == 1) {  // the look back after the lift
@@ -335,23 +335,43 @@ TEST(BoxOverlapFraction, IsTheShareOfTheSmallerBoxInsideTheOther) {
   EXPECT_DOUBLE_EQ(BoxOverlapFraction(X_hooks, hooks, X_hooks, hooks), 1.0);
 }
 
-TEST(ConfusedWith, NamesAnotherItemFoundInTheTargetsPlaceAsWell) {
+PoseHypothesis At(double x, double y, double z, double score) {
+  PoseHypothesis h;
+  h.X_BaseItem.translation() = Eigen::Vector3d(x, y, z);
+  h.score = score;
+  return h;
+}
+
+TEST(ResolveAgainstOthers, KeepsThePoseNoOtherItemFillsAsWell) {
+  const std::string item = "kleenex_tissue_box";
   Detection found;
   found.found = true;
+  found.X_BaseItem = At(1.0, 0.0, 0.65, 0.92).X_BaseItem;
   found.score = 0.92;
-  found.X_BaseItem.translation() = Eigen::Vector3d(1.0, 0.0, 0.65);
-  OtherDetection dove{"dove_beauty_bar", found.X_BaseItem, 0.90};
-  found.others = {dove};
-  EXPECT_NE(
-      ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05).find("dove_beauty_bar"),
-      std::string::npos);
+  // The other item's best pose is the target's place, and it has none elsewhere.
+  found.others = {{"dove_beauty_bar", {At(1.0, 0.0, 0.65, 0.95)}}};
+  Detection doubtful = found;
+  EXPECT_NE(ResolveAgainstOthers(item, &doubtful, Catalogue(), 0.3, 0.05).find("dove_beauty_bar"),
+            std::string::npos);
+  // ... but the target was also found elsewhere, where nothing else is: that pose is kept.
+  Detection moved = found;
+  moved.alternatives = {At(1.0, 0.2, 0.65, 0.88)};
+  EXPECT_EQ(ResolveAgainstOthers(item, &moved, Catalogue(), 0.3, 0.05), "");
+  EXPECT_NEAR(moved.X_BaseItem.translation().y(), 0.2, 1e-12);
+  EXPECT_EQ(moved.score, 0.88);
+  // The other item also has a pose about as good elsewhere: the doubt stands (the two may
+  // fit each other's places both ways round).
+  Detection both_ways = found;
+  both_ways.others[0].poses.push_back(At(1.0, -0.2, 0.65, 0.93));
+  EXPECT_NE(ResolveAgainstOthers(item, &both_ways, Catalogue(), 0.3, 0.05), "");
   // The target scores clearly better: its pose stands.
-  found.others[0].score = 0.80;
-  EXPECT_EQ(ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05), "");
+  Detection better = found;
+  better.others[0].poses[0].score = 0.80;
+  EXPECT_EQ(ResolveAgainstOthers(item, &better, Catalogue(), 0.3, 0.05), "");
   // Found elsewhere: no doubt.
-  found.others[0].score = 0.99;
-  found.others[0].X_BaseItem.translation().y() += 0.3;
-  EXPECT_EQ(ConfusedWith("kleenex_tissue_box", found, Catalogue(), 0.3, 0.05), "");
+  Detection apart = found;
+  apart.others[0].poses[0] = At(1.0, 0.3, 0.65, 0.99);
+  EXPECT_EQ(ResolveAgainstOthers(item, &apart, Catalogue(), 0.3, 0.05), "");
 }
 
 TEST_F(PickTaskTest, ATargetWhosePlaceAnotherItemFillsAsWellIsNotTaken) {
