@@ -269,6 +269,23 @@ std::string ResolveAgainstOthers(const std::string& item, Detection* found,
   return first_doubt;
 }
 
+std::vector<std::string> PickTaskRunner::OtherItemsIn(const std::string& container,
+                                                      const std::string& item) const {
+  const auto bin = contents_.bin_contents.find(container);
+  const std::vector<std::string> none;
+  const std::vector<std::string>& in_container = container == apc::kToteLocation
+                                                     ? contents_.tote_contents
+                                                 : bin != contents_.bin_contents.end() ? bin->second
+                                                                                       : none;
+  std::vector<std::string> others;
+  for (const std::string& other : in_container) {
+    if (other != item && std::find(others.begin(), others.end(), other) == others.end()) {
+      others.push_back(other);
+    }
+  }
+  return others;
+}
+
 int PickTaskRunner::PlacedIn(const std::string& container) const {
   int placed = 0;
   for (const apc::Event& e : events_) {
@@ -445,20 +462,8 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
   }
   Emit(&target, Step::kDetect, true, "detecting in " + std::to_string(views.size()) + " views");
   const auto start = Clock::now();
-  std::vector<std::string> others;
-  if (options_.detect_others) {
-    const auto bin = contents_.bin_contents.find(target.bin);
-    const std::vector<std::string> none;
-    const std::vector<std::string>& in_container =
-        target.bin == apc::kToteLocation      ? contents_.tote_contents
-        : bin != contents_.bin_contents.end() ? bin->second
-                                              : none;
-    for (const std::string& item : in_container) {
-      if (item != target.item && std::find(others.begin(), others.end(), item) == others.end()) {
-        others.push_back(item);
-      }
-    }
-  }
+  const std::vector<std::string> others =
+      options_.detect_others ? OtherItemsIn(target.bin, target.item) : std::vector<std::string>{};
   Detection found =
       WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views, others); });
   AddTime(report, "detect", Seconds(start));

@@ -153,6 +153,9 @@ class PickTaskRunner final {
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
   /// Items this task has let go in `container` so far.
   int PlacedIn(const std::string& container) const;
+  /// The distinct items other than `item` that `container` holds now.
+  std::vector<std::string> OtherItemsIn(const std::string& container,
+                                        const std::string& item) const;
   /// Where the item goes: the tote, or for a stow the bins in order of preference.
   std::vector<std::string> Destinations(const Target& target) const;
   void Emit(const Target* target, Step step, bool ok, const std::string& message,
