@@ -18,6 +18,13 @@ namespace gr = ::picking::gripper::v1;
 namespace cm = ::picking::common::v1;
 namespace {
 
+// The robot's answer when its own checks refuse a motion before it starts (nothing moved):
+// the item's failure, not the cell's.
+bool RefusedBeforeMoving(const grpc::Status& status) {
+  return status.error_code() == grpc::StatusCode::FAILED_PRECONDITION ||
+         status.error_code() == grpc::StatusCode::INVALID_ARGUMENT;
+}
+
 void SetDeadline(grpc::ClientContext& ctx, double seconds) {
   ctx.set_deadline(std::chrono::system_clock::now() +
                    std::chrono::microseconds(static_cast<long long>(seconds * 1e6)));
@@ -156,8 +163,7 @@ double GrpcCell::Execute(const cm::JointTrajectory& trajectory) {
   }
   const grpc::Status status = reader->Finish();
   // Refused by the robot's own checks before it moved: nothing happened.
-  if (!moved && (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION ||
-                 status.error_code() == grpc::StatusCode::INVALID_ARGUMENT)) {
+  if (!moved && RefusedBeforeMoving(status)) {
     throw MotionRefused("ExecuteTrajectory: " + status.error_message());
   }
   ThrowIfFailed("robot", "ExecuteTrajectory", status);
@@ -461,8 +467,7 @@ TouchOutcome GrpcCell::Touch(const PlannedPick& pick) {
   rb::GuardedMoveResponse response;
   const grpc::Status status = robot_->GuardedMove(&ctx, request, &response);
   // Refused before anything moved (the robot's own check of the path): the item's failure.
-  if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION ||
-      status.error_code() == grpc::StatusCode::INVALID_ARGUMENT) {
+  if (RefusedBeforeMoving(status)) {
     TouchOutcome refused;
     refused.refused = "the robot refused the guarded move: " + status.error_message();
     return refused;

@@ -940,20 +940,30 @@ std::vector<std::vector<Eigen::Vector3d>> MotionPlanner::LiftCandidates(
   return candidates;
 }
 
-bool MotionPlanner::CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+MotionPlanner::LiftStart MotionPlanner::MakeLiftStart(const Eigen::Isometry3d& X_grasp,
+                                                      const JointVector& q_grasp,
+                                                      const CarriedItem& carried,
+                                                      const RequestChecks& checks) const {
+  LiftStart start;
+  start.X_grasp = X_grasp;
+  start.q_grasp = q_grasp;
+  start.carried = &carried;
+  const Eigen::Isometry3d X_BaseItem = X_grasp * carried.X_TcpItem;
+  start.skimming = RaisedOffSupport(carried, X_BaseItem, options_.lift_item_check_m);
+  if (checks.contacts) start.touched = checks.contacts->Touching(X_BaseItem, carried.box_Item);
+  return start;
+}
+
+bool MotionPlanner::CheckLiftPath(const LiftStart& start,
                                   const std::vector<Eigen::Vector3d>& waypoints_Base,
-                                  const CarriedItem& carried, const RequestChecks& checks,
-                                  std::vector<JointVector>* path_rad, PlanFailure* failure,
-                                  std::string* reason) const {
-  const ur10::Branch branch = robot_->kinematics().BranchOf(q_grasp);
+                                  const RequestChecks& checks, std::vector<JointVector>* path_rad,
+                                  PlanFailure* failure, std::string* reason) const {
+  const Eigen::Isometry3d& X_grasp = start.X_grasp;
+  const CarriedItem& carried = *start.carried;
+  const ur10::Branch branch = robot_->kinematics().BranchOf(start.q_grasp);
   const RobotGeometry& robot = checks.fast.robot();
   const Eigen::Isometry3d X_TcpTool = robot.gripper().X_ToolTcp.inverse();
-  const CarriedItem skimming =
-      RaisedOffSupport(carried, X_grasp * carried.X_TcpItem, options_.lift_item_check_m);
-  const std::vector<int> touched =
-      checks.contacts ? checks.contacts->Touching(X_grasp * carried.X_TcpItem, carried.box_Item)
-                      : std::vector<int>{};
-  *path_rad = {q_grasp};
+  *path_rad = {start.q_grasp};
   for (const Eigen::Vector3d& d : waypoints_Base) {
     Eigen::Isometry3d X = X_grasp;
     X.translation() += d;
@@ -982,7 +992,7 @@ bool MotionPlanner::CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointV
       const bool low =
           X_BaseItem.translation().z() - (X_grasp * carried.X_TcpItem).translation().z() <
           options_.lift_item_check_m;
-      if (const CollisionReport r = checks.head->exact->Check(q, low ? &skimming : &carried);
+      if (const CollisionReport r = checks.head->exact->Check(q, low ? &start.skimming : &carried);
           r.in_collision) {
         failure->body = BodyName(r.body);
         failure->obstacle = r.obstacle;
@@ -990,7 +1000,7 @@ bool MotionPlanner::CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointV
         return false;
       }
       if (!checks.contacts) continue;
-      if (const int v = checks.contacts->NewContact(X_BaseItem, carried.box_Item, touched);
+      if (const int v = checks.contacts->NewContact(X_BaseItem, carried.box_Item, start.touched);
           v >= 0) {
         const Eigen::Vector3f& c = checks.contacts->centre(v);
         failure->body = "item";
@@ -1005,23 +1015,19 @@ bool MotionPlanner::CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointV
   return true;
 }
 
-bool MotionPlanner::LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+bool MotionPlanner::LiftOff(const LiftStart& start,
                             const std::vector<Eigen::Vector3d>& waypoints_Base,
-                            const CarriedItem& carried, const RequestChecks& checks,
-                            std::vector<JointVector>* lift_rad, PlanFailure* failure,
-                            std::string* reason) const {
+                            const RequestChecks& checks, std::vector<JointVector>* lift_rad,
+                            PlanFailure* failure, std::string* reason) const {
   // The item rests on its support and may touch a wall or a neighbour, so the fast check
   // with the item takes over where the lift ends, and must see it free there by the motion
   // check's padding (else no move of the retreat could start). The item's spheres stand up
   // to 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift
   // to draw it away (WallRelease). Along the lift the item may keep touching what it touched
   // at the grasp, but meet nothing new (CheckLiftPath).
-  if (!CheckLiftPath(X_grasp, q_grasp, waypoints_Base, carried, checks, lift_rad, failure,
-                     reason)) {
-    return false;
-  }
+  if (!CheckLiftPath(start, waypoints_Base, checks, lift_rad, failure, reason)) return false;
   const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
-  if (const CollisionReport r = checks.fast.Check(lift_rad->back(), &carried, padding);
+  if (const CollisionReport r = checks.fast.Check(lift_rad->back(), start.carried, padding);
       r.in_collision) {
     const Eigen::Vector3d& d = waypoints_Base.back();
     failure->body = BodyName(r.body);
@@ -1048,13 +1054,14 @@ bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspC
   const bool bent = checks.fast.robot().gripper().bent();
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
+  const LiftStart start = MakeLiftStart(X_grasp, q_grasp, carried, checks);
   bool first = true;
   std::string slide_reason;
   for (const auto& waypoints : LiftCandidates(container, release_Base)) {
     PlanFailure attempt;
     std::string why;
     std::vector<JointVector> lift_path;
-    if (LiftOff(X_grasp, q_grasp, waypoints, carried, checks, &lift_path, &attempt, &why)) {
+    if (LiftOff(start, waypoints, checks, &lift_path, &attempt, &why)) {
       // Out at the lift's height: along the approach line back, or (bent) straight out.
       const Eigen::Vector3d& lift_Base = waypoints.back();
       Eigen::Isometry3d X_exit = X_pre;
@@ -1367,9 +1374,7 @@ namespace {
 double HalfFootprint(const Eigen::AlignedBox3d& box_I, const Eigen::Isometry3d& X_TcpItem) {
   double half = 0.0;
   for (int i = 0; i < 8; ++i) {
-    const Eigen::Vector3d corner((i & 1) ? box_I.max().x() : box_I.min().x(),
-                                 (i & 2) ? box_I.max().y() : box_I.min().y(),
-                                 (i & 4) ? box_I.max().z() : box_I.min().z());
+    const Eigen::Vector3d corner = box_I.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i));
     half = std::max(half, (X_TcpItem * corner).head<2>().norm());
   }
   return half;

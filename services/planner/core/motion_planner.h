@@ -324,15 +324,23 @@ class MotionPlanner final {
   // The lifts LiftOff tries, each as waypoints (displacements of the cup from the grasp).
   std::vector<std::vector<Eigen::Vector3d>> LiftCandidates(
       const GraspContainer& container, const Eigen::Vector3d& release_Base) const;
+  // What every lift of one grasp starts from, worked out once for all of them.
+  struct LiftStart {
+    Eigen::Isometry3d X_grasp = Eigen::Isometry3d::Identity();
+    JointVector q_grasp = JointVector::Zero();
+    const CarriedItem* carried = nullptr;
+    CarriedItem skimming;      // the item with its resting face drawn in (RaisedOffSupport)
+    std::vector<int> touched;  // the scan voxels its box touches at the grasp
+  };
+  LiftStart MakeLiftStart(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
+                          const CarriedItem& carried, const RequestChecks& checks) const;
   // One lift: IK at each waypoint, the arm's motion, the item's box against the cell and
   // against scan voxels it did not touch at the grasp. The joint path in `path_rad`.
-  bool CheckLiftPath(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-                     const std::vector<Eigen::Vector3d>& waypoints_Base, const CarriedItem& carried,
+  bool CheckLiftPath(const LiftStart& start, const std::vector<Eigen::Vector3d>& waypoints_Base,
                      const RequestChecks& checks, std::vector<JointVector>* path_rad,
                      PlanFailure* failure, std::string* reason) const;
   // One lift (CheckLiftPath) that ends where the item is free for the retreat.
-  bool LiftOff(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-               const std::vector<Eigen::Vector3d>& waypoints_Base, const CarriedItem& carried,
+  bool LiftOff(const LiftStart& start, const std::vector<Eigen::Vector3d>& waypoints_Base,
                const RequestChecks& checks, std::vector<JointVector>* lift_rad,
                PlanFailure* failure, std::string* reason) const;
   // The checks a grasp is tried with: the straight head's, or (the grasp turned in

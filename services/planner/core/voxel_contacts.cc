@@ -6,9 +6,9 @@
 
 namespace picking::planner {
 
-VoxelContacts::VoxelContacts(std::vector<Eigen::Vector3f> centres_Base, double voxel_m,
+VoxelContacts::VoxelContacts(const std::vector<Eigen::Vector3f>& centres_Base, double voxel_m,
                              double margin_m)
-    : centres_Base_(std::move(centres_Base)) {
+    : centres_Base_(&centres_Base) {
   if (!(voxel_m > 0.0) || !std::isfinite(voxel_m)) {
     throw std::invalid_argument("the voxel edge must be positive and finite");
   }
@@ -31,8 +31,9 @@ void VoxelContacts::ForEachTouching(const Eigen::Isometry3d& X_BaseItem,
   const Eigen::Vector3f hi = (bounds_Base.max().array() + reach_m_).cast<float>();
   const Eigen::Isometry3d X_ItemBase = X_BaseItem.inverse();
   const double reach_sq = reach_m_ * reach_m_;
-  for (int i = 0; i < static_cast<int>(centres_Base_.size()); ++i) {
-    const Eigen::Vector3f& c = centres_Base_[i];
+  const std::vector<Eigen::Vector3f>& centres_Base = *centres_Base_;
+  for (int i = 0; i < static_cast<int>(centres_Base.size()); ++i) {
+    const Eigen::Vector3f& c = centres_Base[i];
     if ((c.array() < lo.array()).any() || (c.array() > hi.array()).any()) continue;
     const Eigen::Vector3d p_Item = X_ItemBase * c.cast<double>();
     const Eigen::Vector3d outside = (box_Item.min() - p_Item).cwiseMax(p_Item - box_Item.max());

@@ -19,9 +19,10 @@ namespace picking::planner {
 /// `margin_m` of the box (a sphere around the cube: never misses a cube that meets the box).
 class VoxelContacts final {
  public:
-  /// `centres_Base`: the occupied voxels' centres; `voxel_m`: their edge. Throws
+  /// `centres_Base`: the occupied voxels' centres (ScanObstacles::voxel_centres_Base; kept
+  /// by reference, so they must outlive this); `voxel_m`: their edge. Throws
   /// std::invalid_argument for a non-positive or non-finite edge or a negative margin.
-  VoxelContacts(std::vector<Eigen::Vector3f> centres_Base, double voxel_m, double margin_m);
+  VoxelContacts(const std::vector<Eigen::Vector3f>& centres_Base, double voxel_m, double margin_m);
 
   /// Indices (ascending) of the voxels touching the box `box_Item` at X_BaseItem.
   std::vector<int> Touching(const Eigen::Isometry3d& X_BaseItem,
@@ -32,15 +33,15 @@ class VoxelContacts final {
   int NewContact(const Eigen::Isometry3d& X_BaseItem, const Eigen::AlignedBox3d& box_Item,
                  const std::vector<int>& allowed) const;
 
-  const Eigen::Vector3f& centre(int index) const { return centres_Base_[index]; }
-  std::size_t size() const { return centres_Base_.size(); }
+  const Eigen::Vector3f& centre(int index) const { return (*centres_Base_)[index]; }
+  std::size_t size() const { return centres_Base_->size(); }
 
  private:
   template <typename Visit>
   void ForEachTouching(const Eigen::Isometry3d& X_BaseItem, const Eigen::AlignedBox3d& box_Item,
                        Visit&& visit) const;
 
-  std::vector<Eigen::Vector3f> centres_Base_;
+  const std::vector<Eigen::Vector3f>* centres_Base_;
   double reach_m_;  // half diagonal + margin
 };
 
