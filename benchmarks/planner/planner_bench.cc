@@ -189,102 +189,160 @@ struct BenchArgs {
   double tube_length_m = 0.0;
 };
 
-void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
-  std::vector<double> times, validation, validation_fcl, refusals;
-  int tried = 0, planned = 0;
+// What Picks measures, over every target tried.
+struct PickFigures {
+  std::vector<double> times, validation, validation_fcl, refusals, place_times;
+  std::map<std::string, std::vector<double>> stage_ms;  // per planned pick
+  int tried = 0, planned = 0, placed = 0;
   std::vector<std::pair<int, int>> per_layout;  // (planned, tried)
+};
+
+// The simulated scan of `bin` from its three scan poses (points in base).
+std::vector<float> ScanBin(const Setup& s, const simulator::StructuredLightRenderer& renderer,
+                           const std::string& bin) {
+  const camera::PinholeCamera camera(480, 384, 460.0, 460.0, 240.0, 192.0);
+  std::vector<float> xyz;
+  for (int k = 0; k < 3; ++k) {
+    const JointVector q = Named(*s.planner, "scan/" + bin + "/" + std::to_string(k)).q_rad;
+    const auto view = Scan(renderer, camera, s.kinematics->ForwardKinematics(q) * s.X_ToolCamera);
+    xyz.insert(xyz.end(), view.begin(), view.end());
+  }
+  return xyz;
+}
+
+// Exact validation of the pick's three trajectories at every sample (PlanPick validates every
+// 8th and the path's nodes), with and without the spheres' broad phase; the item hangs from
+// the cup as it was at the grasp (the retreat's first sample).
+void ValidateEverySample(const Setup& s, const PlanningScene& scene, const PickPlan& plan,
+                         const CarriedItem& carried, PickFigures* f) {
+  const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
+  const ExactChecker fcl_only(s.planner->robot(), s.planner->cell(), scene.obstacles.get(),
+                              /*sphere_broad_phase=*/false);
+  for (const ExactChecker* checker : {&exact, &fcl_only}) {
+    const auto v = Clock::now();
+    for (const Trajectory* tr : {&plan.approach, &plan.descend, &plan.retreat}) {
+      for (const auto& sample : tr->samples) {
+        const CarriedItem* none = nullptr;
+        checker->Check(sample.q_rad, tr == &plan.retreat ? &carried : none);
+      }
+    }
+    (checker == &exact ? f->validation : f->validation_fcl).push_back(Ms(v));
+  }
+}
+
+// On to the tote with the item, from the retreat's end.
+void PlaceAfter(const Setup& s, const PickPlan& plan, const CarriedItem& carried,
+                const std::string& label, PickFigures* f) {
+  PlaceRequest place;
+  place.item = carried.name;
+  place.X_TcpItem = carried.X_TcpItem;
+  place.container = "tote";
+  place.start_rad = plan.retreat.samples.back().q_rad;
+  place.head_angle_rad = plan.head_angle_rad;
+  const auto p = Clock::now();
+  try {
+    s.planner->PlanPlace(place, Far());
+    f->place_times.push_back(Ms(p));
+    ++f->placed;
+  } catch (const PlanFailedError& e) {
+    std::printf("    no place: %s (%.0f ms): %s\n", label.c_str(), Ms(p), e.what());
+  }
+}
+
+// One target: its bin scanned, the pick planned, validated and carried on to the tote.
+void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer, int layout,
+             const std::string& bin, const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+             const BenchArgs& args, PickFigures* f) {
+  const std::vector<float> xyz = ScanBin(s, renderer, bin);
+  const PlanningScene scene =
+      s.planner->BuildScene(bin, xyz.data(), xyz.size() / 3, item, X_BaseItem);
+  PickRequest request;
+  request.item = item;
+  request.X_BaseItem = X_BaseItem;
+  request.container = bin;
+  request.start_rad = Named(*s.planner, "scan/" + bin + "/0").q_rad;
+  ++f->tried;
+  ++f->per_layout.back().second;
+  const std::string label = "layout " + std::to_string(layout) + " " + bin + " " + item;
+  const auto t = Clock::now();
+  try {
+    const PickPlan plan = s.planner->PlanPick(request, &scene, Far());
+    f->times.push_back(Ms(t));
+    for (const auto& [stage, seconds] : plan.stage_times_s) {
+      f->stage_ms[stage].push_back(1e3 * seconds);
+    }
+    ++f->planned;
+    ++f->per_layout.back().first;
+    std::printf("  planned: %s: grasp '%s' in %.1f ms, %d grasps tried, %d search nodes\n",
+                label.c_str(), plan.grasp.surface.c_str(), Ms(t), plan.grasps_tried,
+                plan.nodes_expanded);
+    const Eigen::Isometry3d X_grasp =
+        s.planner->robot().X_BaseTcp(plan.retreat.samples.front().q_rad);
+    const CarriedItem carried =
+        MakeCarriedItem(item, s.items->Get(item)->box_I, X_grasp.inverse() * X_BaseItem);
+    ValidateEverySample(s, scene, plan, carried, f);
+    PlaceAfter(s, plan, carried, label, f);
+  } catch (const PlanFailedError& e) {
+    f->refusals.push_back(Ms(t));
+    std::printf("  no plan: %s (%.0f ms): %s\n", label.c_str(), Ms(t), e.what());
+    if (args.all_failures) {
+      for (std::size_t i = 1; i < e.failures().size(); ++i) {
+        std::printf("      also: [%s / %s] %s\n", e.failures()[i].stage.c_str(),
+                    e.failures()[i].kind.c_str(), e.failures()[i].message.c_str());
+      }
+    }
+  }
+}
+
+void PrintPickFigures(const PickFigures& f, const BenchArgs& args) {
+  std::printf(
+      "PlanPick (pre-grasp, descend, lift, retreat with the item, approach; timed and\n"
+      "validated): %d of %d planned\n",
+      f.planned, f.tried);
+  for (std::size_t i = 0; i < args.layouts.size(); ++i) {
+    std::printf("  pick_layout_%d%s: %d of %d planned\n", args.layouts[i],
+                args.layouts[i] == 3 ? " (held out)" : "", f.per_layout[i].first,
+                f.per_layout[i].second);
+  }
+  std::printf("  planned: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(f.times, 0.5),
+              Percentile(f.times, 0.95), Percentile(f.times, 1.0));
+  std::printf("  refused: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(f.refusals, 0.5),
+              Percentile(f.refusals, 0.95), Percentile(f.refusals, 1.0));
+  std::printf("  where a planned pick's time goes (median, p95 ms):");
+  for (const auto& [stage, ms] : f.stage_ms) {
+    std::printf(" %s %.1f, %.1f;", stage.c_str(), Percentile(ms, 0.5), Percentile(ms, 0.95));
+  }
+  std::printf("\n");
+  std::printf("PlanPlace from the retreat's end to the tote: %d of %d planned picks\n", f.placed,
+              f.planned);
+  std::printf("  placed: median %.1f ms, p95 %.1f ms, max %.1f ms\n",
+              Percentile(f.place_times, 0.5), Percentile(f.place_times, 0.95),
+              Percentile(f.place_times, 1.0));
+  std::printf("exact validation of a pick's trajectories, every sample (8 ms apart):\n");
+  std::printf("  ours (spheres' broad phase, FCL): median %.1f ms, p95 %.1f ms\n",
+              Percentile(f.validation, 0.5), Percentile(f.validation, 0.95));
+  std::printf("  FCL on every pair:                median %.1f ms, p95 %.1f ms\n",
+              Percentile(f.validation_fcl, 0.5), Percentile(f.validation_fcl, 0.95));
+}
+
+void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
+  PickFigures f;
   for (const int layout : args.layouts) {
-    per_layout.emplace_back(0, 0);
+    f.per_layout.emplace_back(0, 0);
     const std::string path = std::string(PICKING_DATA_DIR) + "/apc2016/tasks/pick_layout_" +
                              std::to_string(layout) + ".json";
     const apc::Task task = apc::ReadTaskFile(path, s.items->catalogue());
     world->LoadTask(task, 7);
     const simulator::StructuredLightRenderer renderer(world->SceneMeshes());
-    const camera::PinholeCamera camera(480, 384, 460.0, 460.0, 240.0, 192.0);
     for (const auto& entry : task.work_order) {
       const auto in_bin = world->ItemsIn(entry.bin);
       const auto it = std::find_if(in_bin.begin(), in_bin.end(),
                                    [&](const auto& st) { return st.name == entry.item; });
       if (it == in_bin.end()) continue;
-      std::vector<float> xyz;
-      for (int k = 0; k < 3; ++k) {
-        const JointVector q =
-            Named(*s.planner, "scan/" + entry.bin + "/" + std::to_string(k)).q_rad;
-        const auto view =
-            Scan(renderer, camera, s.kinematics->ForwardKinematics(q) * s.X_ToolCamera);
-        xyz.insert(xyz.end(), view.begin(), view.end());
-      }
-      const PlanningScene scene =
-          s.planner->BuildScene(entry.bin, xyz.data(), xyz.size() / 3, entry.item, it->X_BaseItem);
-      PickRequest request;
-      request.item = entry.item;
-      request.X_BaseItem = it->X_BaseItem;
-      request.container = entry.bin;
-      request.start_rad = Named(*s.planner, "scan/" + entry.bin + "/0").q_rad;
-      ++tried;
-      ++per_layout.back().second;
-      const auto t = Clock::now();
-      try {
-        const PickPlan plan = s.planner->PlanPick(request, &scene, Far());
-        times.push_back(Ms(t));
-        ++planned;
-        ++per_layout.back().first;
-        std::printf(
-            "  planned: layout %d %s %s: grasp '%s' in %.1f ms, %d grasps tried, %d search "
-            "nodes\n",
-            layout, entry.bin.c_str(), entry.item.c_str(), plan.grasp.surface.c_str(), Ms(t),
-            plan.grasps_tried, plan.nodes_expanded);
-        // Exact validation of the pick's three trajectories at every sample (PlanPick
-        // validates every 8th and the path's nodes), with and without the broad phase.
-        // The item hangs from the cup as it was at the grasp (the retreat's first sample).
-        const Eigen::Isometry3d X_grasp =
-            s.planner->robot().X_BaseTcp(plan.retreat.samples.front().q_rad);
-        const CarriedItem carried_box = MakeCarriedItem(entry.item, s.items->Get(entry.item)->box_I,
-                                                        X_grasp.inverse() * it->X_BaseItem);
-        const ExactChecker exact(s.planner->robot(), s.planner->cell(), scene.obstacles.get());
-        const ExactChecker fcl_only(s.planner->robot(), s.planner->cell(), scene.obstacles.get(),
-                                    /*sphere_broad_phase=*/false);
-        for (const ExactChecker* checker : {&exact, &fcl_only}) {
-          const auto v = Clock::now();
-          for (const Trajectory* tr : {&plan.approach, &plan.descend, &plan.retreat}) {
-            for (const auto& sample : tr->samples) {
-              const CarriedItem* none = nullptr;
-              checker->Check(sample.q_rad, tr == &plan.retreat ? &carried_box : none);
-            }
-          }
-          (checker == &exact ? validation : validation_fcl).push_back(Ms(v));
-        }
-      } catch (const PlanFailedError& e) {
-        refusals.push_back(Ms(t));
-        std::printf("  no plan: layout %d %s %s (%.0f ms): %s\n", layout, entry.bin.c_str(),
-                    entry.item.c_str(), Ms(t), e.what());
-        if (args.all_failures) {
-          for (std::size_t i = 1; i < e.failures().size(); ++i) {
-            std::printf("      also: [%s / %s] %s\n", e.failures()[i].stage.c_str(),
-                        e.failures()[i].kind.c_str(), e.failures()[i].message.c_str());
-          }
-        }
-      }
+      PickOne(s, renderer, layout, entry.bin, entry.item, it->X_BaseItem, args, &f);
     }
   }
-  std::printf(
-      "PlanPick (pre-grasp, descend, lift, retreat with the item, approach; timed and\n"
-      "validated): %d of %d planned\n",
-      planned, tried);
-  for (std::size_t i = 0; i < args.layouts.size(); ++i) {
-    std::printf("  pick_layout_%d%s: %d of %d planned\n", args.layouts[i],
-                args.layouts[i] == 3 ? " (held out)" : "", per_layout[i].first,
-                per_layout[i].second);
-  }
-  std::printf("  planned: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(times, 0.5),
-              Percentile(times, 0.95), Percentile(times, 1.0));
-  std::printf("  refused: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(refusals, 0.5),
-              Percentile(refusals, 0.95), Percentile(refusals, 1.0));
-  std::printf("exact validation of a pick's trajectories, every sample (8 ms apart):\n");
-  std::printf("  ours (spheres' broad phase, FCL): median %.1f ms, p95 %.1f ms\n",
-              Percentile(validation, 0.5), Percentile(validation, 0.95));
-  std::printf("  FCL on every pair:                median %.1f ms, p95 %.1f ms\n",
-              Percentile(validation_fcl, 0.5), Percentile(validation_fcl, 0.95));
+  PrintPickFigures(f, args);
 }
 
 void JointMotions(const Setup& s) {

@@ -376,6 +376,17 @@ void PickTaskRunner::RecordPlaced(const Target& target, const std::string& to,
   ++done_;
 }
 
+void PickTaskRunner::RecordLost(Target& target, const std::string& reason) {
+  if (target.bin == apc::kToteLocation) {
+    RemoveOne(contents_.tote_contents, target.item);
+  } else {
+    RemoveOne(contents_.bin_contents[target.bin], target.item);
+  }
+  events_.push_back(apc::OutsideEvent(target.item, target.bin));
+  target.given_up = true;
+  target.last_failure = reason;
+}
+
 // Actions the journal shows as done are not repeated: placed targets count as picked, and an
 // attempt that grasped but never placed may still hold its item (FinishCarriedItem).
 void PickTaskRunner::ResumeFromJournal() {
@@ -396,6 +407,10 @@ void PickTaskRunner::ResumeFromJournal() {
         target.done = true;
         RecordPlaced(target, placed->second->data.value("to", std::string(apc::kToteLocation)),
                      placed->second->data.value("drop_height_m", 0.0));
+        break;
+      }
+      if (const auto lost = actions.find({"lost", Key(target, "place")}); lost != actions.end()) {
+        RecordLost(target, lost->second->data.value("reason", std::string("let go on the way")));
         break;
       }
       if (has("begin", Key(target, "grasp")) && !has("failed", Key(target, "grasp"))) {
@@ -470,6 +485,12 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
   if (!found.found) {
     target.last_failure = "not detected: " + found.message;
     return false;
+  }
+  report.poses_found = {{target.item, {found.X_BaseItem, found.score}}};
+  for (const PoseHypothesis& pose : found.alternatives)
+    report.poses_found.push_back({target.item, pose});
+  for (const OtherDetection& other : found.others) {
+    for (const PoseHypothesis& pose : other.poses) report.poses_found.push_back({other.item, pose});
   }
   if (const std::string other = ResolveAgainstOthers(
           target.item, &found, catalogue_, options_.confusion_overlap, options_.confusion_margin);
@@ -686,7 +707,11 @@ PickTaskResult PickTaskRunner::Run() {
         target.done = attempt == Attempt::kPicked;
         reports[i].picked = target.done;
         reports[i].failure = target.done ? "" : target.last_failure;
-        if (attempt == Attempt::kLostCarried) target.given_up = true;  // its place is unknown
+        if (attempt == Attempt::kLostCarried) {
+          journal_.Append("lost", Key(target, "place"), clock_s_,
+                          {{"reason", target.last_failure}});
+          RecordLost(target, target.last_failure);
+        }
         Emit(&target, target.done ? Step::kPlace : Step::kNone, target.done,
              target.done
                  ? (reports[i].placed_in == apc::kToteLocation ? "in the tote"

@@ -106,6 +106,10 @@ struct TargetReport {
   double detection_score = 0.0;
   Eigen::Isometry3d X_BaseItem_detected = Eigen::Isometry3d::Identity();
   bool detected = false;
+  /// Every pose the last detection gave, the target's and its container's other items',
+  /// best first per item (before ResolveAgainstOthers chose): what a person checks when a
+  /// target was not taken.
+  std::vector<std::pair<std::string, PoseHypothesis>> poses_found;
   std::string grasp;
   double drop_height_m = 0.0;
   std::string placed_in;  ///< The tote, or the bin a stowed item went to.
@@ -151,6 +155,11 @@ class PickTaskRunner final {
   void ResumeFromJournal();
   void FinishCarriedItem();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
+  /// A carried item let go on the way (the arm stopped, the seal gave, a put-back failed):
+  /// it has left its container for somewhere outside the bins and the tote, as far as the
+  /// task knows, and is no longer reported in it (an output file listing it where it no
+  /// longer is would be wrong either way; this is right when it fell to the floor).
+  void RecordLost(Target& target, const std::string& reason);
   /// Items this task has let go in `container` so far.
   int PlacedIn(const std::string& container) const;
   /// The distinct items other than `item` that `container` holds now.

@@ -48,17 +48,28 @@ std::string StateName(TaskState state) {
   return "";
 }
 
+nlohmann::json PoseJson(const Eigen::Isometry3d& X_BaseItem) {
+  const Eigen::Vector3d p = X_BaseItem.translation();
+  const Eigen::Quaterniond q(X_BaseItem.rotation());
+  return {{"position", {p.x(), p.y(), p.z()}}, {"orientation", {q.w(), q.x(), q.y(), q.z()}}};
+}
+
 nlohmann::json TargetJson(const TargetReport& t) {
   nlohmann::json j = {{"item", t.item},     {"bin", t.bin},
                       {"ease", t.ease},     {"attempts", t.attempts},
                       {"picked", t.picked}, {"failure", t.failure},
                       {"method", t.method}, {"detection_score", t.detection_score},
                       {"grasp", t.grasp},   {"drop_height_m", t.drop_height_m}};
-  if (t.detected) {
-    const Eigen::Vector3d p = t.X_BaseItem_detected.translation();
-    const Eigen::Quaterniond q(t.X_BaseItem_detected.rotation());
-    j["X_base_item_detected"] = {{"position", {p.x(), p.y(), p.z()}},
-                                 {"orientation", {q.w(), q.x(), q.y(), q.z()}}};
+  if (t.detected) j["X_base_item_detected"] = PoseJson(t.X_BaseItem_detected);
+  if (!t.poses_found.empty()) {
+    nlohmann::json found = nlohmann::json::array();
+    for (const auto& [item, pose] : t.poses_found) {
+      nlohmann::json entry = PoseJson(pose.X_BaseItem);
+      entry["item"] = item;
+      entry["score"] = pose.score;
+      found.push_back(std::move(entry));
+    }
+    j["poses_found"] = std::move(found);
   }
   nlohmann::json steps = nlohmann::json::object();
   for (const auto& [name, seconds] : t.step_times_s) steps[name] = seconds;

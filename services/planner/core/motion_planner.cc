@@ -708,27 +708,45 @@ MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
     break;
   }
   if (back_m <= 0.0) return out;
+  // Drawn out by the full clearance first; where the arm cannot go that far back (a long
+  // item drawn out of a middle bin brings the wrist to the base's axis), just out of the
+  // opening, the rest of the way then the roadmap's or the trees' to find.
+  const double inside_m = back_m - options_.item_exit_clearance_m;
+  for (const double clearance_m :
+       {options_.item_exit_clearance_m, options_.item_short_exit_clearance_m}) {
+    if (auto path =
+            DrawStraightBack(request.start_rad, X_BaseTcp, (inside_m + clearance_m) * out_Base,
+                             carried, head, deadline)) {
+      out.path_rad = std::move(*path);
+      return out;
+    }
+  }
+  return out;  // the roadmap tries from the start
+}
+
+std::optional<std::vector<JointVector>> MotionPlanner::DrawStraightBack(
+    const JointVector& start_rad, const Eigen::Isometry3d& X_BaseTcp,
+    const Eigen::Vector3d& shift_Base, const CarriedItem& carried, const Head& head,
+    Deadline deadline) const {
   Eigen::Isometry3d X_goal = X_BaseTcp;
-  X_goal.translation() += back_m * out_Base;
+  X_goal.translation() += shift_Base;
   // A straight joint motion to the drawn-out pose on the start's branch moves the item
   // nearly straight out over such a distance: take it when it is free; else search the
   // cartesian line, with a small budget (wrist singularities often lie across it).
   const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
-  const auto q_out =
-      kinematics.NearestSolution(X_goal * head.robot->gripper().X_ToolTcp.inverse(),
-                                 request.start_rad, kinematics.BranchOf(request.start_rad));
-  if (q_out && (q_out->q_rad - request.start_rad).cwiseAbs().maxCoeff() < 1.0 &&
-      head.motion->CheckSegment(request.start_rad, q_out->q_rad, &carried).free) {
-    out.path_rad = {request.start_rad, q_out->q_rad};
-    return out;
+  const auto q_out = kinematics.NearestSolution(X_goal * head.robot->gripper().X_ToolTcp.inverse(),
+                                                start_rad, kinematics.BranchOf(start_rad));
+  if (q_out && (q_out->q_rad - start_rad).cwiseAbs().maxCoeff() < 1.0 &&
+      head.motion->CheckSegment(start_rad, q_out->q_rad, &carried).free) {
+    return std::vector<JointVector>{start_rad, q_out->q_rad};
   }
   CartesianSearchOptions search = options_.search;
   search.deadline = deadline;
   search.node_budget = std::min(search.node_budget, 300);
   const CartesianSearchResult drawn =
-      SearchCartesianPath(*head.motion, request.start_rad, X_goal, &carried, search);
-  if (drawn.ok) out.path_rad = drawn.path_rad;  // else the roadmap tries from the start
-  return out;
+      SearchCartesianPath(*head.motion, start_rad, X_goal, &carried, search);
+  if (!drawn.ok) return std::nullopt;
+  return drawn.path_rad;
 }
 
 double MotionPlanner::ItemDepthBehindOpening(const GraspContainer& container,
@@ -1130,6 +1148,18 @@ void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
       lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact, &carried, "retreat"));
 }
 
+namespace {
+
+// Adds the seconds since `since` to `times[stage]` and restarts `since`.
+void Lap(std::map<std::string, double>* times, const char* stage,
+         std::chrono::steady_clock::time_point* since) {
+  const auto now = std::chrono::steady_clock::now();
+  (*times)[stage] += std::chrono::duration<double>(now - *since).count();
+  *since = now;
+}
+
+}  // namespace
+
 bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& grasp,
                              const std::shared_ptr<const world::ItemModel>& model,
                              const RequestChecks& checks, Deadline deadline, PickPlan* plan,
@@ -1153,6 +1183,8 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     return false;
   };
   std::string reason;
+  auto lap_start = std::chrono::steady_clock::now();
+  std::map<std::string, double>* times = &plan->stage_times_s;
   const bool bent = fast.robot().gripper().bent();
   const double hover_m =
       bent ? BentHover(container, grasp, fast.robot().gripper()) : options_.guarded_distance_m;
@@ -1164,6 +1196,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   PlanFailure start_failure;
   const auto q_pre =
       DescentStart(X_pre, X_descend_end, X_grasp, request.start_rad, fast, &start_failure);
+  Lap(times, "pre-grasp", &lap_start);
   if (!q_pre) {
     *failure = start_failure;  // body and obstacle
     return fail(start_failure.stage, start_failure.kind, start_failure.message);
@@ -1176,6 +1209,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const CartesianSearchResult descend =
       SearchCartesianPath(motion, *q_pre, X_descend_end, nullptr, search);
   plan->nodes_expanded += descend.nodes_expanded;
+  Lap(times, "descend", &lap_start);
   if (!descend.ok) {
     *failure = FromSearch("descend", grasp.surface, descend);
     return false;
@@ -1197,12 +1231,13 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const CarriedItem carried =
       MakeCarriedItem(request.item, model->box_I, X_grasp.inverse() * request.X_BaseItem);
   PickPaths paths;
-  if (!LiftAndRetreat(container, grasp, X_pre, hover_m, *q_grasp, carried, checks, search, &paths,
-                      &plan->nodes_expanded, failure)) {
-    return false;
-  }
+  const bool lifted = LiftAndRetreat(container, grasp, X_pre, hover_m, *q_grasp, carried, checks,
+                                     search, &paths, &plan->nodes_expanded, failure);
+  Lap(times, "retreat", &lap_start);
+  if (!lifted) return false;
   // Approach: a joint motion from the start to the pre-grasp configuration.
   const JointPathResult approach = roadmap_->Plan(request.start_rad, *q_pre, &motion, deadline);
+  Lap(times, "approach", &lap_start);
   if (!approach.ok) return fail("approach", "no path", approach.reason);
   CheckDeadline(deadline, "the pick's trajectories");
 
@@ -1212,6 +1247,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   TimePickPaths(paths, request.speed_fraction, carried, motion, checks.exact, plan);
   plan->guarded_direction_Base = a;
   plan->guarded_distance_m = hover_m + GuardedOvershoot(X_grasp, a, *q_grasp, checks);
+  Lap(times, "timing", &lap_start);
   plan->contact_distance_m = hover_m;
   plan->head_angle_rad = fast.robot().gripper().head_angle_rad;
   return true;
@@ -1298,6 +1334,8 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   }
   Container(request.container);  // throws NotFoundError
   CheckDeadline(deadline, "the pick's set-up");
+  PickPlan plan;
+  auto lap_start = started;
   const ScanObstacles* scan = scene ? scene->obstacles.get() : nullptr;
   RequestChecks straight(straight_head_, *cell_, scan, options_.motion,
                          options_.item_contact_margin_m);
@@ -1306,8 +1344,10 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   }
   // The checks with the head bent, per angle, built when a grasp first needs them.
   std::map<double, std::unique_ptr<RequestChecks>> bent_checks;
+  Lap(&plan.stage_times_s, "set-up", &lap_start);
   const GraspResult grasps =
       ComputeGraspsFor(request.item, request.X_BaseItem, request.container, scene);
+  Lap(&plan.stage_times_s, "grasps", &lap_start);
   if (grasps.empty()) {
     PlanFailure f;
     f.stage = "grasps";
@@ -1316,7 +1356,6 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
         "no grasp for '" + request.item + "' in " + request.container + ": " + grasps.reason;
     throw PlanFailedError({f});
   }
-  PickPlan plan;
   std::vector<PlanFailure> failures;
   const GraspContainer container = Container(request.container);
   for (const GraspCandidate& listed : grasps.candidates) {
@@ -1325,8 +1364,10 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
     // rules out, straight and bent, is refused without IK or search and does not count.
     GraspCandidate candidate = listed;
     PlanFailure refused;
+    lap_start = std::chrono::steady_clock::now();
     const RequestChecks* checks =
         ChecksForGrasp(request, container, scan, straight, &bent_checks, &candidate, &refused);
+    Lap(&plan.stage_times_s, "set-up", &lap_start);
     if (!checks) {
       failures.push_back(refused);
       continue;

@@ -72,6 +72,9 @@ struct MotionPlannerOptions {
   /// opening plane: the arm's first turn toward the roadmap then cannot swing it into the
   /// shelf.
   double item_exit_clearance_m = 0.25;
+  /// ... or, where the arm cannot draw it back that far (the wrist would pass the base's
+  /// axis), this far: the rest of the way out is the roadmap's or the trees' to find.
+  double item_short_exit_clearance_m = 0.04;
   double tote_pregrasp_height_m = 0.20;
   /// When the approach line leaves the bin further than this from the grasp, the pre-grasp
   /// is straight in front of the opening instead, the cup pointing in (metres).
@@ -175,6 +178,11 @@ struct PickPlan {
   int nodes_expanded = 0;
   int grasps_tried = 0;
   double planning_time_s = 0.0;
+  /// Where planning_time_s went, summed over the grasps tried: "set-up" (the request's
+  /// checkers), "grasps", "pre-grasp" (the pre-grasp and the descent's end: IK and checks),
+  /// "descend" (the search), "retreat" (lift and retreat), "approach" (the roadmap),
+  /// "timing" (time parametrisation and exact validation). Seconds.
+  std::map<std::string, double> stage_times_s;
   std::vector<PlanFailure> rejected;  ///< Grasps tried before the one returned.
 };
 
@@ -299,6 +307,15 @@ class MotionPlanner final {
                       Deadline deadline) const;
   // How far the item's box at X_BaseItem must still move out along the opening direction to
   // be item_exit_clearance_m out of the container (0 if it is already).
+  /// The path that moves the tcp from X_BaseTcp (at `start_rad`) by `shift_Base`, carrying
+  /// the item: a straight joint motion if free, else a short cartesian search; nullopt if
+  /// neither.
+  std::optional<std::vector<JointVector>> DrawStraightBack(const JointVector& start_rad,
+                                                           const Eigen::Isometry3d& X_BaseTcp,
+                                                           const Eigen::Vector3d& shift_Base,
+                                                           const CarriedItem& carried,
+                                                           const Head& head,
+                                                           Deadline deadline) const;
   double ItemDepthBehindOpening(const GraspContainer& container,
                                 const Eigen::Isometry3d& X_BaseItem,
                                 const CarriedItem& carried) const;

@@ -386,6 +386,9 @@ TEST_F(PickTaskTest, ATargetWhosePlaceAnotherItemFillsAsWellIsNotTaken) {
   EXPECT_EQ(result.items_moved, 3);
   EXPECT_EQ(result.targets[0].attempts, 2);
   EXPECT_EQ(cell.touches["kleenex_tissue_box"], 1);
+  // The report keeps the poses the last detection gave, the target's first.
+  ASSERT_FALSE(result.targets[0].poses_found.empty());
+  EXPECT_EQ(result.targets[0].poses_found.front().first, "kleenex_tissue_box");
   bool said = false;
   for (const TaskEvent& e : events)
     said |= e.message.find("holds dove_beauty_bar") != std::string::npos;
@@ -400,6 +403,15 @@ TEST_F(PickTaskTest, AnItemDroppedOnTheWayIsNotReportedInTheTote) {
   EXPECT_NE(result.targets[2].failure.find("dropped on the way"), std::string::npos);
   const auto& tote = result.final_contents.tote_contents;
   EXPECT_EQ(std::count(tote.begin(), tote.end(), "hanes_tube_socks"), 0);
+  // Nor in its bin: it left it for somewhere outside the containers.
+  for (const auto& [bin, items] : result.final_contents.bin_contents) {
+    EXPECT_EQ(std::count(items.begin(), items.end(), "hanes_tube_socks"), 0) << bin;
+  }
+  bool outside = false;
+  for (const apc::Event& e : result.events) {
+    outside |= e.kind == apc::EventKind::kOutside && e.item == "hanes_tube_socks";
+  }
+  EXPECT_TRUE(outside);
 }
 
 TEST_F(PickTaskTest, AnItemThatCannotBeCarriedToTheToteIsPutBackNotDropped) {
@@ -509,6 +521,19 @@ TEST_F(PickTaskTest, AResumedTaskRepeatsNoPick) {
   EXPECT_EQ(second.placed, std::vector<std::string>{"rawlings_baseball"});
   EXPECT_EQ(result.items_moved, 3);
   EXPECT_EQ(result.final_contents.tote_contents.size(), 3u);
+}
+
+TEST_F(PickTaskTest, AResumedTaskKeepsAnItemLostOnTheWayOutOfItsBin) {
+  ScriptedCell first;
+  first.scripts["hanes_tube_socks"].drop_on_the_way = true;
+  EXPECT_EQ(Run(first).items_moved, 2);
+  ScriptedCell second;
+  const PickTaskResult result = Run(second);
+  EXPECT_TRUE(second.placed.empty());  // nothing tried again, the socks' place is unknown
+  for (const auto& [bin, items] : result.final_contents.bin_contents) {
+    EXPECT_EQ(std::count(items.begin(), items.end(), "hanes_tube_socks"), 0) << bin;
+  }
+  EXPECT_EQ(result.final_contents.tote_contents.size(), 2u);
 }
 
 TEST_F(PickTaskTest, AResumeWithTheItemStillOnTheCupCarriesItToTheTote) {

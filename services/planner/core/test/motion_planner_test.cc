@@ -57,7 +57,8 @@ class MotionPlannerTest : public ::testing::Test {
   static std::pair<Eigen::Isometry3d, std::vector<float>> ItemInBin(const std::string& bin,
                                                                     const std::string& item,
                                                                     double wall_gap_m = -1.0,
-                                                                    double depth_m = 0.12) {
+                                                                    double depth_m = 0.12,
+                                                                    bool long_side_in = false) {
     const auto& cell = planner_->cell().cell();
     const Eigen::Vector3d size = items_->Get(item)->box_I.sizes();
     const world::BinGeometry& geometry = cell.bin(bin);
@@ -66,11 +67,13 @@ class MotionPlannerTest : public ::testing::Test {
     const Eigen::Vector3d c_S(geometry.opening_x_m - depth_m, y_S,
                               geometry.floor_max_z_m + 0.5 * size.z() + 0.002);
     // Item frame: long side across the bin (shelf y), middle side along the depth, short
-    // side up.
+    // side up
+    // (`long_side_in`: the long side along the depth, the middle side across.)
     Eigen::Isometry3d X_ShelfItem = Eigen::Isometry3d::Identity();
-    X_ShelfItem.linear().col(0) = Eigen::Vector3d::UnitY();
-    X_ShelfItem.linear().col(1) = -Eigen::Vector3d::UnitX();
-    X_ShelfItem.linear().col(2) = Eigen::Vector3d::UnitZ();
+    if (!long_side_in) {
+      X_ShelfItem.linear().col(0) = Eigen::Vector3d::UnitY();
+      X_ShelfItem.linear().col(1) = -Eigen::Vector3d::UnitX();
+    }
     X_ShelfItem.translation() = c_S;
     const Eigen::Isometry3d X_BaseItem = cell.config.X_BaseShelf * X_ShelfItem;
     std::vector<float> xyz;
@@ -323,6 +326,49 @@ TEST_F(MotionPlannerTest, ATopFaceDeepInABinTakesTheHeadBent) {
   place.X_TcpItem = plan.grasp.X_BaseTcp.inverse() * X_BaseItem;
   const PlacePlan placed = articulated_->PlanPlace(place, Far());
   ExpectWithinLimits(placed.trajectory, model);
+}
+
+// A roll of paper towels lying lengthwise in a bin, grasped on its end: drawn straight back
+// by the full exit clearance (its 30 cm behind the cup and 25 cm more), the arm would leave
+// its reach; it is drawn just out of the opening instead and the roadmap carries it on to
+// the tote.
+TEST_F(MotionPlannerTest, ALongItemIsDrawnJustOutOfTheOpening) {
+  const std::string item = "kleenex_paper_towels";
+  const std::string bin = "bin_D";
+  const auto [X_BaseItem, box_xyz] = ItemInBin(bin, item, -1.0, 0.17, /*long_side_in=*/true);
+  // The roll is a cylinder about its long side: the scan has no points on its box's edges.
+  const double radius_m = 0.5 * items_->Get(item)->box_I.sizes().y();
+  std::vector<float> xyz;
+  for (std::size_t i = 0; i + 2 < box_xyz.size(); i += 3) {
+    const Eigen::Vector3d p_Item =
+        X_BaseItem.inverse() * Eigen::Vector3d(box_xyz[i], box_xyz[i + 1], box_xyz[i + 2]);
+    const bool on_box =
+        (p_Item.cwiseAbs() - 0.5 * items_->Get(item)->box_I.sizes()).maxCoeff() > -0.003;
+    if (on_box && p_Item.tail<2>().norm() > radius_m + 0.001) continue;
+    xyz.insert(xyz.end(), box_xyz.begin() + i, box_xyz.begin() + i + 3);
+  }
+  PickRequest request;
+  request.item = item;
+  request.X_BaseItem = X_BaseItem;
+  request.container = bin;
+  request.start_rad = Named("scan/" + bin + "/0").q_rad;
+  const PlanningScene scene =
+      articulated_->BuildScene(bin, xyz.data(), xyz.size() / 3, item, X_BaseItem);
+  const PickPlan plan = articulated_->PlanPick(request, &scene, Far());
+  ASSERT_NE(plan.grasp.surface.find("end"), std::string::npos) << plan.grasp.surface;
+  PlaceRequest place;
+  place.item = item;
+  place.container = "tote";
+  place.start_rad = plan.retreat.samples.back().q_rad;
+  place.head_angle_rad = plan.head_angle_rad;
+  place.X_TcpItem = plan.grasp.X_BaseTcp.inverse() * X_BaseItem;
+  const PlacePlan placed = articulated_->PlanPlace(place, Far());
+  ExpectWithinLimits(placed.trajectory, articulated_->robot().kinematics().model());
+  // Drawn only by the full clearance, it has no way out.
+  MotionPlannerOptions full_only;
+  full_only.item_short_exit_clearance_m = full_only.item_exit_clearance_m;
+  const std::unique_ptr<MotionPlanner> planner = MakePlanner(Articulated(), full_only);
+  EXPECT_THROW(planner->PlanPlace(place, Far()), PlanFailedError);
 }
 
 // A book whose back lies under a neighbour's overhang (a slab of scan 4 cm above it over
