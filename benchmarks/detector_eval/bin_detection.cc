@@ -5,27 +5,9 @@
 #include <optional>
 #include <stdexcept>
 
-#include "services/detector/core/appearance.h"
-#include "services/detector/core/estimators.h"
-#include "services/detector/core/preprocess.h"
+#include "services/detector/core/detect_in_region.h"
 
 namespace picking::detector_eval {
-
-namespace {
-
-geometry::PointCloud Region(const BinScan& scan, const BinDetectionOptions& options) {
-  geometry::PointCloud region = detector::CropToBox(scan.cloud, scan.bin_box);
-  if (options.wall_margin_m > 0.0) {
-    detector::WallRemovalOptions walls;
-    walls.margin_m = options.wall_margin_m;
-    walls.faces = options.wall_faces;
-    region = detector::RemoveBoxWalls(region, scan.bin_box, walls);
-  }
-  if (options.remove_floor) region = detector::RemoveBoxFloor(region, scan.bin_box).cloud;
-  return region;
-}
-
-}  // namespace
 
 BinScan MergeViews(const std::vector<BinScan>& views) {
   if (views.empty()) throw std::invalid_argument("MergeViews: no view");
@@ -66,44 +48,22 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
 
 namespace {
 
-// The region of `scan` as the detector service prepares it: cropped (organised), then for
-// stacked views split into one cloud with each view's shading divided out and each view's
-// sensor (MergeStackedViews), else with intrinsics fitted to the organised cloud (the scan's
-// own when that fails).
-struct PreparedScene {
-  geometry::PointCloud cloud;
-  std::optional<detector::PinholeCamera> camera;
-  bool intrinsics_fitted = false;
-  detector::SceneContextOptions context;
-  detector::EstimatorOptions estimators;
-};
+// The detector service's preparation of a Detect request with the bin as region.
+detector::SceneOptions SceneOptionsFor(const BinScan& scan, const BinDetectionOptions& options) {
+  detector::SceneOptions scene;
+  scene.region = scan.bin_box;
+  scene.wall_margin_m = options.wall_margin_m;
+  scene.wall_faces = options.wall_faces;
+  scene.remove_floor = options.remove_floor;
+  if (scan.view_poses.size() > 1) scene.view_poses = scan.view_poses;
+  scene.multi_sensor_verification = options.multi_sensor_verification;
+  scene.fallback_camera = scan.camera;
+  scene.estimators = options.estimators;
+  return scene;
+}
 
-PreparedScene Prepare(const BinScan& scan, const BinDetectionOptions& options) {
-  PreparedScene out;
-  out.context.remove_dominant_plane = !options.remove_floor;
-  out.estimators = options.estimators;
-  if (scan.view_poses.size() > 1) {
-    // As the detector service: split first (each view's intrinsics fitted to its whole block),
-    // keeping the bin's points only, then the walls and floor.
-    detector::StackedViews views = detector::MergeStackedViews(
-        scan.cloud, scan.view_poses, scan.camera, options.estimators.ppf.appearance, &scan.bin_box);
-    BinScan merged;
-    merged.cloud = std::move(views.cloud);
-    merged.bin_box = scan.bin_box;
-    out.cloud = Region(merged, options);
-    out.camera = views.sensors.front().camera;
-    out.intrinsics_fitted = views.fitted_cameras == static_cast<int>(views.sensors.size());
-    if (options.multi_sensor_verification) {
-      out.context.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
-    }
-    detector::UseScreenedViews(&out.estimators);
-    return out;
-  }
-  out.cloud = Region(scan, options);
-  out.camera = detector::FitOrganizedIntrinsics(out.cloud, scan.X_BaseCamera);
-  out.intrinsics_fitted = out.camera.has_value();
-  if (!out.camera) out.camera = scan.camera;
-  return out;
+detector::PreparedScene Prepare(const BinScan& scan, const BinDetectionOptions& options) {
+  return detector::PrepareScene(scan.cloud, scan.X_BaseCamera, SceneOptionsFor(scan, options));
 }
 
 }  // namespace
@@ -112,22 +72,20 @@ detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLib
                                   const BinScan& scan, const std::string& item,
                                   const Eigen::Isometry3d& X_BaseItem,
                                   const BinDetectionOptions& options) {
-  const PreparedScene prepared = Prepare(scan, options);
-  detector::SceneContext context(prepared.cloud, scan.X_BaseCamera, prepared.camera,
-                                 prepared.context);
-  return detector::RefineAndVerify(*library->Get(item), context, detector::Method::kPpf, X_BaseItem,
-                                   /*refine=*/false, prepared.estimators.refine);
+  const detector::PreparedScene prepared = Prepare(scan, options);
+  const auto context = detector::MakeSceneContext(prepared);
+  return detector::RefineAndVerify(*library->Get(item), *context, detector::Method::kPpf,
+                                   X_BaseItem, /*refine=*/false, prepared.estimators.refine);
 }
 
 detector::SceneAgreement TruePoseAgreement(
     const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
     const std::string& item, const Eigen::Isometry3d& X_BaseItem,
     const BinDetectionOptions& options) {
-  const PreparedScene prepared = Prepare(scan, options);
-  detector::SceneContext context(prepared.cloud, scan.X_BaseCamera, prepared.camera,
-                                 prepared.context);
+  const detector::PreparedScene prepared = Prepare(scan, options);
+  const auto context = detector::MakeSceneContext(prepared);
   const auto model = library->Get(item);
-  const detector::PpfScene& scene = context.PpfSceneFor(*model);
+  const detector::PpfScene& scene = context->PpfSceneFor(*model);
   const detector::PpfDetectorOptions ppf;
   const float step = model->object->sampling_distance_m();
   return detector::MeasureAgreement(*model->object, scene, X_BaseItem,
@@ -142,33 +100,17 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   BinDetectionResult result;
-  const PreparedScene prepared = Prepare(scan, options);
-  const geometry::PointCloud& region = prepared.cloud;
-  for (const auto& p : region.points) result.points_in_region += p.allFinite() ? 1 : 0;
+  const detector::PreparedScene prepared = Prepare(scan, options);
+  result.points_in_region = prepared.finite_points;
   result.intrinsics_fitted = prepared.intrinsics_fitted;
-  auto context = std::make_shared<detector::SceneContext>(region, scan.X_BaseCamera,
-                                                          prepared.camera, prepared.context);
-  detector::ObjectConfig config = library->ConfigFor(item);
-  config.item = item;
-  if (!(options.budget_scale > 0.0)) {
-    throw std::invalid_argument("BinDetectionOptions: budget_scale must be positive");
-  }
-  config.time_budget_s *= options.budget_scale;
-  if (method) {
-    config.preferred = *method;
-    config.fallbacks.clear();
-    config.time_budget_s = 0.0;  // One method on its own: its whole search.
-  }
-  const detector::DetectionChain chain(
-      detector::DetectorConfig(config, {{item, config}}),
-      detector::MakeEstimators(library, context, prepared.estimators));
-  detector::EstimatorInput input;
-  input.item = item;
-  input.scene = &region;
-  input.X_BaseSensor = scan.X_BaseCamera;
-  input.camera = prepared.camera;
-  input.budget_start = start;  // As the detector service does: the pre-processing counts.
-  result.chain = chain.Run(input);
+  detector::ItemQuery query;
+  query.item = item;
+  query.method = method;
+  query.budget_scale = options.budget_scale;
+  // As the detector service does: the pre-processing counts in the item's budget.
+  result.chain =
+      detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared), query, start)
+          .chain;
   result.total_s = std::chrono::duration<double>(Clock::now() - start).count();
   return result;
 }

@@ -13,8 +13,8 @@
 
 namespace picking::detector_eval {
 
-/// Options of DetectInBin: the pre-processing the detector service applies to a Detect
-/// request with the bin as region.
+/// Options of DetectInBin: the region options (detector::SceneOptions) the detector service
+/// gives a Detect request with the bin as region.
 struct BinDetectionOptions {
   /// Points within this distance of the bin's walls, floor and ceiling are removed, metres
   /// (the Region's wall_margin_m).
@@ -39,9 +39,9 @@ struct BinDetectionOptions {
 /// the scanner service merges views without voxels: the views' organised clouds stacked
 /// row-wise in one organised cloud, their sensors' poses in `view_poses`; the sensor pose and
 /// intrinsics, bin box and items are the first view's, the timings the sums. DetectInBin
-/// then does what the detector service does with DetectParams.view_sensor_poses: after the
-/// crop, detector::MergeStackedViews splits the views (each view's intrinsics fitted, its
-/// shading divided out of its intensities), and poses are verified from every view's
+/// then passes the view poses as the detector service passes DetectParams.view_sensor_poses
+/// (detector::SceneOptions::view_poses): the views are split (each view's intrinsics fitted,
+/// its shading divided out of its intensities), and poses are verified from every view's
 /// sensor (unless multi_sensor_verification is off). Throws std::invalid_argument when
 /// `views` is empty, the views disagree on the bin or are not organised clouds of one size
 /// with the same channels.
@@ -55,10 +55,12 @@ struct BinDetectionResult {
   double total_s = 0.0;              ///< Wall-clock time of the whole call.
 };
 
-/// Detects `item` in `scan` as the detector service does: crop to the bin box, remove the
-/// walls and the floor, fit the camera intrinsics to the organised cloud (falling back to the
-/// scan's true intrinsics), then the item's method chain from the library (or only `method`).
-/// Throws as the detector core does (unknown item, empty region).
+/// Detects `item` in `scan` with the detector service's own workflow
+/// (detector::PrepareScene and detector::DetectItem, services/detector/core/detect_in_region.h)
+/// and the bin as region: crop to the bin box, remove the walls and the floor, fit the camera
+/// intrinsics to the organised cloud (falling back to the scan's true intrinsics), then the
+/// item's method chain from the library (or only `method`). Throws as the detector core does
+/// (unknown item, empty region).
 BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrary>& library,
                                const BinScan& scan, const std::string& item,
                                std::optional<detector::Method> method = std::nullopt,

@@ -27,8 +27,9 @@
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
-// and detects in the views stacked as the scanner stacks them (MergeViews), as the detector
-// service does with DetectParams.view_sensor_poses: each view's print compensated and screened
+// and detects in the views stacked as the scanner stacks them (MergeViews), through the
+// detector service's own workflow with the views' poses (DetectParams.view_sensor_poses,
+// detector::SceneOptions::view_poses): each view's print compensated and screened
 // by its own sensor, poses verified from every view's sensor (--multi_sensor=false: from the
 // first view's alone). --appearance=false ranks and accepts poses
 // without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.

@@ -16,6 +16,7 @@
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/log.h"
 #include "libs/runtime/status.h"
+#include "services/detector/core/detect_in_region.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/estimators.h"
 #include "services/detector/core/model_library.h"
@@ -105,31 +106,6 @@ ReceivedScene ReadCloud(grpc::ServerReader<Request>* reader, const ServiceSettin
   return scene;
 }
 
-std::size_t CountFinite(const geometry::PointCloud& cloud) {
-  return static_cast<std::size_t>(std::count_if(cloud.points.begin(), cloud.points.end(),
-                                                [](const auto& p) { return p.allFinite(); }));
-}
-
-// Wraps an estimator to keep its candidates (for max_results > 1) and to stop at the
-// deadline before starting.
-class RecordingEstimator final : public Estimator {
- public:
-  RecordingEstimator(std::shared_ptr<Estimator> inner, std::shared_ptr<SceneContext> context)
-      : inner_(std::move(inner)), context_(std::move(context)) {}
-  Method method() const override { return inner_->method(); }
-  std::vector<Detection> Estimate(const EstimatorInput& input) override {
-    context_->CheckDeadline();
-    candidates_ = inner_->Estimate(input);
-    return candidates_;
-  }
-  const std::vector<Detection>& candidates() const { return candidates_; }
-
- private:
-  std::shared_ptr<Estimator> inner_;
-  std::shared_ptr<SceneContext> context_;
-  std::vector<Detection> candidates_;
-};
-
 void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection* out) {
   out->set_item(d.item);
   *out->mutable_x_frame_item() = pc::PoseToProto(d.X_BaseItem);
@@ -145,13 +121,6 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   t->set_refine_s(d.timings.refine_s);
   t->set_verify_s(d.timings.verify_s);
   t->set_total_s(shared_preprocess_s + d.timings.total_s);
-}
-
-// Poses closer than these are the same detection.
-bool SamePose(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, double diameter_m) {
-  const double dt = (a.translation() - b.translation()).norm();
-  const Eigen::AngleAxisd r(a.linear().transpose() * b.linear());
-  return dt < 0.1 * diameter_m && std::abs(r.angle()) < 0.3;
 }
 
 class DetectorServiceImpl final : public pb::DetectorService::Service {
@@ -182,42 +151,23 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       // item's includes the shared pre-processing.
       Clock::time_point budget_start = Clock::now();
 
-      geometry::PointCloud scene = std::move(received.cloud);
-      SceneContextOptions context_options;
-      // A region with a wall margin has lost its floor already.
-      context_options.remove_dominant_plane =
-          !(params.has_region() && params.region().wall_margin_m() > 0.0);
-      EstimatorOptions estimator_options;
-      std::optional<PinholeCamera> camera;
-      Eigen::Isometry3d X_BaseSensor = received.X_BaseSensor;
-      if (!view_poses.empty()) {
-        // Stacked views: split first (each view's intrinsics fitted to its whole block), keeping
-        // only the region's points; the region's walls and floor go after.
-        std::optional<OrientedBox> box;
-        if (params.has_region()) box = RegionBox(params.region());
-        StackedViews views;
-        try {
-          views = MergeStackedViews(scene, view_poses, settings_.default_camera,
-                                    estimator_options.ppf.appearance, box ? &*box : nullptr);
-        } catch (const std::invalid_argument& e) {
-          throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
-        }
-        if (views.cloud.empty()) {
-          throw std::invalid_argument(
-              "params.region: no point of the views lies inside the region");
-        }
-        scene = std::move(views.cloud);
-        X_BaseSensor = views.sensors.front().X_BaseSensor;
-        camera = views.sensors.front().camera;
-        context_options.other_sensors.assign(views.sensors.begin() + 1, views.sensors.end());
-        UseScreenedViews(&estimator_options);
-        if (params.has_region()) scene = CropToRegion(scene, params.region());
-      } else {
-        if (params.has_region()) scene = CropToRegion(scene, params.region());
-        camera = CameraFor(scene, X_BaseSensor);
+      SceneOptions scene_options;
+      if (params.has_region()) {
+        scene_options.region = RegionBox(params.region());
+        scene_options.wall_margin_m = params.region().wall_margin_m();
       }
-      response->set_points_after_preprocessing(CountFinite(scene));
-      auto context = std::make_shared<SceneContext>(scene, X_BaseSensor, camera, context_options);
+      scene_options.view_poses = std::move(view_poses);
+      scene_options.fallback_camera = settings_.default_camera;
+      PreparedScene scene;
+      try {
+        scene = PrepareScene(std::move(received.cloud), received.X_BaseSensor, scene_options);
+      } catch (const ViewPosesError& e) {
+        throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
+      } catch (const EmptyRegionError& e) {
+        throw std::invalid_argument(std::string("params.region: ") + e.what());
+      }
+      response->set_points_after_preprocessing(scene.finite_points);
+      const std::shared_ptr<SceneContext> context = MakeSceneContext(scene);
       context->set_deadline(SteadyDeadline(ctx));
       const double shared_preprocess_s = SecondsSince(start);
 
@@ -226,8 +176,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         pb::ItemResult* result = response->add_results();
         result->set_item(query.item());
         try {
-          DetectItem(query, scene, context, estimator_options, shared_preprocess_s, budget_start,
-                     result);
+          DetectOne(query, scene, context, shared_preprocess_s, budget_start, result);
         } catch (const TimeoutError&) {
           throw;
         } catch (...) {
@@ -339,81 +288,35 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     return box;
   }
 
-  static geometry::PointCloud CropToRegion(const geometry::PointCloud& scene,
-                                           const pb::Region& region) {
-    const OrientedBox box = RegionBox(region);
-    geometry::PointCloud cropped = CropToBox(scene, box);
-    if (region.wall_margin_m() > 0.0) {
-      WallRemovalOptions walls;
-      walls.margin_m = region.wall_margin_m();
-      walls.faces = kAllFaces;
-      cropped = RemoveBoxWalls(cropped, box, walls);
-      // The measured floor too: shelf boards are tilted and rise above the box's bottom.
-      cropped = RemoveBoxFloor(cropped, box).cloud;
-    }
-    if (CountFinite(cropped) == 0) {
-      throw std::invalid_argument("params.region: no point of the cloud lies inside the region");
-    }
-    return cropped;
-  }
-
   std::optional<PinholeCamera> CameraFor(const geometry::PointCloud& scene,
                                          const Eigen::Isometry3d& X_BaseSensor) const {
     if (auto fitted = FitOrganizedIntrinsics(scene, X_BaseSensor)) return fitted;
     return settings_.default_camera;
   }
 
-  void DetectItem(const pb::ItemQuery& query, const geometry::PointCloud& scene,
-                  const std::shared_ptr<SceneContext>& context,
-                  const EstimatorOptions& estimator_options, double shared_preprocess_s,
-                  Clock::time_point budget_start, pb::ItemResult* result) const {
-    const auto model = library_->Get(query.item());  // NotFoundError: this item only.
-    ObjectConfig config = model->config;
-    config.item = query.item();
+  void DetectOne(const pb::ItemQuery& query, const PreparedScene& scene,
+                 const std::shared_ptr<SceneContext>& context, double shared_preprocess_s,
+                 Clock::time_point budget_start, pb::ItemResult* result) const {
+    ItemQuery item_query;
+    item_query.item = query.item();
     switch (query.method()) {
       case pb::METHOD_PPF:
-        config.preferred = Method::kPpf;
-        config.fallbacks.clear();
+        item_query.method = Method::kPpf;
         break;
       case pb::METHOD_SIFT:
-        config.preferred = Method::kSift;
-        config.fallbacks.clear();
+        item_query.method = Method::kSift;
         break;
       case pb::METHOD_RANGE_TEMPLATES:
-        config.preferred = Method::kRangeTemplates;
-        config.fallbacks.clear();
+        item_query.method = Method::kRangeTemplates;
         break;
       default:
         break;
     }
-    // A method asked for by name runs to the end of its search (the call's deadline still
-    // applies); the item's time budget limits its configured chain only.
-    if (query.method() != pb::METHOD_UNSPECIFIED) config.time_budget_s = 0.0;
-    config.time_budget_s *= settings_.time_budget_scale;
-    if (query.min_score() > 0.0) {
-      config.thresholds.min_score = query.min_score();
-      for (auto& [method, thresholds] : config.method_thresholds) {
-        (void)method;
-        thresholds.min_score = query.min_score();
-      }
-    }
-    std::vector<std::shared_ptr<RecordingEstimator>> recorders;
-    std::vector<std::shared_ptr<Estimator>> estimators;
-    for (const auto& e : MakeEstimators(library_, context, estimator_options)) {
-      recorders.push_back(std::make_shared<RecordingEstimator>(e, context));
-      estimators.push_back(recorders.back());
-    }
-    const DetectionChain chain(DetectorConfig(config, {{config.item, config}}), estimators);
-    EstimatorInput input;
-    input.item = query.item();
-    input.scene = &scene;
-    input.X_BaseSensor = context->X_BaseSensor();
-    input.camera = context->camera();
-    input.budget_start = budget_start;
-    const ChainResult chain_result = chain.Run(input);
-    context->CheckDeadline();  // An estimator stopped by the deadline is not "not found".
-
-    for (const ChainAttempt& attempt : chain_result.attempts) {
+    item_query.min_score = query.min_score();
+    item_query.max_results = query.max_results() == 0 ? 1 : query.max_results();
+    item_query.budget_scale = settings_.time_budget_scale;
+    const ItemDetections found = DetectItem(library_, scene, context, item_query, budget_start);
+    for (const ChainAttempt& attempt : found.chain.attempts) {
       if (attempt.available) result->add_methods_tried(ToProto(attempt.method));
       if (!attempt.error.empty()) {
         runtime::LogWarning("detection method failed", {{"item", query.item()},
@@ -422,23 +325,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       }
     }
     result->mutable_status()->set_code(0);
-    if (!chain_result.detection) return;
-    const Detection& best = *chain_result.detection;
-    const std::size_t max_results = query.max_results() == 0 ? 1 : query.max_results();
-    std::vector<Detection> accepted = {best};
-    const Thresholds& thresholds = config.ThresholdsFor(MethodFromString(best.method));
-    for (const auto& recorder : recorders) {
-      if (ToString(recorder->method()) != best.method) continue;
-      for (const Detection& d : recorder->candidates()) {
-        if (accepted.size() >= max_results) break;
-        if (!thresholds.Accepts(d)) continue;
-        const bool duplicate = std::any_of(accepted.begin(), accepted.end(), [&](const auto& a) {
-          return SamePose(a.X_BaseItem, d.X_BaseItem, model->object->diameter_m());
-        });
-        if (!duplicate) accepted.push_back(d);
-      }
-    }
-    for (const Detection& d : accepted) {
+    for (const Detection& d : found.poses) {
       FillDetection(d, shared_preprocess_s, result->add_detections());
     }
   }

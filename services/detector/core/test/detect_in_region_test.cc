@@ -1,0 +1,97 @@
+// The detector's request-level preparation (PrepareScene): the region's crop, walls and
+// floor, the camera, stacked views, and the errors the service maps to its fields.
+#include "services/detector/core/detect_in_region.h"
+
+#include <gtest/gtest.h>
+
+#include <vector>
+
+namespace picking::detector {
+namespace {
+
+// A bin 0.3 x 0.25 x 0.2 m (its box frame z up), its inner floor and walls sampled every
+// 5 mm, a 6 cm square item 5 cm above the floor, and points outside the bin.
+struct BinScene {
+  OrientedBox bin;
+  geometry::PointCloud cloud;
+  std::size_t item_points = 0;
+};
+
+BinScene MakeBinScene() {
+  BinScene s;
+  s.bin.size_m = Eigen::Vector3d(0.3, 0.25, 0.2);
+  s.bin.X_BaseBox =
+      Eigen::Translation3d(0.8, 0.1, 1.2) * Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ());
+  std::vector<Eigen::Vector3d> p_Bin;
+  for (double a = -0.145; a <= 0.145; a += 0.005) {
+    for (double b = -0.12; b <= 0.12; b += 0.005) p_Bin.emplace_back(a, b, -0.099);  // floor
+  }
+  for (double b = -0.12; b <= 0.12; b += 0.005) {
+    for (double c = -0.095; c <= 0.095; c += 0.005) {
+      p_Bin.emplace_back(-0.148, b, c);  // left wall
+      p_Bin.emplace_back(0.148, b, c);   // right wall
+    }
+  }
+  const std::size_t walls = p_Bin.size();
+  for (double a = -0.03; a <= 0.03; a += 0.004) {
+    for (double b = -0.03; b <= 0.03; b += 0.004) p_Bin.emplace_back(a, b, -0.05);
+  }
+  s.item_points = p_Bin.size() - walls;
+  for (int i = 0; i < 100; ++i) p_Bin.emplace_back(0.3 + 0.001 * i, 0.0, 0.0);  // outside
+  for (const Eigen::Vector3d& p : p_Bin) {
+    s.cloud.points.push_back((s.bin.X_BaseBox * p).cast<float>());
+  }
+  s.cloud.width = static_cast<std::uint32_t>(s.cloud.points.size());
+  return s;
+}
+
+TEST(PrepareScene, ARegionWithAWallMarginKeepsTheItemOnly) {
+  const BinScene s = MakeBinScene();
+  SceneOptions options;
+  options.region = s.bin;
+  options.wall_margin_m = 0.01;
+  const PreparedScene prepared = PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), options);
+  EXPECT_EQ(prepared.finite_points, s.item_points);
+  for (const auto& p : prepared.cloud.points) {
+    if (p.allFinite()) EXPECT_TRUE(s.bin.Contains(p.cast<double>(), 1e-6));
+  }
+  // The floor went with the walls: the range templates do not look for it again.
+  EXPECT_FALSE(prepared.context.remove_dominant_plane);
+  // An unorganised cloud: no intrinsics to fit, the fallback camera.
+  EXPECT_FALSE(prepared.intrinsics_fitted);
+  ASSERT_TRUE(prepared.camera.has_value());
+  EXPECT_EQ(prepared.camera->width(), options.fallback_camera.width());
+}
+
+TEST(PrepareScene, WithoutAMarginTheRegionIsOnlyCropped) {
+  const BinScene s = MakeBinScene();
+  SceneOptions options;
+  options.region = s.bin;
+  const PreparedScene prepared = PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), options);
+  EXPECT_EQ(prepared.finite_points, s.cloud.size() - 100);
+  EXPECT_TRUE(prepared.context.remove_dominant_plane);
+  // No region at all: the whole cloud.
+  EXPECT_EQ(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), {}).finite_points, s.cloud.size());
+}
+
+TEST(PrepareScene, BadRegionsAndViewsAreTypedErrors) {
+  const BinScene s = MakeBinScene();
+  SceneOptions away;
+  away.region = s.bin;
+  away.region->X_BaseBox.translation() += Eigen::Vector3d(5.0, 0.0, 0.0);
+  EXPECT_THROW(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), away), EmptyRegionError);
+  SceneOptions empty;  // within the cloud's bounds, above the item, where nothing is
+  empty.region = OrientedBox{s.bin.X_BaseBox * Eigen::Translation3d(0.0, 0.0, 0.05),
+                             Eigen::Vector3d::Constant(0.05)};
+  EXPECT_THROW(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), empty), EmptyRegionError);
+  SceneOptions margin;
+  margin.region = s.bin;
+  margin.wall_margin_m = 0.15;  // more than half the bin's smallest side
+  EXPECT_THROW(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), margin), std::invalid_argument);
+  SceneOptions views;  // two views for an unorganised cloud
+  views.view_poses = {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
+  EXPECT_THROW(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), views), ViewPosesError);
+}
+
+}  // namespace
+}  // namespace picking::detector
