@@ -111,11 +111,31 @@ void SampleTrajectory(const JointTrajectory& trajectory, double t_s, JointVector
   *qd_rad_s = (b.q_rad - a.q_rad) / h;
 }
 
+namespace {
+
+MotionCheckOptions CheckOptionsOf(const SimBackendOptions& options) {
+  options.Validate();
+  MotionCheckOptions check;
+  check.start_tolerance_rad = options.start_tolerance_rad;
+  check.planning_rate_hz = options.planning_rate_hz;
+  return check;
+}
+
+}  // namespace
+
 SimBackend::SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
                        const SimBackendOptions& options)
-    : arm_(std::move(arm)), base_checker_(checker), checker_(checker), options_(options) {
+    : CheckedBackend(CheckOptionsOf(options)),
+      arm_(std::move(arm)),
+      base_checker_(checker),
+      checker_(checker),
+      options_(options) {
   if (!arm_) throw std::invalid_argument("SimBackend: the simulated arm is null");
-  options_.Validate();
+}
+
+const SafetyChecker& SimBackend::CheckerForMotion() {
+  RefreshTool();
+  return checker_;
 }
 
 RobotState SimBackend::StateLocked() const {
@@ -424,69 +444,26 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
   }
 }
 
-MotionResult SimBackend::MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
-                                    double acceleration_rad_s2) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  RefreshTool();
-  if (const SafetyCheck check =
-          checker_.CheckJointMove(q_target_rad, speed_rad_s, acceleration_rad_s2);
-      !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
-  TimeParametrizationOptions options;
-  options.max_velocity_rad_s = JointVector::Constant(speed_rad_s);
-  options.max_acceleration_rad_s2 = JointVector::Constant(acceleration_rad_s2);
-  options.sample_rate_hz = options_.planning_rate_hz;
-  const JointTrajectory trajectory =
-      TimeParametrizePath({begin.final_state.q_rad, q_target_rad}, options);
-  if (const SafetyCheck check = checker_.CheckTrajectory(trajectory, 1e-6); !check) {
-    return Reject("joint move: " + check.reason);
-  }
-  return Run(trajectory, {}, ContactZone());
+MotionResult SimBackend::RunJointMove(const MotionResult&, const JointVector&, double, double,
+                                      const JointTrajectory& line) {
+  return Run(line, {}, ContactZone());
 }
 
-MotionResult SimBackend::ExecuteTrajectory(
-    const JointTrajectory& trajectory,
+MotionResult SimBackend::RunTrajectory(
+    const MotionResult&, const JointTrajectory& trajectory,
     const std::function<void(const TrajectoryProgress&)>& progress) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  RefreshTool();
-  if (const SafetyCheck check = checker_.CheckTrajectory(trajectory); !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
-  const double start_error =
-      (trajectory.points.front().q_rad - begin.final_state.q_rad).cwiseAbs().maxCoeff();
-  if (start_error > options_.start_tolerance_rad) {
-    return Reject("trajectory starts " + std::to_string(start_error) +
-                  " rad away from the current joint positions");
-  }
   return Run(trajectory, progress, ContactZone());
 }
 
-MotionResult SimBackend::GuardedMove(const GuardedMoveRequest& request) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  RefreshTool();
-  if (const SafetyCheck check = checker_.CheckGuardedMove(request); !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
+MotionResult SimBackend::RunGuardedMove(const MotionResult& begin,
+                                        const GuardedMoveRequest& request,
+                                        const GuardedMovePlan& plan) {
   const JointVector q0 = begin.final_state.q_rad;
-  const Eigen::Isometry3d X_BaseTool = begin.final_state.X_BaseTool;
-  const Eigen::Isometry3d X_BaseTcp = X_BaseTool * checker_.X_ToolTcp();
-  const Eigen::Vector3d direction_tcp =
-      request.direction_tcp.normalized() * (request.max_distance_m > 0.0 ? 1.0 : -1.0);
-  const Eigen::Vector3d axis = X_BaseTcp.linear() * direction_tcp;
-  const double distance = std::abs(request.max_distance_m);
-  Eigen::Isometry3d X_goal = X_BaseTcp;
-  X_goal.translation() += axis * distance;
-  if (const SafetyCheck check = checker_.CheckLinearMove(q0, X_goal, request.speed_m_s); !check) {
-    return Reject("guarded move: " + check.reason);
-  }
-
+  const Eigen::Isometry3d& X_BaseTool = plan.X_BaseTool;
+  const Eigen::Isometry3d& X_BaseTcp = plan.X_BaseTcp;
+  const Eigen::Vector3d& direction_tcp = plan.direction_tcp;
+  const Eigen::Vector3d& axis = plan.axis_base;
+  const double distance = plan.distance_m;
   ContactProbe probe;
   try {
     std::lock_guard<std::mutex> arm(arm_mutex_);

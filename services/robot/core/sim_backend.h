@@ -11,6 +11,7 @@
 #include <optional>
 #include <string>
 
+#include "services/robot/core/checked_backend.h"
 #include "services/robot/core/robot_backend.h"
 #include "services/robot/core/safety.h"
 
@@ -100,7 +101,7 @@ struct SimBackendOptions {
 /// world was unreachable. The link is watched: GetState reads the world's joints whenever its
 /// last answer is older than options.link_check_period_s, so a world that stopped answering
 /// makes GetState throw UnavailableError (naming it) rather than report a stale state.
-class SimBackend final : public RobotBackend {
+class SimBackend final : public CheckedBackend {
  public:
   /// @throws std::invalid_argument for a null arm or bad options.
   SimBackend(std::shared_ptr<SimulatedArm> arm, const SafetyChecker& checker,
@@ -109,12 +110,6 @@ class SimBackend final : public RobotBackend {
   /// @throws UnavailableError if the world cannot be read (first use, after it was
   /// unreachable, or at a due link check).
   RobotState GetState() override;
-  MotionResult MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
-                          double acceleration_rad_s2) override;
-  MotionResult ExecuteTrajectory(
-      const JointTrajectory& trajectory,
-      const std::function<void(const TrajectoryProgress&)>& progress) override;
-  MotionResult GuardedMove(const GuardedMoveRequest& request) override;
   void Stop() override;
   void ProtectiveStop() override;
   /// @throws UnavailableError if the world cannot be asked whether the arm is still in
@@ -137,9 +132,19 @@ class SimBackend final : public RobotBackend {
   void MarkContactLocked() { last_contact_ = options_.now(); }
   // True when the world has not answered for link_check_period_s. Caller holds mutex_.
   bool LinkCheckDueLocked() const;
-  MotionResult Reject(const std::string& why);
-  // Synchronises, checks the arm is ready and marks it moving; kCompleted when it may move.
-  MotionResult BeginMotion();
+  // The safety layer's hooks (CheckedBackend): the checker at the head's angle read from the
+  // world; BeginMotion synchronises and checks the arm is ready.
+  const SafetyChecker& CheckerForMotion() override;
+  MotionResult Reject(const std::string& why) override;
+  MotionResult BeginMotion() override;
+  MotionResult RunJointMove(const MotionResult& begin, const JointVector& q_target_rad,
+                            double speed_rad_s, double acceleration_rad_s2,
+                            const JointTrajectory& line) override;
+  MotionResult RunTrajectory(
+      const MotionResult& begin, const JointTrajectory& trajectory,
+      const std::function<void(const TrajectoryProgress&)>& progress) override;
+  MotionResult RunGuardedMove(const MotionResult& begin, const GuardedMoveRequest& request,
+                              const GuardedMovePlan& plan) override;
   // Streams `trajectory`; collisions closer than `contact_distance_m` along `axis_base`
   // from `p_start_tcp` are protective stops, beyond it expected contact (guarded moves).
   struct ContactZone {
@@ -167,8 +172,7 @@ class SimBackend final : public RobotBackend {
   SafetyChecker checker_;
   SimBackendOptions options_;
 
-  std::mutex motion_mutex_;  // one motion at a time
-  std::mutex arm_mutex_;     // one world call at a time
+  std::mutex arm_mutex_;  // one world call at a time
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   bool synced_ = false;

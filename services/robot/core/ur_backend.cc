@@ -90,7 +90,8 @@ std::unique_ptr<UrBackend> UrBackend::Connect(const UrBackendOptions& options,
 UrBackend::UrBackend(std::unique_ptr<rtde::RtdeClient> rtde, std::unique_ptr<ByteStream> script,
                      std::unique_ptr<DashboardClient> dashboard, const SafetyChecker& checker,
                      const UrBackendOptions& options)
-    : rtde_(std::move(rtde)),
+    : CheckedBackend(MotionCheckOptions{}),
+      rtde_(std::move(rtde)),
       script_(std::move(script)),
       dashboard_(std::move(dashboard)),
       checker_(checker),
@@ -276,16 +277,9 @@ MotionResult UrBackend::Wait(const std::function<bool(const RobotState&)>& done,
   }
 }
 
-MotionResult UrBackend::MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
-                                   double acceleration_rad_s2) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  if (const SafetyCheck check =
-          checker_.CheckJointMove(q_target_rad, speed_rad_s, acceleration_rad_s2);
-      !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
+MotionResult UrBackend::RunJointMove(const MotionResult& begin, const JointVector& q_target_rad,
+                                     double speed_rad_s, double acceleration_rad_s2,
+                                     const JointTrajectory&) {
   // The controller interpolates the joints synchronously: rest-to-rest over the largest
   // joint distance.
   const double distance = (q_target_rad - begin.final_state.q_rad).cwiseAbs().maxCoeff();
@@ -308,21 +302,10 @@ MotionResult UrBackend::MoveJoints(const JointVector& q_target_rad, double speed
       planned_s + options_.motion_timeout_margin_s);
 }
 
-MotionResult UrBackend::ExecuteTrajectory(
-    const JointTrajectory& trajectory,
+MotionResult UrBackend::RunTrajectory(
+    const MotionResult& begin, const JointTrajectory& trajectory,
     const std::function<void(const TrajectoryProgress&)>& progress) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  if (const SafetyCheck check = checker_.CheckTrajectory(trajectory); !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
   const auto& p = trajectory.points;
-  const double start_error = (p.front().q_rad - begin.final_state.q_rad).cwiseAbs().maxCoeff();
-  if (start_error > 0.01) {
-    return Reject("trajectory starts " + std::to_string(start_error) +
-                  " rad away from the current joint positions");
-  }
   std::vector<std::string> lines;
   for (std::size_t i = 1; i < p.size(); ++i) {
     lines.push_back(urscript::ServoJ(p[i].q_rad, p[i].time_s - p[i - 1].time_s,
@@ -372,24 +355,11 @@ MotionResult UrBackend::ExecuteTrajectory(
       trajectory.duration_s() + options_.motion_timeout_margin_s, on_state);
 }
 
-MotionResult UrBackend::GuardedMove(const GuardedMoveRequest& request) {
-  std::lock_guard<std::mutex> motion(motion_mutex_);
-  if (const SafetyCheck check = checker_.CheckGuardedMove(request); !check) {
-    return Reject(check.reason);
-  }
-  MotionResult begin = BeginMotion();
-  if (begin.outcome != MotionOutcome::kCompleted) return begin;
-  const Eigen::Isometry3d X_BaseTcp = begin.final_state.X_BaseTool * checker_.X_ToolTcp();
-  const Eigen::Vector3d axis = X_BaseTcp.linear() * request.direction_tcp.normalized() *
-                               (request.max_distance_m > 0.0 ? 1.0 : -1.0);
-  const double distance = std::abs(request.max_distance_m);
-  Eigen::Isometry3d X_goal = X_BaseTcp;
-  X_goal.translation() += axis * distance;
-  if (const SafetyCheck check =
-          checker_.CheckLinearMove(begin.final_state.q_rad, X_goal, request.speed_m_s);
-      !check) {
-    return Reject("guarded move: " + check.reason);
-  }
+MotionResult UrBackend::RunGuardedMove(const MotionResult& begin, const GuardedMoveRequest& request,
+                                       const GuardedMovePlan& plan) {
+  const Eigen::Isometry3d& X_BaseTcp = plan.X_BaseTcp;
+  const Eigen::Vector3d& axis = plan.axis_base;
+  const double distance = plan.distance_m;
   const Eigen::Vector3d p_start = X_BaseTcp.translation();
   const double braking_m =
       request.speed_m_s * request.speed_m_s / (2.0 * request.acceleration_m_s2);

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "services/robot/core/byte_stream.h"
+#include "services/robot/core/checked_backend.h"
 #include "services/robot/core/dashboard.h"
 #include "services/robot/core/robot_backend.h"
 #include "services/robot/core/rtde.h"
@@ -43,7 +44,7 @@ struct UrBackendOptions {
 /// actual_TCP_force, robot_mode, safety_mode, timestamp; X_BaseTool by the model's forward
 /// kinematics of actual_q), motion by URScript over the secondary interface, power, brakes
 /// and protective-stop reset by the dashboard server.
-class UrBackend final : public RobotBackend {
+class UrBackend final : public CheckedBackend {
  public:
   /// Connects the three interfaces, negotiates RTDE protocol 2, sets up the output recipe
   /// and starts it. @throws StreamError / std::runtime_error naming what failed.
@@ -64,12 +65,6 @@ class UrBackend final : public RobotBackend {
   void PowerOnAndReleaseBrakes(std::chrono::milliseconds timeout);
 
   RobotState GetState() override;
-  MotionResult MoveJoints(const JointVector& q_target_rad, double speed_rad_s,
-                          double acceleration_rad_s2) override;
-  MotionResult ExecuteTrajectory(
-      const JointTrajectory& trajectory,
-      const std::function<void(const TrajectoryProgress&)>& progress) override;
-  MotionResult GuardedMove(const GuardedMoveRequest& request) override;
   void Stop() override;
   void ProtectiveStop() override;
   bool ResetProtectiveStop(std::string* reason) override;
@@ -83,8 +78,18 @@ class UrBackend final : public RobotBackend {
   // Waits until `done(state)`; returns the outcome (kCompleted when done).
   MotionResult Wait(const std::function<bool(const RobotState&)>& done, double timeout_s,
                     const std::function<void(const RobotState&)>& on_state = {});
-  MotionResult Reject(const std::string& why);
-  MotionResult BeginMotion();
+  // The safety layer's hooks (CheckedBackend).
+  const SafetyChecker& CheckerForMotion() override { return checker_; }
+  MotionResult Reject(const std::string& why) override;
+  MotionResult BeginMotion() override;
+  MotionResult RunJointMove(const MotionResult& begin, const JointVector& q_target_rad,
+                            double speed_rad_s, double acceleration_rad_s2,
+                            const JointTrajectory& line) override;
+  MotionResult RunTrajectory(
+      const MotionResult& begin, const JointTrajectory& trajectory,
+      const std::function<void(const TrajectoryProgress&)>& progress) override;
+  MotionResult RunGuardedMove(const MotionResult& begin, const GuardedMoveRequest& request,
+                              const GuardedMovePlan& plan) override;
 
   std::unique_ptr<rtde::RtdeClient> rtde_;
   std::unique_ptr<ByteStream> script_;
@@ -103,7 +108,6 @@ class UrBackend final : public RobotBackend {
   std::atomic<bool> closing_{false};
   std::mutex script_mutex_;
   std::mutex dashboard_mutex_;
-  std::mutex motion_mutex_;  // one motion at a time
   std::thread reader_;
 };
 
