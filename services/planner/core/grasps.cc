@@ -523,6 +523,127 @@ const char* GraspRejectionName(GraspRejection reason) {
   return "unknown";
 }
 
+namespace {
+
+// The approaches tried at a point whose surface normal (inward) is `normal_Base`: the normal,
+// then tilted toward the ideal approach (into the container: -opening) by up to max_tilt_rad;
+// in a shelf bin a near-horizontal approach also pitched down by the same tilts (low in a bin
+// the tube then runs up and out over the floor's front lip, which stands above the inner
+// box's floor). Each with its tilt, radians.
+std::vector<std::pair<Eigen::Vector3d, double>> Approaches(const Eigen::Vector3d& normal_Base,
+                                                           const GraspContainer& container,
+                                                           const GraspOptions& options) {
+  const Eigen::Vector3d& opening = container.opening_direction_Base;
+  std::vector<std::pair<Eigen::Vector3d, double>> approaches = {{normal_Base, 0.0}};
+  const double to_ideal = AngleBetween(normal_Base, -opening);
+  if (options.max_tilt_rad > 0.0 && to_ideal > 1e-9 && to_ideal < EIGEN_PI - 1e-6) {
+    const Eigen::Vector3d axis = normal_Base.cross(-opening).normalized();
+    for (int k = 1; k <= options.tilt_steps; ++k) {
+      const double tilt = std::min(to_ideal, options.max_tilt_rad * k / options.tilt_steps);
+      approaches.emplace_back(Eigen::AngleAxisd(tilt, axis) * normal_Base, tilt);
+      if (tilt >= to_ideal) break;
+    }
+  }
+  const Eigen::Vector3d up = container.X_BaseContainer.linear().col(2);  // the bin's up
+  const Eigen::Vector3d down_across = -(up - up.dot(normal_Base) * normal_Base);
+  if (container.kind == GraspContainerKind::kShelfBin && options.max_tilt_rad > 0.0 &&
+      std::abs(normal_Base.dot(up)) < std::sin(options.max_pitch_from_horizontal_rad) &&
+      down_across.norm() > 1e-6) {
+    const Eigen::Vector3d axis = normal_Base.cross(down_across.normalized()).normalized();
+    for (int k = 1; k <= options.tilt_steps; ++k) {
+      const double tilt = options.max_tilt_rad * k / options.tilt_steps;
+      approaches.emplace_back(Eigen::AngleAxisd(tilt, axis) * normal_Base, tilt);
+    }
+  }
+  return approaches;
+}
+
+// The free distance behind the point along -approach (the options' callback, else the
+// container's walls), clamped to [0, max_clearance_m].
+double Clearance(const GraspContainer& container, const Eigen::Vector3d& p_BasePoint,
+                 const Eigen::Vector3d& approach, const GraspOptions& options,
+                 const std::string& item, const std::string& point) {
+  if (!options.clearance) {
+    return GeometricClearance(container, p_BasePoint, -approach, options.max_clearance_m);
+  }
+  const double clearance = options.clearance(p_BasePoint, -approach, options.max_clearance_m);
+  if (!std::isfinite(clearance)) {
+    throw std::runtime_error(
+        "ComputeGrasps: the clearance callback returned a non-finite distance for item '" + item +
+        "', point '" + point + "'");
+  }
+  return std::clamp(clearance, 0.0, options.max_clearance_m);
+}
+
+// A candidate at the point along `approach`, scored (`fixed`: the parts that do not depend
+// on the approach).
+GraspCandidate MakeCandidate(const SuctionPoint& point, int point_index,
+                             const Eigen::Vector3d& p_BasePoint, const Eigen::Vector3d& normal_Base,
+                             const Eigen::Vector3d& approach, double tilt, double angle,
+                             double clearance, const GraspScore& fixed,
+                             const GraspOptions& options) {
+  GraspCandidate c;
+  c.surface = point.name;
+  c.point_index = point_index;
+  c.p_BasePoint = p_BasePoint;
+  c.approach_Base = approach;
+  c.surface_approach_Base = normal_Base;
+  c.tilt_rad = tilt;
+  c.approach_angle_rad = angle;
+  c.clearance_m = clearance;
+  c.X_BaseTcp.setIdentity();
+  c.X_BaseTcp.linear() = TcpRotation(approach, options.vertical_roll_threshold_rad);
+  c.X_BaseTcp.translation() = p_BasePoint;
+  c.X_BaseTcpPreGrasp = c.X_BaseTcp;
+  c.X_BaseTcpPreGrasp.translation() = p_BasePoint - options.pregrasp_standoff_m * approach;
+  c.score = fixed;
+  c.score.clearance = std::min(1.0, clearance / options.required_clearance_m);
+  c.score.approach = std::max(0.0, std::cos(angle));
+  c.score.tilt = std::cos(tilt);
+  c.score.total = c.score.quality * std::pow(c.score.face_size, options.face_size_weight) *
+                  std::pow(c.score.centrality, options.centrality_weight) *
+                  std::pow(c.score.clearance, options.clearance_weight) *
+                  std::pow(c.score.approach, options.approach_weight) *
+                  std::pow(c.score.tilt, options.tilt_weight);
+  return c;
+}
+
+// Why no grasp was left, in the container's and the options' terms.
+std::string NoGraspReason(const GraspTable& table, const std::string& item, std::size_t num_points,
+                          int tried, const GraspResult& result, const GraspContainer& container,
+                          double max_angle, const GraspOptions& options) {
+  std::ostringstream msg;
+  msg << "no suction grasp for '" << item << "' in '" << container.name << "': " << tried
+      << " approaches to " << num_points << " suction points tried;";
+  if (result.rejected_outside_container > 0) {
+    msg << " " << result.rejected_outside_container
+        << " points lie outside the container box (tolerance "
+        << Fixed(options.container_tolerance_m, 3)
+        << " m): check X_BaseItem and the container's pose and size;";
+  }
+  if (result.rejected_approach_angle > 0) {
+    msg << " " << result.rejected_approach_angle << " approaches are more than "
+        << Fixed(max_angle / kDeg, 1)
+        << " deg from the opening direction (the item shows no listed surface toward the "
+           "opening): re-detect or turn the item, allow a larger "
+        << (container.kind == GraspContainerKind::kTote ? "max_tote_approach_angle_rad"
+                                                        : "max_approach_angle_rad")
+        << " (max_tilt_rad cannot pass the cup's seal tolerance, "
+        << Fixed(kSealAngleToleranceRad / kDeg, 0) << " deg), or add points in the grasp table '"
+        << table.source() << "';";
+  }
+  if (result.rejected_blocked > 0) {
+    msg << " " << result.rejected_blocked << " approaches have less than "
+        << Fixed(options.min_clearance_m, 3)
+        << " m free behind the point: clear the obstacle or lower min_clearance_m;";
+  }
+  std::string reason = msg.str();
+  reason.pop_back();  // the last ';'
+  return reason;
+}
+
+}  // namespace
+
 GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
                           const Eigen::Isometry3d& X_BaseItem, const GraspContainer& container,
                           const GraspOptions& options) {
@@ -569,32 +690,7 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
     fixed.face_size = std::min(1.0, point.face_m.minCoeff() / options.full_face_size_m);
     fixed.centrality = std::clamp(1.0 - off_axis / half_diagonal, 0.0, 1.0);
 
-    // The surface normal and tilts toward the ideal approach (into the container: -opening).
-    std::vector<std::pair<Eigen::Vector3d, double>> approaches = {{normal_Base, 0.0}};
-    const double to_ideal = AngleBetween(normal_Base, -opening);
-    if (options.max_tilt_rad > 0.0 && to_ideal > 1e-9 && to_ideal < EIGEN_PI - 1e-6) {
-      const Eigen::Vector3d axis = normal_Base.cross(-opening).normalized();
-      for (int k = 1; k <= options.tilt_steps; ++k) {
-        const double tilt = std::min(to_ideal, options.max_tilt_rad * k / options.tilt_steps);
-        approaches.emplace_back(Eigen::AngleAxisd(tilt, axis) * normal_Base, tilt);
-        if (tilt >= to_ideal) break;
-      }
-    }
-    // A near-horizontal approach low in a bin runs the tube over the floor's front lip, which
-    // stands above the inner box's floor: the same tilts pitching the cup down (the tube up
-    // and out over the lip).
-    const Eigen::Vector3d up = container.X_BaseContainer.linear().col(2);  // the bin's up
-    const Eigen::Vector3d down_across = -(up - up.dot(normal_Base) * normal_Base);
-    if (container.kind == GraspContainerKind::kShelfBin && options.max_tilt_rad > 0.0 &&
-        std::abs(normal_Base.dot(up)) < std::sin(options.max_pitch_from_horizontal_rad) &&
-        down_across.norm() > 1e-6) {
-      const Eigen::Vector3d axis = normal_Base.cross(down_across.normalized()).normalized();
-      for (int k = 1; k <= options.tilt_steps; ++k) {
-        const double tilt = options.max_tilt_rad * k / options.tilt_steps;
-        approaches.emplace_back(Eigen::AngleAxisd(tilt, axis) * normal_Base, tilt);
-      }
-    }
-
+    const auto approaches = Approaches(normal_Base, container, options);
     for (std::size_t v = 0; v < approaches.size(); ++v) {
       const Eigen::Vector3d approach = approaches[v].first.normalized();
       const double tilt = approaches[v].second;
@@ -607,19 +703,8 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
         ++result.rejected_approach_angle;
         continue;
       }
-      double clearance = 0.0;
-      if (options.clearance) {
-        clearance = options.clearance(p_BasePoint, -approach, options.max_clearance_m);
-        if (!std::isfinite(clearance)) {
-          throw std::runtime_error(
-              "ComputeGrasps: the clearance callback returned a non-finite "
-              "distance for item '" +
-              item + "', point '" + point.name + "'");
-        }
-        clearance = std::clamp(clearance, 0.0, options.max_clearance_m);
-      } else {
-        clearance = GeometricClearance(container, p_BasePoint, -approach, options.max_clearance_m);
-      }
+      const double clearance =
+          Clearance(container, p_BasePoint, approach, options, item, point.name);
       if (clearance < options.min_clearance_m) {
         result.rejected.push_back({point.name, point_index, tilt, GraspRejection::kBlocked,
                                    "clearance " + Fixed(clearance, 3) + " m < " +
@@ -627,31 +712,8 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
         ++result.rejected_blocked;
         continue;
       }
-
-      GraspCandidate c;
-      c.surface = point.name;
-      c.point_index = point_index;
-      c.p_BasePoint = p_BasePoint;
-      c.approach_Base = approach;
-      c.surface_approach_Base = normal_Base;
-      c.tilt_rad = tilt;
-      c.approach_angle_rad = angle;
-      c.clearance_m = clearance;
-      c.X_BaseTcp.setIdentity();
-      c.X_BaseTcp.linear() = TcpRotation(approach, options.vertical_roll_threshold_rad);
-      c.X_BaseTcp.translation() = p_BasePoint;
-      c.X_BaseTcpPreGrasp = c.X_BaseTcp;
-      c.X_BaseTcpPreGrasp.translation() = p_BasePoint - options.pregrasp_standoff_m * approach;
-      c.score = fixed;
-      c.score.clearance = std::min(1.0, clearance / options.required_clearance_m);
-      c.score.approach = std::max(0.0, std::cos(angle));
-      c.score.tilt = std::cos(tilt);
-      c.score.total = c.score.quality * std::pow(c.score.face_size, options.face_size_weight) *
-                      std::pow(c.score.centrality, options.centrality_weight) *
-                      std::pow(c.score.clearance, options.clearance_weight) *
-                      std::pow(c.score.approach, options.approach_weight) *
-                      std::pow(c.score.tilt, options.tilt_weight);
-      result.candidates.push_back(std::move(c));
+      result.candidates.push_back(MakeCandidate(point, point_index, p_BasePoint, normal_Base,
+                                                approach, tilt, angle, clearance, fixed, options));
     }
   }
 
@@ -659,35 +721,9 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
                    [](const GraspCandidate& a, const GraspCandidate& b) {
                      return a.score.total > b.score.total;
                    });
-
   if (result.candidates.empty()) {
-    std::ostringstream msg;
-    msg << "no suction grasp for '" << item << "' in '" << container.name << "': " << tried
-        << " approaches to " << grasps.points.size() << " suction points tried;";
-    if (result.rejected_outside_container > 0) {
-      msg << " " << result.rejected_outside_container
-          << " points lie outside the container box (tolerance "
-          << Fixed(options.container_tolerance_m, 3)
-          << " m): check X_BaseItem and the container's pose and size;";
-    }
-    if (result.rejected_approach_angle > 0) {
-      msg << " " << result.rejected_approach_angle << " approaches are more than "
-          << Fixed(max_angle / kDeg, 1)
-          << " deg from the opening direction (the item shows no listed surface toward the "
-             "opening): re-detect or turn the item, allow a larger "
-          << (container.kind == GraspContainerKind::kTote ? "max_tote_approach_angle_rad"
-                                                          : "max_approach_angle_rad")
-          << " (max_tilt_rad cannot pass the cup's seal tolerance, "
-          << Fixed(kSealAngleToleranceRad / kDeg, 0) << " deg), or add points in the grasp table '"
-          << table.source() << "';";
-    }
-    if (result.rejected_blocked > 0) {
-      msg << " " << result.rejected_blocked << " approaches have less than "
-          << Fixed(options.min_clearance_m, 3)
-          << " m free behind the point: clear the obstacle or lower min_clearance_m;";
-    }
-    result.reason = msg.str();
-    result.reason.pop_back();  // The last ';'.
+    result.reason = NoGraspReason(table, item, grasps.points.size(), tried, result, container,
+                                  max_angle, options);
   }
   return result;
 }
