@@ -287,119 +287,133 @@ class TemporaryFolder {
   std::string path_;
 };
 
-int Run(const Args& args) {
-  const std::string data_dir = apc::DefaultDataDir();
-  SimulatedBinScanner scanner(data_dir);
-  detector::ModelLibraryOptions library_options;
-  std::optional<TemporaryFolder> fresh_cache;
-  if (args.cache_dir.empty()) {
-    fresh_cache.emplace();
-    library_options.cache_dir = fresh_cache->path();
-  } else {
-    library_options.cache_dir = args.cache_dir;
-  }
-  library_options.catalogue_path = data_dir + "/apc2016/items/item_data.csv";
-  auto library = std::make_shared<const detector::ModelLibrary>(
-      detector::ModelManifest::LoadFile(data_dir + "/detector/models.json", data_dir),
-      library_options);
-
-  const std::vector<detector::Method> methods = {detector::Method::kPpf, detector::Method::kSift,
-                                                 detector::Method::kRangeTemplates};
+// The figures gathered over every target.
+struct Evaluation {
   Tally chain_total;
   std::map<std::string, Tally> per_method_total;
   std::map<std::string, Tally> per_item;
   std::map<std::string, std::map<std::string, Tally>> per_item_method;
-  std::ostringstream rows;
-  rows << "| layout | bin | item | items in bin | region points | chain | ppf | sift | "
-          "range_templates |\n|---|---|---|---|---|---|---|---|---|\n";
+  std::ostringstream rows;  // one markdown row per target
   double scan_s = 0.0;
   int scans = 0;
+};
 
-  for (const std::string& layout : args.layouts) {
-    const std::string path = data_dir + "/apc2016/tasks/pick_layout_" + layout + ".json";
-    const apc::Task task = scanner.ReadTask(path);
-    scanner.LoadTask(task, args.seed);
-    for (const apc::WorkOrderEntry& entry : task.work_order) {
-      if (!args.bins.empty() &&
-          std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {
-        continue;
-      }
-      std::vector<BinScan> views = {scanner.Scan(entry.bin, BinScanOptions{})};
-      if (args.views == 3) {
-        for (double offset : {-args.view_offset_m, args.view_offset_m}) {
-          BinScanOptions side;
-          side.lateral_offset_m = offset;
-          side.height_above_centre_m = args.side_height_m;
-          views.push_back(scanner.Scan(entry.bin, side));
-        }
-      }
-      const BinScan scan = views.size() == 1 ? std::move(views.front()) : MergeViews(views);
-      const BinDetectionOptions& detection = args.detection;
-      scan_s += scan.render_s + scan.process_s;
-      ++scans;
-      const auto model_start = std::chrono::steady_clock::now();
-      const auto model = library->Get(entry.item);  // Built or loaded outside the timed call.
-      const double model_s =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - model_start).count();
-      const BinDetectionResult chain_result =
-          DetectInBin(library, scan, entry.item, std::nullopt, detection);
-      const Outcome chain = Judge(chain_result, *model, scan.items, entry.item);
-      chain_total.Add(chain);
-      per_item[entry.item].Add(chain);
+// The detector's models, cached in args.cache_dir or in a fresh folder kept by `fresh_cache`.
+std::shared_ptr<const detector::ModelLibrary> MakeLibrary(
+    const Args& args, const std::string& data_dir, std::optional<TemporaryFolder>* fresh_cache) {
+  detector::ModelLibraryOptions library_options;
+  if (args.cache_dir.empty()) {
+    fresh_cache->emplace();
+    library_options.cache_dir = (*fresh_cache)->path();
+  } else {
+    library_options.cache_dir = args.cache_dir;
+  }
+  library_options.catalogue_path = data_dir + "/apc2016/items/item_data.csv";
+  return std::make_shared<const detector::ModelLibrary>(
+      detector::ModelManifest::LoadFile(data_dir + "/detector/models.json", data_dir),
+      library_options);
+}
 
-      std::map<std::string, Outcome> by_method;
-      if (args.per_method) {
-        for (detector::Method m : methods) {
-          Outcome o;
-          const bool has_model = m == detector::Method::kPpf ||
-                                 (m == detector::Method::kSift && model->sift) ||
-                                 (m == detector::Method::kRangeTemplates && model->templates);
-          if (has_model) {
-            o = Judge(DetectInBin(library, scan, entry.item, m, detection), *model, scan.items,
-                      entry.item);
-            per_method_total[detector::ToString(m)].Add(o);
-            per_item_method[entry.item][detector::ToString(m)].Add(o);
-          } else {
-            o.applicable = false;
-          }
-          by_method[detector::ToString(m)] = o;
-        }
-      }
-      rows << "| " << layout << " | " << entry.bin.substr(4) << " | " << entry.item << " | "
-           << scan.items.size() << " | " << chain_result.points_in_region << " | " << Cell(chain)
-           << (chain.detected ? " (" + chain.method + ")" : "") << " | "
-           << (args.per_method ? Cell(by_method["ppf"]) : "-") << " | "
-           << (args.per_method ? Cell(by_method["sift"]) : "-") << " | "
-           << (args.per_method ? Cell(by_method["range_templates"]) : "-") << " |\n";
-      std::cout << "layout " << layout << " " << entry.bin << " " << entry.item << ": "
-                << Cell(chain) << (chain.detected ? " by " + chain.method : "") << " score "
-                << std::setprecision(3) << chain.score << " print " << chain.appearance << ", rot "
-                << chain.rotation_rad * 180.0 / M_PI << " deg, " << scan.items.size() << " items, "
-                << chain_result.points_in_region << " region points, intrinsics "
-                << (chain_result.intrinsics_fitted ? "fitted" : "NOT fitted") << ", scan "
-                << scan.render_s << " + " << scan.process_s << " s, model " << model_s << " s";
-      std::cout << ", tried: " << chain.attempts;
-      if (!chain.error.empty()) std::cout << ", error: " << chain.error;
-      for (const TrueItem& t : scan.items) {
-        if (t.name != entry.item) continue;
-        const detector::Detection truth =
-            ScoreTruePose(library, scan, entry.item, t.X_BaseItem, detection);
-        const detector::SceneAgreement agreement =
-            TruePoseAgreement(library, scan, entry.item, t.X_BaseItem, detection);
-        std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " x "
-                  << t.X_BaseItem.linear().col(0).transpose() << " score " << truth.score
-                  << " fitness " << truth.fitness << " print " << truth.appearance
-                  << " ppf support " << agreement.support << " conflicts "
-                  << agreement.conflict_fraction << " visible " << agreement.visible_points
-                  << " occluded " << agreement.occluded_points;
-      }
-      if (args.per_method) {
-        for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);
-      }
-      std::cout << std::endl;
+// The bin seen from the front and, with three views, from either side, merged.
+BinScan ScanBin(SimulatedBinScanner& scanner, const std::string& bin, const Args& args) {
+  std::vector<BinScan> views = {scanner.Scan(bin, BinScanOptions{})};
+  if (args.views == 3) {
+    for (double offset : {-args.view_offset_m, args.view_offset_m}) {
+      BinScanOptions side;
+      side.lateral_offset_m = offset;
+      side.height_above_centre_m = args.side_height_m;
+      views.push_back(scanner.Scan(bin, side));
     }
   }
+  return views.size() == 1 ? std::move(views.front()) : MergeViews(views);
+}
 
+// Each method alone on the same scan (not applicable where the item has no model for it).
+std::map<std::string, Outcome> JudgeEachMethod(
+    const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
+    const std::string& item, const detector::LoadedModel& model, const Args& args,
+    Evaluation* evaluation) {
+  std::map<std::string, Outcome> by_method;
+  for (detector::Method m :
+       {detector::Method::kPpf, detector::Method::kSift, detector::Method::kRangeTemplates}) {
+    Outcome o;
+    const bool has_model = m == detector::Method::kPpf ||
+                           (m == detector::Method::kSift && model.sift) ||
+                           (m == detector::Method::kRangeTemplates && model.templates);
+    if (has_model) {
+      o = Judge(DetectInBin(library, scan, item, m, args.detection), model, scan.items, item);
+      evaluation->per_method_total[detector::ToString(m)].Add(o);
+      evaluation->per_item_method[item][detector::ToString(m)].Add(o);
+    } else {
+      o.applicable = false;
+    }
+    by_method[detector::ToString(m)] = o;
+  }
+  return by_method;
+}
+
+// What the detector makes of the item's true pose: its score and the scene's agreement.
+void PrintTruePoses(const std::shared_ptr<const detector::ModelLibrary>& library,
+                    const BinScan& scan, const std::string& item, const Args& args) {
+  for (const TrueItem& t : scan.items) {
+    if (t.name != item) continue;
+    const detector::Detection truth =
+        ScoreTruePose(library, scan, item, t.X_BaseItem, args.detection);
+    const detector::SceneAgreement agreement =
+        TruePoseAgreement(library, scan, item, t.X_BaseItem, args.detection);
+    std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " x "
+              << t.X_BaseItem.linear().col(0).transpose() << " score " << truth.score << " fitness "
+              << truth.fitness << " print " << truth.appearance << " ppf support "
+              << agreement.support << " conflicts " << agreement.conflict_fraction << " visible "
+              << agreement.visible_points << " occluded " << agreement.occluded_points;
+  }
+}
+
+// One target of a layout: scanned, detected by the chain (and each method alone), judged
+// against the truth, printed and tallied.
+void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library,
+                    SimulatedBinScanner& scanner, const std::string& layout,
+                    const apc::WorkOrderEntry& entry, const Args& args, Evaluation* evaluation) {
+  const BinScan scan = ScanBin(scanner, entry.bin, args);
+  evaluation->scan_s += scan.render_s + scan.process_s;
+  ++evaluation->scans;
+  const auto model_start = std::chrono::steady_clock::now();
+  const auto model = library->Get(entry.item);  // Built or loaded outside the timed call.
+  const double model_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - model_start).count();
+  const BinDetectionResult chain_result =
+      DetectInBin(library, scan, entry.item, std::nullopt, args.detection);
+  const Outcome chain = Judge(chain_result, *model, scan.items, entry.item);
+  evaluation->chain_total.Add(chain);
+  evaluation->per_item[entry.item].Add(chain);
+  std::map<std::string, Outcome> by_method;
+  if (args.per_method) {
+    by_method = JudgeEachMethod(library, scan, entry.item, *model, args, evaluation);
+  }
+
+  evaluation->rows << "| " << layout << " | " << entry.bin.substr(4) << " | " << entry.item << " | "
+                   << scan.items.size() << " | " << chain_result.points_in_region << " | "
+                   << Cell(chain) << (chain.detected ? " (" + chain.method + ")" : "") << " | "
+                   << (args.per_method ? Cell(by_method["ppf"]) : "-") << " | "
+                   << (args.per_method ? Cell(by_method["sift"]) : "-") << " | "
+                   << (args.per_method ? Cell(by_method["range_templates"]) : "-") << " |\n";
+  std::cout << "layout " << layout << " " << entry.bin << " " << entry.item << ": " << Cell(chain)
+            << (chain.detected ? " by " + chain.method : "") << " score " << std::setprecision(3)
+            << chain.score << " print " << chain.appearance << ", rot "
+            << chain.rotation_rad * 180.0 / M_PI << " deg, " << scan.items.size() << " items, "
+            << chain_result.points_in_region << " region points, intrinsics "
+            << (chain_result.intrinsics_fitted ? "fitted" : "NOT fitted") << ", scan "
+            << scan.render_s << " + " << scan.process_s << " s, model " << model_s << " s";
+  std::cout << ", tried: " << chain.attempts;
+  if (!chain.error.empty()) std::cout << ", error: " << chain.error;
+  PrintTruePoses(library, scan, entry.item, args);
+  for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);
+  std::cout << std::endl;
+}
+
+// The tables: per method, per item, and the scans' time.
+std::string Summary(const Evaluation& evaluation, const Args& args) {
+  const Tally& chain_total = evaluation.chain_total;
   std::ostringstream summary;
   summary << "\nChain (configured order): " << chain_total.Rate() << " correct, "
           << chain_total.wrong << " wrong poses accepted, mean " << chain_total.MeanTime()
@@ -408,28 +422,55 @@ int Run(const Args& args) {
              "|\n|---|---|---|---|---|\n";
   summary << "| chain | " << chain_total.Rate() << " | " << chain_total.wrong << " | "
           << chain_total.MeanTime() << " | " << chain_total.max_s << " |\n";
-  for (const auto& [name, t] : per_method_total) {
+  for (const auto& [name, t] : evaluation.per_method_total) {
     summary << "| " << name << " | " << t.Rate() << " | " << t.wrong << " | " << t.MeanTime()
             << " | " << t.max_s << " |\n";
   }
   summary << "\n| item | chain | ppf | sift | range_templates |\n|---|---|---|---|---|\n";
-  for (const auto& [item, t] : per_item) {
+  for (const auto& [item, t] : evaluation.per_item) {
     summary << "| " << item << " | " << t.Rate();
+    const auto methods = evaluation.per_item_method.find(item);
     for (const char* m : {"ppf", "sift", "range_templates"}) {
-      const auto it = per_item_method[item].find(m);
-      summary << " | " << (it == per_item_method[item].end() ? "n/a" : it->second.Rate());
+      const bool known = methods != evaluation.per_item_method.end() && methods->second.count(m);
+      summary << " | " << (known ? methods->second.at(m).Rate() : "n/a");
     }
     summary << " |\n";
   }
-  summary << "\nScans: " << scans << " (" << args.views << " view" << (args.views > 1 ? "s" : "")
-          << " each), mean " << std::setprecision(3) << (scans > 0 ? scan_s / scans : 0.0)
+  summary << "\nScans: " << evaluation.scans << " (" << args.views << " view"
+          << (args.views > 1 ? "s" : "") << " each), mean " << std::setprecision(3)
+          << (evaluation.scans > 0 ? evaluation.scan_s / evaluation.scans : 0.0)
           << " s to render and process one.\n";
-  std::cout << summary.str() << "\n" << rows.str();
+  return summary.str();
+}
+
+int Run(const Args& args) {
+  const std::string data_dir = apc::DefaultDataDir();
+  SimulatedBinScanner scanner(data_dir);
+  std::optional<TemporaryFolder> fresh_cache;
+  const auto library = MakeLibrary(args, data_dir, &fresh_cache);
+  Evaluation evaluation;
+  evaluation.rows << "| layout | bin | item | items in bin | region points | chain | ppf | sift | "
+                     "range_templates |\n|---|---|---|---|---|---|---|---|---|\n";
+  for (const std::string& layout : args.layouts) {
+    const apc::Task task =
+        scanner.ReadTask(data_dir + "/apc2016/tasks/pick_layout_" + layout + ".json");
+    scanner.LoadTask(task, args.seed);
+    for (const apc::WorkOrderEntry& entry : task.work_order) {
+      if (!args.bins.empty() &&
+          std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {
+        continue;
+      }
+      EvaluateTarget(library, scanner, layout, entry, args, &evaluation);
+    }
+  }
+  const std::string summary = Summary(evaluation, args);
+  std::cout << summary << "\n" << evaluation.rows.str();
   if (!args.markdown.empty()) {
     std::ofstream out(args.markdown);
-    out << summary.str() << "\n" << rows.str();
+    out << summary << "\n" << evaluation.rows.str();
     if (!out) throw std::runtime_error("cannot write '" + args.markdown + "'");
   }
+  const Tally& chain_total = evaluation.chain_total;
   const bool goal = chain_total.runs > 0 && chain_total.correct >= 0.9 * chain_total.runs;
   return goal ? 0 : 1;
 }

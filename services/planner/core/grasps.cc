@@ -360,6 +360,120 @@ std::string DefaultGraspTablePath() {
   return (std::filesystem::path(apc::DefaultDataDir()) / "planner" / "grasps.yaml").string();
 }
 
+namespace {
+
+constexpr double kSizeTolerance = 1e-9;
+
+// A box's faces wide enough for the cup (the widest only, when none is), largest first, each
+// at its centre and, on a face four cups long, at the centre of each half as well.
+std::vector<SuctionPoint> BoxSuctionPoints(const Eigen::Vector3d& size_m, double cup) {
+  const Eigen::Matrix3d E = Eigen::Matrix3d::Identity();
+  double widest = 0.0;  // the largest of the faces' smaller sides
+  for (int i = 0; i < 3; ++i) {
+    widest = std::max(widest, std::min(size_m[(i + 1) % 3], size_m[(i + 2) % 3]));
+  }
+  const double threshold = std::min(cup, widest);
+  std::vector<SuctionPoint> points;
+  for (int i = 2; i >= 0; --i) {  // Largest faces (z) first.
+    const int j = (i + 1) % 3, k = (i + 2) % 3;
+    const double larger = std::max(size_m[j], size_m[k]);
+    const double smaller = std::min(size_m[j], size_m[k]);
+    if (smaller < threshold - kSizeTolerance) continue;
+    const int long_axis = size_m[j] >= size_m[k] ? j : k;
+    for (double s : {1.0, -1.0}) {
+      SuctionPoint p;
+      p.name = Signed(s, i) + " face";
+      p.p_ItemPoint = s * size_m[i] / 2.0 * E.col(i);
+      p.approach_Item = -s * E.col(i);
+      p.face_m = Eigen::Vector2d(larger, smaller);
+      points.push_back(p);
+      if (larger < 4.0 * cup - kSizeTolerance) continue;
+      for (double h : {-1.0, 1.0}) {
+        SuctionPoint half = p;
+        half.name = p.name + ", " + Signed(h, long_axis) + " half";
+        half.p_ItemPoint += h * size_m[long_axis] / 4.0 * E.col(long_axis);
+        half.face_m =
+            Eigen::Vector2d(std::max(larger / 2.0, smaller), std::min(larger / 2.0, smaller));
+        points.push_back(half);
+      }
+    }
+  }
+  return points;
+}
+
+// A cylinder's side every 45 degrees (where the cup fits along it) and its two ends.
+std::vector<SuctionPoint> CylinderSuctionPoints(const Eigen::Vector3d& size_m,
+                                                const world::ItemShape& shape, double cup) {
+  const Eigen::Matrix3d E = Eigen::Matrix3d::Identity();
+  const int a = shape.axis_along_long_side ? 0 : 2;
+  const int b = a == 0 ? 1 : 0;
+  const int c = a == 0 ? 2 : 1;
+  const double diameter = std::min(size_m[b], size_m[c]);
+  const double radius = diameter / 2.0;
+  const double length = size_m[a];
+  std::vector<SuctionPoint> points;
+  if (diameter < cup - kSizeTolerance) return points;
+  if (length >= cup - kSizeTolerance) {
+    for (int n = 0; n < 8; ++n) {
+      const double theta = n * 45.0 * kDeg;
+      const double cb = std::abs(std::cos(theta)) < 1e-12 ? 0.0 : std::cos(theta);
+      const double sc = std::abs(std::sin(theta)) < 1e-12 ? 0.0 : std::sin(theta);
+      const Eigen::Vector3d dir = cb * E.col(b) + sc * E.col(c);
+      SuctionPoint p;
+      p.name = "side";
+      if (cb != 0.0) p.name += " " + Signed(cb, b);
+      if (sc != 0.0) p.name += (cb != 0.0 ? "" : " ") + Signed(sc, c);
+      p.p_ItemPoint = radius * dir;
+      p.approach_Item = -dir;
+      p.face_m = Eigen::Vector2d(std::max(length, diameter), std::min(length, diameter));
+      p.quality = CurvatureQuality(radius, cup);
+      points.push_back(p);
+    }
+  }
+  for (double s : {1.0, -1.0}) {
+    SuctionPoint p;
+    p.name = Signed(s, a) + " end";
+    p.p_ItemPoint = s * length / 2.0 * E.col(a);
+    p.approach_Item = -s * E.col(a);
+    p.face_m = Eigen::Vector2d(diameter, diameter);
+    points.push_back(p);
+  }
+  return points;
+}
+
+// A sphere along its six axes and eight diagonals.
+std::vector<SuctionPoint> SphereSuctionPoints(const Eigen::Vector3d& size_m, double cup) {
+  const Eigen::Matrix3d E = Eigen::Matrix3d::Identity();
+  const double diameter = size_m.minCoeff();
+  const double radius = diameter / 2.0;
+  std::vector<Eigen::Vector3d> dirs;
+  for (int i = 0; i < 3; ++i) {
+    dirs.push_back(E.col(i));
+    dirs.push_back(-E.col(i));
+  }
+  for (double sz : {1.0, -1.0}) {
+    for (double sy : {1.0, -1.0}) {
+      for (double sx : {1.0, -1.0}) dirs.push_back(Eigen::Vector3d(sx, sy, sz));
+    }
+  }
+  std::vector<SuctionPoint> points;
+  for (const Eigen::Vector3d& d : dirs) {
+    SuctionPoint p;
+    for (int i = 0; i < 3; ++i) {
+      if (d[i] != 0.0) p.name += Signed(d[i], i);
+    }
+    const Eigen::Vector3d u = d.normalized();
+    p.p_ItemPoint = radius * u;
+    p.approach_Item = -u;
+    p.face_m = Eigen::Vector2d(diameter, diameter);
+    p.quality = CurvatureQuality(radius, cup);
+    points.push_back(p);
+  }
+  return points;
+}
+
+}  // namespace
+
 std::vector<SuctionPoint> DefaultSuctionPoints(const Eigen::Vector3d& size_m,
                                                const world::ItemShape& shape,
                                                double cup_diameter_m) {
@@ -369,112 +483,16 @@ std::vector<SuctionPoint> DefaultSuctionPoints(const Eigen::Vector3d& size_m,
   if (!(cup_diameter_m > 0.0) || !std::isfinite(cup_diameter_m)) {
     throw std::invalid_argument("DefaultSuctionPoints: cup_diameter_m must be positive");
   }
-  const double cup = cup_diameter_m;
-  const double eps = 1e-9;
-  std::vector<SuctionPoint> points;
-  const Eigen::Matrix3d E = Eigen::Matrix3d::Identity();
-
   switch (shape.kind) {
     case world::ShapeKind::kBox:
-    case world::ShapeKind::kScan: {
-      // Smaller side of each face, to pick the faces wide enough for the cup.
-      double widest = 0.0;
-      for (int i = 0; i < 3; ++i) {
-        widest = std::max(widest, std::min(size_m[(i + 1) % 3], size_m[(i + 2) % 3]));
-      }
-      const double threshold = std::min(cup, widest);
-      for (int i = 2; i >= 0; --i) {  // Largest faces (z) first.
-        const int j = (i + 1) % 3, k = (i + 2) % 3;
-        const double larger = std::max(size_m[j], size_m[k]);
-        const double smaller = std::min(size_m[j], size_m[k]);
-        if (smaller < threshold - eps) continue;
-        const int long_axis = size_m[j] >= size_m[k] ? j : k;
-        for (double s : {1.0, -1.0}) {
-          SuctionPoint p;
-          p.name = Signed(s, i) + " face";
-          p.p_ItemPoint = s * size_m[i] / 2.0 * E.col(i);
-          p.approach_Item = -s * E.col(i);
-          p.face_m = Eigen::Vector2d(larger, smaller);
-          points.push_back(p);
-          if (larger >= 4.0 * cup - eps) {
-            for (double h : {-1.0, 1.0}) {
-              SuctionPoint half = p;
-              half.name = p.name + ", " + Signed(h, long_axis) + " half";
-              half.p_ItemPoint += h * size_m[long_axis] / 4.0 * E.col(long_axis);
-              half.face_m =
-                  Eigen::Vector2d(std::max(larger / 2.0, smaller), std::min(larger / 2.0, smaller));
-              points.push_back(half);
-            }
-          }
-        }
-      }
-      break;
-    }
-    case world::ShapeKind::kCylinder: {
-      const int a = shape.axis_along_long_side ? 0 : 2;
-      const int b = a == 0 ? 1 : 0;
-      const int c = a == 0 ? 2 : 1;
-      const double diameter = std::min(size_m[b], size_m[c]);
-      const double radius = diameter / 2.0;
-      const double length = size_m[a];
-      if (diameter >= cup - eps && length >= cup - eps) {
-        for (int n = 0; n < 8; ++n) {
-          const double theta = n * 45.0 * kDeg;
-          const double cb = std::abs(std::cos(theta)) < 1e-12 ? 0.0 : std::cos(theta);
-          const double sc = std::abs(std::sin(theta)) < 1e-12 ? 0.0 : std::sin(theta);
-          const Eigen::Vector3d dir = cb * E.col(b) + sc * E.col(c);
-          SuctionPoint p;
-          p.name = "side";
-          if (cb != 0.0) p.name += " " + Signed(cb, b);
-          if (sc != 0.0) p.name += (cb != 0.0 ? "" : " ") + Signed(sc, c);
-          p.p_ItemPoint = radius * dir;
-          p.approach_Item = -dir;
-          p.face_m = Eigen::Vector2d(std::max(length, diameter), std::min(length, diameter));
-          p.quality = CurvatureQuality(radius, cup);
-          points.push_back(p);
-        }
-      }
-      if (diameter >= cup - eps) {
-        for (double s : {1.0, -1.0}) {
-          SuctionPoint p;
-          p.name = Signed(s, a) + " end";
-          p.p_ItemPoint = s * length / 2.0 * E.col(a);
-          p.approach_Item = -s * E.col(a);
-          p.face_m = Eigen::Vector2d(diameter, diameter);
-          points.push_back(p);
-        }
-      }
-      break;
-    }
-    case world::ShapeKind::kSphere: {
-      const double diameter = size_m.minCoeff();
-      const double radius = diameter / 2.0;
-      std::vector<Eigen::Vector3d> dirs;
-      for (int i = 0; i < 3; ++i) {
-        dirs.push_back(E.col(i));
-        dirs.push_back(-E.col(i));
-      }
-      for (double sz : {1.0, -1.0}) {
-        for (double sy : {1.0, -1.0}) {
-          for (double sx : {1.0, -1.0}) dirs.push_back(Eigen::Vector3d(sx, sy, sz));
-        }
-      }
-      for (const Eigen::Vector3d& d : dirs) {
-        SuctionPoint p;
-        for (int i = 0; i < 3; ++i) {
-          if (d[i] != 0.0) p.name += Signed(d[i], i);
-        }
-        const Eigen::Vector3d u = d.normalized();
-        p.p_ItemPoint = radius * u;
-        p.approach_Item = -u;
-        p.face_m = Eigen::Vector2d(diameter, diameter);
-        p.quality = CurvatureQuality(radius, cup);
-        points.push_back(p);
-      }
-      break;
-    }
+    case world::ShapeKind::kScan:
+      return BoxSuctionPoints(size_m, cup_diameter_m);
+    case world::ShapeKind::kCylinder:
+      return CylinderSuctionPoints(size_m, shape, cup_diameter_m);
+    case world::ShapeKind::kSphere:
+      return SphereSuctionPoints(size_m, cup_diameter_m);
   }
-  return points;
+  return {};
 }
 
 GraspContainer ShelfBinContainer(const world::CellModel& cell, const std::string& bin) {

@@ -673,19 +673,12 @@ double MotionPlanner::BentHover(const GraspContainer& container, const GraspCand
   return std::clamp(room_m, options_.min_bent_hover_m, options_.guarded_distance_m);
 }
 
-MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
-                                                  const CarriedItem& carried, const Head& head,
-                                                  Deadline deadline) const {
-  DrawOut out;
-  out.path_rad = {request.start_rad};
-  const Eigen::Isometry3d X_BaseTcp = head.robot->X_BaseTcp(request.start_rad);
-  const Eigen::Isometry3d X_BaseItem = X_BaseTcp * carried.X_TcpItem;
-  double back_m = 0.0;
-  Eigen::Vector3d out_Base = Eigen::Vector3d::Zero();
+std::optional<GraspContainer> MotionPlanner::BinHoldingItem(const Eigen::Isometry3d& X_BaseItem,
+                                                            const CarriedItem& carried) const {
   for (const auto& bin : cell_->cell().bins) {
-    const GraspContainer container = ShelfBinContainer(cell_->cell(), bin.name);
-    // Only the bin the item is in or before: a corner of its box in the bin's inner box
-    // grown out of the opening by the clearance.
+    GraspContainer container = ShelfBinContainer(cell_->cell(), bin.name);
+    // A corner of the item's box in the bin's inner box grown out of the opening by the
+    // clearance: the item is in the bin or just before it.
     const Eigen::Vector3d half = 0.5 * container.inner_size_m;
     const Eigen::Vector3d o_Container =
         container.X_BaseContainer.linear().transpose() * container.opening_direction_Base;
@@ -694,19 +687,30 @@ MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
       if (o_Container[axis] > 0.5) region.max()[axis] += options_.item_exit_clearance_m;
       if (o_Container[axis] < -0.5) region.min()[axis] -= options_.item_exit_clearance_m;
     }
-    bool inside = false;
     const Eigen::AlignedBox3d& b = carried.box_Item;
-    for (int i = 0; i < 8 && !inside; ++i) {
+    for (int i = 0; i < 8; ++i) {
       const Eigen::Vector3d corner((i & 1) ? b.max().x() : b.min().x(),
                                    (i & 2) ? b.max().y() : b.min().y(),
                                    (i & 4) ? b.max().z() : b.min().z());
-      inside = region.contains(container.X_BaseContainer.inverse() * (X_BaseItem * corner));
+      if (region.contains(container.X_BaseContainer.inverse() * (X_BaseItem * corner))) {
+        return container;
+      }
     }
-    if (!inside) continue;
-    back_m = ItemDepthBehindOpening(container, X_BaseItem, carried);
-    out_Base = container.opening_direction_Base;
-    break;
   }
+  return std::nullopt;
+}
+
+MotionPlanner::DrawOut MotionPlanner::DrawItemOut(const PlaceRequest& request,
+                                                  const CarriedItem& carried, const Head& head,
+                                                  Deadline deadline) const {
+  DrawOut out;
+  out.path_rad = {request.start_rad};
+  const Eigen::Isometry3d X_BaseTcp = head.robot->X_BaseTcp(request.start_rad);
+  const Eigen::Isometry3d X_BaseItem = X_BaseTcp * carried.X_TcpItem;
+  const std::optional<GraspContainer> container = BinHoldingItem(X_BaseItem, carried);
+  if (!container) return out;
+  const double back_m = ItemDepthBehindOpening(*container, X_BaseItem, carried);
+  const Eigen::Vector3d out_Base = container->opening_direction_Base;
   if (back_m <= 0.0) return out;
   // Drawn out by the full clearance first; where the arm cannot go that far back (a long
   // item drawn out of a middle bin brings the wrist to the base's axis), just out of the

@@ -303,6 +303,9 @@ class MotionPlanner final {
   struct DrawOut {
     std::vector<JointVector> path_rad;
   };
+  // The shelf bin the carried item is in, or just before (within the exit clearance).
+  std::optional<GraspContainer> BinHoldingItem(const Eigen::Isometry3d& X_BaseItem,
+                                               const CarriedItem& carried) const;
   DrawOut DrawItemOut(const PlaceRequest& request, const CarriedItem& carried, const Head& head,
                       Deadline deadline) const;
   // How far the item's box at X_BaseItem must still move out along the opening direction to

@@ -309,18 +309,130 @@ MotionResult SimBackend::StopBeforeCollision(const JointVector& last_free,
   return r;
 }
 
+namespace {
+
+// The trajectory's own clock while the arm follows it: in step with the simulated time until a
+// stop is asked for, then slowing linearly to rest within the time the fastest joint needs at
+// the stop deceleration, so the arm decelerates along its path.
+class TrajectoryClock {
+ public:
+  TrajectoryClock(const JointTrajectory& trajectory, double stop_acceleration_rad_s2)
+      : trajectory_(trajectory),
+        duration_s_(trajectory.duration_s()),
+        stop_acceleration_rad_s2_(stop_acceleration_rad_s2) {}
+
+  bool stopping() const { return stopping_; }
+  // The arm ended before the trajectory did: it was stopped on request.
+  bool stopped_early() const { return stopping_ && tau_s_ < duration_s_; }
+
+  // Starts the deceleration at simulated time `t_s`.
+  void BeginStop(double t_s) {
+    stopping_ = true;
+    stop_t0_s_ = t_s;
+    stop_tau0_s_ = tau_s_;
+    JointVector q, qd;
+    SampleTrajectory(trajectory_, tau_s_, &q, &qd);
+    stop_duration_s_ = qd.cwiseAbs().maxCoeff() / stop_acceleration_rad_s2_;
+  }
+
+  struct Step {
+    double tau_s = 0.0;  // trajectory time
+    double rate = 1.0;   // d(tau)/dt
+    bool finished = false;
+  };
+  // The trajectory time at simulated time `t_s`.
+  Step Advance(double t_s) {
+    Step step;
+    if (stopping_) {
+      const double s = std::min(t_s - stop_t0_s_, stop_duration_s_);
+      tau_s_ =
+          stop_duration_s_ > 0.0 ? stop_tau0_s_ + s - 0.5 * s * s / stop_duration_s_ : stop_tau0_s_;
+      step.rate = stop_duration_s_ > 0.0 ? 1.0 - s / stop_duration_s_ : 0.0;
+      step.finished = s >= stop_duration_s_;
+    } else {
+      tau_s_ = t_s;
+    }
+    if (tau_s_ >= duration_s_) {
+      tau_s_ = duration_s_;
+      step.finished = true;
+    }
+    step.tau_s = tau_s_;
+    return step;
+  }
+
+ private:
+  const JointTrajectory& trajectory_;
+  const double duration_s_;
+  const double stop_acceleration_rad_s2_;
+  double tau_s_ = 0.0;
+  bool stopping_ = false;
+  double stop_t0_s_ = 0.0, stop_tau0_s_ = 0.0, stop_duration_s_ = 0.0;
+};
+
+}  // namespace
+
+MotionResult SimBackend::FinishMotion(MotionOutcome outcome, const std::string& message,
+                                      RobotStatus status) {
+  MotionResult r;
+  r.outcome = outcome;
+  r.message = message;
+  std::lock_guard<std::mutex> lock(mutex_);
+  qd_.setZero();
+  if (status_ != RobotStatus::kProtectiveStop) status_ = status;
+  r.final_state = StateLocked();
+  return r;
+}
+
+std::optional<MotionResult> SimBackend::PlaceArmAt(const JointVector& q, const ContactZone& zone,
+                                                   double penetration_m,
+                                                   const JointVector& last_free) {
+  ArmPlacement placement;
+  try {
+    std::lock_guard<std::mutex> arm(arm_mutex_);
+    placement = arm_->PlaceArm(q);
+    std::lock_guard<std::mutex> lock(mutex_);
+    MarkContactLocked();
+  } catch (const UnavailableError& e) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      synced_ = false;  // where the arm is must be read again
+    }
+    return FinishMotion(MotionOutcome::kFailed, std::string("simulator unreachable: ") + e.what(),
+                        RobotStatus::kUnknown);
+  } catch (const std::exception& e) {
+    return FinishMotion(MotionOutcome::kFailed,
+                        std::string("simulator refused the arm motion: ") + e.what(),
+                        RobotStatus::kReady);
+  }
+  if (placement.X_BaseTcp) {
+    const std::string disagreement = TcpDisagreement(
+        checker_.kinematics().ForwardKinematics(q) * checker_.X_ToolTcp(), *placement.X_BaseTcp);
+    if (!disagreement.empty()) {
+      try {
+        std::lock_guard<std::mutex> arm(arm_mutex_);
+        arm_->PlaceArm(last_free);
+      } catch (const std::exception&) {
+        // The motion fails anyway; the next call reads the arm again.
+      }
+      return FinishMotion(MotionOutcome::kFailed, disagreement, RobotStatus::kReady);
+    }
+  }
+  if (placement.in_collision && !(zone.enabled && penetration_m > -kContactSlackM)) {
+    return StopBeforeCollision(last_free, placement.collision_detail);
+  }
+  return std::nullopt;
+}
+
 MotionResult SimBackend::Run(const JointTrajectory& trajectory,
                              const std::function<void(const TrajectoryProgress&)>& progress,
                              const ContactZone& zone) {
   using Clock = std::chrono::steady_clock;
-  const double duration = trajectory.duration_s();
   const double dt = 1.0 / options_.command_rate_hz;
   const Clock::time_point wall_start = Clock::now();
   auto wall_at = [&](double t_sim) {
     return wall_start + std::chrono::duration_cast<Clock::duration>(
                             std::chrono::duration<double>(t_sim / options_.time_scale));
   };
-  const ur10::Ur10Kinematics& kinematics = checker_.kinematics();
 
   JointVector last_free;
   {
@@ -329,100 +441,36 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
     status_ = RobotStatus::kMoving;
     wrench_.setZero();
   }
-  auto finish = [&](MotionOutcome outcome, const std::string& message, RobotStatus status) {
-    MotionResult r;
-    r.outcome = outcome;
-    r.message = message;
-    std::lock_guard<std::mutex> lock(mutex_);
-    qd_.setZero();
-    if (status_ != RobotStatus::kProtectiveStop) status_ = status;
-    r.final_state = StateLocked();
-    return r;
-  };
-
-  double t = 0.0;    // simulated time of the last sample sent
-  double tau = 0.0;  // trajectory time of the last sample sent
-  bool stopping = false;
-  double stop_t0 = 0.0, stop_tau0 = 0.0, stop_duration = 0.0;
+  double t = 0.0;  // simulated time of the last sample sent
+  TrajectoryClock clock(trajectory, options_.stop_acceleration_rad_s2);
   ProgressReporter reporter;
   while (true) {
     const double t_next = t + dt;
     {
       std::unique_lock<std::mutex> lock(mutex_);
-      wake_.wait_until(lock, wall_at(t_next),
-                       [&] { return protective_requested_ || (stop_requested_ && !stopping); });
+      wake_.wait_until(lock, wall_at(t_next), [&] {
+        return protective_requested_ || (stop_requested_ && !clock.stopping());
+      });
       if (protective_requested_) {
         lock.unlock();
-        return finish(MotionOutcome::kProtectiveStop, "protective stop", RobotStatus::kReady);
+        return FinishMotion(MotionOutcome::kProtectiveStop, "protective stop", RobotStatus::kReady);
       }
-      if (stop_requested_ && !stopping) {
-        // Decelerate along the path: the trajectory clock slows linearly to rest within the
-        // time the fastest joint needs at the stop deceleration.
-        stopping = true;
-        stop_t0 = t;
-        stop_tau0 = tau;
-        JointVector q, qd;
-        SampleTrajectory(trajectory, tau, &q, &qd);
-        stop_duration = qd.cwiseAbs().maxCoeff() / options_.stop_acceleration_rad_s2;
+      if (stop_requested_ && !clock.stopping()) {
+        clock.BeginStop(t);
         continue;
       }
     }
     t = t_next;
-    bool finished = false;
-    double rate = 1.0;  // d(tau)/dt
-    if (stopping) {
-      const double s = std::min(t - stop_t0, stop_duration);
-      tau = stop_duration > 0.0 ? stop_tau0 + s - 0.5 * s * s / stop_duration : stop_tau0;
-      rate = stop_duration > 0.0 ? 1.0 - s / stop_duration : 0.0;
-      finished = s >= stop_duration;
-    } else {
-      tau = t;
-    }
-    if (tau >= duration) {
-      tau = duration;
-      finished = true;
-    }
+    const TrajectoryClock::Step step = clock.Advance(t);
     JointVector q, qd;
-    SampleTrajectory(trajectory, tau, &q, &qd);
-    qd *= rate;
-    if (finished) qd.setZero();
+    SampleTrajectory(trajectory, step.tau_s, &q, &qd);
+    qd *= step.rate;
+    if (step.finished) qd.setZero();
 
     double penetration_m = 0.0;
     const Eigen::Matrix<double, 6, 1> wrench = ContactWrench(q, zone, &penetration_m);
-
-    ArmPlacement placement;
-    try {
-      std::lock_guard<std::mutex> arm(arm_mutex_);
-      placement = arm_->PlaceArm(q);
-      std::lock_guard<std::mutex> lock(mutex_);
-      MarkContactLocked();
-    } catch (const UnavailableError& e) {
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        synced_ = false;  // where the arm is must be read again
-      }
-      return finish(MotionOutcome::kFailed, std::string("simulator unreachable: ") + e.what(),
-                    RobotStatus::kUnknown);
-    } catch (const std::exception& e) {
-      return finish(MotionOutcome::kFailed,
-                    std::string("simulator refused the arm motion: ") + e.what(),
-                    RobotStatus::kReady);
-    }
-    if (placement.X_BaseTcp) {
-      const std::string disagreement = TcpDisagreement(
-          kinematics.ForwardKinematics(q) * checker_.X_ToolTcp(), *placement.X_BaseTcp);
-      if (!disagreement.empty()) {
-        try {
-          std::lock_guard<std::mutex> arm(arm_mutex_);
-          arm_->PlaceArm(last_free);
-        } catch (const std::exception&) {
-          // The motion fails anyway; the next call reads the arm again.
-        }
-        return finish(MotionOutcome::kFailed, disagreement, RobotStatus::kReady);
-      }
-    }
-    if (placement.in_collision && !(zone.enabled && penetration_m > -kContactSlackM)) {
-      return StopBeforeCollision(last_free, placement.collision_detail);
+    if (std::optional<MotionResult> ended = PlaceArmAt(q, zone, penetration_m, last_free)) {
+      return *ended;
     }
     last_free = q;
     RobotState state;
@@ -434,12 +482,12 @@ MotionResult SimBackend::Run(const JointTrajectory& trajectory,
       time_s_ += dt;
       state = StateLocked();
     }
-    if (progress) reporter.Update(trajectory, tau, state, progress);
-    if (finished) {
-      if (stopping && tau < duration) {
-        return finish(MotionOutcome::kStopped, "stopped on request", RobotStatus::kReady);
+    if (progress) reporter.Update(trajectory, step.tau_s, state, progress);
+    if (step.finished) {
+      if (clock.stopped_early()) {
+        return FinishMotion(MotionOutcome::kStopped, "stopped on request", RobotStatus::kReady);
       }
-      return finish(MotionOutcome::kCompleted, "", RobotStatus::kReady);
+      return FinishMotion(MotionOutcome::kCompleted, "", RobotStatus::kReady);
     }
   }
 }

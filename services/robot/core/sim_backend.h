@@ -132,8 +132,8 @@ class SimBackend final : public CheckedBackend {
   void MarkContactLocked() { last_contact_ = options_.now(); }
   // True when the world has not answered for link_check_period_s. Caller holds mutex_.
   bool LinkCheckDueLocked() const;
-  // The safety layer's hooks (CheckedBackend): the checker at the head's angle read from the
-  // world; BeginMotion synchronises and checks the arm is ready.
+  // CheckedBackend's hooks. The checker is the one at the head's angle read from the world;
+  // BeginMotion synchronises and checks the arm is ready.
   const SafetyChecker& CheckerForMotion() override;
   MotionResult Reject(const std::string& why) override;
   MotionResult BeginMotion() override;
@@ -157,6 +157,12 @@ class SimBackend final : public CheckedBackend {
   MotionResult Run(const JointTrajectory& trajectory,
                    const std::function<void(const TrajectoryProgress&)>& progress,
                    const ContactZone& zone);
+  // Ends the motion: the arm at rest with `status` (unless a protective stop holds it).
+  MotionResult FinishMotion(MotionOutcome outcome, const std::string& message, RobotStatus status);
+  // Places the simulated arm at `q`; the motion's end when it cannot (the world unreachable
+  // or refusing, its tcp not where ours is, a collision outside the contact zone).
+  std::optional<MotionResult> PlaceArmAt(const JointVector& q, const ContactZone& zone,
+                                         double penetration_m, const JointVector& last_free);
   // The guarded move's spring: the force on the tcp at `q` (zero before the first touch), and
   // how far past the touch the tcp is in `penetration_m` (-inf outside a contact zone).
   Eigen::Matrix<double, 6, 1> ContactWrench(const JointVector& q, const ContactZone& zone,

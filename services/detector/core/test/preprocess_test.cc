@@ -6,6 +6,8 @@
 #include <limits>
 #include <random>
 
+#include "services/detector/core/test/bin_scene_test_util.h"
+
 namespace picking::detector {
 namespace {
 
@@ -18,40 +20,9 @@ geometry::PointCloud Unorganised(std::vector<Eigen::Vector3f> points) {
   return c;
 }
 
-// A shelf bin 0.3 x 0.25 x 0.2 m, rotated and translated, filled with points on its inner
-// floor, walls and an item in the middle; plus points outside the bin.
-struct BinScene {
-  OrientedBox bin;
-  geometry::PointCloud cloud;
-  std::size_t num_item_points = 0;
-};
+using testing::BinScene;
 
-BinScene MakeBinScene() {
-  BinScene s;
-  s.bin.size_m = Eigen::Vector3d(0.3, 0.25, 0.2);
-  s.bin.X_BaseBox =
-      Eigen::Translation3d(0.8, 0.1, 1.2) * Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ());
-  std::vector<Eigen::Vector3f> p_Bin;
-  for (double a = -0.145; a <= 0.145; a += 0.005)
-    for (double b = -0.12; b <= 0.12; b += 0.005) p_Bin.emplace_back(a, b, -0.098);  // floor
-  for (double b = -0.12; b <= 0.12; b += 0.005)
-    for (double c = -0.095; c <= 0.095; c += 0.005) {
-      p_Bin.emplace_back(-0.148, b, c);  // left wall
-      p_Bin.emplace_back(0.148, b, c);   // right wall
-    }
-  const std::size_t walls = p_Bin.size();
-  for (double a = -0.03; a <= 0.03; a += 0.004)
-    for (double b = -0.03; b <= 0.03; b += 0.004) p_Bin.emplace_back(a, b, -0.05);  // item
-  s.num_item_points = p_Bin.size() - walls;
-  for (const auto& p : p_Bin)
-    s.cloud.points.push_back((s.bin.X_BaseBox * p.cast<double>()).cast<float>());
-  for (int i = 0; i < 100; ++i)  // outside the bin
-    s.cloud.points.push_back(
-        (s.bin.X_BaseBox * Eigen::Vector3d(0.3 + 0.001 * i, 0.0, 0.0)).cast<float>());
-  s.cloud.points.push_back(Eigen::Vector3f::Constant(kNaN));
-  s.cloud.width = static_cast<std::uint32_t>(s.cloud.points.size());
-  return s;
-}
+BinScene MakeBinScene() { return testing::MakeBinScene(/*floor_z_m=*/-0.098, /*with_nan=*/true); }
 
 TEST(PreprocessTest, CropAndWallRemovalKeepOnlyTheItem) {
   const BinScene s = MakeBinScene();
@@ -62,7 +33,7 @@ TEST(PreprocessTest, CropAndWallRemovalKeepOnlyTheItem) {
   walls.margin_m = 0.01;
   walls.faces = kAllFaces & ~kFaceMaxY;  // open front
   const geometry::PointCloud item = RemoveBoxWalls(cropped, s.bin, walls);
-  EXPECT_EQ(item.size(), s.num_item_points);
+  EXPECT_EQ(item.size(), s.item_points);
 }
 
 TEST(PreprocessTest, OrganisedCloudStaysOrganised) {
