@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -229,6 +230,10 @@ void CheckOptions(const GraspOptions& o) {
   require(std::isfinite(o.max_clearance_m) && o.max_clearance_m > 0.0 &&
               o.max_clearance_m >= o.min_clearance_m,
           "max_clearance_m must be > 0 and >= min_clearance_m");
+  require(std::isfinite(o.edge_margin_toward_opening_m),
+          "edge_margin_toward_opening_m must be finite (negative: off)");
+  require(std::isfinite(o.min_shift_toward_opening_m) && o.min_shift_toward_opening_m > 0.0,
+          "min_shift_toward_opening_m must be > 0");
   require(std::isfinite(o.full_face_size_m) && o.full_face_size_m > 0.0,
           "full_face_size_m must be > 0");
   require(o.vertical_roll_threshold_rad > 0.0 && o.vertical_roll_threshold_rad < EIGEN_PI / 2.0,
@@ -576,6 +581,43 @@ std::vector<std::pair<Eigen::Vector3d, double>> Approaches(const Eigen::Vector3d
   return approaches;
 }
 
+// The point at the centre of a box face moved across the face toward the opening
+// (opening_Item, the item frame) as far as the cup stays on the face by the margin; nothing
+// for a point that is not a face centre listed with the face's full size, a face turned toward
+// the opening, or a shift below the minimum.
+std::optional<SuctionPoint> TowardTheOpening(const SuctionPoint& point, const ItemGrasps& grasps,
+                                             const Eigen::Vector3d& opening_Item,
+                                             double cup_radius_m, const GraspOptions& options) {
+  if (options.edge_margin_toward_opening_m < 0.0) return std::nullopt;
+  const Eigen::Vector3d& a = point.approach_Item;
+  int i = 0;
+  if (a.cwiseAbs().maxCoeff(&i) < 1.0 - 1e-9) return std::nullopt;  // not along an item axis
+  const int j = (i + 1) % 3, k = (i + 2) % 3;
+  const Eigen::Vector3d& size = grasps.size_m;
+  const double tolerance = 1e-3;  // the table's millimetres
+  const bool face_centre = std::abs(std::abs(point.p_ItemPoint[i]) - size[i] / 2.0) < tolerance &&
+                           std::abs(point.p_ItemPoint[j]) < tolerance &&
+                           std::abs(point.p_ItemPoint[k]) < tolerance;
+  const bool whole_face = std::abs(point.face_m.x() - std::max(size[j], size[k])) < tolerance &&
+                          std::abs(point.face_m.y() - std::min(size[j], size[k])) < tolerance;
+  if (!face_centre || !whole_face) return std::nullopt;
+  Eigen::Vector3d across = opening_Item;
+  across[i] = 0.0;
+  if (across.norm() < 0.5) return std::nullopt;  // the face looks toward the opening already
+  across.normalize();
+  double shift_m = std::numeric_limits<double>::infinity();
+  for (const int axis : {j, k}) {
+    if (std::abs(across[axis]) < 1e-9) continue;
+    const double room_m = size[axis] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
+    shift_m = std::min(shift_m, room_m / std::abs(across[axis]));
+  }
+  if (!(shift_m >= options.min_shift_toward_opening_m)) return std::nullopt;
+  SuctionPoint moved = point;
+  moved.name = point.name + ", toward the opening";
+  moved.p_ItemPoint += shift_m * across;
+  return moved;
+}
+
 // The free distance behind the point along -approach (the options' callback, else the
 // container's walls), clamped to [0, max_clearance_m].
 double Clearance(const GraspContainer& container, const Eigen::Vector3d& p_BasePoint,
@@ -684,9 +726,18 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
   const Eigen::Matrix3d R_BaseItem = X_BaseItem.linear();
   int tried = 0;
 
+  // Each listed point, and in a shelf bin its variant moved toward the opening.
+  std::vector<std::pair<SuctionPoint, int>> points;
+  const Eigen::Vector3d opening_Item = R_BaseItem.transpose() * opening;
   for (std::size_t index = 0; index < grasps.points.size(); ++index) {
-    const SuctionPoint& point = grasps.points[index];
-    const int point_index = static_cast<int>(index);
+    points.emplace_back(grasps.points[index], static_cast<int>(index));
+    if (container.kind != GraspContainerKind::kShelfBin) continue;
+    if (auto moved = TowardTheOpening(grasps.points[index], grasps, opening_Item,
+                                      table.cup_diameter_m() / 2.0, options)) {
+      points.emplace_back(std::move(*moved), static_cast<int>(index));
+    }
+  }
+  for (const auto& [point, point_index] : points) {
     const Eigen::Vector3d p_BasePoint = X_BaseItem * point.p_ItemPoint;
     const Eigen::Vector3d normal_Base = (R_BaseItem * point.approach_Item).normalized();
 

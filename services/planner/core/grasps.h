@@ -195,6 +195,14 @@ struct GraspOptions {
   /// In a shelf bin, an approach within this angle of horizontal is also tried pitched down
   /// by the same tilts (the tube rising toward the opening, over the floor's front lip).
   double max_pitch_from_horizontal_rad = 30.0 * EIGEN_PI / 180.0;
+  /// Shelf bins: a point at the centre of a box face (listed with the face's full size) is
+  /// also tried moved across the face toward the opening, as far as the whole cup stays on the
+  /// face with this margin to its edge (the detected pose's error), when that is at least
+  /// min_shift_toward_opening_m. A flat item lying deep in a bin is then taken near its front
+  /// edge, where the bent head's tube reaches from outside the opening: the UR10's wrist,
+  /// stacked 0.23 m tall with the tube level, does not fit into a bin. Negative: off.
+  double edge_margin_toward_opening_m = 0.005;
+  double min_shift_toward_opening_m = 0.02;
   /// Points further than this outside the container's inner box are rejected.
   double container_tolerance_m = 0.01;
   /// Candidates with less free distance behind the point than this are rejected (blocked).

@@ -410,10 +410,44 @@ GraspResult MotionPlanner::ComputeGraspsFor(const std::string& item,
 // ---------------------------------------------------------------------------------------
 // Timing and validation
 
+namespace {
+
+// The timed motion checked continuously where it may leave what is checked already: all of
+// it, or (the path's segments checked) each run of sample steps that does not stay on one
+// segment (blends, and steps across a corner, which cut it).
+MotionCheckResult CheckTimedMotion(const MotionChecker& checker, const CarriedItem* carried,
+                                   const std::vector<JointVector>& path_rad,
+                                   const std::vector<TrajectorySample>& timed,
+                                   const std::vector<JointVector>& samples, bool segments_checked) {
+  if (!segments_checked) return checker.CheckPath(samples, carried);
+  // Far below a sample step (the samples lie on a segment to rounding).
+  constexpr double kOnSegmentRad = 1e-9;
+  const std::vector<int> segment = PolylineSegmentOfSamples(timed, path_rad, kOnSegmentRad);
+  std::size_t k = 0;
+  while (k + 1 < samples.size()) {
+    if (segment[k] >= 0 && segment[k] == segment[k + 1]) {
+      ++k;
+      continue;
+    }
+    std::size_t end = k + 1;  // the run of steps off a single segment
+    while (end + 1 < samples.size() && !(segment[end] >= 0 && segment[end] == segment[end + 1])) {
+      ++end;
+    }
+    const std::vector<JointVector> run(samples.begin() + k, samples.begin() + end + 1);
+    MotionCheckResult check = checker.CheckPath(run, carried);
+    if (!check.free) return check;
+    k = end;
+  }
+  return MotionCheckResult{};
+}
+
+}  // namespace
+
 Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_rad,
                                           double speed_fraction, const MotionChecker& checker,
                                           const ExactChecker& exact, const CarriedItem* carried,
-                                          const std::string& stage) const {
+                                          const std::string& stage,
+                                          PathChecked path_checked) const {
   if (!(speed_fraction > 0.0 && speed_fraction <= 1.0)) {
     throw std::invalid_argument("speed_fraction must be in (0, 1]");
   }
@@ -464,7 +498,8 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
     std::vector<JointVector> samples;
     samples.reserve(timed.samples.size());
     for (const auto& s : timed.samples) samples.push_back(s.q_rad);
-    const MotionCheckResult check = checker.CheckPath(samples, carried);
+    const MotionCheckResult check = CheckTimedMotion(
+        checker, carried, path_rad, timed.samples, samples, path_checked == PathChecked::kSegments);
     if (!check.free) {
       if (deviation > 0.0) continue;
       fail("collision", "the timed motion collides: " + check.report.ToString(), &check.report);
@@ -1143,13 +1178,15 @@ void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
                                   const ExactChecker& exact, PickPlan* plan) const {
   plan->approach =
       TimeAndValidate(paths.approach, speed_fraction, motion, exact, nullptr, "approach");
-  plan->descend = TimeAndValidate(paths.descend, speed_fraction, motion, exact, nullptr, "descend");
+  // The descent and the retreat are the cartesian search's, every segment checked.
+  plan->descend = TimeAndValidate(paths.descend, speed_fraction, motion, exact, nullptr, "descend",
+                                  PathChecked::kSegments);
   // The lift is checked here without the item: LiftOff checked the item's box along it
   // exactly; the fast check takes the item from the lift's end on.
-  const Trajectory lift =
-      TimeAndValidate(paths.lift, speed_fraction, motion, exact, nullptr, "retreat");
-  plan->retreat = Joined(
-      lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact, &carried, "retreat"));
+  const Trajectory lift = TimeAndValidate(paths.lift, speed_fraction, motion, exact, nullptr,
+                                          "retreat", PathChecked::kSegments);
+  plan->retreat = Joined(lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact,
+                                               &carried, "retreat", PathChecked::kSegments));
 }
 
 namespace {
@@ -1194,7 +1231,10 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
       bent ? BentHover(container, grasp, fast.robot().gripper()) : options_.guarded_distance_m;
   const std::optional<Eigen::Isometry3d> pre =
       PreGraspPose(container, grasp, hover_m, bent, &reason);
-  if (!pre) return fail("pre-grasp", "ik unreachable", reason);
+  if (!pre) {
+    failure->before_search = true;
+    return fail("pre-grasp", "ik unreachable", reason);
+  }
   const Eigen::Isometry3d& X_pre = *pre;
   const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * hover_m);
   PlanFailure start_failure;
@@ -1203,6 +1243,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   Lap(times, "pre-grasp", &lap_start);
   if (!q_pre) {
     *failure = start_failure;  // body and obstacle
+    failure->before_search = true;
     return fail(start_failure.stage, start_failure.kind, start_failure.message);
   }
 
@@ -1290,7 +1331,7 @@ const MotionPlanner::RequestChecks* MotionPlanner::ChecksForGrasp(
 bool MotionPlanner::TryRolls(const PickRequest& request, const GraspCandidate& candidate,
                              const std::shared_ptr<const world::ItemModel>& model,
                              const RequestChecks& checks, bool bent, Deadline deadline,
-                             PickPlan* plan, PlanFailure* best) const {
+                             PickPlan* plan, PlanFailure* best, bool* searched) const {
   // Suction is symmetric about the cup's axis: the wrist may take the grasp at another roll
   // where the first one runs into a joint limit, a wrist singularity or a wall. A bent head's
   // roll sets where the tube leaves the bin: a little to either side keeps the wrist off a
@@ -1318,6 +1359,7 @@ bool MotionPlanner::TryRolls(const PickRequest& request, const GraspCandidate& c
     }
     if (!have_best || failure.fraction_achieved > best->fraction_achieved) *best = failure;
     have_best = true;
+    if (!failure.before_search) *searched = true;
   }
   return false;
 }
@@ -1376,13 +1418,16 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
       failures.push_back(refused);
       continue;
     }
-    ++plan.grasps_tried;
     PlanFailure best;
-    if (TryRolls(request, candidate, model, *checks, checks != &straight, deadline, &plan, &best)) {
+    bool searched = false;
+    if (TryRolls(request, candidate, model, *checks, checks != &straight, deadline, &plan, &best,
+                 &searched)) {
+      ++plan.grasps_tried;
       plan.rejected = failures;
       plan.planning_time_s = Seconds(started);
       return plan;
     }
+    if (searched) ++plan.grasps_tried;
     failures.push_back(best);
   }
   // The most advanced attempt first.

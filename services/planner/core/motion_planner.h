@@ -128,6 +128,9 @@ struct PlanFailure {
   std::string body;      ///< Colliding body, if any.
   std::string obstacle;  ///< What it hit.
   std::string message;   ///< One line a person can act on.
+  /// Refused by the checks before any search (the pre-grasp's and the descent's end poses'
+  /// IK and collisions), which cost microseconds.
+  bool before_search = false;
 };
 
 /// Thrown when no plan exists (mapped to ABORTED); carries every attempt's failure, the most
@@ -269,11 +272,16 @@ class MotionPlanner final {
   /// From the retreat's end, carrying the item, to its release pose over the container.
   PlacePlan PlanPlace(const PlaceRequest& request, Deadline deadline) const;
 
+  /// Whether the caller has checked the path's own segments with the same checker and
+  /// carried item (CheckSegment on each, as the cartesian search does).
+  enum class PathChecked { kNo, kSegments };
   /// Times a joint path within the limits (scaled by speed_fraction) and checks the timed
-  /// motion: continuous fast check, then FCL at nodes and samples. Throws PlanFailedError.
+  /// motion: continuous fast check (only where it leaves the path's segments, if they are
+  /// checked), then FCL at nodes and samples. Throws PlanFailedError.
   Trajectory TimeAndValidate(const std::vector<JointVector>& path_rad, double speed_fraction,
                              const MotionChecker& checker, const ExactChecker& exact,
-                             const CarriedItem* carried, const std::string& stage) const;
+                             const CarriedItem* carried, const std::string& stage,
+                             PathChecked path_checked = PathChecked::kNo) const;
 
  private:
   struct Attempt;
@@ -370,10 +378,12 @@ class MotionPlanner final {
                                       const ScanObstacles* scan, const RequestChecks& straight,
                                       std::map<double, std::unique_ptr<RequestChecks>>* bent_checks,
                                       GraspCandidate* candidate, PlanFailure* refused) const;
-  // TryGrasp at the grasp's rolls; the most advanced failure in `best` when none works.
+  // TryGrasp at the grasp's rolls; the most advanced failure in `best` when none works, and
+  // in `searched` whether any roll got past the checks before the search.
   bool TryRolls(const PickRequest& request, const GraspCandidate& candidate,
                 const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
-                bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best) const;
+                bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best,
+                bool* searched) const;
   /// The joint paths of a pick, in the order the arm runs them.
   struct PickPaths {
     std::vector<JointVector> approach, descend, lift, retreat;

@@ -1145,4 +1145,27 @@ double MaxDistanceFromPolyline(const std::vector<TrajectorySample>& samples,
   return worst;
 }
 
+std::vector<int> PolylineSegmentOfSamples(const std::vector<TrajectorySample>& samples,
+                                          const std::vector<JointVector>& waypoints_rad,
+                                          double tolerance_rad) {
+  std::vector<int> segment(samples.size(), -1);
+  if (waypoints_rad.size() < 2) return segment;
+  // How many segments past the last one found a sample may lie: the blends at the corners
+  // between may swallow short segments whole.
+  constexpr std::size_t kLookAhead = 8;
+  const std::size_t m = waypoints_rad.size() - 1;
+  std::size_t last = 0;
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    for (std::size_t j = last; j < std::min(m, last + kLookAhead); ++j) {
+      if (PointSegmentDistance(samples[k].q_rad, waypoints_rad[j], waypoints_rad[j + 1]) <=
+          tolerance_rad) {
+        segment[k] = static_cast<int>(j);
+        last = j;
+        break;
+      }
+    }
+  }
+  return segment;
+}
+
 }  // namespace picking::planner

@@ -108,4 +108,13 @@ TimeOptimalResult TimeParametrizeTimeOptimal(const std::vector<JointVector>& way
 double MaxDistanceFromPolyline(const std::vector<TrajectorySample>& samples,
                                const std::vector<JointVector>& waypoints_rad);
 
+/// The polyline segment each sample lies on: the index j of the segment from waypoint j to
+/// j + 1 within `tolerance_rad` (Euclidean, joint space), or -1 for a sample off the polyline
+/// (in a blend). The samples run forward along the polyline, so each is looked for on the
+/// segment of the last sample found and the few after it; a sample not found there counts as
+/// off, which only ever asks for more checking.
+std::vector<int> PolylineSegmentOfSamples(const std::vector<TrajectorySample>& samples,
+                                          const std::vector<JointVector>& waypoints_rad,
+                                          double tolerance_rad);
+
 }  // namespace picking::planner

@@ -97,9 +97,24 @@ void ExpectConsistent(const GraspResult& result, const std::string& item,
     ASSERT_GE(c.point_index, 0);
     ASSERT_LT(c.point_index, static_cast<int>(grasps.points.size()));
     const SuctionPoint& point = grasps.points[c.point_index];
-    EXPECT_EQ(c.surface, point.name);
+    // The table's point, or (in a shelf bin) that point moved across its face toward the
+    // opening: in the face's plane, the cup on the face.
+    Eigen::Vector3d p_ItemPoint = point.p_ItemPoint;
+    if (c.surface == point.name + ", toward the opening") {
+      EXPECT_EQ(container.kind, GraspContainerKind::kShelfBin);
+      p_ItemPoint = X_BaseItem.inverse() * c.p_BasePoint;
+      EXPECT_NEAR((p_ItemPoint - point.p_ItemPoint).dot(point.approach_Item), 0.0, 1e-9);
+      const Eigen::Vector3d on_face =
+          p_ItemPoint.cwiseAbs() + Eigen::Vector3d::Constant(F().table.cup_diameter_m() / 2.0);
+      for (int axis = 0; axis < 3; ++axis) {
+        if (std::abs(point.approach_Item[axis]) > 0.5) continue;
+        EXPECT_LE(on_face[axis], grasps.size_m[axis] / 2.0 + 1e-9) << axis;
+      }
+    } else {
+      EXPECT_EQ(c.surface, point.name);
+    }
     // The tcp sits on the item's suction point, +z_tcp along the approach.
-    const Eigen::Vector3d p_BasePoint = X_BaseItem * point.p_ItemPoint;
+    const Eigen::Vector3d p_BasePoint = X_BaseItem * p_ItemPoint;
     EXPECT_LT((c.X_BaseTcp.translation() - p_BasePoint).norm(), 1e-9);
     EXPECT_LT((c.p_BasePoint - p_BasePoint).norm(), 1e-9);
     const Eigen::Matrix3d R = c.X_BaseTcp.linear();
@@ -506,6 +521,54 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance
   EXPECT_FALSE(ComputeGrasps(f.table, item, X_BaseItem, container, no_tilt).empty());
 }
 
+// A flat item lying deep in a bin is also offered its top face's point nearest the opening
+// that keeps the whole cup (and the margin) on the face; the centre still ranks first.
+TEST(ComputeGraspsTest, ATopFaceIsAlsoOfferedNearTheOpening) {
+  const Fixture& f = F();
+  const std::string item = "cherokee_easy_tee_shirt";
+  const GraspContainer container = ShelfBinContainer(f.cell, "bin_C");
+  const Eigen::Vector3d size = SizeOf(item);
+  const Eigen::Isometry3d X_BaseItem =
+      PlaceInBin(f.cell.bin("bin_C"), size, 0.3) * Eigen::Translation3d(-0.12, 0.0, 0.0);
+  const GraspOptions options;
+  const GraspResult result = ComputeGrasps(f.table, item, X_BaseItem, container, options);
+  const double cup_radius_m = f.table.cup_diameter_m() / 2.0;
+  const Eigen::Vector3d o = container.opening_direction_Base;
+  const GraspCandidate* centre = nullptr;
+  const GraspCandidate* front = nullptr;
+  for (const GraspCandidate& c : result.candidates) {  // each surface's best approach
+    if (c.surface == "+z face" && !centre) centre = &c;
+    if (c.surface == "+z face, toward the opening" && !front) front = &c;
+  }
+  ASSERT_NE(centre, nullptr);
+  ASSERT_NE(front, nullptr) << "no point toward the opening";
+  EXPECT_GT(centre->score.total, front->score.total);
+  // Nearer the opening, on the same face, the cup's rim the margin inside one of its edges.
+  const Eigen::Vector3d p_Item = X_BaseItem.inverse() * front->p_BasePoint;
+  EXPECT_NEAR(p_Item.z(), size.z() / 2.0, 1e-9);
+  const double to_edge_m =
+      std::min(size.x() / 2.0 - std::abs(p_Item.x()), size.y() / 2.0 - std::abs(p_Item.y()));
+  EXPECT_NEAR(to_edge_m, cup_radius_m + options.edge_margin_toward_opening_m, 1e-9);
+  EXPECT_GT((front->p_BasePoint - centre->p_BasePoint).dot(o), 0.05);
+  // Its shift lies in the face, along the opening direction's part across it.
+  const Eigen::Vector3d shift = front->p_BasePoint - centre->p_BasePoint;
+  const Eigen::Vector3d across =
+      (o - o.dot(X_BaseItem.linear().col(2)) * X_BaseItem.linear().col(2)).normalized();
+  EXPECT_NEAR(shift.normalized().dot(across), 1.0, 1e-9);
+  // Off, or in the tote: none.
+  GraspOptions off = options;
+  off.edge_margin_toward_opening_m = -1.0;
+  for (const GraspCandidate& c :
+       ComputeGrasps(f.table, item, X_BaseItem, container, off).candidates) {
+    EXPECT_EQ(c.surface.find("toward the opening"), std::string::npos);
+  }
+  const GraspContainer tote = ToteContainer(f.cell);
+  for (const GraspCandidate& c :
+       ComputeGrasps(f.table, item, PlaceInTote(tote, size, 0.3), tote, options).candidates) {
+    EXPECT_EQ(c.surface.find("toward the opening"), std::string::npos);
+  }
+}
+
 // A face toward the opening is also offered pitched down, the tube rising toward the
 // opening over the floor's front lip, by the same tilts (within the seal tolerance).
 TEST(ComputeGraspsTest, AFaceTowardTheOpeningIsAlsoPitchedDown) {
@@ -590,10 +653,10 @@ TEST(ComputeGraspsTest, MovingItemAndContainerMovesTheGrasps) {
       // approach's height in the container tells them apart.
       auto key = [](const GraspCandidate& c, const GraspContainer& box) {
         const double height = (box.X_BaseContainer.linear().transpose() * c.approach_Base).z();
-        return std::tuple<int, long, long>{c.point_index, std::lround(c.tilt_rad * 1e6),
-                                           std::lround(height * 1e4)};
+        return std::tuple<std::string, long, long>{c.surface, std::lround(c.tilt_rad * 1e6),
+                                                   std::lround(height * 1e4)};
       };
-      std::map<std::tuple<int, long, long>, const GraspCandidate*> by_key;
+      std::map<std::tuple<std::string, long, long>, const GraspCandidate*> by_key;
       for (const GraspCandidate& c : b.candidates) by_key[key(c, moved)] = &c;
       for (const GraspCandidate& ca : a.candidates) {
         const auto it = by_key.find(key(ca, container));
@@ -728,7 +791,9 @@ TEST(ComputeGraspsTest, PointsOutsideTheContainerAreRejected) {
   X_BaseItem.translation().y() += 1.0;  // In the next bin over, or beside the shelf.
   const GraspResult r = ComputeGrasps(f.table, item, X_BaseItem, container);
   EXPECT_TRUE(r.empty());
-  EXPECT_EQ(r.rejected_outside_container, static_cast<int>(F().table.at(item).points.size()));
+  // Every listed point (and every point moved toward the opening).
+  EXPECT_EQ(r.rejected_outside_container, static_cast<int>(r.rejected.size()));
+  EXPECT_GE(r.rejected_outside_container, static_cast<int>(F().table.at(item).points.size()));
   EXPECT_NE(r.reason.find("outside the container box"), std::string::npos) << r.reason;
 }
 

@@ -284,6 +284,36 @@ TEST(TimeOptimalTest, RightAngleIsBlendedWithinTheDeviation) {
   EXPECT_GE(distance, 0.05 * std::sqrt(0.5) - step);
 }
 
+// The samples of a blended corner: on the first segment, then off both in the blend, then on
+// the second; the planner re-checks only the steps that do not stay on one segment.
+TEST(TimeOptimalTest, EachSampleKnowsTheSegmentItLiesOn) {
+  const TimeOptimalOptions o = Ur10Options(0.05);
+  const JointVector a = JointVector::Zero();
+  const JointVector b = JointVector::Constant(0.5);
+  const JointVector d = b + JointVector::Unit(0) * 0.5 - JointVector::Unit(1) * 0.5;
+  const TimeOptimalResult r = TimeParametrizeTimeOptimal({a, b, d}, o);
+  const std::vector<int> segment = PolylineSegmentOfSamples(r.samples, {a, b, d}, 1e-9);
+  ASSERT_EQ(segment.size(), r.samples.size());
+  EXPECT_EQ(segment.front(), 0);
+  EXPECT_EQ(segment.back(), 1);
+  // In order: 0s, then -1s (the blend), then 1s; and -1 exactly where a sample is off both.
+  int phase = 0, blended = 0;
+  for (std::size_t i = 0; i < segment.size(); ++i) {
+    const double off = std::min(PointSegmentDistance(r.samples[i].q_rad, a, b),
+                                PointSegmentDistance(r.samples[i].q_rad, b, d));
+    EXPECT_EQ(segment[i]<0, off> 1e-9) << i;
+    const int p = segment[i] == 0 ? 0 : segment[i] < 0 ? 1 : 2;
+    EXPECT_GE(p, phase) << i;
+    phase = p;
+    blended += segment[i] < 0;
+  }
+  EXPECT_GT(blended, 0);
+  // A straight move lies on its one segment throughout; no polyline, no segment.
+  const TimeOptimalResult straight = TimeParametrizeTimeOptimal({a, b}, o);
+  for (int s : PolylineSegmentOfSamples(straight.samples, {a, b}, 1e-9)) EXPECT_EQ(s, 0);
+  for (int s : PolylineSegmentOfSamples(straight.samples, {a}, 1e-9)) EXPECT_EQ(s, -1);
+}
+
 TEST(TimeOptimalTest, MaxDistanceFromPolylineIsTheBruteForceOne) {
   std::mt19937 rng(5);
   std::normal_distribution<double> normal(0.0, 1.0);
