@@ -39,6 +39,7 @@
 #include "libs/camera/pinhole_camera.h"
 #include "services/detector/core/detect_in_region.h"
 #include "services/detector/core/model_library.h"
+#include "services/detector/core/verify.h"
 
 namespace picking::detector_eval {
 namespace {
@@ -265,12 +266,19 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   rows << "| " << frame << " | " << truth.name << " | ";
   if (found.chain.detection) {
     const Judged j = judge(*found.chain.detection, truth.X_CameraObject);
+    // The evidence under the score: the model's points facing the sensor, hidden behind other
+    // surfaces, supported by the scan, and in space the sensor saw through.
+    const auto context = detector::MakeSceneContext(scene);
+    const detector::VerifyResult v = detector::Verify(
+        *context->Verification(), model->object->icp_cloud(), found.chain.detection->X_BaseItem);
     ++tally->accepted;
     tally->correct_accepted += j.correct;
     tally->add_correct_accepted += j.add_correct;
     rows << (j.correct ? "ok" : "WRONG") << " " << std::fixed << std::setprecision(1)
          << 1e3 * j.add_m << " mm, IoU " << std::setprecision(2) << j.iou << ", score " << j.score
-         << " (" << found.chain.detection->method << ")";
+         << " (" << found.chain.detection->method << "; visible " << v.num_visible << ", occluded "
+         << v.num_occluded << ", supported " << v.num_supported << ", conflicts " << v.num_conflicts
+         << " of " << v.num_model_points << ")";
   } else {
     rows << "none";
   }
