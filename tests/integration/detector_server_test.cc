@@ -396,6 +396,23 @@ Scene* DetectorSceneTest::scene_ = nullptr;
 Transform* DetectorSceneTest::X_BaseScene_ = nullptr;
 std::vector<common::PointCloudChunk>* DetectorSceneTest::chunks_ = nullptr;
 
+// A method that cannot run says so, and why, rather than answering like "not seen": SIFT on
+// the milk, whose model has no colours (no SIFT views).
+TEST_F(DetectorSceneTest, AMethodThatCannotRunSaysWhy) {
+  pb::DetectResponse response;
+  const grpc::Status status = Detect(Query({"milk"}, pb::METHOD_SIFT), *chunks_, &response);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  ASSERT_EQ(response.results_size(), 1);
+  const pb::ItemResult& milk = response.results(0);
+  EXPECT_EQ(milk.status().code(), 0) << milk.status().message();
+  EXPECT_EQ(milk.detections_size(), 0);
+  ASSERT_EQ(milk.attempts_size(), 1);
+  EXPECT_EQ(milk.attempts(0).method(), pb::METHOD_SIFT);
+  EXPECT_EQ(milk.attempts(0).outcome(), pb::MethodAttempt::OUTCOME_CANNOT_RUN);
+  EXPECT_NE(milk.attempts(0).reason().find("no SIFT views"), std::string::npos)
+      << milk.attempts(0).reason();
+}
+
 // One batch: the milk is found at the scene's transform, an unknown item gets NOT_FOUND
 // without hiding the others, and the bunny (not in the scene) gets no detection.
 TEST_F(DetectorSceneTest, DetectsMilkAndReportsEachItemSeparately) {
@@ -413,6 +430,11 @@ TEST_F(DetectorSceneTest, DetectsMilkAndReportsEachItemSeparately) {
   ASSERT_EQ(milk.detections_size(), 1);
   ASSERT_EQ(milk.methods_tried_size(), 1);
   EXPECT_EQ(milk.methods_tried(0), pb::METHOD_PPF);
+  ASSERT_EQ(milk.attempts_size(), 1);
+  EXPECT_EQ(milk.attempts(0).method(), pb::METHOD_PPF);
+  EXPECT_EQ(milk.attempts(0).outcome(), pb::MethodAttempt::OUTCOME_ACCEPTED);
+  EXPECT_TRUE(milk.attempts(0).reason().empty());
+  EXPECT_GT(milk.attempts(0).best_score(), 0.5);
   const pb::Detection& d = milk.detections(0);
   EXPECT_EQ(d.method(), pb::METHOD_PPF);
   const Transform X_BaseMilk = FromPose(d.x_frame_item());

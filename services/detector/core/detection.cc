@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <fstream>
+#include <iomanip>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -245,6 +246,92 @@ DetectionChain::DetectionChain(DetectorConfig config,
   }
 }
 
+const char* ToString(AttemptOutcome outcome) {
+  switch (outcome) {
+    case AttemptOutcome::kAccepted:
+      return "accepted";
+    case AttemptOutcome::kBelowThresholds:
+      return "below thresholds";
+    case AttemptOutcome::kNoCandidate:
+      return "no candidate";
+    case AttemptOutcome::kCannotRun:
+      return "cannot run";
+    case AttemptOutcome::kFailed:
+      return "failed";
+    case AttemptOutcome::kUnavailable:
+      return "unavailable";
+    case AttemptOutcome::kNotStarted:
+      return "not started";
+  }
+  return "unknown";
+}
+
+namespace {
+
+// Why the best of a method's candidates was not accepted: each threshold it missed.
+std::string BelowThresholdsReason(const Detection& best, const Thresholds& t) {
+  std::ostringstream why;
+  why << std::setprecision(3) << "best candidate below the thresholds:";
+  if (best.score < t.min_score) why << " score " << best.score << " < " << t.min_score << ";";
+  if (best.fitness < t.min_fitness) {
+    why << " fitness " << best.fitness << " < " << t.min_fitness << ";";
+  }
+  if (best.inlier_rmse_m > t.max_inlier_rmse_m) {
+    why << " inlier rmse " << best.inlier_rmse_m << " m > " << t.max_inlier_rmse_m << " m;";
+  }
+  std::string reason = why.str();
+  if (reason.back() == ';') reason.pop_back();
+  return reason;
+}
+
+// Runs one method's estimator and records how it ended.
+ChainAttempt TryMethod(Estimator& estimator, Method method, const EstimatorInput& input,
+                       const Thresholds& thresholds) {
+  ChainAttempt attempt;
+  attempt.method = method;
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<Detection> candidates;
+  try {
+    candidates = estimator.Estimate(input);
+    attempt.outcome = AttemptOutcome::kNoCandidate;
+    attempt.reason = "no candidate pose";
+  } catch (const MethodNotApplicableError& e) {
+    attempt.outcome = AttemptOutcome::kCannotRun;
+    attempt.reason = e.what();
+  } catch (const NoCandidateError& e) {
+    attempt.outcome = AttemptOutcome::kNoCandidate;
+    attempt.reason = e.what();
+  } catch (const std::exception& e) {
+    attempt.error = e.what();
+    attempt.outcome = AttemptOutcome::kFailed;
+    attempt.reason = e.what();
+  }
+  attempt.duration_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  attempt.num_candidates = candidates.size();
+  if (candidates.empty()) return attempt;
+  // Estimators return their candidates best first (score with the appearance as a bonus:
+  // SortByScore), so the first accepted one is taken; if none is accepted, the first is
+  // kept for the record. Picking by score alone here would undo the appearance's ranking
+  // and report a neighbour of the same shape whose printing does not match.
+  for (const Detection& d : candidates) {
+    if (!thresholds.Accepts(d)) continue;
+    attempt.accepted = true;
+    attempt.outcome = AttemptOutcome::kAccepted;
+    attempt.reason.clear();
+    attempt.best = d;
+    if (attempt.best->item.empty()) attempt.best->item = input.item;
+    if (attempt.best->method.empty()) attempt.best->method = ToString(method);
+    return attempt;
+  }
+  attempt.best = candidates.front();
+  attempt.outcome = AttemptOutcome::kBelowThresholds;
+  attempt.reason = BelowThresholdsReason(candidates.front(), thresholds);
+  return attempt;
+}
+
+}  // namespace
+
 ChainResult DetectionChain::Run(const EstimatorInput& input) const {
   if (input.scene == nullptr) throw std::invalid_argument("DetectionChain::Run: null scene");
   const ObjectConfig object = config_.ForItem(input.item);
@@ -257,51 +344,28 @@ ChainResult DetectionChain::Run(const EstimatorInput& input) const {
   }
   ChainResult result;
   bool first = true;
+  bool budget_spent = false;
   for (Method method : object.Order()) {
-    if (!first && std::chrono::steady_clock::now() > budgeted.budget_end) break;
+    budget_spent =
+        budget_spent || (!first && std::chrono::steady_clock::now() > budgeted.budget_end);
     first = false;
-    ChainAttempt attempt;
-    attempt.method = method;
     const auto it = estimators_.find(method);
-    if (it == estimators_.end()) {
-      attempt.available = false;
+    if (budget_spent || it == estimators_.end()) {
+      ChainAttempt attempt;
+      attempt.method = method;
+      attempt.available = it != estimators_.end();
+      attempt.outcome = budget_spent ? AttemptOutcome::kNotStarted : AttemptOutcome::kUnavailable;
+      attempt.reason = budget_spent ? "not started: the item's time budget was spent"
+                                    : "no estimator for this method in this detector";
       result.attempts.push_back(std::move(attempt));
       continue;
     }
-    const auto start = std::chrono::steady_clock::now();
-    std::vector<Detection> candidates;
-    try {
-      candidates = it->second->Estimate(budgeted);
-    } catch (const std::exception& e) {
-      attempt.error = e.what();
-    }
-    attempt.duration_s =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    attempt.num_candidates = candidates.size();
-    const Thresholds& thresholds = object.ThresholdsFor(method);
-    // Estimators return their candidates best first (score with the appearance as a bonus:
-    // SortByScore), so the first accepted one is taken; if none is accepted, the first is
-    // kept for the record. Picking by score alone here would undo the appearance's ranking
-    // and report a neighbour of the same shape whose printing does not match.
-    const Detection* best = candidates.empty() ? nullptr : &candidates.front();
-    const Detection* best_accepted = nullptr;
-    for (const Detection& d : candidates) {
-      if (thresholds.Accepts(d)) {
-        best_accepted = &d;
-        break;
-      }
-    }
-    if (best_accepted != nullptr) {
-      attempt.accepted = true;
-      attempt.best = *best_accepted;
-      if (attempt.best->item.empty()) attempt.best->item = input.item;
-      if (attempt.best->method.empty()) attempt.best->method = ToString(method);
-      result.detection = attempt.best;
-      result.attempts.push_back(std::move(attempt));
+    result.attempts.push_back(
+        TryMethod(*it->second, method, budgeted, object.ThresholdsFor(method)));
+    if (result.attempts.back().accepted) {
+      result.detection = result.attempts.back().best;
       return result;
     }
-    if (best != nullptr) attempt.best = *best;
-    result.attempts.push_back(std::move(attempt));
   }
   return result;
 }

@@ -7,6 +7,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -157,6 +158,33 @@ class Estimator {
   virtual std::vector<Detection> Estimate(const EstimatorInput& input) = 0;
 };
 
+/// Thrown by an estimator whose method cannot run on this item or scan, for a reason a person
+/// can act on (the model has no SIFT views, the scan has no intensities, no range templates):
+/// the chain records the reason (AttemptOutcome::kCannotRun) and moves on.
+class MethodNotApplicableError final : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Thrown by an estimator that ran and found no candidate, with why (no cluster of a
+/// plausible size, no template matched): the chain records it (AttemptOutcome::kNoCandidate).
+class NoCandidateError final : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// How one method's attempt ended.
+enum class AttemptOutcome {
+  kAccepted,         ///< A candidate passed the method's thresholds.
+  kBelowThresholds,  ///< Candidates, none passing (reason: the best one's figures).
+  kNoCandidate,      ///< The method ran and found nothing.
+  kCannotRun,        ///< The method does not apply to this item or scan.
+  kFailed,           ///< The estimator threw (reason: its message).
+  kUnavailable,      ///< No estimator for the method in this detector.
+  kNotStarted,       ///< The item's time budget was spent before its turn.
+};
+const char* ToString(AttemptOutcome outcome);
+
 /// What happened when one method was tried.
 struct ChainAttempt {
   Method method = Method::kPpf;
@@ -166,6 +194,9 @@ struct ChainAttempt {
   bool accepted = false;
   std::string error;  ///< Exception message, when the estimator threw.
   double duration_s = 0.0;
+  AttemptOutcome outcome = AttemptOutcome::kNoCandidate;
+  /// Why the method gave no accepted pose, in words a person can act on (empty if accepted).
+  std::string reason;
 };
 
 struct ChainResult {

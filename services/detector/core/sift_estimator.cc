@@ -29,10 +29,14 @@ std::vector<Detection> SiftPoseEstimator::Estimate(const EstimatorInput& input) 
   CheckInput(input, *context_, "SiftPoseEstimator");
   const auto start = Clock::now();
   const auto model = library_->Get(input.item);
-  if (!model->sift) return {};
+  if (!model->sift) {
+    throw MethodNotApplicableError(
+        "the model of '" + input.item +
+        "' has no SIFT views (it has no colours or printed albedo, or too little texture)");
+  }
   const geometry::PointCloud& scene = context_->scene();
   if (!scene.is_organized() || !scene.has_intensities()) {
-    throw std::invalid_argument(
+    throw MethodNotApplicableError(
         "SIFT needs an organised scan with intensities (or colours); this one is " +
         std::string(scene.is_organized() ? "organised without intensities" : "unorganised"));
   }
@@ -41,7 +45,12 @@ std::vector<Detection> SiftPoseEstimator::Estimate(const EstimatorInput& input) 
   const SiftPoseResult r =
       EstimateSiftPose(*model->sift, scene, context_->X_BaseSensor(), context_->camera(), sift_);
   const double estimate_s = SecondsSince(estimate_start);
-  if (!r.found) return {};
+  if (!r.found) {
+    throw NoCandidateError("no pose from the SIFT matches: " + std::to_string(r.num_matches) +
+                           " matched the best view, " + std::to_string(r.num_with_3d) +
+                           " with a measured point, " + std::to_string(r.num_inliers) +
+                           " consistent");
+  }
   context_->CheckDeadline();
   Detection d = RefineAndVerify(*model, *context_, Method::kSift, r.X_BaseItem, true, refine_);
   d.timings.estimate_s = estimate_s;

@@ -30,17 +30,27 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   CheckInput(input, *context_, "RangeTemplateEstimator");
   const auto start = Clock::now();
   const auto model = library_->Get(input.item);
-  if (!model->templates) return {};
+  if (!model->templates) {
+    throw MethodNotApplicableError("'" + input.item +
+                                   "' has no range templates (range_templates is not in its "
+                                   "chain in the model manifest)");
+  }
   if (!context_->camera()) {
-    throw std::invalid_argument("range templates need the sensor's intrinsics");
+    throw MethodNotApplicableError(
+        "range templates need the sensor's intrinsics (an organised scan, or the camera)");
   }
   context_->CheckDeadline();
   const auto preprocess_start = Clock::now();
   const SceneContext::Clusters& clusters = context_->SceneClusters();
   const double preprocess_s = SecondsSince(preprocess_start);
-  if (clusters.clusters.empty()) return {};
+  if (clusters.clusters.empty()) {
+    throw NoCandidateError("no cluster of a plausible size in the scene (" +
+                           std::to_string(clusters.cloud.size()) + " points clustered)");
+  }
   context_->CheckDeadline();
-  if (Clock::now() > input.budget_end) return {};  // No time left to match a cluster.
+  if (Clock::now() > input.budget_end) {
+    throw NoCandidateError("the item's time budget was spent before a cluster was matched");
+  }
   const auto estimate_start = Clock::now();
   TemplateMatchOptions match = match_;
   match.deadline = std::min(match.deadline, input.budget_end);
@@ -48,6 +58,10 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
       MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
                      *context_->camera(), match);
   const double estimate_s = SecondsSince(estimate_start);
+  if (matches.empty()) {
+    throw NoCandidateError("no template matched any of the " +
+                           std::to_string(clusters.clusters.size()) + " clusters");
+  }
   std::vector<Detection> out;
   for (const TemplateMatch& m : matches) {
     context_->CheckDeadline();

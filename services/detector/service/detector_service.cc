@@ -106,6 +106,35 @@ ReceivedScene ReadCloud(grpc::ServerReader<Request>* reader, const ServiceSettin
   return scene;
 }
 
+pb::MethodAttempt::Outcome ToProto(AttemptOutcome outcome) {
+  switch (outcome) {
+    case AttemptOutcome::kAccepted:
+      return pb::MethodAttempt::OUTCOME_ACCEPTED;
+    case AttemptOutcome::kBelowThresholds:
+      return pb::MethodAttempt::OUTCOME_BELOW_THRESHOLDS;
+    case AttemptOutcome::kNoCandidate:
+      return pb::MethodAttempt::OUTCOME_NO_CANDIDATE;
+    case AttemptOutcome::kCannotRun:
+      return pb::MethodAttempt::OUTCOME_CANNOT_RUN;
+    case AttemptOutcome::kFailed:
+      return pb::MethodAttempt::OUTCOME_FAILED;
+    case AttemptOutcome::kUnavailable:
+      return pb::MethodAttempt::OUTCOME_UNAVAILABLE;
+    case AttemptOutcome::kNotStarted:
+      return pb::MethodAttempt::OUTCOME_NOT_STARTED;
+  }
+  return pb::MethodAttempt::OUTCOME_UNSPECIFIED;
+}
+
+void FillAttempt(const ChainAttempt& attempt, pb::MethodAttempt* out) {
+  out->set_method(ToProto(attempt.method));
+  out->set_outcome(ToProto(attempt.outcome));
+  out->set_reason(attempt.reason);
+  out->set_candidates(static_cast<std::uint32_t>(attempt.num_candidates));
+  out->set_best_score(attempt.best ? attempt.best->score : 0.0);
+  out->set_duration_s(attempt.duration_s);
+}
+
 void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection* out) {
   out->set_item(d.item);
   *out->mutable_x_frame_item() = pc::PoseToProto(d.X_BaseItem);
@@ -317,7 +346,10 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     item_query.budget_scale = settings_.time_budget_scale;
     const ItemDetections found = DetectItem(library_, scene, context, item_query, budget_start);
     for (const ChainAttempt& attempt : found.chain.attempts) {
-      if (attempt.available) result->add_methods_tried(ToProto(attempt.method));
+      const bool ran = attempt.outcome != AttemptOutcome::kUnavailable &&
+                       attempt.outcome != AttemptOutcome::kNotStarted;
+      if (ran) result->add_methods_tried(ToProto(attempt.method));
+      FillAttempt(attempt, result->add_attempts());
       if (!attempt.error.empty()) {
         runtime::LogWarning("detection method failed", {{"item", query.item()},
                                                         {"method", ToString(attempt.method)},

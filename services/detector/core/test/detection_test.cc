@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <exception>
 #include <fstream>
 #include <memory>
 #include <stdexcept>
@@ -21,11 +22,13 @@ class FakeEstimator final : public Estimator {
   std::vector<Detection> Estimate(const EstimatorInput& input) override {
     ++calls;
     last_item = input.item;
+    budget_end = input.budget_end;
     if (throws_) throw std::runtime_error("fake failure");
     return candidates_;
   }
   int calls = 0;
   std::string last_item;
+  std::chrono::steady_clock::time_point budget_end;
 
  private:
   Method method_;
@@ -134,48 +137,91 @@ TEST(DetectionChainTest, PerMethodThresholdOverride) {
 }
 
 // Sleeps for a given time before answering: a method with a long search.
-class SlowEstimator final : public Estimator {
+// Throws the exception it is given, as an estimator does that cannot run or finds nothing.
+class RaisingEstimator final : public Estimator {
  public:
-  SlowEstimator(Method method, double duration_s) : method_(method), duration_s_(duration_s) {}
+  RaisingEstimator(Method method, std::exception_ptr error) : method_(method), error_(error) {}
   Method method() const override { return method_; }
-  std::vector<Detection> Estimate(const EstimatorInput& input) override {
-    ++calls;
-    budget_end = input.budget_end;
-    const auto until = std::chrono::steady_clock::now() +
-                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                           std::chrono::duration<double>(duration_s_));
-    while (std::chrono::steady_clock::now() < until) {
-    }
-    return {};
+  std::vector<Detection> Estimate(const EstimatorInput&) override {
+    std::rethrow_exception(error_);
   }
-  int calls = 0;
-  std::chrono::steady_clock::time_point budget_end;
 
  private:
   Method method_;
-  double duration_s_;
+  std::exception_ptr error_;
 };
 
+// Every method of the chain says how it ended and why it gave no accepted pose.
+TEST(DetectionChainTest, EveryMethodSaysWhyItGaveNothing) {
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf,
+                                             std::vector<Detection>{MakeDetection(0.3, 1.0)});
+  auto sift = std::make_shared<RaisingEstimator>(
+      Method::kSift,
+      std::make_exception_ptr(MethodNotApplicableError("the model has no SIFT views")));
+  auto templates = std::make_shared<RaisingEstimator>(
+      Method::kRangeTemplates, std::make_exception_ptr(NoCandidateError("no cluster")));
+  ObjectConfig c = Config(Method::kPpf, {Method::kSift, Method::kRangeTemplates}, 0.5);
+  geometry::PointCloud scene;
+  const ChainResult r = DetectionChain(DetectorConfig(c), {ppf, sift, templates})
+                            .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  EXPECT_FALSE(r.detection.has_value());
+  ASSERT_EQ(r.attempts.size(), 3u);
+  EXPECT_EQ(r.attempts[0].outcome, AttemptOutcome::kBelowThresholds);
+  EXPECT_NE(r.attempts[0].reason.find("score 0.3 < 0.5"), std::string::npos)
+      << r.attempts[0].reason;
+  EXPECT_EQ(r.attempts[1].outcome, AttemptOutcome::kCannotRun);
+  EXPECT_EQ(r.attempts[1].reason, "the model has no SIFT views");
+  EXPECT_TRUE(r.attempts[1].error.empty());  // not a failure
+  EXPECT_EQ(r.attempts[2].outcome, AttemptOutcome::kNoCandidate);
+  EXPECT_EQ(r.attempts[2].reason, "no cluster");
+
+  // A failure, a method this detector lacks, an estimator that finds nothing silently.
+  auto failing = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{}, true);
+  auto silent = std::make_shared<FakeEstimator>(Method::kSift, std::vector<Detection>{});
+  const ChainResult f = DetectionChain(DetectorConfig(c), {failing, silent})
+                            .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  ASSERT_EQ(f.attempts.size(), 3u);
+  EXPECT_EQ(f.attempts[0].outcome, AttemptOutcome::kFailed);
+  EXPECT_EQ(f.attempts[0].reason, "fake failure");
+  EXPECT_EQ(f.attempts[1].outcome, AttemptOutcome::kNoCandidate);
+  EXPECT_EQ(f.attempts[1].reason, "no candidate pose");
+  EXPECT_EQ(f.attempts[2].outcome, AttemptOutcome::kUnavailable);
+  EXPECT_FALSE(f.attempts[2].reason.empty());
+
+  // Accepted: no reason.
+  auto good = std::make_shared<FakeEstimator>(Method::kPpf,
+                                              std::vector<Detection>{MakeDetection(0.9, 1.0)});
+  const ChainResult a = DetectionChain(DetectorConfig(c), {good})
+                            .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  ASSERT_EQ(a.attempts.size(), 1u);
+  EXPECT_EQ(a.attempts[0].outcome, AttemptOutcome::kAccepted);
+  EXPECT_TRUE(a.attempts[0].reason.empty());
+  EXPECT_STREQ(ToString(AttemptOutcome::kNotStarted), "not started");
+}
+
+// The budget counts from the caller's start: one that began long ago is spent once the
+// preferred method has run (no waiting, no clock to spin on).
 TEST(DetectionChainTest, NoFallbackIsStartedOnceTheTimeBudgetIsSpent) {
-  auto ppf = std::make_shared<SlowEstimator>(Method::kPpf, 0.05);
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
   auto templates = std::make_shared<FakeEstimator>(Method::kRangeTemplates,
                                                    std::vector<Detection>{MakeDetection(0.9, 1.0)});
   ObjectConfig c = Config(Method::kPpf, {Method::kRangeTemplates}, 0.5);
-  c.time_budget_s = 0.01;  // spent by the preferred method
+  c.time_budget_s = 0.01;
   geometry::PointCloud scene;
-  const auto before = std::chrono::steady_clock::now();
-  const ChainResult spent = DetectionChain(DetectorConfig(c), {ppf, templates})
-                                .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  EstimatorInput late{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
+  const auto started = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  late.budget_start = started;
+  const ChainResult spent = DetectionChain(DetectorConfig(c), {ppf, templates}).Run(late);
   EXPECT_FALSE(spent.detection.has_value());
   EXPECT_EQ(ppf->calls, 1);        // the preferred method always runs ...
-  EXPECT_EQ(templates->calls, 0);  // ... the fallback is not started
-  ASSERT_EQ(spent.attempts.size(), 1u);
-  EXPECT_GE(ppf->budget_end, before + std::chrono::milliseconds(10));
-  EXPECT_LE(ppf->budget_end, std::chrono::steady_clock::now());
+  EXPECT_EQ(templates->calls, 0);  // ... the fallback is not started, and says so
+  ASSERT_EQ(spent.attempts.size(), 2u);
+  EXPECT_EQ(spent.attempts[1].outcome, AttemptOutcome::kNotStarted);
+  EXPECT_NE(spent.attempts[1].reason.find("time budget"), std::string::npos);
+  EXPECT_EQ(ppf->budget_end, started + std::chrono::milliseconds(10));
 
   c.time_budget_s = 0.0;  // no budget: the whole chain
-  const ChainResult whole = DetectionChain(DetectorConfig(c), {ppf, templates})
-                                .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
+  const ChainResult whole = DetectionChain(DetectorConfig(c), {ppf, templates}).Run(late);
   ASSERT_TRUE(whole.detection.has_value());
   EXPECT_EQ(templates->calls, 1);
   EXPECT_EQ(ppf->budget_end, std::chrono::steady_clock::time_point::max());

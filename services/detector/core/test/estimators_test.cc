@@ -363,8 +363,10 @@ TEST_F(MilkEstimatorTest, ASpentBudgetStopsTheSearches) {
   EstimatorInput spent = Input("milk");
   spent.budget_end = std::chrono::steady_clock::now();
   EXPECT_LE(ppf.Estimate(spent).size(), 1u);
+  // The milk has no range templates: the estimator says it cannot run (the spent budget's
+  // own answer is covered where templates exist).
   RangeTemplateEstimator templates(*library_, context);
-  EXPECT_TRUE(templates.Estimate(spent).empty());
+  EXPECT_THROW(templates.Estimate(spent), MethodNotApplicableError);
 }
 
 TEST_F(MilkEstimatorTest, DeadlineAndForeignScenesStopTheEstimators) {
@@ -382,13 +384,24 @@ TEST_F(MilkEstimatorTest, DeadlineAndForeignScenesStopTheEstimators) {
   EXPECT_THROW(other.Estimate(Input("no_such_item")), NotFoundError);
 }
 
-TEST_F(MilkEstimatorTest, SiftNeedsAnOrganisedScanWithIntensities) {
-  // The milk model has no colours: no SIFT views, so nothing is found rather than an error.
+TEST_F(MilkEstimatorTest, AMethodWithoutItsModelSaysWhy) {
+  // The milk model has no colours, so no SIFT views, and no templates were asked for: each
+  // estimator says it cannot run and why, rather than answering "nothing found".
   auto context = Context();
   SiftPoseEstimator sift(*library_, context);
-  EXPECT_TRUE(sift.Estimate(Input("milk")).empty());
+  try {
+    sift.Estimate(Input("milk"));
+    ADD_FAILURE() << "SIFT without views ran";
+  } catch (const MethodNotApplicableError& e) {
+    EXPECT_NE(std::string(e.what()).find("no SIFT views"), std::string::npos) << e.what();
+  }
   RangeTemplateEstimator templates(*library_, context);
-  EXPECT_TRUE(templates.Estimate(Input("milk")).empty());  // No templates asked for.
+  try {
+    templates.Estimate(Input("milk"));
+    ADD_FAILURE() << "templates without templates ran";
+  } catch (const MethodNotApplicableError& e) {
+    EXPECT_NE(std::string(e.what()).find("no range templates"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
