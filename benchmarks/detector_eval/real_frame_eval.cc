@@ -271,6 +271,10 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
     const auto context = detector::MakeSceneContext(scene);
     const detector::VerifyResult v = detector::Verify(
         *context->Verification(), model->object->icp_cloud(), found.chain.detection->X_BaseItem);
+    // The same measure at the true pose: a search that missed it, or a score that prefers
+    // the wrong one.
+    const detector::VerifyResult at_truth = detector::Verify(
+        *context->Verification(), model->object->icp_cloud(), truth.X_CameraObject);
     ++tally->accepted;
     tally->correct_accepted += j.correct;
     tally->add_correct_accepted += j.add_correct;
@@ -278,7 +282,9 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
          << 1e3 * j.add_m << " mm, IoU " << std::setprecision(2) << j.iou << ", score " << j.score
          << " (" << found.chain.detection->method << "; visible " << v.num_visible << ", occluded "
          << v.num_occluded << ", supported " << v.num_supported << ", conflicts " << v.num_conflicts
-         << " of " << v.num_model_points << ")";
+         << " of " << v.num_model_points << "; true pose: score " << at_truth.score << ", visible "
+         << at_truth.num_visible << ", occluded " << at_truth.num_occluded << ", supported "
+         << at_truth.num_supported << ", conflicts " << at_truth.num_conflicts << ")";
   } else {
     rows << "none";
   }

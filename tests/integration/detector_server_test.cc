@@ -441,6 +441,10 @@ TEST_F(DetectorSceneTest, DetectsMilkAndReportsEachItemSeparately) {
   EXPECT_LT(TranslationError(X_BaseMilk, *X_BaseScene_), 0.005);
   EXPECT_LT(RotationErrorRad(X_BaseMilk, *X_BaseScene_), 2.0 * kPi / 180.0);
   EXPECT_GT(d.score(), 0.5);
+  // The evidence under the score: most of what the sensor would see of the milk is supported.
+  EXPECT_GT(d.visible_points(), 100u);
+  EXPECT_GT(d.supported_points(), d.visible_points() / 2);
+  EXPECT_LE(d.supported_points() + d.occluded_points() + d.conflict_points(), d.visible_points());
   EXPECT_GT(d.fitness(), 0.3);
   EXPECT_LT(d.inlier_rmse_m(), 0.01);
   EXPECT_GT(d.timings().total_s(), 0.0);

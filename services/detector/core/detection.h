@@ -55,6 +55,13 @@ struct Detection {
   /// Correlation of the model's printed texture (albedo) with the scan's intensities at the
   /// pose, [-1, 1] (appearance.h); NaN when there is no evidence (no texture, too few points).
   double appearance = std::numeric_limits<double>::quiet_NaN();
+  /// The evidence under a verified score (Verify), in model points: facing a sensor,
+  /// hidden there behind other surfaces, supported by the scan, and in space the sensor saw
+  /// through. All 0 without verification.
+  std::size_t visible_points = 0;
+  std::size_t occluded_points = 0;
+  std::size_t supported_points = 0;
+  std::size_t conflict_points = 0;
   DetectionTimings timings;
 };
 

@@ -25,8 +25,14 @@ void SortByScore(std::vector<Detection>* detections, const RefineVerifyOptions& 
   const auto rank = [weight, neutral](const Detection& d) {
     return d.score + weight * (std::isfinite(d.appearance) ? d.appearance : neutral);
   };
+  // Equal ranks (scores cap at 1: every visible point supported) go to the pose that more of
+  // the scan supports: more of the item seen where the pose says it is.
   std::stable_sort(detections->begin(), detections->end(),
-                   [&rank](const Detection& a, const Detection& b) { return rank(a) > rank(b); });
+                   [&rank](const Detection& a, const Detection& b) {
+                     const double ra = rank(a), rb = rank(b);
+                     if (std::abs(ra - rb) > 1e-9) return ra > rb;
+                     return a.supported_points > b.supported_points;
+                   });
 }
 
 }  // namespace
@@ -109,6 +115,10 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
     verify.symmetries = object.symmetries();
     const VerifyResult v = Verify(*verification, object.icp_cloud(), d.X_BaseItem, verify);
     d.score = v.score;
+    d.visible_points = v.num_visible;
+    d.occluded_points = v.num_occluded;
+    d.supported_points = v.num_supported;
+    d.conflict_points = v.num_conflicts;
     if (model.spec.kind == ModelSourceKind::kShapeBox && options.box_continuation_weight > 0.0 &&
         d.score > 0.0) {
       const BoxExtent box = BoxExtentOf(object.icp_cloud());

@@ -139,6 +139,10 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_item(d.item);
   *out->mutable_x_frame_item() = pc::PoseToProto(d.X_BaseItem);
   out->set_score(d.score);
+  out->set_visible_points(static_cast<std::uint32_t>(d.visible_points));
+  out->set_occluded_points(static_cast<std::uint32_t>(d.occluded_points));
+  out->set_supported_points(static_cast<std::uint32_t>(d.supported_points));
+  out->set_conflict_points(static_cast<std::uint32_t>(d.conflict_points));
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
