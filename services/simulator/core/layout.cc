@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <random>
 
 #include "libs/apc/bins.h"
@@ -111,19 +112,15 @@ std::vector<PlacedItem> LayoutPlanner::Plan(const apc::Task& task, std::uint32_t
   return placed;
 }
 
-std::vector<PlacedItem> LayoutPlanner::PlaceIn(const std::string& region_name,
-                                               const std::vector<std::string>& items,
-                                               const std::vector<PlacedItem>& existing,
-                                               std::uint32_t seed) const {
-  const auto region_it = std::find_if(regions_.begin(), regions_.end(),
-                                      [&](const LayoutRegion& r) { return r.name == region_name; });
-  if (region_it == regions_.end()) throw LayoutError(region_name, "unknown bin or container");
-  const LayoutRegion& region = *region_it;
-  const Eigen::Isometry3d X_RegionBase = region.X_BaseRegion.inverse();
+namespace {
 
+// The footprints of the items already in the region.
+std::vector<Footprint> OccupiedFootprints(const std::vector<PlacedItem>& existing,
+                                          const world::ItemModelLibrary& models,
+                                          const Eigen::Isometry3d& X_RegionBase) {
   std::vector<Footprint> occupied;
   for (const PlacedItem& p : existing) {
-    const auto model = models_.Get(p.name);
+    const auto model = models.Get(p.name);
     const Eigen::AlignedBox3d b = world::Bounds(model->mesh, X_RegionBase * p.X_BaseItem);
     Footprint f;
     f.centre = b.center().head<2>();
@@ -133,7 +130,128 @@ std::vector<PlacedItem> LayoutPlanner::PlaceIn(const std::string& region_name,
     f.flat_top = FlatTopped(*model);
     occupied.push_back(f);
   }
+  return occupied;
+}
 
+// A height sample under a footprint: local footprint coordinates, height in the region.
+using HeightSample = std::pair<Eigen::Vector2d, double>;
+
+// The static cell's floor under a 5 x 5 grid of the footprint; none where a ray misses it.
+std::optional<std::vector<HeightSample>> FloorUnder(const Footprint& f, const LayoutRegion& region,
+                                                    const RayScene& scene) {
+  constexpr int kGrid = 5;
+  const Eigen::AlignedBox3d& box = region.box_R;
+  const Eigen::Isometry3d X_RegionBase = region.X_BaseRegion.inverse();
+  const Eigen::Matrix2d R = f.R();
+  std::vector<HeightSample> samples;
+  for (int i = 0; i < kGrid; ++i) {
+    for (int j = 0; j < kGrid; ++j) {
+      const Eigen::Vector2d local((2.0 * i / (kGrid - 1) - 1) * f.half.x(),
+                                  (2.0 * j / (kGrid - 1) - 1) * f.half.y());
+      const Eigen::Vector2d p = f.centre + R * local;
+      const Eigen::Vector3d p_Base =
+          region.X_BaseRegion * Eigen::Vector3d(p.x(), p.y(), box.max().z());
+      const Eigen::Vector3d down = region.X_BaseRegion.linear() * -Eigen::Vector3d::UnitZ();
+      const auto hit = scene.Cast(p_Base, down, box.sizes().z() + 0.05);
+      if (!hit) return std::nullopt;
+      samples.push_back({local, (X_RegionBase * hit->p_BaseHit).z()});
+    }
+  }
+  return samples;
+}
+
+// Rests the footprint on the floor samples and the items it overlaps (sets z_bottom and
+// z_top); false where it would lie on a round item, stick out of the region's top, or not
+// be carried around its centre (on items: the samples at its resting height must surround
+// the centre; the floor's slight slope toward the pod's lip is tolerated).
+bool Rest(Footprint* f, std::vector<HeightSample> samples, const std::vector<Footprint>& occupied,
+          double height_m, double top_z, double clearance_m) {
+  double floor_support = -std::numeric_limits<double>::infinity();
+  for (const auto& [local, h] : samples) floor_support = std::max(floor_support, h);
+  double support = floor_support;
+  const Eigen::Matrix2d R = f->R();
+  for (const Footprint& o : occupied) {
+    if (!Overlap2d(*f, o, clearance_m)) continue;
+    for (auto& [local, h] : samples) {
+      if (o.Contains(f->centre + R * local)) h = std::max(h, o.flat_top ? o.z_top : 1e9);
+    }
+    support = std::max(support, o.z_top);
+  }
+  if (support > 1e8) return false;  // over a round item
+  f->z_bottom = support + clearance_m;
+  f->z_top = f->z_bottom + height_m;
+  if (f->z_top > top_z) return false;
+  if (floor_support >= support - 1e-9) return true;  // on the floor
+  Eigen::Vector2d lo(1e9, 1e9), hi(-1e9, -1e9);
+  for (const auto& [local, h] : samples) {
+    if (h >= support - 0.003) {
+      lo = lo.cwiseMin(local);
+      hi = hi.cwiseMax(local);
+    }
+  }
+  const double inset = 0.25;
+  return lo.x() <= -inset * f->half.x() && hi.x() >= inset * f->half.x() &&
+         lo.y() <= -inset * f->half.y() && hi.y() >= inset * f->half.y();
+}
+
+// The item's pose in the base frame from its footprint.
+Eigen::Isometry3d PoseOf(const Footprint& f, const world::ItemModel& model,
+                         const LayoutRegion& region) {
+  Eigen::Isometry3d X_RegionItem = Eigen::Isometry3d::Identity();
+  X_RegionItem.translation() =
+      Eigen::Vector3d(f.centre.x(), f.centre.y(), f.z_bottom - model.box_I.min().z());
+  X_RegionItem.linear() = Eigen::AngleAxisd(f.yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  // Centre of the bounding box is the item frame origin up to box_I's offset.
+  X_RegionItem.translation().head<2>() -= (X_RegionItem.linear() * model.box_I.center()).head<2>();
+  return region.X_BaseRegion * X_RegionItem;
+}
+
+// The lowest of `candidates_per_item` random footprints of the item that rest in the region
+// (none if no candidate does).
+std::optional<Footprint> LowestSpot(const world::ItemModel& model, const LayoutRegion& region,
+                                    const std::vector<Footprint>& occupied,
+                                    const RayScene& static_scene, const LayoutOptions& options,
+                                    std::mt19937* rng) {
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const Eigen::AlignedBox3d& box = region.box_R;
+  const Eigen::Vector3d size = model.box_I.sizes();
+  std::optional<Footprint> best;
+  for (int c = 0; c < options.candidates_per_item; ++c) {
+    Footprint f;
+    f.yaw = (unit(*rng) < 0.5 ? 0.0 : M_PI / 2) + (2 * unit(*rng) - 1) * options.yaw_jitter_rad;
+    f.half = 0.5 * size.head<2>();
+    f.flat_top = FlatTopped(model);
+    const Eigen::Matrix2d R = f.R();
+    // Axis-aligned half extents of the turned footprint.
+    const Eigen::Vector2d ext(std::abs(R(0, 0)) * f.half.x() + std::abs(R(0, 1)) * f.half.y(),
+                              std::abs(R(1, 0)) * f.half.x() + std::abs(R(1, 1)) * f.half.y());
+    const double x_lo = box.min().x() + ext.x(), x_hi = box.max().x() - ext.x();
+    const double y_lo = box.min().y() + ext.y(), y_hi = box.max().y() - ext.y();
+    if (x_lo > x_hi || y_lo > y_hi) continue;
+    f.centre =
+        Eigen::Vector2d(x_lo + unit(*rng) * (x_hi - x_lo), y_lo + unit(*rng) * (y_hi - y_lo));
+    const auto floor = FloorUnder(f, region, static_scene);
+    if (!floor) continue;
+    if (!Rest(&f, *floor, occupied, size.z(), box.max().z(), options.clearance_m)) continue;
+    if (!best || f.z_bottom < best->z_bottom - 1e-9) best = f;
+  }
+  return best;
+}
+
+}  // namespace
+
+std::vector<PlacedItem> LayoutPlanner::PlaceIn(const std::string& region_name,
+                                               const std::vector<std::string>& items,
+                                               const std::vector<PlacedItem>& existing,
+                                               std::uint32_t seed) const {
+  const auto region_it = std::find_if(regions_.begin(), regions_.end(),
+                                      [&](const LayoutRegion& r) { return r.name == region_name; });
+  if (region_it == regions_.end()) throw LayoutError(region_name, "unknown bin or container");
+  const LayoutRegion& region = *region_it;
+  std::vector<Footprint> occupied =
+      OccupiedFootprints(existing, models_, region.X_BaseRegion.inverse());
+
+  // The largest footprints first.
   std::vector<std::shared_ptr<const world::ItemModel>> models;
   for (const auto& name : items) models.push_back(models_.Get(name));
   std::vector<std::size_t> order(items.size());
@@ -144,99 +262,17 @@ std::vector<PlacedItem> LayoutPlanner::PlaceIn(const std::string& region_name,
   });
 
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> unit(0.0, 1.0);
-  const Eigen::AlignedBox3d& box = region.box_R;
   std::vector<PlacedItem> placed(items.size());
-  constexpr int kGrid = 5;
   for (std::size_t idx : order) {
     const world::ItemModel& model = *models[idx];
-    const Eigen::Vector3d size = model.box_I.sizes();
-    bool found = false;
-    Footprint best;
-    for (int c = 0; c < options_.candidates_per_item; ++c) {
-      Footprint f;
-      f.yaw = (unit(rng) < 0.5 ? 0.0 : M_PI / 2) + (2 * unit(rng) - 1) * options_.yaw_jitter_rad;
-      f.half = 0.5 * size.head<2>();
-      f.flat_top = FlatTopped(model);
-      const Eigen::Matrix2d R = f.R();
-      // Axis-aligned half extents of the turned footprint.
-      const Eigen::Vector2d ext(std::abs(R(0, 0)) * f.half.x() + std::abs(R(0, 1)) * f.half.y(),
-                                std::abs(R(1, 0)) * f.half.x() + std::abs(R(1, 1)) * f.half.y());
-      const double x_lo = box.min().x() + ext.x(), x_hi = box.max().x() - ext.x();
-      const double y_lo = box.min().y() + ext.y(), y_hi = box.max().y() - ext.y();
-      if (x_lo > x_hi || y_lo > y_hi) continue;
-      f.centre =
-          Eigen::Vector2d(x_lo + unit(rng) * (x_hi - x_lo), y_lo + unit(rng) * (y_hi - y_lo));
-      // Support: the floor (rays into the static cell) and the tops of overlapping items.
-      double support = -std::numeric_limits<double>::infinity();
-      double floor_support = support;
-      std::vector<std::pair<Eigen::Vector2d, double>> samples;  // local footprint coords, height
-      bool floor_everywhere = true;
-      for (int i = 0; i < kGrid && floor_everywhere; ++i) {
-        for (int j = 0; j < kGrid; ++j) {
-          const Eigen::Vector2d local((2.0 * i / (kGrid - 1) - 1) * f.half.x(),
-                                      (2.0 * j / (kGrid - 1) - 1) * f.half.y());
-          const Eigen::Vector2d p = f.centre + R * local;
-          const Eigen::Vector3d p_Base =
-              region.X_BaseRegion * Eigen::Vector3d(p.x(), p.y(), box.max().z());
-          const Eigen::Vector3d down = region.X_BaseRegion.linear() * -Eigen::Vector3d::UnitZ();
-          const auto hit = static_scene_.Cast(p_Base, down, box.sizes().z() + 0.05);
-          if (!hit) {
-            floor_everywhere = false;
-            break;
-          }
-          const double h = (X_RegionBase * hit->p_BaseHit).z();
-          samples.push_back({local, h});
-          support = std::max(support, h);
-          floor_support = support;
-        }
-      }
-      if (!floor_everywhere) continue;
-      for (const Footprint& o : occupied) {
-        if (!Overlap2d(f, o, options_.clearance_m)) continue;
-        for (auto& [local, h] : samples) {
-          if (o.Contains(f.centre + R * local)) h = std::max(h, o.flat_top ? o.z_top : 1e9);
-        }
-        support = std::max(support, o.z_top);
-      }
-      if (support > 1e8) continue;  // over a round item
-      f.z_bottom = support + options_.clearance_m;
-      f.z_top = f.z_bottom + size.z();
-      if (f.z_top > box.max().z()) continue;
-      // Stable: on the floor (whose slight slope toward the pod's lip is tolerated), or the
-      // samples carrying it on items surround its centre.
-      const bool on_floor = floor_support >= support - 1e-9;
-      Eigen::Vector2d lo(1e9, 1e9), hi(-1e9, -1e9);
-      for (const auto& [local, h] : samples) {
-        if (h >= support - 0.003) {
-          lo = lo.cwiseMin(local);
-          hi = hi.cwiseMax(local);
-        }
-      }
-      const double inset = 0.25;
-      if (!on_floor && !(lo.x() <= -inset * f.half.x() && hi.x() >= inset * f.half.x() &&
-                         lo.y() <= -inset * f.half.y() && hi.y() >= inset * f.half.y())) {
-        continue;
-      }
-      if (!found || f.z_bottom < best.z_bottom - 1e-9) {
-        best = f;
-        found = true;
-      }
-    }
-    if (!found) {
+    const std::optional<Footprint> spot =
+        LowestSpot(model, region, occupied, static_scene_, options_, &rng);
+    if (!spot) {
       throw LayoutError(region_name, "no room for '" + model.item->name + "' (" +
                                          std::to_string(items.size()) + " items to place)");
     }
-    occupied.push_back(best);
-    Eigen::Isometry3d X_RegionItem = Eigen::Isometry3d::Identity();
-    X_RegionItem.translation() =
-        Eigen::Vector3d(best.centre.x(), best.centre.y(), best.z_bottom - model.box_I.min().z());
-    X_RegionItem.linear() =
-        Eigen::AngleAxisd(best.yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    // Centre of the bounding box is the item frame origin up to box_I's offset.
-    X_RegionItem.translation().head<2>() -=
-        (X_RegionItem.linear() * model.box_I.center()).head<2>();
-    placed[idx] = {model.item->name, region_name, region.X_BaseRegion * X_RegionItem};
+    occupied.push_back(*spot);
+    placed[idx] = {model.item->name, region_name, PoseOf(*spot, model, region)};
   }
   return placed;
 }
