@@ -8,6 +8,7 @@
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace picking::scanner {
 namespace {
@@ -126,6 +127,81 @@ Eigen::Isometry3d FitRigidTransform(const std::vector<Eigen::Vector3d>& p_A,
   return X;
 }
 
+namespace {
+
+// The shelf's top face: the largest plane within max_tilt_rad of level, its normal up.
+Plane FindTopFace(const std::vector<Eigen::Vector3d>& points, const std::vector<int>& all,
+                  const Eigen::Vector3d& up, const ShelfPoseOptions& options, std::mt19937* rng) {
+  const double cos_tilt = std::cos(options.max_tilt_rad);
+  Plane top;
+  if (!FindPlane(
+          points, all, options, rng,
+          [&](const Eigen::Vector3d& n) { return std::abs(n.dot(up)) >= cos_tilt; }, &top)) {
+    throw std::invalid_argument("EstimateShelfPose: no top face (a plane of at least " +
+                                std::to_string(options.min_face_points) +
+                                " points facing up) in the cloud of " +
+                                std::to_string(points.size()) + " points");
+  }
+  if (top.normal.dot(up) < 0) {
+    top.normal = -top.normal;
+    top.offset = -top.offset;
+  }
+  return top;
+}
+
+// The shelf's front face among the points off the top face: perpendicular to the top and
+// facing the robot, its normal toward the robot.
+Plane FindFrontFace(const std::vector<Eigen::Vector3d>& points, const Plane& top,
+                    const Eigen::Vector3d& front_hint, const ShelfPoseOptions& options,
+                    std::mt19937* rng) {
+  std::vector<bool> is_top(points.size(), false);
+  for (int i : top.inliers) is_top[i] = true;
+  std::vector<int> rest;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if (!is_top[i]) rest.push_back(static_cast<int>(i));
+  }
+  const double cos_front = std::cos(options.max_front_angle_rad);
+  const auto accept_front = [&](const Eigen::Vector3d& n) {
+    // Perpendicular to the top face and facing the robot (either sign of the fitted normal).
+    return std::abs(n.dot(top.normal)) < std::sin(0.1) && std::abs(n.dot(front_hint)) >= cos_front;
+  };
+  Plane front;
+  if (!FindPlane(points, rest, options, rng, accept_front, &front)) {
+    throw std::invalid_argument("EstimateShelfPose: no front face (a vertical plane of at least " +
+                                std::to_string(options.min_face_points) +
+                                " points facing the robot) in the cloud");
+  }
+  if (front.normal.dot(front_hint) < 0) {
+    front.normal = -front.normal;
+    front.offset = -front.offset;
+  }
+  return front;
+}
+
+// Where the two faces' points near their common edge end along it (the k-th extreme from
+// either end), as distances along `edge` from `p_edge`.
+std::pair<double, double> EdgeEnds(const std::vector<Eigen::Vector3d>& points, const Plane& top,
+                                   const Plane& front, const Eigen::Vector3d& p_edge,
+                                   const Eigen::Vector3d& edge, const ShelfPoseOptions& options) {
+  std::vector<double> along;
+  for (const auto* plane : {&top, &front}) {
+    for (int i : plane->inliers) {
+      const Eigen::Vector3d d = points[i] - p_edge;
+      const Eigen::Vector3d off_line = d - d.dot(edge) * edge;
+      if (off_line.norm() <= options.edge_band_m) along.push_back(d.dot(edge));
+    }
+  }
+  const int k = std::max(1, options.edge_extreme_rank);
+  if (static_cast<int>(along.size()) < 2 * k + 2) {
+    throw std::invalid_argument("EstimateShelfPose: too few points near the front top edge (" +
+                                std::to_string(along.size()) + ")");
+  }
+  std::sort(along.begin(), along.end());
+  return {along[k - 1], along[along.size() - k]};
+}
+
+}  // namespace
+
 ShelfPoseResult EstimateShelfPose(const geometry::PointCloud& cloud_Base,
                                   const ShelfTopModel& model, const ShelfPoseOptions& options) {
   model.Validate();
@@ -148,42 +224,8 @@ ShelfPoseResult EstimateShelfPose(const geometry::PointCloud& cloud_Base,
   std::vector<int> all(points.size());
   for (std::size_t i = 0; i < points.size(); ++i) all[i] = static_cast<int>(i);
   std::mt19937 rng(options.seed);
-
-  const double cos_tilt = std::cos(options.max_tilt_rad);
-  Plane top;
-  if (!FindPlane(
-          points, all, options, &rng,
-          [&](const Eigen::Vector3d& n) { return std::abs(n.dot(up)) >= cos_tilt; }, &top)) {
-    throw std::invalid_argument("EstimateShelfPose: no top face (a plane of at least " +
-                                std::to_string(options.min_face_points) +
-                                " points facing up) in the cloud of " +
-                                std::to_string(points.size()) + " points");
-  }
-  if (top.normal.dot(up) < 0) {
-    top.normal = -top.normal;
-    top.offset = -top.offset;
-  }
-  std::vector<bool> is_top(points.size(), false);
-  for (int i : top.inliers) is_top[i] = true;
-  std::vector<int> rest;
-  for (int i : all) {
-    if (!is_top[i]) rest.push_back(i);
-  }
-  const double cos_front = std::cos(options.max_front_angle_rad);
-  Plane front;
-  const auto accept_front = [&](const Eigen::Vector3d& n) {
-    // Perpendicular to the top face and facing the robot (either sign of the fitted normal).
-    return std::abs(n.dot(top.normal)) < std::sin(0.1) && std::abs(n.dot(front_hint)) >= cos_front;
-  };
-  if (!FindPlane(points, rest, options, &rng, accept_front, &front)) {
-    throw std::invalid_argument("EstimateShelfPose: no front face (a vertical plane of at least " +
-                                std::to_string(options.min_face_points) +
-                                " points facing the robot) in the cloud");
-  }
-  if (front.normal.dot(front_hint) < 0) {
-    front.normal = -front.normal;
-    front.offset = -front.offset;
-  }
+  const Plane top = FindTopFace(points, all, up, options, &rng);
+  const Plane front = FindFrontFace(points, top, front_hint, options, &rng);
   // Make the front normal exactly perpendicular to the top normal.
   Eigen::Vector3d n_front = (front.normal - front.normal.dot(top.normal) * top.normal).normalized();
 
@@ -196,23 +238,7 @@ ShelfPoseResult EstimateShelfPose(const geometry::PointCloud& cloud_Base,
   A.row(2) = edge.transpose();
   const Eigen::Vector3d p_edge =
       A.colPivHouseholderQr().solve(Eigen::Vector3d(-top.offset, -front.offset, 0.0));
-
-  std::vector<double> along;
-  for (const auto* plane : {&top, &front}) {
-    for (int i : plane->inliers) {
-      const Eigen::Vector3d d = points[i] - p_edge;
-      const Eigen::Vector3d off_line = d - d.dot(edge) * edge;
-      if (off_line.norm() <= options.edge_band_m) along.push_back(d.dot(edge));
-    }
-  }
-  const int k = std::max(1, options.edge_extreme_rank);
-  if (static_cast<int>(along.size()) < 2 * k + 2) {
-    throw std::invalid_argument("EstimateShelfPose: too few points near the front top edge (" +
-                                std::to_string(along.size()) + ")");
-  }
-  std::sort(along.begin(), along.end());
-  const double left_s = along[k - 1];
-  const double right_s = along[along.size() - k];
+  const auto [left_s, right_s] = EdgeEnds(points, top, front, p_edge, edge, options);
 
   const Eigen::Vector3d model_edge = model.p_ShelfFrontRight - model.p_ShelfFrontLeft;
   const Eigen::Vector3d model_side = model.p_ShelfBackLeft - model.p_ShelfFrontLeft;
