@@ -623,6 +623,42 @@ TEST_F(DetectorSceneTest, RegionOutsideTheCloudIsInvalid) {
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
 }
 
+// The sensor's intrinsics sent with the request (a commodity camera's): the milk is found with
+// the Kinect's; impossible ones are refused naming the field, before any detection.
+TEST_F(DetectorSceneTest, TheRequestCarriesTheCamerasIntrinsics) {
+  pb::DetectParams params = Query({"milk"}, pb::METHOD_PPF);
+  common::CameraIntrinsics* camera = params.mutable_camera();
+  camera->set_width(640);
+  camera->set_height(480);
+  camera->set_fx(525.0);
+  camera->set_fy(525.0);
+  camera->set_cx(319.5);
+  camera->set_cy(239.5);
+  pb::DetectResponse response;
+  grpc::Status s = Detect(params, *chunks_, &response);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_EQ(response.results_size(), 1);
+  ASSERT_EQ(response.results(0).detections_size(), 1);
+  EXPECT_LT(
+      TranslationError(FromPose(response.results(0).detections(0).x_frame_item()), *X_BaseScene_),
+      0.005);
+
+  camera->set_fx(-1.0);
+  s = Detect(params, *chunks_, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("params.camera"), std::string::npos) << s.error_message();
+  camera->set_fx(525.0);
+  camera->add_distortion(0.1);
+  s = Detect(params, *chunks_, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("params.camera.distortion"), std::string::npos)
+      << s.error_message();
+  camera->clear_distortion();
+  camera->set_width(0);
+  s = Detect(params, *chunks_, &response);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
 // --- The detector on simulated shelf-bin scans ------------------------------------------------
 // picking-simulator lays out pick_layout_1 (seed 1), picking-scanner scans a bin from 0.55 m in
 // front of its opening (the simulator renders the 42 Gray-code captures, the scanner decodes

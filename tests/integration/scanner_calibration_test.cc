@@ -447,7 +447,7 @@ TEST_F(ProjectorCalibrationThroughRpc, RecoversTheProjectorStoresItAndKeepsItOnF
   EXPECT_EQ(response.file_format_version(), 1u);
   EXPECT_EQ(fs::path(response.calibration_file()), calibration / "camera_projector.json");
   const camera::PinholeCamera truth = TrueProjector();
-  const pb::CameraIntrinsics& p = response.calibration().projector();
+  const picking::common::v1::CameraIntrinsics& p = response.calibration().projector();
   std::cout << "projector through the RPC: fx " << p.fx() << " fy " << p.fy() << " cx " << p.cx()
             << " cy " << p.cy() << " (true " << truth.fx() << ", " << truth.fy() << ", "
             << truth.cx() << ", " << truth.cy() << "), stereo RMS "

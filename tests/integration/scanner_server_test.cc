@@ -809,7 +809,7 @@ struct Intrinsics {
   double fx = 0, fy = 0, cx = 0, cy = 0;
   double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;
 
-  explicit Intrinsics(const pb::CameraIntrinsics& c)
+  explicit Intrinsics(const picking::common::v1::CameraIntrinsics& c)
       : width(static_cast<int>(c.width())),
         height(static_cast<int>(c.height())),
         fx(c.fx()),
@@ -845,8 +845,8 @@ struct Intrinsics {
     }
     return {x, y, 1.0};
   }
-  pb::CameraIntrinsics ToProto() const {
-    pb::CameraIntrinsics c;
+  picking::common::v1::CameraIntrinsics ToProto() const {
+    picking::common::v1::CameraIntrinsics c;
     c.set_width(width), c.set_height(height), c.set_fx(fx), c.set_fy(fy), c.set_cx(cx),
         c.set_cy(cy);
     for (double k : {k1, k2, p1, p2, k3}) c.add_distortion(k);
@@ -1056,7 +1056,7 @@ class ScannerWithSimulatorTest : public ::testing::Test {
     truth.X_BaseCamera = X_BaseCamera;
     grpc::ClientContext ctx;
     sim::RenderDepthRequest request;
-    const pb::CameraIntrinsics c = camera_->ToProto();
+    const picking::common::v1::CameraIntrinsics c = camera_->ToProto();
     auto* m = request.mutable_camera();
     m->set_width(c.width()), m->set_height(c.height()), m->set_fx(c.fx()), m->set_fy(c.fy()),
         m->set_cx(c.cx()), m->set_cy(c.cy());

@@ -53,9 +53,9 @@ void PrepareStackedViews(geometry::PointCloud scene, const SceneOptions& options
                          PreparedScene* out) {
   StackedViews views;
   try {
-    views = MergeStackedViews(scene, options.view_poses, options.fallback_camera,
-                              options.estimators.ppf.appearance,
-                              options.region ? &*options.region : nullptr);
+    views = MergeStackedViews(
+        scene, options.view_poses, options.camera ? *options.camera : options.fallback_camera,
+        options.estimators.ppf.appearance, options.region ? &*options.region : nullptr);
   } catch (const std::invalid_argument& e) {
     throw ViewPosesError(e.what());
   }
@@ -140,9 +140,13 @@ PreparedScene PrepareScene(geometry::PointCloud scene, const Eigen::Isometry3d& 
     PrepareStackedViews(std::move(scene), options, &out);
   } else {
     out.cloud = CropToRegion(scene, options, "cloud");
-    out.camera = FitOrganizedIntrinsics(out.cloud, X_BaseSensor);
-    out.intrinsics_fitted = out.camera.has_value();
-    if (!out.camera) out.camera = options.fallback_camera;
+    if (options.camera) {
+      out.camera = options.camera;
+    } else {
+      out.camera = FitOrganizedIntrinsics(out.cloud, X_BaseSensor);
+      out.intrinsics_fitted = out.camera.has_value();
+      if (!out.camera) out.camera = options.fallback_camera;
+    }
   }
   out.finite_points = CountFinite(out.cloud);
   return out;

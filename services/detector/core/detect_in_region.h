@@ -43,6 +43,10 @@ struct SceneOptions {
   bool multi_sensor_verification = true;
   /// The camera where the intrinsics cannot be fitted (an unorganised cloud).
   PinholeCamera fallback_camera{640, 480, 525.0, 525.0, 319.5, 239.5};
+  /// The sensor's intrinsics as the caller knows them (a commodity camera's, sent with its
+  /// depth image): one view uses them as they are instead of fitting them to the points;
+  /// stacked views fall back to them.
+  std::optional<PinholeCamera> camera;
   EstimatorOptions estimators;
 };
 

@@ -75,8 +75,8 @@ struct ServiceOptions {
   std::string sessions_dir;
 };
 
-pb::CameraIntrinsics IntrinsicsToProto(const CameraIntrinsics& c) {
-  pb::CameraIntrinsics out;
+common::v1::CameraIntrinsics IntrinsicsToProto(const CameraIntrinsics& c) {
+  common::v1::CameraIntrinsics out;
   out.set_width(c.width);
   out.set_height(c.height);
   out.set_fx(c.fx);

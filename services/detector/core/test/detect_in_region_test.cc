@@ -63,5 +63,17 @@ TEST(PrepareScene, BadRegionsAndViewsAreTypedErrors) {
   EXPECT_THROW(PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), views), ViewPosesError);
 }
 
+// Intrinsics the caller gives are used as they are, not fitted.
+TEST(PrepareScene, GivenIntrinsicsAreUsedAsTheyAre) {
+  const BinScene s = MakeBinScene();
+  SceneOptions options;
+  options.camera = PinholeCamera(1280, 960, 1000.0, 1001.0, 640.0, 480.0);
+  const PreparedScene prepared = PrepareScene(s.cloud, Eigen::Isometry3d::Identity(), options);
+  ASSERT_TRUE(prepared.camera.has_value());
+  EXPECT_EQ(prepared.camera->width(), 1280);
+  EXPECT_DOUBLE_EQ(prepared.camera->fy(), 1001.0);
+  EXPECT_FALSE(prepared.intrinsics_fitted);
+}
+
 }  // namespace
 }  // namespace picking::detector
