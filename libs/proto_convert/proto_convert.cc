@@ -345,4 +345,50 @@ bool ImageAssembler::Add(const pb::ImageChunk& chunk) {
   return false;
 }
 
+camera::PinholeCamera CameraFromProto(const pb::CameraIntrinsics& c, std::string_view field,
+                                      std::uint32_t max_side_px, std::uint64_t max_pixels) {
+  const std::string name(field);
+  if (c.width() == 0 || c.height() == 0 || c.width() > max_side_px || c.height() > max_side_px) {
+    throw std::invalid_argument(name + ": width and height must be in [1, " +
+                                std::to_string(max_side_px) + "], got " +
+                                std::to_string(c.width()) + " x " + std::to_string(c.height()));
+  }
+  if (std::uint64_t{c.width()} * c.height() > max_pixels) {
+    throw std::invalid_argument(name + ": at most " + std::to_string(max_pixels) + " pixels, got " +
+                                std::to_string(c.width()) + " x " + std::to_string(c.height()));
+  }
+  if (c.distortion_size() > 5) {
+    throw std::invalid_argument(name + ".distortion: at most 5 coefficients (k1, k2, p1, p2, k3)");
+  }
+  double k[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
+  for (int i = 0; i < c.distortion_size(); ++i) k[i] = c.distortion(i);
+  camera::Distortion d;
+  d.k1 = k[0];
+  d.k2 = k[1];
+  d.p1 = k[2];
+  d.p2 = k[3];
+  d.k3 = k[4];
+  try {
+    return camera::PinholeCamera(static_cast<int>(c.width()), static_cast<int>(c.height()), c.fx(),
+                                 c.fy(), c.cx(), c.cy(), d);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(name + ": " + e.what());
+  }
+}
+
+pb::CameraIntrinsics CameraToProto(const camera::PinholeCamera& camera) {
+  pb::CameraIntrinsics c;
+  c.set_width(static_cast<std::uint32_t>(camera.width()));
+  c.set_height(static_cast<std::uint32_t>(camera.height()));
+  c.set_fx(camera.fx());
+  c.set_fy(camera.fy());
+  c.set_cx(camera.cx());
+  c.set_cy(camera.cy());
+  const camera::Distortion& d = camera.distortion();
+  if (!d.is_zero()) {
+    for (double k : {d.k1, d.k2, d.p1, d.p2, d.k3}) c.add_distortion(k);
+  }
+  return c;
+}
+
 }  // namespace picking::proto_convert

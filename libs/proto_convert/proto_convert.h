@@ -9,6 +9,7 @@
 #include <string_view>
 #include <vector>
 
+#include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
 #include "picking/common/v1/apc.pb.h"
 #include "picking/common/v1/data.pb.h"
@@ -42,6 +43,15 @@ pb::Vector3 VectorToProto(const Eigen::Vector3d& v);
 /// Exactly 6 finite joint positions (radians).
 std::array<double, 6> JointsFromProto(const pb::JointPositions& joints, std::string_view field);
 pb::JointPositions JointsToProto(const std::array<double, 6>& q);
+
+/// Camera intrinsics <-> camera::PinholeCamera. Rejects an image side of 0 or over
+/// `max_side_px`, more than `max_pixels`, more than five distortion coefficients (k1, k2, p1,
+/// p2, k3; missing ones are 0) and what PinholeCamera refuses (focal lengths, non-finite
+/// values, a distortion it cannot invert), naming `field`.
+camera::PinholeCamera CameraFromProto(const pb::CameraIntrinsics& c, std::string_view field,
+                                      std::uint32_t max_side_px = 4096,
+                                      std::uint64_t max_pixels = std::uint64_t{1} << 24);
+pb::CameraIntrinsics CameraToProto(const camera::PinholeCamera& camera);
 
 /// "bin_A".."bin_L", "tote", ... <-> Container. Throws for UNSPECIFIED / unknown names.
 std::string ContainerName(pb::Container container);

@@ -339,7 +339,7 @@ TEST_F(SimulatorRpcTest, SuctionInFreeAirDoesNotSeal) {
 // A camera and a projector 0.6 m above the base, 0.6 m in front of the bins, looking along +x.
 sim::RenderPatternsRequest ShelfView() {
   sim::RenderPatternsRequest req;
-  auto model = [](sim::PinholeModel* m, int w, int h, double f) {
+  auto model = [](picking::common::v1::CameraIntrinsics* m, int w, int h, double f) {
     m->set_width(w);
     m->set_height(h);
     m->set_fx(f);
@@ -575,7 +575,7 @@ TEST_F(SimulatorRpcTest, RenderPatternsRefusesRequestsBeyondItsLimits) {
     EXPECT_TRUE(r.headers.empty());
     EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(10)) << field;
   };
-  auto resize = [](sim::PinholeModel* m, int w, int h) {
+  auto resize = [](picking::common::v1::CameraIntrinsics* m, int w, int h) {
     m->set_width(w);
     m->set_height(h);
     m->set_cx(0.5 * (w - 1));
@@ -615,7 +615,7 @@ TEST(SimulatorServerTest, ALongRenderEndsWhenTheServerIsAskedToStop) {
   ServerProcess server(ServerBinary(kBinary), {"--shutdown-grace-s=300"});
   auto stub = sim::SimulatorService::NewStub(server.Channel());
   sim::RenderPatternsRequest req = ShelfView();
-  auto resize = [](sim::PinholeModel* m, int w, int h, double f) {
+  auto resize = [](picking::common::v1::CameraIntrinsics* m, int w, int h, double f) {
     m->set_width(w), m->set_height(h), m->set_fx(f), m->set_fy(f);
     m->set_cx(0.5 * (w - 1)), m->set_cy(0.5 * (h - 1));
   };

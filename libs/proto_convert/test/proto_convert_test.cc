@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -78,6 +79,46 @@ TEST(ProtoConvertTest, JointsNeedSixFiniteValues) {
   const auto q = JointsFromProto(j, "target");
   EXPECT_DOUBLE_EQ(q[5], 0.5);
   EXPECT_EQ(JointsToProto(q).positions_rad_size(), 6);
+}
+
+TEST(ProtoConvertTest, CameraIntrinsicsRoundTripAndAreChecked) {
+  camera::Distortion d;
+  d.k1 = -0.1;
+  d.p2 = 0.001;
+  const camera::PinholeCamera camera(640, 480, 525.0, 526.0, 319.5, 239.5, d);
+  const camera::PinholeCamera back = CameraFromProto(CameraToProto(camera), "camera");
+  EXPECT_EQ(back.width(), 640);
+  EXPECT_EQ(back.height(), 480);
+  EXPECT_DOUBLE_EQ(back.fy(), 526.0);
+  EXPECT_DOUBLE_EQ(back.distortion().k1, -0.1);
+  EXPECT_DOUBLE_EQ(back.distortion().p2, 0.001);
+  EXPECT_EQ(CameraToProto(camera::PinholeCamera(10, 10, 5.0, 5.0, 4.5, 4.5)).distortion_size(), 0);
+
+  auto refused = [](pb::CameraIntrinsics c, const std::string& expected) {
+    try {
+      CameraFromProto(c, "params.camera", 4096, 1u << 22);
+      ADD_FAILURE() << "accepted, expected " << expected;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+  };
+  pb::CameraIntrinsics c = CameraToProto(camera);
+  c.set_width(0);
+  refused(c, "params.camera: width and height");
+  c.set_width(4097);
+  refused(c, "params.camera: width and height");
+  c.set_width(4096);
+  c.set_height(4096);
+  refused(c, "params.camera: at most");
+  c = CameraToProto(camera);
+  c.set_fx(std::numeric_limits<double>::quiet_NaN());
+  refused(c, "params.camera:");
+  c = CameraToProto(camera);
+  c.set_fy(-1.0);
+  refused(c, "params.camera:");
+  c = CameraToProto(camera);
+  c.add_distortion(0.0);
+  refused(c, "params.camera.distortion");
 }
 
 TEST(ProtoConvertTest, ContainerNamesRoundTrip) {

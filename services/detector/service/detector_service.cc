@@ -191,7 +191,9 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       }
       scene_options.view_poses = std::move(view_poses);
       scene_options.fallback_camera = settings_.default_camera;
-      if (params.has_camera()) scene_options.camera = CameraFromProto(params.camera());
+      if (params.has_camera()) {
+        scene_options.camera = pc::CameraFromProto(params.camera(), "params.camera");
+      }
       PreparedScene scene;
       try {
         scene = PrepareScene(std::move(received.cloud), received.X_BaseSensor, scene_options);
@@ -320,28 +322,6 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           "params.region.wall_margin_m must be >= 0 and less than half the smallest box side");
     }
     return box;
-  }
-
-  // The request's camera: a whole image's size, positive focal lengths, finite values, no or
-  // five distortion coefficients.
-  static PinholeCamera CameraFromProto(const common::v1::CameraIntrinsics& c) {
-    if (c.width() == 0 || c.height() == 0 || c.width() > 100000 || c.height() > 100000) {
-      throw std::invalid_argument("params.camera: width and height must be 1-100000 pixels");
-    }
-    if (c.distortion_size() != 0 && c.distortion_size() != 5) {
-      throw std::invalid_argument(
-          "params.camera.distortion: give none or the five k1, k2, p1, p2, k3");
-    }
-    camera::Distortion d;
-    if (c.distortion_size() == 5) {
-      d = {c.distortion(0), c.distortion(1), c.distortion(2), c.distortion(3), c.distortion(4)};
-    }
-    try {
-      return PinholeCamera(static_cast<int>(c.width()), static_cast<int>(c.height()), c.fx(),
-                           c.fy(), c.cx(), c.cy(), d);
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(std::string("params.camera: ") + e.what());
-    }
   }
 
   std::optional<PinholeCamera> CameraFor(const geometry::PointCloud& scene,

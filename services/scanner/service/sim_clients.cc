@@ -42,19 +42,8 @@ void SetDeadline(grpc::ClientContext* ctx, double timeout_s) {
   throw std::runtime_error(message);
 }
 
-simpb::PinholeModel ToModel(const camera::PinholeCamera& c) {
-  simpb::PinholeModel m;
-  m.set_width(c.width());
-  m.set_height(c.height());
-  m.set_fx(c.fx());
-  m.set_fy(c.fy());
-  m.set_cx(c.cx());
-  m.set_cy(c.cy());
-  const auto& d = c.distortion();
-  if (!d.is_zero()) {
-    for (double k : {d.k1, d.k2, d.p1, d.p2, d.k3}) m.add_distortion(k);
-  }
-  return m;
+common::v1::CameraIntrinsics ToModel(const camera::PinholeCamera& c) {
+  return pc::CameraToProto(c);
 }
 
 }  // namespace

@@ -167,38 +167,9 @@ pb::EventKind EventKindToProto(EventKind kind) {
   throw std::logic_error("unhandled simulator event kind");
 }
 
-camera::PinholeCamera PinholeFromProto(const pb::PinholeModel& m, const std::string& field) {
-  if (m.width() == 0 || m.height() == 0 || m.width() > kMaxImageSide ||
-      m.height() > kMaxImageSide) {
-    throw std::invalid_argument(field + ": width and height must be in [1, " +
-                                std::to_string(kMaxImageSide) + "], got " +
-                                std::to_string(m.width()) + " x " + std::to_string(m.height()));
-  }
-  if (std::uint64_t{m.width()} * m.height() > kMaxImagePixels) {
-    throw std::invalid_argument(field + ": at most " + std::to_string(kMaxImagePixels) +
-                                " pixels, got " + std::to_string(m.width()) + " x " +
-                                std::to_string(m.height()));
-  }
-  if (m.distortion_size() > 5) {
-    throw std::invalid_argument(field + ".distortion: at most 5 coefficients (k1, k2, p1, p2, k3)");
-  }
-  camera::Distortion d;
-  const double k[5] = {m.distortion_size() > 0 ? m.distortion(0) : 0.0,
-                       m.distortion_size() > 1 ? m.distortion(1) : 0.0,
-                       m.distortion_size() > 2 ? m.distortion(2) : 0.0,
-                       m.distortion_size() > 3 ? m.distortion(3) : 0.0,
-                       m.distortion_size() > 4 ? m.distortion(4) : 0.0};
-  d.k1 = k[0];
-  d.k2 = k[1];
-  d.p1 = k[2];
-  d.p2 = k[3];
-  d.k3 = k[4];
-  try {
-    return camera::PinholeCamera(static_cast<int>(m.width()), static_cast<int>(m.height()), m.fx(),
-                                 m.fy(), m.cx(), m.cy(), d);
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(field + ": " + e.what());
-  }
+camera::PinholeCamera PinholeFromProto(const common::CameraIntrinsics& m,
+                                       const std::string& field) {
+  return pc::CameraFromProto(m, field, kMaxImageSide, kMaxImagePixels);
 }
 
 // Gray-code image as the scanner projects it (services/scanner/core/patterns.h): projector
