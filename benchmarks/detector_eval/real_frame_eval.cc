@@ -256,9 +256,12 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   const Judge judge(*model, *scene.camera);
   detector::ItemQuery query;
   query.item = truth.name;
+  // One scene context per target, made inside the timed call as the service makes it; the
+  // evidence and the candidates for the ROC reuse it.
   const auto started = Clock::now();
+  const auto context = detector::MakeSceneContext(scene);
   const detector::ItemDetections found =
-      detector::DetectItem(library, scene, detector::MakeSceneContext(scene), query, started);
+      detector::DetectItem(library, scene, context, query, started);
   const double seconds = std::chrono::duration<double>(Clock::now() - started).count();
   tally->total_s += seconds;
   tally->max_s = std::max(tally->max_s, seconds);
@@ -268,7 +271,6 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
     const Judged j = judge(*found.chain.detection, truth.X_CameraObject);
     // The evidence under the score: the model's points facing the sensor, hidden behind other
     // surfaces, supported by the scan, and in space the sensor saw through.
-    const auto context = detector::MakeSceneContext(scene);
     const detector::VerifyResult v = detector::Verify(
         *context->Verification(), model->object->icp_cloud(), found.chain.detection->X_BaseItem);
     // The same measure at the true pose: a search that missed it, or a score that prefers
@@ -293,7 +295,7 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   query.min_score = 0.01;
   query.max_results = 5;
   const detector::ItemDetections all =
-      detector::DetectItem(library, scene, detector::MakeSceneContext(scene), query, Clock::now());
+      detector::DetectItem(library, scene, context, query, Clock::now());
   int right = 0;
   for (const detector::Detection& d : all.poses) {
     tally->candidates.push_back(judge(d, truth.X_CameraObject));
