@@ -19,38 +19,6 @@ float BoxDistance(const Eigen::AlignedBox3f& box, const Eigen::Vector3f& p) {
   return d.norm();
 }
 
-// Squared distance from p to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
-float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
-                             const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
-  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
-  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0.f && d2 <= 0.f) return ap.squaredNorm();
-  const Eigen::Vector3f bp = p - b;
-  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0.f && d4 <= d3) return bp.squaredNorm();
-  const float vc = d1 * d4 - d3 * d2;
-  if (vc <= 0.f && d1 >= 0.f && d3 <= 0.f) {
-    const float v = d1 / (d1 - d3);
-    return (a + v * ab - p).squaredNorm();
-  }
-  const Eigen::Vector3f cp = p - c;
-  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0.f && d5 <= d6) return cp.squaredNorm();
-  const float vb = d5 * d2 - d1 * d6;
-  if (vb <= 0.f && d2 >= 0.f && d6 <= 0.f) {
-    const float w = d2 / (d2 - d6);
-    return (a + w * ac - p).squaredNorm();
-  }
-  const float va = d3 * d6 - d5 * d4;
-  if (va <= 0.f && (d4 - d3) >= 0.f && (d5 - d6) >= 0.f) {
-    const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    return (b + w * (c - b) - p).squaredNorm();
-  }
-  const float denom = 1.f / (va + vb + vc);
-  const float v = vb * denom, w = vc * denom;
-  return (a + ab * v + ac * w - p).squaredNorm();
-}
-
 }  // namespace
 
 std::shared_ptr<MeshBvh> MakeMeshBvh(const world::TriangleMesh& mesh) {
@@ -155,8 +123,10 @@ struct StaticCell::Fcl {
 
 StaticCell::StaticCell(const world::CellModel& cell, const StaticCellOptions& options)
     : cell_(cell), options_(options), fcl_(std::make_unique<Fcl>()) {
-  if (!(options_.grid_resolution_m > 0.0) || !(options_.surface_gap_m > 0.0)) {
-    throw std::invalid_argument("StaticCell: grid resolution and surface gap must be > 0");
+  if (!(options_.grid_resolution_m > 0.0) || !(options_.surface_gap_m > 0.0) ||
+      !(options_.exact_band_m >= 0.0) || !std::isfinite(options_.exact_band_m)) {
+    throw std::invalid_argument(
+        "StaticCell: grid resolution and surface gap must be > 0, the exact band >= 0");
   }
   floor_z_m_ = cell_.config.floor_z_m();
   struct Part {
@@ -178,6 +148,10 @@ StaticCell::StaticCell(const world::CellModel& cell, const StaticCellOptions& op
     grid_options.margin_m = 0.16;
     grids_.push_back({part.name, DistanceGrid::Build(seeds, grid_options)});
     buckets_.push_back(std::make_unique<Buckets>(*part.mesh, part.X_BaseMesh));
+    if (options_.exact_band_m > 0.0) {
+      grids_.back().grid.Tighten(static_cast<float>(options_.exact_band_m),
+                                 buckets_.back()->triangles);
+    }
     fcl_->objects.push_back({part.name, MakeMeshBvh(*part.mesh), part.X_BaseMesh, nullptr});
   }
   fcl_->objects.push_back(
@@ -278,7 +252,10 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
     const int obstacle = kObstacleFirstMesh + static_cast<int>(g);
     if (!(mask & (1u << obstacle))) continue;
     float d = grids[g].grid.Clearance(c);
-    if (exact && d < r) d = cell_.SurfaceDistance(g, c, r);
+    // Where the grid cannot clear the sphere, its exact cells may still prove the contact
+    // (upper bound below the radius); only the spheres between the two bounds measure
+    // triangles.
+    if (exact && d < r && grids[g].grid.UpperBound(c) >= r) d = cell_.SurfaceDistance(g, c, r);
     consider(obstacle, d - r);
   }
   const int scan_obstacle = kObstacleFirstMesh + static_cast<int>(grids.size());

@@ -123,6 +123,114 @@ DistanceGrid DistanceGrid::Build(const std::vector<Eigen::Vector3f>& seeds_F,
   return grid;
 }
 
+void DistanceGrid::Tighten(float band_m,
+                           const std::vector<std::array<Eigen::Vector3f, 3>>& triangles_F) {
+  if (!(band_m >= 0.f) || !std::isfinite(band_m)) {
+    throw std::invalid_argument("distance grid: the exact band must be finite and >= 0");
+  }
+  if (distance_01mm_.empty()) return;
+  // Stored values hold (bound at the centre + allowance) in 0.1 mm, rounded down, so that
+  // Clearance keeps one formula for tightened and seeded cells. A band cell starts at the
+  // band (no triangle nearer) and takes the nearest triangle's distance; a triangle farther
+  // than the band from a cell cannot lower it. A cell outside the band is farther than the
+  // band from every triangle (its seeded bound says so), so no triangle lowers it either.
+  exact_cap_01mm_ =
+      static_cast<std::uint16_t>(std::min(65535.f, std::floor((band_m + allowance_m_) * 1e4f)));
+  for (std::uint16_t& d : distance_01mm_) {
+    if (d < exact_cap_01mm_) d = exact_cap_01mm_;
+  }
+  // Larger triangles first: the plane test in TightenNear then skips most cells of the
+  // small ones.
+  std::vector<std::pair<float, std::size_t>> by_area;
+  by_area.reserve(triangles_F.size());
+  for (std::size_t i = 0; i < triangles_F.size(); ++i) {
+    const auto& t = triangles_F[i];
+    by_area.emplace_back(-(t[1] - t[0]).cross(t[2] - t[0]).norm(), i);
+  }
+  std::sort(by_area.begin(), by_area.end());
+  for (const auto& [minus_area, i] : by_area) TightenNear(triangles_F[i], band_m);
+}
+
+void DistanceGrid::TightenNear(const std::array<Eigen::Vector3f, 3>& t, float band_m) {
+  const Eigen::Vector3i max_cell(nx_ - 1, ny_ - 1, nz_ - 1);
+  auto cell_of = [&](const Eigen::Vector3f& p) -> Eigen::Vector3i {
+    const Eigen::Vector3f u = ((p - origin_F_) * inv_resolution_).array().floor();
+    return u.cwiseMax(0.f).cwiseMin(max_cell.cast<float>()).cast<int>();
+  };
+  const Eigen::Vector3i lo = cell_of(t[0].cwiseMin(t[1]).cwiseMin(t[2]).array() - band_m);
+  const Eigen::Vector3i hi = cell_of(t[0].cwiseMax(t[1]).cwiseMax(t[2]).array() + band_m);
+  // Walk the cells along the axis k nearest the normal only within the band's slab around
+  // the triangle's plane (the band over |n_k| either side), so that a large panel visits the
+  // cells near it and not its whole bounding box. A degenerate triangle visits its box.
+  Eigen::Vector3f n = (t[1] - t[0]).cross(t[2] - t[0]);
+  const bool flat = n.norm() > 1e-12f;
+  n = flat ? n.normalized() : Eigen::Vector3f::UnitZ();
+  int k = 0;
+  n.cwiseAbs().maxCoeff(&k);
+  const int i_axis = (k + 1) % 3, j_axis = (k + 2) % 3;
+  const float half_k = flat ? band_m / std::abs(n[k]) + 0.5f * resolution_ : 1e9f;
+  const std::size_t nxy = static_cast<std::size_t>(nx_) * ny_;
+  const std::size_t stride_k = k == 0 ? 1 : k == 1 ? static_cast<std::size_t>(nx_) : nxy;
+  Eigen::Vector3i c = lo;
+  for (c[j_axis] = lo[j_axis]; c[j_axis] <= hi[j_axis]; ++c[j_axis]) {
+    for (c[i_axis] = lo[i_axis]; c[i_axis] <= hi[i_axis]; ++c[i_axis]) {
+      Eigen::Vector3f centre = origin_F_ + (c.cast<float>().array() + 0.5f).matrix() * resolution_;
+      const float on_plane = t[0][k] - (n[i_axis] * (centre[i_axis] - t[0][i_axis]) +
+                                        n[j_axis] * (centre[j_axis] - t[0][j_axis])) /
+                                           n[k];
+      const float k_lo = (on_plane - half_k - origin_F_[k]) * inv_resolution_;
+      const float k_hi = (on_plane + half_k - origin_F_[k]) * inv_resolution_;
+      const int from = std::max<float>(lo[k], std::floor(std::max(k_lo, -1.f)));
+      const int to = std::min<float>(hi[k], std::floor(std::min(k_hi, 1e7f)));
+      c[k] = from;
+      std::size_t i = c.z() * nxy + static_cast<std::size_t>(c.y()) * nx_ + c.x();
+      for (int m = from; m <= to; ++m, i += stride_k) {
+        centre[k] = origin_F_[k] + (m + 0.5f) * resolution_;
+        // The plane's distance is a lower bound of the triangle's: most cells of a small
+        // triangle already hold a nearer panel's distance.
+        if (flat && std::floor((std::abs(n.dot(centre - t[0])) + allowance_m_) * 1e4f) >=
+                        distance_01mm_[i]) {
+          continue;
+        }
+        const float d = std::sqrt(PointTriangleDistance2(centre, t[0], t[1], t[2]));
+        const float units = std::floor((d + allowance_m_) * 1e4f);
+        if (units < distance_01mm_[i]) distance_01mm_[i] = static_cast<std::uint16_t>(units);
+      }
+    }
+  }
+}
+
+float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
+                             const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
+  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
+  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0.f && d2 <= 0.f) return ap.squaredNorm();
+  const Eigen::Vector3f bp = p - b;
+  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0.f && d4 <= d3) return bp.squaredNorm();
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.f && d1 >= 0.f && d3 <= 0.f) {
+    const float v = d1 / (d1 - d3);
+    return (a + v * ab - p).squaredNorm();
+  }
+  const Eigen::Vector3f cp = p - c;
+  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0.f && d5 <= d6) return cp.squaredNorm();
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.f && d2 >= 0.f && d6 <= 0.f) {
+    const float w = d2 / (d2 - d6);
+    return (a + w * ac - p).squaredNorm();
+  }
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0.f && (d4 - d3) >= 0.f && (d5 - d6) >= 0.f) {
+    const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return (b + w * (c - b) - p).squaredNorm();
+  }
+  const float denom = 1.f / (va + vb + vc);
+  const float v = vb * denom, w = vc * denom;
+  return (a + ab * v + ac * w - p).squaredNorm();
+}
+
 Eigen::AlignedBox3f DistanceGrid::bounds_F() const {
   return Eigen::AlignedBox3f(origin_F_, origin_F_ + size_f_ * resolution_);
 }

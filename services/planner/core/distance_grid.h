@@ -3,7 +3,9 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <array>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 namespace picking::planner {
@@ -59,6 +61,34 @@ class DistanceGrid final {
     return d - offset.norm() * resolution_ - allowance_m_;
   }
 
+  /// Replaces the bound of every cell whose centre may lie within `band_m` of the geometry by
+  /// the exact distance from its centre to `triangles_F` (the geometry the seeds were sampled
+  /// from). A query in such a cell is then loose only by twice its offset from the centre (at
+  /// most a cell diagonal), not by the seeds' spacing and another half diagonal as well, so a
+  /// sphere check needs its exact fallback less often. Each triangle visits the cells of its
+  /// bounding box grown by the band. Throws std::invalid_argument for a negative or non-finite
+  /// band.
+  void Tighten(float band_m, const std::vector<std::array<Eigen::Vector3f, 3>>& triangles_F);
+
+  /// Upper bound on the distance from `p_F` to the geometry where the cell holds an exact
+  /// distance (Tighten): the centre's distance plus the offset from it, metres. Infinite in a
+  /// cell that holds only the seeds' bound or outside the grid.
+  float UpperBound(const Eigen::Vector3f& p_F) const {
+    const Eigen::Vector3f u = (p_F - origin_F_) * inv_resolution_;
+    if (!(u.x() >= 0.f && u.y() >= 0.f && u.z() >= 0.f && u.x() < size_f_.x() &&
+          u.y() < size_f_.y() && u.z() < size_f_.z())) {
+      return std::numeric_limits<float>::infinity();
+    }
+    const int ix = static_cast<int>(u.x()), iy = static_cast<int>(u.y()),
+              iz = static_cast<int>(u.z());
+    const std::uint16_t stored =
+        distance_01mm_[(static_cast<std::size_t>(iz) * ny_ + iy) * nx_ + ix];
+    if (stored >= exact_cap_01mm_) return std::numeric_limits<float>::infinity();
+    const Eigen::Vector3f offset((u.x() - ix - 0.5f), (u.y() - iy - 0.5f), (u.z() - iz - 0.5f));
+    // The stored value was rounded down by up to 0.1 mm, and carries the allowance.
+    return (stored + 1) * 1e-4f - allowance_m_ + offset.norm() * resolution_ + 1e-5f;
+  }
+
   bool empty() const { return distance_01mm_.empty(); }
   double resolution_m() const { return resolution_; }
   /// Bounds of the grid (outer faces of its cells), frame F.
@@ -71,15 +101,24 @@ class DistanceGrid final {
   std::size_t memory_bytes() const { return distance_01mm_.size() * sizeof(std::uint16_t); }
 
  private:
+  // Tighten's work for one triangle: the cells within the band of its plane and box.
+  void TightenNear(const std::array<Eigen::Vector3f, 3>& triangle_F, float band_m);
+
   Eigen::Vector3f origin_F_ = Eigen::Vector3f::Zero();  // min corner of cell (0, 0, 0)
   Eigen::Vector3f size_f_ = Eigen::Vector3f::Zero();    // nx, ny, nz as floats
   float resolution_ = 0.01f;
   float inv_resolution_ = 100.f;
   float allowance_m_ = 0.f;
   float outside_clearance_m_ = 1e3f;
+  // Stored values below this hold a tightened cell's exact distance (0: none).
+  std::uint16_t exact_cap_01mm_ = 0;
   int nx_ = 0, ny_ = 0, nz_ = 0;
   std::vector<std::uint16_t> distance_01mm_;
 };
+
+/// Squared distance from `p` to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
+float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
+                             const Eigen::Vector3f& b, const Eigen::Vector3f& c);
 
 /// Points on the surface of triangles no farther than `gap_m` from any surface point: the
 /// triangles are subdivided until every edge is at most `gap_m * sqrt(3)` and their vertices

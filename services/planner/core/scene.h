@@ -57,10 +57,11 @@ struct ScanSceneOptions {
   /// Surfaces the planner knows already (the static cell's distance grids; must outlive the
   /// scene): a point whose distance bound to one of them is below
   /// `known_surface_distance_m` is the cell itself and is left out, so the shelf's walls are
-  /// not doubled by coarser voxels. With the bound's slack a point up to about a grid cell
-  /// from the surface goes (1.2 cm on a 5 mm grid).
+  /// not doubled by coarser voxels. The bound is loose by up to half a grid cell's diagonal
+  /// near a surface (4 mm on the static cell's 5 mm grids), so a point goes from between
+  /// this distance and that much more.
   std::vector<const DistanceGrid*> known_surfaces;
-  double known_surface_distance_m = 0.0;
+  double known_surface_distance_m = 0.01;
 };
 
 /// Counts of one ScanScene::Insert.

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
 
 namespace picking::planner {
@@ -28,6 +29,63 @@ TEST(DistanceGridTest, ClearanceIsALowerBoundOfTheTrueDistance) {
   }
   // The bound gives away at most the cell's diagonal plus rounding.
   EXPECT_LT(worst_gap, std::sqrt(3.0) * 0.01 * 1.5 + 1e-3);
+}
+
+// Two triangles of a tilted panel, sampled 3 mm apart, as the static cell's meshes are.
+TEST(DistanceGridTest, TightenedCellsHoldTheExactDistanceNearTheSurface) {
+  const std::vector<Eigen::Vector3f> vertices = {
+      Eigen::Vector3f(0.f, 0.f, 0.f), Eigen::Vector3f(0.4f, 0.05f, 0.1f),
+      Eigen::Vector3f(0.f, 0.3f, 0.2f), Eigen::Vector3f(0.4f, 0.35f, 0.3f)};
+  const std::vector<std::array<std::uint32_t, 3>> indices = {{0, 1, 2}, {1, 3, 2}};
+  std::vector<std::array<Eigen::Vector3f, 3>> triangles;
+  for (const auto& t : indices)
+    triangles.push_back({vertices[t[0]], vertices[t[1]], vertices[t[2]]});
+  std::vector<Eigen::Vector3f> seeds;
+  SampleSurface(vertices, indices, Eigen::Isometry3d::Identity(), 0.003, &seeds);
+  DistanceGridOptions options;
+  options.resolution_m = 0.005;
+  options.margin_m = 0.1;
+  options.seed_allowance_m = 0.003;
+  const DistanceGrid seeded = DistanceGrid::Build(seeds, options);
+  DistanceGrid tight = seeded;
+  const float band_m = 0.04f;
+  tight.Tighten(band_m, triangles);
+  auto truth = [&](const Eigen::Vector3f& p) {
+    float d2 = 1e9f;
+    for (const auto& t : triangles) d2 = std::min(d2, PointTriangleDistance2(p, t[0], t[1], t[2]));
+    return std::sqrt(d2);
+  };
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  const float half_diagonal = 0.5f * std::sqrt(3.f) * 0.005f;
+  float worst_seeded_gap = 0.f, worst_tight_gap = 0.f;
+  for (int i = 0; i < 50000; ++i) {
+    // Near the panel: a point of it moved off by up to 6 cm.
+    const float a = u(rng), b = u(rng) * (1.f - a);
+    const Eigen::Vector3f on = triangles[i % 2][0] +
+                               a * (triangles[i % 2][1] - triangles[i % 2][0]) +
+                               b * (triangles[i % 2][2] - triangles[i % 2][0]);
+    const Eigen::Vector3f p =
+        on + 0.06f * Eigen::Vector3f(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f) * 2.f;
+    const float d = truth(p);
+    ASSERT_LE(tight.Clearance(p), d + 1e-5f) << "at " << p.transpose();
+    ASSERT_GE(tight.Clearance(p), seeded.Clearance(p) - 1e-4f) << "at " << p.transpose();
+    ASSERT_GE(tight.UpperBound(p), d - 1e-5f) << "at " << p.transpose();
+    ASSERT_EQ(seeded.UpperBound(p), std::numeric_limits<float>::infinity());
+    if (d < band_m) {
+      // Loose only by twice the offset from the cell's centre (the distance there is exact, and
+      // the true distance at p at most that offset farther) and the rounding to 0.1 mm.
+      ASSERT_GE(tight.Clearance(p), d - 2.f * half_diagonal - 3e-4f) << "at " << p.transpose();
+      worst_tight_gap = std::max(worst_tight_gap, d - tight.Clearance(p));
+      // Within the band every cell is exact (the band is wider than the cells' diagonal).
+      if (d < band_m - 2.f * half_diagonal)
+        ASSERT_LE(tight.UpperBound(p), d + 2.f * half_diagonal + 3e-4f);
+      worst_seeded_gap = std::max(worst_seeded_gap, d - seeded.Clearance(p));
+    }
+  }
+  // The seeded bound alone gives away the seeds' spacing and another half diagonal as well.
+  EXPECT_GT(worst_seeded_gap, worst_tight_gap + half_diagonal) << worst_tight_gap;
+  EXPECT_THROW(tight.Tighten(-1.f, triangles), std::invalid_argument);
 }
 
 TEST(DistanceGridTest, SeedAllowanceAndOutsideQueries) {
