@@ -561,6 +561,50 @@ std::vector<DetectOutcome> DetectorPool::DetectAll(const std::vector<DetectCall>
   return RunAll<DetectOutcome>(calls, [this](const DetectCall& c) { return Detect(c); });
 }
 
+DetectOutcome DetectorPool::DetectSpread(const DetectCall& call) {
+  if (!call.cloud) throw std::invalid_argument("detector pool: the call has no cloud");
+  const int queries = call.params.queries_size();
+  const int jobs = std::min(queries, ConcurrencyLimit());
+  if (jobs <= 1) return Detect(call);
+  std::vector<DetectCall> calls(jobs, call);
+  for (DetectCall& c : calls) c.params.clear_queries();
+  for (int i = 0; i < queries; ++i) *calls[i % jobs].params.add_queries() = call.params.queries(i);
+  std::vector<DetectOutcome> parts = DetectAll(calls);
+  DetectOutcome joined;
+  std::vector<std::string> replicas;
+  for (DetectOutcome& part : parts) {
+    joined.attempts.insert(joined.attempts.end(), part.attempts.begin(), part.attempts.end());
+    if (!part.ok() && joined.status.ok()) {
+      joined.status = part.status;
+      joined.replica = part.replica;
+      joined.peer = part.peer;
+    }
+    if (std::find(replicas.begin(), replicas.end(), part.replica) == replicas.end()) {
+      replicas.push_back(part.replica);
+    }
+  }
+  for (int j = 0; j < jobs && joined.ok(); ++j) {
+    if (parts[j].response.results_size() != calls[j].params.queries_size()) {
+      joined.status =
+          grpc::Status(grpc::StatusCode::INTERNAL,
+                       "detector " + parts[j].replica + " answered " +
+                           std::to_string(parts[j].response.results_size()) + " results for " +
+                           std::to_string(calls[j].params.queries_size()) + " queries");
+      joined.replica = parts[j].replica;
+    }
+  }
+  if (!joined.ok()) return joined;
+  // Query i is result i / jobs of job i % jobs.
+  for (int i = 0; i < queries; ++i) {
+    *joined.response.add_results() = parts[i % jobs].response.results(i / jobs);
+  }
+  joined.response.set_points_received(parts[0].response.points_received());
+  joined.response.set_points_after_preprocessing(parts[0].response.points_after_preprocessing());
+  for (const std::string& r : replicas) joined.replica += (joined.replica.empty() ? "" : ",") + r;
+  joined.peer = parts[0].peer;
+  return joined;
+}
+
 std::vector<VerifyOutcome> DetectorPool::VerifyAll(const std::vector<VerifyCall>& calls) {
   return RunAll<VerifyOutcome>(calls, [this](const VerifyCall& c) { return Verify(c); });
 }

@@ -212,6 +212,15 @@ class DetectorPool final {
   std::vector<DetectOutcome> DetectAll(const std::vector<DetectCall>& calls);
   std::vector<VerifyOutcome> VerifyAll(const std::vector<VerifyCall>& calls);
 
+  /// One Detect call's item queries spread over the replicas: split into as many jobs as
+  /// ConcurrencyLimit() allows (query i to job i mod n, so the first query, the target, leads
+  /// the first job), run at once by DetectAll, and the answers joined into one response in
+  /// the queries' order, as one replica would have given it. Every job gets the same scan,
+  /// region and views (each replica prepares the scene itself). With one replica, or one
+  /// query, it is Detect. The outcome's status is the first failed job's (its attempts and
+  /// replica); `attempts` lists every job's. Throws std::invalid_argument for a null cloud.
+  DetectOutcome DetectSpread(const DetectCall& call);
+
   /// Checks every replica now (grpc.health.v1 Check, in parallel, each within
   /// health_timeout_s, waiting for a connection): SERVING brings a replica back, anything
   /// else takes it out. Returns when all checks are done.

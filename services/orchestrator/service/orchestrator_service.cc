@@ -247,7 +247,8 @@ std::shared_ptr<grpc::Channel> Channel(const runtime::Config& config,
   return channels.Connect(address, args);
 }
 
-// Detect through the pool of replicas: retried on another replica when one does not answer.
+// Detect through the pool of replicas: the items spread over them, each job retried on
+// another replica when one does not answer.
 DetectFn PoolDetector(std::shared_ptr<DetectorPool> pool) {
   return
       [pool](const dt::DetectParams& params, const std::vector<common::v1::PointCloudChunk>& chunks,
@@ -255,7 +256,8 @@ DetectFn PoolDetector(std::shared_ptr<DetectorPool> pool) {
         DetectCall call;
         call.params = params;
         call.cloud = std::make_shared<const std::vector<common::v1::PointCloudChunk>>(chunks);
-        DetectOutcome outcome = pool->Detect(call);
+        // The item queries (the target, the bin's other items) spread over the replicas.
+        DetectOutcome outcome = pool->DetectSpread(call);
         *replica = outcome.replica;
         if (outcome.ok()) *response = std::move(outcome.response);
         return outcome.status;

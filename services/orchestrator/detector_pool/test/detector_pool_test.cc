@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <chrono>
 #include <condition_variable>
 #include <deque>
@@ -384,6 +386,56 @@ TEST_F(DetectorPoolTest, DetectAllRunsIndependentJobsOnDifferentReplicasAtOnce) 
   EXPECT_NE(outcomes[0].replica, outcomes[1].replica);
   EXPECT_EQ(a_.detector().calls().size(), 1u);
   EXPECT_EQ(b_.detector().calls().size(), 1u);
+}
+
+TEST_F(DetectorPoolTest, DetectSpreadSplitsTheItemsOverTheReplicasAndJoinsThemInOrder) {
+  // The two jobs must run at once: each fake holds its call until the other has one too.
+  auto rendezvous = std::make_shared<Rendezvous>(2);
+  a_.detector().SetRendezvous(rendezvous);
+  b_.detector().SetRendezvous(rendezvous);
+  DetectorPool pool(Options());
+  DetectCall call = Call("target");
+  for (const char* other : {"other_1", "other_2", "other_3", "other_4"}) {
+    call.params.add_queries()->set_item(other);
+  }
+  const DetectOutcome outcome = pool.DetectSpread(call);
+  ASSERT_TRUE(outcome.ok()) << outcome.status.error_message();
+  ASSERT_EQ(outcome.response.results_size(), 5);
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_EQ(outcome.response.results(i).item(), call.params.queries(i).item());
+  }
+  EXPECT_EQ(outcome.response.points_received(), 3u);
+  EXPECT_EQ(outcome.attempts.size(), 2u);
+  // The target leads one job, the second item the other.
+  std::vector<std::string> firsts = a_.detector().calls();
+  const std::vector<std::string> b_calls = b_.detector().calls();
+  firsts.insert(firsts.end(), b_calls.begin(), b_calls.end());
+  std::sort(firsts.begin(), firsts.end());
+  EXPECT_EQ(firsts, (std::vector<std::string>{"other_1", "target"}));
+  EXPECT_NE(outcome.replica.find(a_.address()), std::string::npos) << outcome.replica;
+  EXPECT_NE(outcome.replica.find(b_.address()), std::string::npos) << outcome.replica;
+}
+
+TEST_F(DetectorPoolTest, DetectSpreadWithOneQueryIsOneCall) {
+  DetectorPool pool(Options());
+  const DetectOutcome outcome = pool.DetectSpread(Call("milk"));
+  ASSERT_TRUE(outcome.ok()) << outcome.status.error_message();
+  EXPECT_EQ(outcome.replica, a_.address());
+  EXPECT_EQ(a_.detector().calls().size() + b_.detector().calls().size(), 1u);
+  DetectCall no_cloud = Call("milk");
+  no_cloud.cloud = nullptr;
+  EXPECT_THROW(pool.DetectSpread(no_cloud), std::invalid_argument);
+}
+
+TEST_F(DetectorPoolTest, DetectSpreadReportsAFailedJob) {
+  a_.detector().SetMode(FakeMode::kInvalidArgument);
+  b_.detector().SetMode(FakeMode::kInvalidArgument);
+  DetectorPool pool(Options());
+  DetectCall call = Call("target");
+  call.params.add_queries()->set_item("other");
+  const DetectOutcome outcome = pool.DetectSpread(call);
+  EXPECT_EQ(outcome.status.error_code(), Code::INVALID_ARGUMENT);
+  EXPECT_EQ(outcome.response.results_size(), 0);
 }
 
 TEST_F(DetectorPoolTest, DetectAsyncRunsBesideAnotherCall) {
