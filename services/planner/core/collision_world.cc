@@ -166,6 +166,28 @@ StaticCell::StaticCell(const world::CellModel& cell, const StaticCellOptions& op
         {"pedestal", std::make_shared<fcl::Boxd>(options_.pedestal_Base.sizes()), X, nullptr});
   }
   fcl_->Finish();
+  BuildBlocks();
+}
+
+void StaticCell::BuildBlocks() {
+  Eigen::AlignedBox3f box;
+  for (const Grid& g : grids_) box.extend(g.grid.bounds_F());
+  if (box.isEmpty()) return;
+  const float floor_z = static_cast<float>(floor_z_m_);
+  const Eigen::AlignedBox3f pedestal = options_.pedestal_Base.cast<float>();
+  blocks_ = BlockBound::FromFunction(
+      box, 0.02f,
+      [&](const Eigen::AlignedBox3f& block) {
+        float d = block.min().z() - floor_z;
+        if (!pedestal.isEmpty()) {
+          const Eigen::Vector3f gap =
+              (pedestal.min() - block.max()).cwiseMax(block.min() - pedestal.max()).cwiseMax(0.f);
+          d = std::min(d, gap.norm());
+        }
+        for (const Grid& g : grids_) d = std::min(d, g.grid.LowerBoundIn(block));
+        return d;
+      },
+      -std::numeric_limits<float>::infinity());
 }
 
 StaticCell::~StaticCell() = default;
@@ -232,6 +254,11 @@ FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot, const BodyPo
 
 int FastChecker::num_obstacles() const {
   return kObstacleFirstMesh + static_cast<int>(cell_.grids().size()) + (scan_ ? 1 : 0);
+}
+
+float FastChecker::QuickMargin(const Eigen::Vector3f& c, float r) const {
+  const float d = cell_.blocks().Clearance(c);
+  return (scan_ ? std::min(d, scan_->blocks.Clearance(c)) : d) - r;
 }
 
 float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask,
@@ -337,6 +364,7 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
     for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
       const Sphere& s = tree.coarse[i];
       const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
+      if (QuickMargin(c, s.radius_m + padding_m) >= slack) continue;
       int which = 0;
       const float m = Margin(c, s.radius_m + padding_m, false, all_obstacles, &which);
       if (m >= slack) continue;
@@ -387,6 +415,7 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
       const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
       // Most coarse spheres are clear of everything at once; the others are looked at for
       // each obstacle on its own: the coarse sphere clear of it, or else every leaf.
+      if (QuickMargin(c, s.radius_m) >= 0.f) continue;
       int which = 0;
       if (Margin(c, s.radius_m, false, all_obstacles, &which) >= 0.f) continue;
       for (int o = 0; o < num; ++o) {

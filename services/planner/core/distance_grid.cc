@@ -231,6 +231,61 @@ float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
   return (a + ab * v + ac * w - p).squaredNorm();
 }
 
+float DistanceGrid::LowerBoundIn(const Eigen::AlignedBox3f& box_F) const {
+  if (distance_01mm_.empty()) return outside_clearance_m_;
+  const Eigen::Vector3f lo = (box_F.min() - origin_F_) * inv_resolution_;
+  const Eigen::Vector3f hi = (box_F.max() - origin_F_) * inv_resolution_;
+  float bound = std::numeric_limits<float>::infinity();
+  if ((lo.array() < 0.f).any() || (hi.array() >= size_f_.array()).any()) {
+    bound = outside_clearance_m_;
+  }
+  const Eigen::Vector3i a = lo.array().floor().max(0.f).cast<int>();
+  const Eigen::Vector3i b = hi.array().floor().min(size_f_.array() - 1.f).cast<int>();
+  std::uint16_t smallest = 65535;
+  for (int z = a.z(); z <= b.z(); ++z) {
+    for (int y = a.y(); y <= b.y(); ++y) {
+      const std::size_t row = (static_cast<std::size_t>(z) * ny_ + y) * nx_;
+      for (int x = a.x(); x <= b.x(); ++x) smallest = std::min(smallest, distance_01mm_[row + x]);
+    }
+  }
+  if (a.x() <= b.x() && a.y() <= b.y() && a.z() <= b.z()) {
+    // Any point of a cell is within half its diagonal of the centre the value was taken at.
+    bound = std::min(bound, smallest * 1e-4f - allowance_m_ - 0.5f * std::sqrt(3.f) * resolution_);
+  }
+  return bound;
+}
+
+BlockBound BlockBound::FromFunction(
+    const Eigen::AlignedBox3f& box_F, float block_m,
+    const std::function<float(const Eigen::AlignedBox3f&)>& lower_bound_in,
+    float outside_clearance_m) {
+  if (box_F.isEmpty() || !(block_m > 0.f)) {
+    throw std::invalid_argument("block bound: the box must not be empty, the blocks > 0");
+  }
+  BlockBound blocks;
+  const Eigen::Vector3i n = (box_F.sizes() / block_m).array().ceil().max(1.f).cast<int>();
+  blocks.origin_F_ = box_F.min();
+  blocks.inv_block_m_ = 1.f / block_m;
+  blocks.size_f_ = n.cast<float>();
+  blocks.nx_ = n.x();
+  blocks.ny_ = n.y();
+  blocks.outside_clearance_m_ = outside_clearance_m;
+  blocks.bound_01mm_.resize(static_cast<std::size_t>(n.x()) * n.y() * n.z());
+  std::size_t i = 0;
+  for (int z = 0; z < n.z(); ++z) {
+    for (int y = 0; y < n.y(); ++y) {
+      for (int x = 0; x < n.x(); ++x, ++i) {
+        const Eigen::Vector3f lo = box_F.min() + Eigen::Vector3f(x, y, z) * block_m;
+        const float d =
+            lower_bound_in(Eigen::AlignedBox3f(lo, lo + Eigen::Vector3f::Constant(block_m)));
+        blocks.bound_01mm_[i] =
+            static_cast<std::uint16_t>(std::clamp(std::floor(d * 1e4f), 0.f, 65535.f));
+      }
+    }
+  }
+  return blocks;
+}
+
 Eigen::AlignedBox3f DistanceGrid::bounds_F() const {
   return Eigen::AlignedBox3f(origin_F_, origin_F_ + size_f_ * resolution_);
 }

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <vector>
 
@@ -23,6 +24,46 @@ struct DistanceGridOptions {
   /// Cells are aligned so that cell centres fall on (k + 0.5) * resolution for integer k
   /// (as OctoMap's voxel centres do), so voxel centres are cell centres.
   bool align_to_resolution = true;
+};
+
+/// Lower bounds of the distance to some geometry over blocks of space: for each block the
+/// smallest bound any point of it can get (e.g. from DistanceGrid::LowerBoundIn of several
+/// grids, the floor and the pedestal at once). One read, no square root, answers for any point
+/// of a block: the quick test that lets most of a state's spheres go. Thread-safe (const).
+class BlockBound final {
+ public:
+  BlockBound() = default;
+  /// Lower bound on the distance from `p_F` to the geometry, metres.
+  float Clearance(const Eigen::Vector3f& p_F) const {
+    const Eigen::Vector3f u = (p_F - origin_F_) * inv_block_m_;
+    if (!(u.x() >= 0.f && u.y() >= 0.f && u.z() >= 0.f && u.x() < size_f_.x() &&
+          u.y() < size_f_.y() && u.z() < size_f_.z())) {
+      return outside_clearance_m_;
+    }
+    const std::size_t i =
+        (static_cast<std::size_t>(u.z()) * ny_ + static_cast<std::size_t>(u.y())) * nx_ +
+        static_cast<std::size_t>(u.x());
+    return bound_01mm_[i] * 1e-4f;
+  }
+  std::size_t memory_bytes() const { return bound_01mm_.size() * sizeof(std::uint16_t); }
+
+  /// Blocks of edge `block_m` over `box_F`, each holding `lower_bound_in(block)`: a lower bound
+  /// of the distance from any point of that block (an axis-aligned box, frame F) to the
+  /// geometry, metres (negative values count as 0). Points outside `box_F` answer
+  /// `outside_clearance_m`. Throws std::invalid_argument for an empty box or a block edge
+  /// that is not positive.
+  static BlockBound FromFunction(
+      const Eigen::AlignedBox3f& box_F, float block_m,
+      const std::function<float(const Eigen::AlignedBox3f&)>& lower_bound_in,
+      float outside_clearance_m);
+
+ private:
+  Eigen::Vector3f origin_F_ = Eigen::Vector3f::Zero();
+  Eigen::Vector3f size_f_ = Eigen::Vector3f::Zero();
+  float inv_block_m_ = 1.f;
+  float outside_clearance_m_ = 1e3f;
+  int nx_ = 0, ny_ = 0;
+  std::vector<std::uint16_t> bound_01mm_;
 };
 
 /// A Euclidean distance transform of a point set on a regular grid, for conservative
@@ -88,6 +129,11 @@ class DistanceGrid final {
     // The stored value was rounded down by up to 0.1 mm, and carries the allowance.
     return (stored + 1) * 1e-4f - allowance_m_ + offset.norm() * resolution_ + 1e-5f;
   }
+
+  /// Lower bound on the distance from any point of `box_F` to the seeded geometry, metres:
+  /// the smallest over the cells the box overlaps, and the outside answer where it leaves
+  /// the grid.
+  float LowerBoundIn(const Eigen::AlignedBox3f& box_F) const;
 
   bool empty() const { return distance_01mm_.empty(); }
   double resolution_m() const { return resolution_; }

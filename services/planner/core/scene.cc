@@ -261,6 +261,13 @@ std::shared_ptr<const ScanObstacles> ScanScene::Snapshot() const {
   obstacles->voxel_centres_Base = VoxelCentres();
   obstacles->voxel_m = options_.resolution_m;
   obstacles->grid = DistanceGrid::Build(obstacles->voxel_centres_Base, grid_options);
+  if (!obstacles->grid.empty()) {
+    const DistanceGrid& grid = obstacles->grid;
+    obstacles->blocks = BlockBound::FromFunction(
+        grid.bounds_F(), 0.02f,
+        [&grid](const Eigen::AlignedBox3f& block) { return grid.LowerBoundIn(block); },
+        grid.outside_clearance_m());
+  }
   if (options_.build_octree) {
     auto tree = std::make_shared<octomap::OcTree>(options_.resolution_m);
     const float occupied = tree->getClampingThresMaxLog();

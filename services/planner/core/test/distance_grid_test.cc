@@ -88,6 +88,42 @@ TEST(DistanceGridTest, TightenedCellsHoldTheExactDistanceNearTheSurface) {
   EXPECT_THROW(tight.Tighten(-1.f, triangles), std::invalid_argument);
 }
 
+TEST(DistanceGridTest, BlocksNeverBoundAboveTheGrid) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-0.2f, 0.2f);
+  std::vector<Eigen::Vector3f> seeds;
+  for (int i = 0; i < 200; ++i) seeds.emplace_back(u(rng), u(rng), u(rng));
+  DistanceGridOptions options;
+  options.resolution_m = 0.005;
+  options.margin_m = 0.05;
+  const DistanceGrid grid = DistanceGrid::Build(seeds, options);
+  // Blocks over a box larger than the grid: the part outside answers the grid's outside bound.
+  Eigen::AlignedBox3f box = grid.bounds_F();
+  box.extend(box.max() + Eigen::Vector3f::Constant(0.1f));
+  const BlockBound blocks = BlockBound::FromFunction(
+      box, 0.02f, [&](const Eigen::AlignedBox3f& b) { return grid.LowerBoundIn(b); }, -1.f);
+  std::uniform_real_distribution<float> q(-0.35f, 0.45f);
+  int tight = 0;
+  for (int i = 0; i < 50000; ++i) {
+    const Eigen::Vector3f p(q(rng), q(rng), q(rng));
+    const float fine = grid.Clearance(p);
+    const float coarse = blocks.Clearance(p);
+    // No distance is negative: the blocks store bounds below zero as zero.
+    ASSERT_LE(coarse, std::max(fine, 0.f) + 1e-4f) << "at " << p.transpose();
+    // The last blocks may reach up to a block beyond the box's far faces.
+    Eigen::AlignedBox3f covered = box;
+    covered.extend(box.max() + Eigen::Vector3f::Constant(0.02f));
+    if (!covered.contains(p)) EXPECT_EQ(coarse, -1.f);
+    // Within a block's diagonal and a cell's of the fine bound where anything is near.
+    if (box.contains(p) && fine < 0.1f && coarse > fine - 0.04f) ++tight;
+  }
+  EXPECT_GT(tight, 1000);
+  EXPECT_THROW(
+      BlockBound::FromFunction(
+          Eigen::AlignedBox3f(), 0.02f, [](const Eigen::AlignedBox3f&) { return 0.f; }, 0.f),
+      std::invalid_argument);
+}
+
 TEST(DistanceGridTest, SeedAllowanceAndOutsideQueries) {
   const std::vector<Eigen::Vector3f> seeds = {Eigen::Vector3f(0.f, 0.f, 0.f)};
   DistanceGridOptions options;
