@@ -279,10 +279,14 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
     const int obstacle = kObstacleFirstMesh + static_cast<int>(g);
     if (!(mask & (1u << obstacle))) continue;
     float d = grids[g].grid.Clearance(c);
-    // Where the grid cannot clear the sphere, its exact cells may still prove the contact
-    // (upper bound below the radius); only the spheres between the two bounds measure
-    // triangles.
-    if (exact && d < r && grids[g].grid.UpperBound(c) >= r) d = cell_.SurfaceDistance(g, c, r);
+    // Where the cell's bound cannot clear the sphere, the eight centres around it may clear
+    // it or, with exact cells, prove the contact (upper bound below the radius); only the
+    // spheres between the two bounds measure triangles.
+    if (exact && d < r) {
+      const DistanceGrid::Bounds near = grids[g].grid.NearBounds(c);
+      d = std::max(d, near.lower_m);
+      if (d < r && near.upper_m >= r) d = cell_.SurfaceDistance(g, c, r);
+    }
     consider(obstacle, d - r);
   }
   const int scan_obstacle = kObstacleFirstMesh + static_cast<int>(grids.size());

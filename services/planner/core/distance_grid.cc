@@ -231,6 +231,36 @@ float PointTriangleDistance2(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
   return (a + ab * v + ac * w - p).squaredNorm();
 }
 
+DistanceGrid::Bounds DistanceGrid::NearBounds(const Eigen::Vector3f& p_F) const {
+  constexpr float kInfinity = std::numeric_limits<float>::infinity();
+  const Eigen::Vector3f u = (p_F - origin_F_) * inv_resolution_;
+  if (!(u.x() >= 0.f && u.y() >= 0.f && u.z() >= 0.f && u.x() < size_f_.x() &&
+        u.y() < size_f_.y() && u.z() < size_f_.z())) {
+    return {outside_clearance_m_, kInfinity};
+  }
+  // The centres around p: cells floor(u - 0.5) and the next, kept inside the grid (a centre
+  // farther away still gives valid, looser bounds).
+  const Eigen::Vector3f v = u.array() - 0.5f;
+  const Eigen::Vector3i max_cell(nx_ - 1, ny_ - 1, nz_ - 1);
+  const Eigen::Vector3i first =
+      v.array().floor().cast<int>().max(0).min((max_cell.array() - 1).max(0)).matrix();
+  Bounds bounds{-kInfinity, kInfinity};
+  for (int k = 0; k < 8; ++k) {
+    const Eigen::Vector3i cell =
+        (first + Eigen::Vector3i(k & 1, (k >> 1) & 1, (k >> 2) & 1)).cwiseMin(max_cell);
+    const std::uint16_t stored =
+        distance_01mm_[(static_cast<std::size_t>(cell.z()) * ny_ + cell.y()) * nx_ + cell.x()];
+    const float away = ((cell.cast<float>().array() + 0.5f).matrix() - u).norm() * resolution_;
+    const float at_centre = stored * 1e-4f - allowance_m_;
+    bounds.lower_m = std::max(bounds.lower_m, at_centre - away);
+    if (stored < exact_cap_01mm_) {
+      // The stored value was rounded down by up to 0.1 mm.
+      bounds.upper_m = std::min(bounds.upper_m, at_centre + 1e-4f + away + 1e-5f);
+    }
+  }
+  return bounds;
+}
+
 float DistanceGrid::LowerBoundIn(const Eigen::AlignedBox3f& box_F) const {
   if (distance_01mm_.empty()) return outside_clearance_m_;
   const Eigen::Vector3f lo = (box_F.min() - origin_F_) * inv_resolution_;

@@ -111,24 +111,16 @@ class DistanceGrid final {
   /// band.
   void Tighten(float band_m, const std::vector<std::array<Eigen::Vector3f, 3>>& triangles_F);
 
-  /// Upper bound on the distance from `p_F` to the geometry where the cell holds an exact
-  /// distance (Tighten): the centre's distance plus the offset from it, metres. Infinite in a
-  /// cell that holds only the seeds' bound or outside the grid.
-  float UpperBound(const Eigen::Vector3f& p_F) const {
-    const Eigen::Vector3f u = (p_F - origin_F_) * inv_resolution_;
-    if (!(u.x() >= 0.f && u.y() >= 0.f && u.z() >= 0.f && u.x() < size_f_.x() &&
-          u.y() < size_f_.y() && u.z() < size_f_.z())) {
-      return std::numeric_limits<float>::infinity();
-    }
-    const int ix = static_cast<int>(u.x()), iy = static_cast<int>(u.y()),
-              iz = static_cast<int>(u.z());
-    const std::uint16_t stored =
-        distance_01mm_[(static_cast<std::size_t>(iz) * ny_ + iy) * nx_ + ix];
-    if (stored >= exact_cap_01mm_) return std::numeric_limits<float>::infinity();
-    const Eigen::Vector3f offset((u.x() - ix - 0.5f), (u.y() - iy - 0.5f), (u.z() - iz - 0.5f));
-    // The stored value was rounded down by up to 0.1 mm, and carries the allowance.
-    return (stored + 1) * 1e-4f - allowance_m_ + offset.norm() * resolution_ + 1e-5f;
-  }
+  /// Lower and upper bounds on the distance from `p_F` to the geometry from the eight cell
+  /// centres around it (the distance is 1-Lipschitz: each centre's bound minus, or its exact
+  /// distance plus, the way to it): tighter than Clearance, for the spheres it cannot clear.
+  /// `upper_m` is infinite unless a tightened cell (Tighten) is among the eight. Outside the
+  /// grid: the outside bound and infinity.
+  struct Bounds {
+    float lower_m;
+    float upper_m;
+  };
+  Bounds NearBounds(const Eigen::Vector3f& p_F) const;
 
   /// Lower bound on the distance from any point of `box_F` to the seeded geometry, metres:
   /// the smallest over the cells the box overlaps, and the outside answer where it leaves

@@ -59,6 +59,8 @@ TEST(DistanceGridTest, TightenedCellsHoldTheExactDistanceNearTheSurface) {
   std::uniform_real_distribution<float> u(0.f, 1.f);
   const float half_diagonal = 0.5f * std::sqrt(3.f) * 0.005f;
   float worst_seeded_gap = 0.f, worst_tight_gap = 0.f;
+  double near_gap_sum = 0.0;
+  int near_count = 0;
   for (int i = 0; i < 50000; ++i) {
     // Near the panel: a point of it moved off by up to 6 cm.
     const float a = u(rng), b = u(rng) * (1.f - a);
@@ -70,21 +72,31 @@ TEST(DistanceGridTest, TightenedCellsHoldTheExactDistanceNearTheSurface) {
     const float d = truth(p);
     ASSERT_LE(tight.Clearance(p), d + 1e-5f) << "at " << p.transpose();
     ASSERT_GE(tight.Clearance(p), seeded.Clearance(p) - 1e-4f) << "at " << p.transpose();
-    ASSERT_GE(tight.UpperBound(p), d - 1e-5f) << "at " << p.transpose();
-    ASSERT_EQ(seeded.UpperBound(p), std::numeric_limits<float>::infinity());
+    const DistanceGrid::Bounds near = tight.NearBounds(p);
+    ASSERT_GE(near.upper_m, d - 1e-5f) << "at " << p.transpose();
+    ASSERT_LE(near.lower_m, d + 1e-5f) << "at " << p.transpose();
+    ASSERT_GE(near.lower_m, tight.Clearance(p) - 1e-5f) << "at " << p.transpose();
+    ASSERT_EQ(seeded.NearBounds(p).upper_m, std::numeric_limits<float>::infinity());
+    ASSERT_LE(seeded.NearBounds(p).lower_m, d + 1e-5f) << "at " << p.transpose();
     if (d < band_m) {
       // Loose only by twice the offset from the cell's centre (the distance there is exact, and
       // the true distance at p at most that offset farther) and the rounding to 0.1 mm.
       ASSERT_GE(tight.Clearance(p), d - 2.f * half_diagonal - 3e-4f) << "at " << p.transpose();
       worst_tight_gap = std::max(worst_tight_gap, d - tight.Clearance(p));
       // Within the band every cell is exact (the band is wider than the cells' diagonal).
-      if (d < band_m - 2.f * half_diagonal)
-        ASSERT_LE(tight.UpperBound(p), d + 2.f * half_diagonal + 3e-4f);
+      if (d < band_m - 2.f * half_diagonal) {
+        ASSERT_LE(near.upper_m, d + 4.f * half_diagonal + 3e-4f);
+        near_gap_sum += near.upper_m - near.lower_m;
+        ++near_count;
+      }
       worst_seeded_gap = std::max(worst_seeded_gap, d - seeded.Clearance(p));
     }
   }
   // The seeded bound alone gives away the seeds' spacing and another half diagonal as well.
   EXPECT_GT(worst_seeded_gap, worst_tight_gap + half_diagonal) << worst_tight_gap;
+  // Eight centres pin the distance down to well under a cell diagonal on average.
+  ASSERT_GT(near_count, 0);
+  EXPECT_LT(near_gap_sum / near_count, 2.f * half_diagonal) << near_gap_sum / near_count;
   EXPECT_THROW(tight.Tighten(-1.f, triangles), std::invalid_argument);
 }
 
