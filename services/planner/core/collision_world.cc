@@ -41,6 +41,8 @@ struct StaticCell::Buckets {
   Eigen::Vector3f origin;
   Eigen::Vector3i dims;
   std::vector<std::array<Eigen::Vector3f, 3>> triangles;
+  std::vector<Eigen::Vector4f>
+      balls;  // per triangle: the centroid and the farthest vertex's distance
   std::vector<std::uint32_t> start;  // CSR: bucket b's triangles are index[start[b]..start[b+1])
   std::vector<std::uint32_t> index;
 
@@ -51,6 +53,11 @@ struct StaticCell::Buckets {
       triangles.push_back(
           {X * mesh.vertices[t[0]], X * mesh.vertices[t[1]], X * mesh.vertices[t[2]]});
       for (const auto& v : triangles.back()) box.extend(v);
+      const auto& t3 = triangles.back();
+      const Eigen::Vector3f centroid = (t3[0] + t3[1] + t3[2]) / 3.f;
+      const float radius = std::max(
+          {(t3[0] - centroid).norm(), (t3[1] - centroid).norm(), (t3[2] - centroid).norm()});
+      balls.emplace_back(centroid.x(), centroid.y(), centroid.z(), radius * (1.f + 1e-6f) + 1e-6f);
     }
     origin = box.min() - Eigen::Vector3f::Constant(kCell);
     dims = ((box.max() - origin) / kCell).array().ceil().cast<int>() + 1;
@@ -84,6 +91,11 @@ struct StaticCell::Buckets {
         for (int x = lo.x(); x <= hi.x(); ++x) {
           const std::size_t b = Index(x, y, z);
           for (std::uint32_t k = start[b]; k < start[b + 1]; ++k) {
+            // A triangle whose enclosing ball is no nearer than the best so far is skipped
+            // (one subtraction and dot product against the exact distance's dozens).
+            const Eigen::Vector4f& ball = balls[index[k]];
+            const float reach = ball.w() + std::sqrt(best2);
+            if ((p - ball.head<3>()).squaredNorm() >= reach * reach) continue;
             const auto& t = triangles[index[k]];
             best2 = std::min(best2, PointTriangleDistance2(p, t[0], t[1], t[2]));
           }
@@ -256,11 +268,6 @@ int FastChecker::num_obstacles() const {
   return kObstacleFirstMesh + static_cast<int>(cell_.grids().size()) + (scan_ ? 1 : 0);
 }
 
-float FastChecker::QuickMargin(const Eigen::Vector3f& c, float r) const {
-  const float d = cell_.blocks().Clearance(c);
-  return (scan_ ? std::min(d, scan_->blocks.Clearance(c)) : d) - r;
-}
-
 float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask,
                           int* which) const {
   float worst = std::numeric_limits<float>::infinity();
@@ -378,8 +385,9 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
       const Leaves leaves = LeavesOf(tree, s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
-        const float ml = Margin(posed.Xf[b] * leaf->center_B, leaf->radius_m + padding_m, true,
-                                all_obstacles, &which);
+        const Eigen::Vector3f leaf_c = posed.Xf[b] * leaf->center_B;
+        if (QuickMargin(leaf_c, leaf->radius_m + padding_m) >= slack) continue;
+        const float ml = Margin(leaf_c, leaf->radius_m + padding_m, true, all_obstacles, &which);
         if (ml >= 0.f) {
           slack = std::min(slack, ml);
           continue;

@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -166,7 +167,10 @@ class FastChecker final {
   /// A quick lower bound of the smallest margin of sphere (c, r) over every obstacle: the
   /// static grids read by block (BlockBound), so that the spheres well clear of everything
   /// are let go after reads that stay in the cache.
-  float QuickMargin(const Eigen::Vector3f& c, float r) const;
+  float QuickMargin(const Eigen::Vector3f& c, float r) const {
+    const float d = cell_.blocks().Clearance(c);
+    return (scan_ ? std::min(d, scan_->blocks.Clearance(c)) : d) - r;
+  }
   /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
   /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell.
   float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which) const;
