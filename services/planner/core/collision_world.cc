@@ -213,7 +213,9 @@ FastChecker::FastChecker(const RobotGeometry& robot, const StaticCell& cell,
       cell_(cell),
       scan_(scan),
       floor_z_m_(static_cast<float>(cell.floor_z_m())),
-      pedestal_Base_(cell.pedestal_Base().cast<float>()) {}
+      pedestal_Base_(cell.pedestal_Base().cast<float>()) {
+  for (int b = 0; b < kNumArmBodies; ++b) arm_bounds_[b] = EnclosingSphereOf(robot.spheres(b));
+}
 
 bool FastChecker::IsFree(const JointVector& q_rad, const CarriedItem* carried,
                          float padding_m) const {
@@ -248,8 +250,9 @@ Leaves LeavesOf(const SphereTree& tree, const Sphere& s) {
 
 }  // namespace
 
-FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot, const BodyPoses& X,
-                                        const CarriedItem* carried) {
+FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot,
+                                        const std::array<Sphere, kNumArmBodies>& arm_bounds,
+                                        const BodyPoses& X, const CarriedItem* carried) {
   num_bodies = carried ? kNumBodies : kNumArmBodies;
   int n = 0;
   for (int b = 0; b < num_bodies; ++b) {
@@ -260,6 +263,9 @@ FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot, const BodyPo
       if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
       centres[n++] = Xf[b] * s.center_B;
     }
+    const Sphere bound = b == kBodyItem ? EnclosingSphereOf(carried->spheres_Item) : arm_bounds[b];
+    bound_centres[b] = Xf[b] * bound.center_B;
+    bound_radii_m[b] = bound.radius_m;
   }
   first[num_bodies] = n;
 }
@@ -311,6 +317,12 @@ float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
     // turn little there; MotionChecker also bounds the step by the table).
     const float d = table->LowerBound(q_rad[table->joint_u], q_rad[table->joint_v]);
     return d > 0.f ? cap_m : std::min(d, -std::numeric_limits<float>::denorm_min());
+  }
+  // Every sphere of a body lies in its enclosing sphere: enclosing spheres apart by the cap
+  // keep every pair of their spheres at least that far apart.
+  const float reach = posed.bound_radii_m[a] + posed.bound_radii_m[b] + 2.f * padding_m + cap_m;
+  if ((posed.bound_centres[a] - posed.bound_centres[b]).squaredNorm() >= reach * reach) {
+    return cap_m;
   }
   const auto& Xf = posed.Xf;
   const auto& trees = posed.trees;
@@ -368,7 +380,7 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
     }
   };
-  const PosedSpheres posed(robot_, X, carried);
+  const PosedSpheres posed(robot_, arm_bounds_, X, carried);
   for (int b = 1; b < num_bodies; ++b) {
     // The base (body 0) is fixed to the pedestal; it is only checked against the moving bodies.
     const SphereTree& tree = *posed.trees[b];
@@ -419,7 +431,7 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
   const int num = num_obstacles();
   const std::uint32_t all_obstacles = (1u << num) - 1u;
   Proximity near;
-  const PosedSpheres posed(robot_, X, carried);
+  const PosedSpheres posed(robot_, arm_bounds_, X, carried);
   for (int b = 1; b < num_bodies; ++b) {
     const SphereTree& tree = *posed.trees[b];
     for (std::size_t i = 0; i < tree.coarse.size(); ++i) {

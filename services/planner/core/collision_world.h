@@ -178,12 +178,17 @@ class FastChecker final {
   /// spheres' centres in base, body b's from `first[b]` on.
   struct PosedSpheres {
     static constexpr int kMaxCoarse = 256;
-    PosedSpheres(const RobotGeometry& robot, const BodyPoses& X, const CarriedItem* carried);
+    PosedSpheres(const RobotGeometry& robot, const std::array<Sphere, kNumArmBodies>& arm_bounds,
+                 const BodyPoses& X, const CarriedItem* carried);
     int num_bodies = 0;
     std::array<Eigen::Isometry3f, kNumBodies> Xf;
     std::array<const SphereTree*, kNumBodies> trees{};
     std::array<Eigen::Vector3f, kMaxCoarse> centres;
     std::array<int, kNumBodies + 1> first{};
+    /// Each body's enclosing sphere (EnclosingSphereOf) in base: two bodies whose enclosing
+    /// spheres are far enough apart need none of their spheres compared.
+    std::array<Eigen::Vector3f, kNumBodies> bound_centres;
+    std::array<float, kNumBodies> bound_radii_m{};
   };
   /// The distance of self pair `pair` (an index of robot().self_pairs()) beyond its spheres
   /// grown by `padding_m` each, capped at `cap_m`; negative when they touch. A pair with a
@@ -194,6 +199,7 @@ class FastChecker final {
   const RobotGeometry& robot_;
   const StaticCell& cell_;
   const ScanObstacles* scan_;
+  std::array<Sphere, kNumArmBodies> arm_bounds_;  // EnclosingSphereOf each arm body, body frame
   // The floor and pedestal in float, as the spheres are (read on every sphere).
   float floor_z_m_ = 0.f;
   Eigen::AlignedBox3f pedestal_Base_;

@@ -133,6 +133,21 @@ const char* BodyName(int body) {
   return body >= 0 && body < kNumBodies ? kNames[body] : "unknown";
 }
 
+Sphere EnclosingSphereOf(const SphereTree& tree) {
+  Sphere bound;
+  bound.radius_m = -1.f;
+  if (tree.coarse.empty()) return bound;
+  Eigen::AlignedBox3f box;
+  for (const Sphere& s : tree.coarse) box.extend(s.center_B);
+  bound.center_B = box.center();
+  bound.radius_m = 0.f;
+  for (const Sphere& s : tree.coarse) {
+    bound.radius_m = std::max(bound.radius_m, (s.center_B - bound.center_B).norm() + s.radius_m);
+  }
+  bound.radius_m = bound.radius_m * (1.f + 1e-6f) + 1e-6f;
+  return bound;
+}
+
 SphereTree FitSpheres(const world::TriangleMesh& mesh, const Eigen::Isometry3d& X_BodyMesh,
                       const SphereFitOptions& options) {
   return FitWithMinPiece(mesh, X_BodyMesh, options, 0.04);

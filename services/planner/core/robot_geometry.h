@@ -93,6 +93,10 @@ struct GripperGeometry {
   bool bent() const;
 };
 
+/// A sphere enclosing every coarse sphere of `tree` (radius -1 for an empty tree): around
+/// the centres' bounding box's centre, tight enough for an arm's elongated links.
+Sphere EnclosingSphereOf(const SphereTree& tree);
+
 /// Options of FitSpheres.
 struct SphereFitOptions {
   /// A cluster of triangles is cut into pieces along its longest extent until that extent is
