@@ -72,12 +72,19 @@ struct Element {
   std::vector<Property> properties;
 };
 
-}  // namespace
-
-TriangleMesh ReadPly(const std::string& path) {
+// The whole file, or "cannot open".
+std::vector<char> ReadFileBytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) Fail(path, "cannot open");
   std::vector<char> data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return data;
+}
+
+// Parses the header (within the first 64 KiB): the elements with their properties, in file
+// order; *body_offset is set to the first byte after "end_header\n". Throws for a file that
+// is not PLY, not binary little-endian, lacks end_header or has a malformed line.
+std::vector<Element> ParseHeader(const std::string& path, const std::vector<char>& data,
+                                 std::size_t* body_offset) {
   const std::string head(data.data(), std::min<std::size_t>(data.size(), 65536));
   const auto end = head.find("end_header\n");
   if (head.rfind("ply", 0) != 0) Fail(path, "not a PLY file");
@@ -116,77 +123,114 @@ TriangleMesh ReadPly(const std::string& path) {
       elements.back().properties.push_back(p);
     }
   }
-  TriangleMesh mesh;
-  mesh.name = std::filesystem::path(path).stem().string();
-  std::size_t offset = end + std::strlen("end_header\n");
-  const auto need = [&](std::size_t n, const std::string& what) {
+  *body_offset = end + std::strlen("end_header\n");
+  return elements;
+}
+
+// The binary body of a PLY file and the read position in it (bytes from the file start).
+struct PlyBody {
+  const std::string& path;
+  const std::vector<char>& data;
+  std::size_t offset = 0;
+
+  // Throws "truncated in <what>" unless n more bytes follow the read position.
+  void Need(std::size_t n, const std::string& what) const {
     if (offset + n > data.size()) Fail(path, "truncated in " + what);
-  };
-  for (const Element& e : elements) {
-    if (e.name == "vertex") {
-      int ix = -1, iy = -1, iz = -1, ir = -1, ig = -1, ib = -1, ia = -1;
-      std::vector<std::size_t> offs;
-      std::size_t stride = 0;
-      for (std::size_t k = 0; k < e.properties.size(); ++k) {
-        const Property& p = e.properties[k];
-        if (p.is_list) Fail(path, "list property in vertex element");
-        offs.push_back(stride);
-        stride += TypeSize(path, p.type);
-        const int ki = static_cast<int>(k);
-        if (p.name == "x") ix = ki;
-        if (p.name == "y") iy = ki;
-        if (p.name == "z") iz = ki;
-        if (p.name == "red") ir = ki;
-        if (p.name == "green") ig = ki;
-        if (p.name == "blue") ib = ki;
-        if (p.name == "albedo") ia = ki;
-      }
-      if (ix < 0 || iy < 0 || iz < 0) Fail(path, "vertex element lacks x, y or z");
-      need(stride * e.count, "vertex data");
-      const bool rgb = ir >= 0 && ig >= 0 && ib >= 0;
-      mesh.vertices.reserve(e.count);
-      for (std::size_t i = 0; i < e.count; ++i) {
-        const char* rec = data.data() + offset + i * stride;
-        const auto get = [&](int k) { return ReadScalar(rec + offs[k], e.properties[k].type); };
-        mesh.vertices.emplace_back(get(ix), get(iy), get(iz));
-        if (rgb) {
-          mesh.vertex_colors.push_back({static_cast<std::uint8_t>(get(ir)),
-                                        static_cast<std::uint8_t>(get(ig)),
-                                        static_cast<std::uint8_t>(get(ib))});
-        }
-        if (ia >= 0) mesh.vertex_albedo.push_back(static_cast<float>(get(ia)));
-      }
-      offset += stride * e.count;
-    } else {
-      for (std::size_t i = 0; i < e.count; ++i) {
-        std::vector<std::uint32_t> indices;
-        for (const Property& p : e.properties) {
-          if (p.is_list) {
-            const std::size_t cs = TypeSize(path, p.count_type);
-            need(cs, e.name + " list count");
-            const auto n = static_cast<std::size_t>(ReadScalar(data.data() + offset, p.count_type));
-            offset += cs;
-            const std::size_t is = TypeSize(path, p.type);
-            need(n * is, e.name + " list");
-            if (e.name == "face" && (p.name == "vertex_indices" || p.name == "vertex_index")) {
-              for (std::size_t k = 0; k < n; ++k) {
-                indices.push_back(
-                    static_cast<std::uint32_t>(ReadScalar(data.data() + offset + k * is, p.type)));
-              }
-            }
-            offset += n * is;
-          } else {
-            const std::size_t s = TypeSize(path, p.type);
-            need(s, e.name);
-            offset += s;
+  }
+};
+
+// Byte layout of one vertex record: offset of each property, record size, and which
+// property holds each field the mesh keeps (-1 if none).
+struct VertexLayout {
+  std::vector<std::size_t> offs;
+  std::size_t stride = 0;
+  int ix = -1, iy = -1, iz = -1, ir = -1, ig = -1, ib = -1, ia = -1;
+};
+
+// Lays out the vertex element's records; throws for a list property or missing x, y or z.
+VertexLayout LayOutVertex(const std::string& path, const Element& e) {
+  VertexLayout layout;
+  for (std::size_t k = 0; k < e.properties.size(); ++k) {
+    const Property& p = e.properties[k];
+    if (p.is_list) Fail(path, "list property in vertex element");
+    layout.offs.push_back(layout.stride);
+    layout.stride += TypeSize(path, p.type);
+    const int ki = static_cast<int>(k);
+    if (p.name == "x") layout.ix = ki;
+    if (p.name == "y") layout.iy = ki;
+    if (p.name == "z") layout.iz = ki;
+    if (p.name == "red") layout.ir = ki;
+    if (p.name == "green") layout.ig = ki;
+    if (p.name == "blue") layout.ib = ki;
+    if (p.name == "albedo") layout.ia = ki;
+  }
+  if (layout.ix < 0 || layout.iy < 0 || layout.iz < 0) {
+    Fail(path, "vertex element lacks x, y or z");
+  }
+  return layout;
+}
+
+// Reads the vertex element at the read position into the mesh's vertices (and colours when
+// red, green and blue are all present, albedo when present) and moves past it.
+void ReadVertexElement(const Element& e, PlyBody* body, TriangleMesh* mesh) {
+  const VertexLayout layout = LayOutVertex(body->path, e);
+  const std::vector<std::size_t>& offs = layout.offs;
+  const std::size_t stride = layout.stride;
+  body->Need(stride * e.count, "vertex data");
+  const bool rgb = layout.ir >= 0 && layout.ig >= 0 && layout.ib >= 0;
+  mesh->vertices.reserve(e.count);
+  for (std::size_t i = 0; i < e.count; ++i) {
+    const char* rec = body->data.data() + body->offset + i * stride;
+    const auto get = [&](int k) { return ReadScalar(rec + offs[k], e.properties[k].type); };
+    mesh->vertices.emplace_back(get(layout.ix), get(layout.iy), get(layout.iz));
+    if (rgb) {
+      mesh->vertex_colors.push_back({static_cast<std::uint8_t>(get(layout.ir)),
+                                     static_cast<std::uint8_t>(get(layout.ig)),
+                                     static_cast<std::uint8_t>(get(layout.ib))});
+    }
+    if (layout.ia >= 0) mesh->vertex_albedo.push_back(static_cast<float>(get(layout.ia)));
+  }
+  body->offset += stride * e.count;
+}
+
+// Reads a non-vertex element at the read position and moves past it: a "face" element's
+// vertex_indices (or vertex_index) lists are fanned into the mesh's triangles, every other
+// property is skipped.
+void ReadFaceOrSkippedElement(const Element& e, PlyBody* body, TriangleMesh* mesh) {
+  const std::string& path = body->path;
+  const std::vector<char>& data = body->data;
+  std::size_t& offset = body->offset;
+  for (std::size_t i = 0; i < e.count; ++i) {
+    std::vector<std::uint32_t> indices;
+    for (const Property& p : e.properties) {
+      if (p.is_list) {
+        const std::size_t cs = TypeSize(path, p.count_type);
+        body->Need(cs, e.name + " list count");
+        const auto n = static_cast<std::size_t>(ReadScalar(data.data() + offset, p.count_type));
+        offset += cs;
+        const std::size_t is = TypeSize(path, p.type);
+        body->Need(n * is, e.name + " list");
+        if (e.name == "face" && (p.name == "vertex_indices" || p.name == "vertex_index")) {
+          for (std::size_t k = 0; k < n; ++k) {
+            indices.push_back(
+                static_cast<std::uint32_t>(ReadScalar(data.data() + offset + k * is, p.type)));
           }
         }
-        for (std::size_t k = 1; k + 1 < indices.size(); ++k) {
-          mesh.triangles.push_back({indices[0], indices[k], indices[k + 1]});
-        }
+        offset += n * is;
+      } else {
+        const std::size_t s = TypeSize(path, p.type);
+        body->Need(s, e.name);
+        offset += s;
       }
     }
+    for (std::size_t k = 1; k + 1 < indices.size(); ++k) {
+      mesh->triangles.push_back({indices[0], indices[k], indices[k + 1]});
+    }
   }
+}
+
+// Throws for the first triangle with a vertex index beyond the vertices read.
+void CheckTriangleIndices(const std::string& path, const TriangleMesh& mesh) {
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     for (int k = 0; k < 3; ++k) {
       if (mesh.triangles[t][k] >= mesh.vertices.size()) {
@@ -195,6 +239,25 @@ TriangleMesh ReadPly(const std::string& path) {
       }
     }
   }
+}
+
+}  // namespace
+
+TriangleMesh ReadPly(const std::string& path) {
+  const std::vector<char> data = ReadFileBytes(path);
+  std::size_t body_offset = 0;
+  const std::vector<Element> elements = ParseHeader(path, data, &body_offset);
+  TriangleMesh mesh;
+  mesh.name = std::filesystem::path(path).stem().string();
+  PlyBody body{path, data, body_offset};
+  for (const Element& e : elements) {
+    if (e.name == "vertex") {
+      ReadVertexElement(e, &body, &mesh);
+    } else {
+      ReadFaceOrSkippedElement(e, &body, &mesh);
+    }
+  }
+  CheckTriangleIndices(path, mesh);
   return mesh;
 }
 

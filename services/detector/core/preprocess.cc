@@ -98,6 +98,273 @@ std::optional<LeastSquaresPlane> FitLeastSquaresPlane(const ForEachPoint& for_ea
   return out;
 }
 
+// ---- RemoveBoxFloor stages ----------------------------------------------------------------
+
+// Throws unless every distance, angle and count of `options` is in range (one message for all).
+void ValidateFloorRemovalOptions(const FloorRemovalOptions& options) {
+  if (!(options.search_height_m > 0.0) || !(options.max_tilt_rad > 0.0) ||
+      !(options.distance_threshold_m > 0.0) || !(options.margin_m >= 0.0) ||
+      options.max_iterations < 1 || options.max_planes < 1 || !(options.min_step_m > 0.0) ||
+      !(options.normal_threshold_rad > 0.0)) {
+    throw std::invalid_argument("RemoveBoxFloor: a distance, angle or count is out of range");
+  }
+}
+
+// A floor candidate: a point near the box's bottom face with its normal (zero when the cloud
+// has no normals), both in the Box frame.
+struct FloorCandidate {
+  Eigen::Vector3d p_BoxPoint;
+  Eigen::Vector3d n_BoxPoint;
+};
+
+// The finite points at most search_height_m above the box's bottom face (z = bottom_z_Box in
+// the Box frame), in the Box frame; with normals, only those with a finite normal within
+// max_tilt_rad of the box's +z (cos_tilt = cos(max_tilt_rad)). In cloud order.
+std::vector<FloorCandidate> CollectFloorCandidates(const PointCloud& cloud,
+                                                   const Eigen::Isometry3d& X_BoxBase,
+                                                   double bottom_z_Box, double search_height_m,
+                                                   double cos_tilt) {
+  const bool normals = cloud.has_normals();
+  std::vector<FloorCandidate> candidates;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.points[i].allFinite()) continue;
+    const Eigen::Vector3d p_BoxPoint = X_BoxBase * cloud.points[i].cast<double>();
+    if (p_BoxPoint.z() > bottom_z_Box + search_height_m) continue;
+    Eigen::Vector3d n_BoxPoint = Eigen::Vector3d::Zero();
+    if (normals) {
+      if (!cloud.normals[i].allFinite()) continue;
+      n_BoxPoint = X_BoxBase.linear() * cloud.normals[i].cast<double>();
+      if (n_BoxPoint.z() < cos_tilt) continue;
+    }
+    candidates.push_back({p_BoxPoint, n_BoxPoint});
+  }
+  return candidates;
+}
+
+// Whether a candidate supports a plane (n.p + d = 0, Box frame): it lies within threshold_m of
+// it and, with normals, has its normal within normal_threshold_rad of the plane's, so that a
+// plane grazing two parallel surfaces (an item's top and the floor beyond it) at a slant
+// collects no inliers from either.
+struct FloorInlierTest {
+  double threshold_m = 0.0;
+  double cos_normal = 1.0;  // cos(normal_threshold_rad)
+  bool normals = false;     // The cloud has normals (else they are not compared).
+
+  bool operator()(const Eigen::Vector4d& plane_Box, const FloorCandidate& c) const {
+    return std::abs(plane_Box.head<3>().dot(c.p_BoxPoint) + plane_Box[3]) <= threshold_m &&
+           (!normals || plane_Box.head<3>().dot(c.n_BoxPoint) >= cos_normal);
+  }
+};
+
+// How one floor plane is fitted to the candidates.
+struct FloorPlaneFitOptions {
+  FloorInlierTest inlier;
+  double cos_tilt = 1.0;   // cos(max_tilt_rad): the plane's normal is this close to +z.
+  int max_iterations = 1;  // RANSAC hypotheses.
+};
+
+// A fitted floor plane, Box frame; num_inliers == 0 when no plane was found.
+struct FloorPlaneFit {
+  Eigen::Vector4d plane_Box = Eigen::Vector4d::Zero();        // n.p + d = 0, n.z > 0
+  Eigen::Vector2d centroid_xy_Box = Eigen::Vector2d::Zero();  // Of its inliers.
+  std::size_t num_inliers = 0;
+};
+
+// The best-supported RANSAC hypothesis (normal turned up and within max tilt of +z) among
+// `points` and its support; the support is counted on a bounded random subset so large
+// candidate sets stay fast. A count of 0: no hypothesis had support.
+struct FloorRansacResult {
+  Eigen::Vector4d plane_Box = Eigen::Vector4d::Zero();
+  std::size_t count = 0;
+};
+FloorRansacResult RansacFloorPlane(const std::vector<FloorCandidate>& points,
+                                   const FloorPlaneFitOptions& options, std::mt19937& rng) {
+  std::uniform_int_distribution<std::size_t> pick(0, points.size() - 1);
+  constexpr std::size_t kScoreSamples = 3000;
+  std::vector<std::size_t> subset;
+  for (std::size_t i = 0; i < std::min(kScoreSamples, points.size()); ++i) {
+    subset.push_back(points.size() <= kScoreSamples ? i : pick(rng));
+  }
+  FloorRansacResult best;
+  for (int it = 0; it < options.max_iterations; ++it) {
+    const Eigen::Vector3d& a = points[pick(rng)].p_BoxPoint;
+    Eigen::Vector3d n = (points[pick(rng)].p_BoxPoint - a).cross(points[pick(rng)].p_BoxPoint - a);
+    if (n.norm() < 1e-12) continue;
+    n.normalize();
+    if (n.z() < 0.0) n = -n;
+    if (n.z() < options.cos_tilt) continue;
+    Eigen::Vector4d hypothesis;
+    hypothesis << n, -n.dot(a);
+    std::size_t count = 0;
+    for (std::size_t i : subset) count += options.inlier(hypothesis, points[i]) ? 1 : 0;
+    if (count > best.count) {
+      best.count = count;
+      best.plane_Box = hypothesis;
+    }
+  }
+  return best;
+}
+
+// Least-squares refits of `plane_Box` on its inliers among `points`, twice (the refitted plane
+// gathers its inliers anew); a refit tilted beyond max tilt ends the refits and the previous
+// plane is kept. Fewer than three inliers: num_inliers 0 (and no plane).
+FloorPlaneFit RefitFloorPlane(const std::vector<FloorCandidate>& points, Eigen::Vector4d plane_Box,
+                              const FloorPlaneFitOptions& options) {
+  FloorPlaneFit out;
+  std::size_t num = 0;
+  for (int refit = 0; refit < 2; ++refit) {
+    const auto fitted = FitLeastSquaresPlane(
+        [&](const auto& visit) {
+          for (const auto& c : points) {
+            if (options.inlier(plane_Box, c)) visit(c.p_BoxPoint);
+          }
+        },
+        Eigen::Vector3d::UnitZ());
+    if (!fitted) {
+      out.num_inliers = 0;
+      return out;
+    }
+    num = fitted->count;
+    if (fitted->coefficients.z() < options.cos_tilt) break;
+    plane_Box = fitted->coefficients;
+    out.centroid_xy_Box = fitted->centroid.head<2>();
+  }
+  out.plane_Box = plane_Box;
+  out.num_inliers = num;
+  return out;
+}
+
+// One floor plane among `points`: RANSAC, then least-squares refits on its inliers.
+FloorPlaneFit FitFloorPlane(const std::vector<FloorCandidate>& points,
+                            const FloorPlaneFitOptions& options, std::mt19937& rng) {
+  const FloorRansacResult ransac = RansacFloorPlane(points, options, rng);
+  if (ransac.count == 0) return FloorPlaneFit{};
+  return RefitFloorPlane(points, ransac.plane_Box, options);
+}
+
+// Footprint cells of kFootprintCell_m metres over the Box xy plane.
+constexpr double kFootprintCell_m = 0.02;
+std::int64_t FootprintCell(const Eigen::Vector3d& p_BoxPoint) {
+  const auto x = static_cast<std::int64_t>(std::floor(p_BoxPoint.x() / kFootprintCell_m));
+  const auto y = static_cast<std::int64_t>(std::floor(p_BoxPoint.y() / kFootprintCell_m));
+  return (x << 32) ^ (y & 0xFFFFFFFF);
+}
+
+// Height (Box z, metres) of a plane (Box frame, n.z != 0) above the Box point (xy, 0).
+double PlaneHeightAt(const Eigen::Vector4d& plane_Box, const Eigen::Vector2d& xy_Box) {
+  return -(plane_Box[0] * xy_Box.x() + plane_Box[1] * xy_Box.y() + plane_Box[3]) / plane_Box[2];
+}
+
+// An extracted plane with its inliers' footprint, Box frame.
+struct FloorPlane {
+  Eigen::Vector4d plane_Box = Eigen::Vector4d::Zero();        // n.p + d = 0
+  Eigen::Vector2d centroid_xy_Box = Eigen::Vector2d::Zero();  // Of its inliers.
+  bool floor = true;                                          // False: an item's top, not floor.
+  std::unordered_set<std::int64_t> cells;  // Footprint: FootprintCell()s holding its inliers.
+};
+
+// Up to max_planes planes (normal near the box's +z, n.z > 0), each by RANSAC over the
+// candidates the earlier ones left (one random sequence from `seed` for all), refitted by
+// least squares on its inliers; stops at the first plane with fewer than min_inliers inliers.
+struct FloorPlaneExtractionOptions {
+  FloorPlaneFitOptions fit;
+  int max_planes = 1;
+  std::size_t min_inliers = 0;
+  std::uint32_t seed = 0;
+};
+std::vector<FloorPlane> ExtractFloorPlanes(std::vector<FloorCandidate> candidates,
+                                           const FloorPlaneExtractionOptions& options) {
+  std::mt19937 rng(options.seed);
+  std::vector<FloorPlane> planes;
+  while (static_cast<int>(planes.size()) < options.max_planes &&
+         candidates.size() >= options.min_inliers) {
+    const FloorPlaneFit fit = FitFloorPlane(candidates, options.fit, rng);
+    if (fit.num_inliers < options.min_inliers) break;
+    FloorPlane plane;
+    plane.plane_Box = fit.plane_Box;
+    plane.centroid_xy_Box = fit.centroid_xy_Box;
+    std::vector<FloorCandidate> rest;
+    for (const auto& c : candidates) {
+      if (!options.fit.inlier(plane.plane_Box, c)) {
+        rest.push_back(c);
+      } else {
+        plane.cells.insert(FootprintCell(c.p_BoxPoint));
+      }
+    }
+    candidates = std::move(rest);
+    planes.push_back(std::move(plane));
+  }
+  return planes;
+}
+
+// Clears `floor` of the planes that are not floor. The floor is the lowest surface: a plane
+// that lies more than min_step_m above another one where its own inliers are, and does not
+// pass below it where the other's inliers are, is the top of an item standing on that one.
+// (Where it would pass below the other one the two are parts of a bent board. The item's top
+// need not lie high above the other plane at the other's inliers: a level item on a tilted
+// board crosses the board's plane there.) A plane passing higher than max_centre_height_m at
+// the box's centre is an item's top face over a hidden floor.
+void MarkItemTopPlanes(double bottom_z_Box, double max_centre_height_m, double min_step_m,
+                       std::vector<FloorPlane>* planes) {
+  for (FloorPlane& plane : *planes) {
+    if (PlaneHeightAt(plane.plane_Box, Eigen::Vector2d::Zero()) - bottom_z_Box >
+        max_centre_height_m) {
+      plane.floor = false;
+    }
+    for (const FloorPlane& other : *planes) {
+      if (&other == &plane) continue;
+      const auto rise = [&](const Eigen::Vector2d& xy_Box) {
+        return PlaneHeightAt(plane.plane_Box, xy_Box) - PlaneHeightAt(other.plane_Box, xy_Box);
+      };
+      if (rise(plane.centroid_xy_Box) > min_step_m && rise(other.centroid_xy_Box) > -min_step_m) {
+        plane.floor = false;
+      }
+    }
+  }
+}
+
+// Which points of the cloud are floor. A point is floor when it lies below the lowest floor
+// plane at its place or less than margin_m above it, or likewise for a floor plane whose
+// footprint holds the point (a higher part of the board, e.g. a lip). `floors` is not empty;
+// its first (best-supported) plane's n.z scales the "lowest" test.
+struct FloorPointsResult {
+  std::vector<bool> keep;     // Per cloud point: false for floor.
+  std::size_t num_floor = 0;  // Points marked floor.
+};
+FloorPointsResult FindFloorPoints(const PointCloud& cloud, const Eigen::Isometry3d& X_BoxBase,
+                                  const std::vector<const FloorPlane*>& floors, double margin_m) {
+  FloorPointsResult out;
+  out.keep.assign(cloud.size(), true);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.points[i].allFinite()) continue;
+    const Eigen::Vector3d p_BoxPoint = X_BoxBase * cloud.points[i].cast<double>();
+    const std::int64_t cell = FootprintCell(p_BoxPoint);
+    double lowest = std::numeric_limits<double>::infinity();
+    bool floor = false;
+    for (const FloorPlane* plane : floors) {
+      const double h = p_BoxPoint.z() - PlaneHeightAt(plane->plane_Box, p_BoxPoint.head<2>());
+      lowest = std::min(lowest, h);
+      if (h * plane->plane_Box[2] < margin_m && plane->cells.count(cell) > 0) {
+        floor = true;
+      }
+    }
+    if (floor || lowest * floors.front()->plane_Box[2] < margin_m) {
+      out.keep[i] = false;
+      ++out.num_floor;
+    }
+  }
+  return out;
+}
+
+// A plane (n.p + d = 0, |n| = 1) given in the Box frame, expressed in the Base (cloud) frame.
+Eigen::Vector4d PlaneInBase(const Eigen::Vector4d& plane_Box, const Eigen::Isometry3d& X_BaseBox) {
+  const Eigen::Vector3d n_Base = X_BaseBox.linear() * plane_Box.head<3>();
+  const Eigen::Vector3d p_BasePlanePoint = X_BaseBox * (-plane_Box[3] * plane_Box.head<3>());
+  Eigen::Vector4d plane_Base;
+  plane_Base << n_Base, -n_Base.dot(p_BasePlanePoint);
+  return plane_Base;
+}
+
 }  // namespace
 
 void OrientedBox::Validate() const {
@@ -290,185 +557,38 @@ PlaneRemovalResult RemoveBoxFloor(const PointCloud& cloud, const OrientedBox& bo
                                   const FloorRemovalOptions& options) {
   ValidateCloud(cloud, options.limits);
   box.Validate();
-  if (!(options.search_height_m > 0.0) || !(options.max_tilt_rad > 0.0) ||
-      !(options.distance_threshold_m > 0.0) || !(options.margin_m >= 0.0) ||
-      options.max_iterations < 1 || options.max_planes < 1 || !(options.min_step_m > 0.0) ||
-      !(options.normal_threshold_rad > 0.0)) {
-    throw std::invalid_argument("RemoveBoxFloor: a distance, angle or count is out of range");
-  }
+  ValidateFloorRemovalOptions(options);
   const Eigen::Isometry3d X_BoxBase = box.X_BaseBox.inverse();
-  const double bottom_z = -0.5 * box.size_m.z();
+  const double bottom_z_Box = -0.5 * box.size_m.z();
   const double cos_tilt = std::cos(options.max_tilt_rad);
-  const bool normals = cloud.has_normals();
-  // Candidates in the Box frame.
-  // Candidates in the Box frame, with their normals (zero without normals).
-  struct Candidate {
-    Eigen::Vector3d p;
-    Eigen::Vector3d n;
-  };
-  std::vector<Candidate> candidates;
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    if (!cloud.points[i].allFinite()) continue;
-    const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
-    if (p.z() > bottom_z + options.search_height_m) continue;
-    Eigen::Vector3d n = Eigen::Vector3d::Zero();
-    if (normals) {
-      if (!cloud.normals[i].allFinite()) continue;
-      n = X_BoxBase.linear() * cloud.normals[i].cast<double>();
-      if (n.z() < cos_tilt) continue;
-    }
-    candidates.push_back({p, n});
-  }
+  std::vector<FloorCandidate> candidates =
+      CollectFloorCandidates(cloud, X_BoxBase, bottom_z_Box, options.search_height_m, cos_tilt);
   PlaneRemovalResult result;
   result.cloud = cloud;
   if (candidates.size() < std::max<std::size_t>(3, options.min_inliers)) return result;
 
-  // Up to max_planes planes (normal near the box's +z, n.z > 0), each by RANSAC over the
-  // candidates the earlier ones left, refitted by least squares on its inliers.
-  std::mt19937 rng(options.seed);
-  const double threshold = options.distance_threshold_m;
-  struct Plane {
-    Eigen::Vector4d coefficients = Eigen::Vector4d::Zero();  // n.p + d = 0, Box frame
-    Eigen::Vector2d centroid_xy = Eigen::Vector2d::Zero();   // of its inliers, Box frame
-    bool floor = true;
-    std::unordered_set<std::int64_t> cells;  // footprint: grid cells holding its inliers
-  };
-  // Footprint cells of kCell metres over the Box xy plane.
-  constexpr double kCell = 0.02;
-  const auto cell_of = [&](const Eigen::Vector3d& p) {
-    const auto x = static_cast<std::int64_t>(std::floor(p.x() / kCell));
-    const auto y = static_cast<std::int64_t>(std::floor(p.y() / kCell));
-    return (x << 32) ^ (y & 0xFFFFFFFF);
-  };
-  const auto height = [](const Eigen::Vector4d& plane, const Eigen::Vector2d& xy) {
-    return -(plane[0] * xy.x() + plane[1] * xy.y() + plane[3]) / plane[2];
-  };
-  // Inliers lie within the distance threshold and, with normals, have their normal within
-  // normal_threshold_rad of the plane's: a plane grazing two parallel surfaces (an item's top
-  // and the floor beyond it) at a slant collects no inliers from either.
-  const double cos_normal = std::cos(options.normal_threshold_rad);
-  const auto inlier = [&](const Eigen::Vector4d& plane, const Candidate& c) {
-    return std::abs(plane.head<3>().dot(c.p) + plane[3]) <= threshold &&
-           (!normals || plane.head<3>().dot(c.n) >= cos_normal);
-  };
-  const auto fit = [&](const std::vector<Candidate>& points, Plane* plane) {
-    std::uniform_int_distribution<std::size_t> pick(0, points.size() - 1);
-    constexpr std::size_t kScoreSamples = 3000;
-    std::vector<std::size_t> subset;
-    for (std::size_t i = 0; i < std::min(kScoreSamples, points.size()); ++i) {
-      subset.push_back(points.size() <= kScoreSamples ? i : pick(rng));
-    }
-    Eigen::Vector4d best = Eigen::Vector4d::Zero();
-    std::size_t best_count = 0;
-    for (int it = 0; it < options.max_iterations; ++it) {
-      const Eigen::Vector3d& a = points[pick(rng)].p;
-      Eigen::Vector3d n = (points[pick(rng)].p - a).cross(points[pick(rng)].p - a);
-      if (n.norm() < 1e-12) continue;
-      n.normalize();
-      if (n.z() < 0.0) n = -n;
-      if (n.z() < cos_tilt) continue;
-      Eigen::Vector4d hypothesis;
-      hypothesis << n, -n.dot(a);
-      std::size_t count = 0;
-      for (std::size_t i : subset) count += inlier(hypothesis, points[i]) ? 1 : 0;
-      if (count > best_count) {
-        best_count = count;
-        best = hypothesis;
-      }
-    }
-    if (best_count == 0) return std::size_t{0};
-    // Least-squares refits on the inliers (twice: the refitted plane gathers its inliers
-    // anew).
-    std::size_t num = 0;
-    for (int refit = 0; refit < 2; ++refit) {
-      const auto fitted = FitLeastSquaresPlane(
-          [&](const auto& visit) {
-            for (const auto& c : points) {
-              if (inlier(best, c)) visit(c.p);
-            }
-          },
-          Eigen::Vector3d::UnitZ());
-      if (!fitted) return std::size_t{0};
-      num = fitted->count;
-      if (fitted->coefficients.z() < cos_tilt) break;
-      best = fitted->coefficients;
-      plane->centroid_xy = fitted->centroid.head<2>();
-    }
-    plane->coefficients = best;
-    return num;
-  };
-  std::vector<Plane> planes;
-  while (static_cast<int>(planes.size()) < options.max_planes &&
-         candidates.size() >= options.min_inliers) {
-    Plane plane;
-    if (fit(candidates, &plane) < options.min_inliers) break;
-    std::vector<Candidate> rest;
-    for (const auto& c : candidates) {
-      if (!inlier(plane.coefficients, c)) {
-        rest.push_back(c);
-      } else {
-        plane.cells.insert(cell_of(c.p));
-      }
-    }
-    candidates = std::move(rest);
-    planes.push_back(std::move(plane));
-  }
-  // The floor is the lowest surface: a plane that lies more than min_step_m above another
-  // one where its own inliers are, and does not pass below it where the other's inliers are,
-  // is the top of an item standing on that one. (Where it would pass below the other one the
-  // two are parts of a bent board. The item's top need not lie high above the other plane at
-  // the other's inliers: a level item on a tilted board crosses the board's plane there.) A
-  // plane passing higher than max_centre_height_m at the box's centre is an item's top face
-  // over a hidden floor.
-  for (Plane& plane : planes) {
-    if (height(plane.coefficients, Eigen::Vector2d::Zero()) - bottom_z >
-        options.max_centre_height_m) {
-      plane.floor = false;
-    }
-    for (const Plane& other : planes) {
-      if (&other == &plane) continue;
-      const auto rise = [&](const Eigen::Vector2d& xy) {
-        return height(plane.coefficients, xy) - height(other.coefficients, xy);
-      };
-      if (rise(plane.centroid_xy) > options.min_step_m &&
-          rise(other.centroid_xy) > -options.min_step_m) {
-        plane.floor = false;
-      }
-    }
-  }
-  std::vector<const Plane*> floors;
-  for (const Plane& plane : planes) {
+  FloorPlaneExtractionOptions extraction;
+  extraction.fit.inlier.threshold_m = options.distance_threshold_m;
+  extraction.fit.inlier.cos_normal = std::cos(options.normal_threshold_rad);
+  extraction.fit.inlier.normals = cloud.has_normals();
+  extraction.fit.cos_tilt = cos_tilt;
+  extraction.fit.max_iterations = options.max_iterations;
+  extraction.max_planes = options.max_planes;
+  extraction.min_inliers = options.min_inliers;
+  extraction.seed = options.seed;
+  std::vector<FloorPlane> planes = ExtractFloorPlanes(std::move(candidates), extraction);
+  MarkItemTopPlanes(bottom_z_Box, options.max_centre_height_m, options.min_step_m, &planes);
+  std::vector<const FloorPlane*> floors;
+  for (const FloorPlane& plane : planes) {
     if (plane.floor) floors.push_back(&plane);
   }
   if (floors.empty()) return result;
-  // A point is floor when it lies below the lowest floor plane at its place or less than
-  // margin_m above it, or likewise for a floor plane whose footprint holds the point (a
-  // higher part of the board, e.g. a lip).
-  std::vector<bool> keep(cloud.size(), true);
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    if (!cloud.points[i].allFinite()) continue;
-    const Eigen::Vector3d p = X_BoxBase * cloud.points[i].cast<double>();
-    const std::int64_t cell = cell_of(p);
-    double lowest = std::numeric_limits<double>::infinity();
-    bool floor = false;
-    for (const Plane* plane : floors) {
-      const double h = p.z() - height(plane->coefficients, p.head<2>());
-      lowest = std::min(lowest, h);
-      if (h * plane->coefficients[2] < options.margin_m && plane->cells.count(cell) > 0) {
-        floor = true;
-      }
-    }
-    if (floor || lowest * floors.front()->coefficients[2] < options.margin_m) {
-      keep[i] = false;
-      ++result.num_inliers;
-    }
-  }
-  result.cloud = Filter(cloud, keep, options.keep_organized);
+  const FloorPointsResult floor_points =
+      FindFloorPoints(cloud, X_BoxBase, floors, options.margin_m);
+  result.num_inliers += floor_points.num_floor;
+  result.cloud = Filter(cloud, floor_points.keep, options.keep_organized);
   // The floor plane with the most support (the first found), in the cloud's frame.
-  const Eigen::Vector4d& best = floors.front()->coefficients;
-  const Eigen::Vector3d n_Base = box.X_BaseBox.linear() * best.head<3>();
-  const Eigen::Vector3d p_Base = box.X_BaseBox * (-best[3] * best.head<3>());
-  result.plane << n_Base, -n_Base.dot(p_Base);
+  result.plane = PlaneInBase(floors.front()->plane_Box, box.X_BaseBox);
   result.removed = true;
   return result;
 }

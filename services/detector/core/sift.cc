@@ -217,17 +217,22 @@ std::size_t SiftModel::num_features() const {
   return n;
 }
 
-SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointCloud& scene,
-                                const Eigen::Isometry3d& X_BaseSensor,
-                                const std::optional<PinholeCamera>& camera,
-                                const SiftPoseOptions& options) {
-  const GrayImage image = IntensityImage(scene);
-  if (options.min_inliers < 3 || options.ransac_iterations < 1 ||
-      !(options.inlier_threshold_m > 0.0) || !(options.reprojection_threshold_px > 0.0))
-    throw std::invalid_argument("SiftPoseOptions: a count or threshold is out of range");
-  // Features are sought only around the scan's finite points (the whole image when it has
-  // none: the pose then comes from EPnP): a scene cropped to a bin keeps its organisation
-  // with NaN elsewhere, and the rest of the image would cost most of the detection time.
+namespace {
+
+// ---- Stages of EstimateSiftPose ------------------------------------------------------------
+
+// The scene's SIFT features (keypoints in full-image pixel coordinates) and the image size.
+struct SceneFeatures {
+  int width = 0;   // px
+  int height = 0;  // px
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;  // CV_32F, one row per keypoint
+};
+
+// Where scene features are sought: around the scan's finite points only (the whole image when
+// it has none: the pose then comes from EPnP). A scene cropped to a bin keeps its organisation
+// with NaN elsewhere, and the rest of the image would cost most of the detection time.
+cv::Rect FinitePointsRoi(const geometry::PointCloud& scene, const GrayImage& image) {
   int u0 = image.width, v0 = image.height, u1 = -1, v1 = -1;
   for (int v = 0; v < image.height; ++v) {
     for (int u = 0; u < image.width; ++u) {
@@ -244,168 +249,273 @@ SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointClo
     v1 = image.height - 1;
   }
   constexpr int kPad = 16;  // Room for the descriptor windows of features on the edge.
-  const cv::Rect roi(std::max(0, u0 - kPad), std::max(0, v0 - kPad),
-                     std::min(image.width, u1 + kPad + 1) - std::max(0, u0 - kPad),
-                     std::min(image.height, v1 + kPad + 1) - std::max(0, v0 - kPad));
-  std::vector<cv::KeyPoint> scene_keypoints;
-  cv::Mat scene_descriptors;
-  Detect(image, model.options().max_features, &scene_keypoints, &scene_descriptors, roi);
+  return cv::Rect(std::max(0, u0 - kPad), std::max(0, v0 - kPad),
+                  std::min(image.width, u1 + kPad + 1) - std::max(0, u0 - kPad),
+                  std::min(image.height, v1 + kPad + 1) - std::max(0, v0 - kPad));
+}
 
+// SIFT features of the scene's intensity `image`, within FinitePointsRoi.
+SceneFeatures DetectSceneFeatures(const geometry::PointCloud& scene, const GrayImage& image,
+                                  int max_features) {
+  SceneFeatures features;
+  features.width = image.width;
+  features.height = image.height;
+  const cv::Rect roi = FinitePointsRoi(scene, image);
+  Detect(image, max_features, &features.keypoints, &features.descriptors, roi);
+  return features;
+}
+
+// Scene-to-view matches as parallel point lists. Every match gives a model point (item frame,
+// metres) and a scene keypoint (pixels); those whose scene pixel has a measured point are also
+// in the *_3d lists, with that point (base frame, metres).
+struct Correspondences {
+  std::vector<Eigen::Vector3d> p_ItemModel;
+  std::vector<Eigen::Vector2d> px_Scene;
+  std::vector<Eigen::Vector3d> p_ItemModel_3d;
+  std::vector<Eigen::Vector3d> p_BaseScene_3d;
+  std::vector<Eigen::Vector2d> px_Scene_3d;
+};
+
+// Splits the matches into those with a measured scene point and 2D-only ones.
+Correspondences SplitMatches(const std::vector<cv::DMatch>& matches, const SceneFeatures& features,
+                             const SiftModel::Impl::View& view, const geometry::PointCloud& scene) {
+  Correspondences corr;
+  for (const cv::DMatch& m : matches) {
+    const cv::Point2f& pt = features.keypoints[m.queryIdx].pt;
+    const int u = static_cast<int>(std::lround(pt.x)), v = static_cast<int>(std::lround(pt.y));
+    const Eigen::Vector3d& p_ItemFeature = view.p_ItemFeature[m.trainIdx];
+    corr.p_ItemModel.push_back(p_ItemFeature);
+    corr.px_Scene.emplace_back(pt.x, pt.y);
+    if (u < 0 || v < 0 || u >= features.width || v >= features.height) continue;
+    const Eigen::Vector3f& p_BasePoint =
+        scene.points[static_cast<std::size_t>(v) * features.width + u];
+    if (!p_BasePoint.allFinite()) continue;
+    corr.p_ItemModel_3d.push_back(p_ItemFeature);
+    corr.p_BaseScene_3d.push_back(p_BasePoint.cast<double>());
+    corr.px_Scene_3d.emplace_back(pt.x, pt.y);
+  }
+  return corr;
+}
+
+// A rigid pose hypothesis and the matches it explains (indices into the *_3d lists).
+struct RigidFit {
+  Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
+  std::vector<int> inliers;
+};
+
+// Indices of the 3D matches whose model point X_BaseItem maps within sqrt(threshold_sq_m2)
+// of their scene point.
+std::vector<int> InliersOf(const Eigen::Isometry3d& X_BaseItem, const Correspondences& corr,
+                           double threshold_sq_m2) {
+  std::vector<int> in;
+  for (std::size_t i = 0; i < corr.p_ItemModel_3d.size(); ++i)
+    if ((X_BaseItem * corr.p_ItemModel_3d[i] - corr.p_BaseScene_3d[i]).squaredNorm() <=
+        threshold_sq_m2)
+      in.push_back(static_cast<int>(i));
+  return in;
+}
+
+// RANSAC over 3-point Kabsch hypotheses (seeded by options.seed): the hypothesis with the most
+// inliers. Needs at least 3 3D matches.
+RigidFit SampleRigidFit(const Correspondences& corr, const SiftPoseOptions& options,
+                        double threshold_sq_m2) {
+  const std::vector<Eigen::Vector3d>& p_Item = corr.p_ItemModel_3d;
+  const std::vector<Eigen::Vector3d>& p_Base = corr.p_BaseScene_3d;
+  // Whether the model and scene distances between 3D matches i and j agree.
+  const auto consistent = [&](std::size_t i, std::size_t j) {
+    return std::abs((p_Item[i] - p_Item[j]).norm() - (p_Base[i] - p_Base[j]).norm()) <
+           2.0 * options.inlier_threshold_m;
+  };
+  RigidFit best;
+  std::mt19937 rng(options.seed);
+  std::uniform_int_distribution<std::size_t> pick(0, p_Item.size() - 1);
+  for (int it = 0; it < options.ransac_iterations; ++it) {
+    const std::size_t a = pick(rng), b = pick(rng), c = pick(rng);
+    if (a == b || b == c || a == c) continue;
+    // Reject degenerate samples and ones whose model and scene distances disagree.
+    if (!consistent(a, b) || !consistent(b, c) || !consistent(a, c)) continue;
+    if ((p_Item[b] - p_Item[a]).cross(p_Item[c] - p_Item[a]).norm() < 1e-8) continue;
+    Eigen::Isometry3d X;
+    if (!Kabsch({p_Item[a], p_Item[b], p_Item[c]}, {p_Base[a], p_Base[b], p_Base[c]}, &X)) continue;
+    std::vector<int> in = InliersOf(X, corr, threshold_sq_m2);
+    if (in.size() > best.inliers.size()) {
+      best.inliers = std::move(in);
+      best.X_BaseItem = X;
+    }
+  }
+  return best;
+}
+
+// Least-squares refit on the inliers until the set is stable (at most 5 rounds; stops early
+// when a refit would lose inliers).
+void RefineRigidFit(const Correspondences& corr, double threshold_sq_m2, RigidFit* fit) {
+  for (int refit = 0; refit < 5 && fit->inliers.size() >= 3; ++refit) {
+    std::vector<Eigen::Vector3d> p_Item, p_Base;
+    for (int i : fit->inliers) {
+      p_Item.push_back(corr.p_ItemModel_3d[i]);
+      p_Base.push_back(corr.p_BaseScene_3d[i]);
+    }
+    Eigen::Isometry3d X;
+    if (!Kabsch(p_Item, p_Base, &X)) break;
+    std::vector<int> in = InliersOf(X, corr, threshold_sq_m2);
+    if (in.size() < fit->inliers.size()) break;
+    const bool same = in == fit->inliers;
+    fit->inliers = std::move(in);
+    fit->X_BaseItem = X;
+    if (same) break;
+  }
+}
+
+// 3D-3D RANSAC then refit. No inliers (identity pose) with fewer than 3 3D matches.
+RigidFit FitRigid3d(const Correspondences& corr, const SiftPoseOptions& options) {
+  const double threshold_sq_m2 = options.inlier_threshold_m * options.inlier_threshold_m;
+  if (corr.p_ItemModel_3d.size() < 3) return RigidFit{};
+  RigidFit fit = SampleRigidFit(corr, options, threshold_sq_m2);
+  RefineRigidFit(corr, threshold_sq_m2, &fit);
+  return fit;
+}
+
+// Fills `result` with the 3D-3D pose: its 3D inliers and their RMSE.
+void SetRigidPose(const RigidFit& fit, const Correspondences& corr, SiftPoseResult* result) {
+  result->found = true;
+  result->X_BaseItem = fit.X_BaseItem;
+  double sum_sq_m2 = 0.0;
+  for (int i : fit.inliers) {
+    sum_sq_m2 += (fit.X_BaseItem * corr.p_ItemModel_3d[i] - corr.p_BaseScene_3d[i]).squaredNorm();
+    result->inlier_pixels.push_back(corr.px_Scene_3d[i]);
+    result->inlier_model_points.push_back(corr.p_ItemModel_3d[i]);
+  }
+  result->inlier_rmse_m = std::sqrt(sum_sq_m2 / fit.inliers.size());
+  result->num_inliers = fit.inliers.size();
+}
+
+// Adds to `result` the 2D-only matches whose model point, at pose X_BaseItem, reprojects within
+// threshold_px of their keypoint.
+void AddReprojectedMatches(const Correspondences& corr, const Eigen::Isometry3d& X_BaseItem,
+                           const Eigen::Isometry3d& X_BaseSensor, const PinholeCamera& camera,
+                           double threshold_px, SiftPoseResult* result) {
+  const Eigen::Isometry3d X_SensorItem = X_BaseSensor.inverse() * X_BaseItem;
+  for (std::size_t i = 0; i < corr.p_ItemModel.size(); ++i) {
+    const Eigen::Vector3d p_SensorModel = X_SensorItem * corr.p_ItemModel[i];
+    if (p_SensorModel.z() <= 0.0) continue;
+    const Eigen::Vector2d px_Projected = *camera.Project(p_SensorModel);
+    const bool has_3d = std::find(corr.px_Scene_3d.begin(), corr.px_Scene_3d.end(),
+                                  corr.px_Scene[i]) != corr.px_Scene_3d.end();
+    if (!has_3d && (px_Projected - corr.px_Scene[i]).norm() <= threshold_px) {
+      ++result->num_inliers;
+      result->inlier_pixels.push_back(corr.px_Scene[i]);
+      result->inlier_model_points.push_back(corr.p_ItemModel[i]);
+    }
+  }
+}
+
+// An OpenCV rotation vector and translation as a pose.
+Eigen::Isometry3d ToIsometry(const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat R;
+  cv::Rodrigues(rvec, R);
+  Eigen::Matrix3d R_e;
+  Eigen::Vector3d t_e;
+  cv::cv2eigen(R, R_e);
+  cv::cv2eigen(tvec, t_e);
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = R_e;
+  X.translation() = t_e;
+  return X;
+}
+
+// For too few measured points: EPnP RANSAC on every 2D-3D match, polished with
+// Levenberg-Marquardt on its inliers. Fills `result` when at least min_inliers agree.
+void SolveEpnpPose(const Correspondences& corr, const PinholeCamera& camera,
+                   const Eigen::Isometry3d& X_BaseSensor, const SiftPoseOptions& options,
+                   SiftPoseResult* result) {
+  std::vector<cv::Point3f> object_points;
+  std::vector<cv::Point2f> image_points;
+  for (std::size_t i = 0; i < corr.p_ItemModel.size(); ++i) {
+    object_points.emplace_back(corr.p_ItemModel[i].x(), corr.p_ItemModel[i].y(),
+                               corr.p_ItemModel[i].z());
+    image_points.emplace_back(corr.px_Scene[i].x(), corr.px_Scene[i].y());
+  }
+  const cv::Matx33d K(camera.fx(), 0, camera.cx(), 0, camera.fy(), camera.cy(), 0, 0, 1);
+  const Distortion& k = camera.distortion();
+  const cv::Mat distortion = (cv::Mat_<double>(1, 5) << k.k1, k.k2, k.p1, k.p2, k.k3);
+  cv::Mat rvec, tvec;
+  std::vector<int> inliers;
+  cv::theRNG().state = options.seed;
+  const bool ok = cv::solvePnPRansac(
+      object_points, image_points, K, distortion, rvec, tvec, false, options.ransac_iterations,
+      static_cast<float>(options.reprojection_threshold_px), 0.999, inliers, cv::SOLVEPNP_EPNP);
+  if (!ok || static_cast<int>(inliers.size()) < options.min_inliers) return;
+  // Polish on the inliers with Levenberg-Marquardt.
+  std::vector<cv::Point3f> in_obj;
+  std::vector<cv::Point2f> in_img;
+  for (int i : inliers) {
+    in_obj.push_back(object_points[i]);
+    in_img.push_back(image_points[i]);
+  }
+  cv::solvePnPRefineLM(in_obj, in_img, K, distortion, rvec, tvec);
+  const Eigen::Isometry3d X_SensorItem = ToIsometry(rvec, tvec);
+  result->found = true;
+  result->used_epnp = true;
+  result->X_BaseItem = X_BaseSensor * X_SensorItem;
+  result->num_inliers = inliers.size();
+  for (int i : inliers) {
+    result->inlier_pixels.push_back(corr.px_Scene[i]);
+    result->inlier_model_points.push_back(corr.p_ItemModel[i]);
+  }
+}
+
+// The pose from one view: ratio-test matches to the scene, then the 3D-3D fit, or EPnP when
+// that has too few inliers and there is a camera and at least 4 matches.
+SiftPoseResult EstimateViewPose(const SiftModel& model, std::size_t view_index,
+                                const SceneFeatures& features, const geometry::PointCloud& scene,
+                                const Eigen::Isometry3d& X_BaseSensor,
+                                const std::optional<PinholeCamera>& camera,
+                                const SiftPoseOptions& options) {
+  const SiftModel::Impl::View& view = model.impl().views[view_index];
+  const auto matches = RatioMatches(features.descriptors, view.descriptors, options.ratio,
+                                    model.options().use_flann);
+  const Correspondences corr = SplitMatches(matches, features, view, scene);
+  SiftPoseResult result;
+  result.view_index = static_cast<int>(view_index);
+  result.num_matches = matches.size();
+  result.num_with_3d = corr.p_ItemModel_3d.size();
+  const RigidFit fit = FitRigid3d(corr, options);
+  if (static_cast<int>(fit.inliers.size()) >= options.min_inliers) {
+    SetRigidPose(fit, corr, &result);
+    // 2D-only matches are kept when they reproject onto their keypoint.
+    if (camera)
+      AddReprojectedMatches(corr, fit.X_BaseItem, X_BaseSensor, *camera,
+                            options.reprojection_threshold_px, &result);
+  } else if (camera && corr.p_ItemModel.size() >= 4) {
+    // Too few measured points: EPnP on every 2D-3D match.
+    SolveEpnpPose(corr, *camera, X_BaseSensor, options, &result);
+  }
+  return result;
+}
+
+// Whether a view's `result` beats the `best` so far: a found pose with more inliers or, while
+// nothing is found, more matches.
+bool Replaces(const SiftPoseResult& result, const SiftPoseResult& best) {
+  if (result.found && (!best.found || result.num_inliers > best.num_inliers)) return true;
+  return !best.found && result.num_matches > best.num_matches;
+}
+
+}  // namespace
+
+SiftPoseResult EstimateSiftPose(const SiftModel& model, const geometry::PointCloud& scene,
+                                const Eigen::Isometry3d& X_BaseSensor,
+                                const std::optional<PinholeCamera>& camera,
+                                const SiftPoseOptions& options) {
+  const GrayImage image = IntensityImage(scene);
+  if (options.min_inliers < 3 || options.ransac_iterations < 1 ||
+      !(options.inlier_threshold_m > 0.0) || !(options.reprojection_threshold_px > 0.0))
+    throw std::invalid_argument("SiftPoseOptions: a count or threshold is out of range");
+  const SceneFeatures features = DetectSceneFeatures(scene, image, model.options().max_features);
   SiftPoseResult best;
-  const auto& views = model.impl().views;
-  for (std::size_t k = 0; k < views.size(); ++k) {
-    const auto& view = views[k];
-    const auto matches =
-        RatioMatches(scene_descriptors, view.descriptors, options.ratio, model.options().use_flann);
-    // Split into matches with a measured scene point and 2D-only ones.
-    std::vector<Eigen::Vector3d> model_3d, scene_3d, model_all;
-    std::vector<Eigen::Vector2d> pixels_3d, pixels_all;
-    for (const cv::DMatch& m : matches) {
-      const cv::Point2f& pt = scene_keypoints[m.queryIdx].pt;
-      const int u = static_cast<int>(std::lround(pt.x)), v = static_cast<int>(std::lround(pt.y));
-      const Eigen::Vector3d& p_model = view.p_ItemFeature[m.trainIdx];
-      model_all.push_back(p_model);
-      pixels_all.emplace_back(pt.x, pt.y);
-      if (u < 0 || v < 0 || u >= image.width || v >= image.height) continue;
-      const Eigen::Vector3f& s = scene.points[static_cast<std::size_t>(v) * image.width + u];
-      if (!s.allFinite()) continue;
-      model_3d.push_back(p_model);
-      scene_3d.push_back(s.cast<double>());
-      pixels_3d.emplace_back(pt.x, pt.y);
-    }
-    SiftPoseResult result;
-    result.view_index = static_cast<int>(k);
-    result.num_matches = matches.size();
-    result.num_with_3d = model_3d.size();
-
-    // 3D-3D RANSAC.
-    const double threshold_sq = options.inlier_threshold_m * options.inlier_threshold_m;
-    const auto inliers_of = [&](const Eigen::Isometry3d& X) {
-      std::vector<int> in;
-      for (std::size_t i = 0; i < model_3d.size(); ++i)
-        if ((X * model_3d[i] - scene_3d[i]).squaredNorm() <= threshold_sq)
-          in.push_back(static_cast<int>(i));
-      return in;
-    };
-    std::vector<int> best_inliers;
-    Eigen::Isometry3d best_X = Eigen::Isometry3d::Identity();
-    if (model_3d.size() >= 3) {
-      std::mt19937 rng(options.seed);
-      std::uniform_int_distribution<std::size_t> pick(0, model_3d.size() - 1);
-      for (int it = 0; it < options.ransac_iterations; ++it) {
-        const std::size_t a = pick(rng), b = pick(rng), c = pick(rng);
-        if (a == b || b == c || a == c) continue;
-        // Reject degenerate samples and ones whose model and scene distances disagree.
-        const auto consistent = [&](std::size_t i, std::size_t j) {
-          return std::abs((model_3d[i] - model_3d[j]).norm() - (scene_3d[i] - scene_3d[j]).norm()) <
-                 2.0 * options.inlier_threshold_m;
-        };
-        if (!consistent(a, b) || !consistent(b, c) || !consistent(a, c)) continue;
-        if ((model_3d[b] - model_3d[a]).cross(model_3d[c] - model_3d[a]).norm() < 1e-8) continue;
-        Eigen::Isometry3d X;
-        if (!Kabsch({model_3d[a], model_3d[b], model_3d[c]},
-                    {scene_3d[a], scene_3d[b], scene_3d[c]}, &X))
-          continue;
-        std::vector<int> in = inliers_of(X);
-        if (in.size() > best_inliers.size()) {
-          best_inliers = std::move(in);
-          best_X = X;
-        }
-      }
-      // Least-squares refit on the inliers until the set is stable.
-      for (int refit = 0; refit < 5 && best_inliers.size() >= 3; ++refit) {
-        std::vector<Eigen::Vector3d> src, dst;
-        for (int i : best_inliers) {
-          src.push_back(model_3d[i]);
-          dst.push_back(scene_3d[i]);
-        }
-        Eigen::Isometry3d X;
-        if (!Kabsch(src, dst, &X)) break;
-        std::vector<int> in = inliers_of(X);
-        if (in.size() < best_inliers.size()) break;
-        const bool same = in == best_inliers;
-        best_inliers = std::move(in);
-        best_X = X;
-        if (same) break;
-      }
-    }
-    if (static_cast<int>(best_inliers.size()) >= options.min_inliers) {
-      result.found = true;
-      result.X_BaseItem = best_X;
-      double sum_sq = 0.0;
-      for (int i : best_inliers) {
-        sum_sq += (best_X * model_3d[i] - scene_3d[i]).squaredNorm();
-        result.inlier_pixels.push_back(pixels_3d[i]);
-        result.inlier_model_points.push_back(model_3d[i]);
-      }
-      result.inlier_rmse_m = std::sqrt(sum_sq / best_inliers.size());
-      result.num_inliers = best_inliers.size();
-      // 2D-only matches are kept when they reproject onto their keypoint.
-      if (camera) {
-        const Eigen::Isometry3d X_SensorItem = X_BaseSensor.inverse() * best_X;
-        for (std::size_t i = 0; i < model_all.size(); ++i) {
-          const Eigen::Vector3d p = X_SensorItem * model_all[i];
-          if (p.z() <= 0.0) continue;
-          const Eigen::Vector2d px = *camera->Project(p);
-          const bool has_3d =
-              std::find(pixels_3d.begin(), pixels_3d.end(), pixels_all[i]) != pixels_3d.end();
-          if (!has_3d && (px - pixels_all[i]).norm() <= options.reprojection_threshold_px) {
-            ++result.num_inliers;
-            result.inlier_pixels.push_back(pixels_all[i]);
-            result.inlier_model_points.push_back(model_all[i]);
-          }
-        }
-      }
-    } else if (camera && model_all.size() >= 4) {
-      // Too few measured points: EPnP on every 2D-3D match.
-      std::vector<cv::Point3f> object_points;
-      std::vector<cv::Point2f> image_points;
-      for (std::size_t i = 0; i < model_all.size(); ++i) {
-        object_points.emplace_back(model_all[i].x(), model_all[i].y(), model_all[i].z());
-        image_points.emplace_back(pixels_all[i].x(), pixels_all[i].y());
-      }
-      const cv::Matx33d K(camera->fx(), 0, camera->cx(), 0, camera->fy(), camera->cy(), 0, 0, 1);
-      const Distortion& k = camera->distortion();
-      const cv::Mat distortion = (cv::Mat_<double>(1, 5) << k.k1, k.k2, k.p1, k.p2, k.k3);
-      cv::Mat rvec, tvec;
-      std::vector<int> inliers;
-      cv::theRNG().state = options.seed;
-      const bool ok = cv::solvePnPRansac(
-          object_points, image_points, K, distortion, rvec, tvec, false, options.ransac_iterations,
-          static_cast<float>(options.reprojection_threshold_px), 0.999, inliers, cv::SOLVEPNP_EPNP);
-      if (ok && static_cast<int>(inliers.size()) >= options.min_inliers) {
-        // Polish on the inliers with Levenberg-Marquardt.
-        std::vector<cv::Point3f> in_obj;
-        std::vector<cv::Point2f> in_img;
-        for (int i : inliers) {
-          in_obj.push_back(object_points[i]);
-          in_img.push_back(image_points[i]);
-        }
-        cv::solvePnPRefineLM(in_obj, in_img, K, distortion, rvec, tvec);
-        cv::Mat R;
-        cv::Rodrigues(rvec, R);
-        Eigen::Matrix3d R_e;
-        Eigen::Vector3d t_e;
-        cv::cv2eigen(R, R_e);
-        cv::cv2eigen(tvec, t_e);
-        Eigen::Isometry3d X_SensorItem = Eigen::Isometry3d::Identity();
-        X_SensorItem.linear() = R_e;
-        X_SensorItem.translation() = t_e;
-        result.found = true;
-        result.used_epnp = true;
-        result.X_BaseItem = X_BaseSensor * X_SensorItem;
-        result.num_inliers = inliers.size();
-        for (int i : inliers) {
-          result.inlier_pixels.push_back(pixels_all[i]);
-          result.inlier_model_points.push_back(model_all[i]);
-        }
-      }
-    }
-    if (result.found && (!best.found || result.num_inliers > best.num_inliers)) {
-      best = std::move(result);
-    } else if (!best.found && result.num_matches > best.num_matches) {
-      best = std::move(result);
-    }
+  for (std::size_t k = 0; k < model.impl().views.size(); ++k) {
+    SiftPoseResult result =
+        EstimateViewPose(model, k, features, scene, X_BaseSensor, camera, options);
+    if (Replaces(result, best)) best = std::move(result);
   }
   return best;
 }

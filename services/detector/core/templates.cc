@@ -7,9 +7,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <random>
 #include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "services/detector/core/appearance.h"
 #include "services/detector/core/icp.h"
@@ -123,6 +127,234 @@ double Cost(const RangeTemplate& t, const PinholeCamera& template_camera,
   const double mean_a = t.p_CameraPoints.empty() ? tau : sum_a / t.p_CameraPoints.size();
   const double mean_b = cluster_samples.empty() ? tau : sum_b / cluster_samples.size();
   return 0.5 * (mean_a + mean_b);
+}
+
+// Throws std::invalid_argument unless every count and threshold of `options` is in range.
+void ValidateMatchOptions(const TemplateMatchOptions& options) {
+  if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
+      !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
+      options.max_cluster_points < 10 || options.max_target_points < 10 ||
+      !(options.min_cluster_extent_rel >= 0.0) ||
+      !(options.max_cluster_extent_rel >= options.min_cluster_extent_rel))
+    throw std::invalid_argument("TemplateMatchOptions: a count or threshold is out of range");
+}
+
+// The scene's range image seen from the sensor (nearest point per pixel); the templates'
+// points are scored against it.
+RangeImage RenderSceneDepth(const PointCloud& scene, const Eigen::Isometry3f& X_SensorBase_f,
+                            const PinholeCamera& camera) {
+  RangeImage scene_depth;
+  scene_depth.width = camera.width();
+  scene_depth.height = camera.height();
+  scene_depth.depth_m.assign(static_cast<std::size_t>(camera.width()) * camera.height(), kNaN);
+  for (const auto& p_Base : scene.points) {
+    if (!p_Base.allFinite()) continue;
+    const Eigen::Vector3f p = X_SensorBase_f * p_Base;
+    if (p.z() <= 0.0f) continue;
+    const Eigen::Vector2d uv =
+        camera.NormalizedToPixel(Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()));
+    const int u = static_cast<int>(std::lround(uv.x()));
+    const int v = static_cast<int>(std::lround(uv.y()));
+    if (u < 0 || v < 0 || u >= camera.width() || v >= camera.height()) continue;
+    float& z = scene_depth.depth_m[static_cast<std::size_t>(v) * camera.width() + u];
+    if (!(z <= p.z())) z = p.z();
+  }
+  return scene_depth;
+}
+
+// The finite points of cluster `c` (indices into `scene`) in the sensor frame. Throws
+// std::invalid_argument on an index out of range.
+PointCloud GatherCluster(const PointCloud& scene, const std::vector<int>& indices, std::size_t c,
+                         const Eigen::Isometry3f& X_SensorBase_f) {
+  PointCloud cluster;
+  for (int i : indices) {
+    if (i < 0 || static_cast<std::size_t>(i) >= scene.size())
+      throw std::invalid_argument("MatchTemplates: cluster " + std::to_string(c) + " has index " +
+                                  std::to_string(i) + " out of range");
+    if (scene.points[i].allFinite()) cluster.points.push_back(X_SensorBase_f * scene.points[i]);
+  }
+  return cluster;
+}
+
+// Whether the diagonal of the cluster's bounding box is a plausible size for the item
+// (within [min_cluster_extent_rel, max_cluster_extent_rel] times its diameter).
+bool HasPlausibleExtent(const std::vector<Eigen::Vector3f>& p_SensorPoints, double diameter_m,
+                        const TemplateMatchOptions& options) {
+  Eigen::AlignedBox3f box;
+  for (const auto& p : p_SensorPoints) box.extend(p);
+  const double extent_m = box.diagonal().norm();
+  return !(extent_m < options.min_cluster_extent_rel * diameter_m ||
+           extent_m > options.max_cluster_extent_rel * diameter_m);
+}
+
+// The point closest to the sensor origin (the first of equals); `p_SensorPoints` is not empty.
+Eigen::Vector3f ClosestToSensor(const std::vector<Eigen::Vector3f>& p_SensorPoints) {
+  Eigen::Vector3f closest = p_SensorPoints.front();
+  for (const auto& p : p_SensorPoints)
+    if (p.norm() < closest.norm()) closest = p;
+  return closest;
+}
+
+// Thins `points` evenly (by stride) to at most max_points, so that normals and k-d tree of
+// a huge merged cluster stay within the time budget.
+void ThinEvenly(int max_points, std::vector<Eigen::Vector3f>* points) {
+  if (points->size() > static_cast<std::size_t>(max_points)) {
+    const std::size_t step = (points->size() + max_points - 1) / max_points;
+    std::vector<Eigen::Vector3f> thinned;
+    for (std::size_t i = 0; i < points->size(); i += step) {
+      thinned.push_back((*points)[i]);
+    }
+    *points = std::move(thinned);
+  }
+}
+
+// The points of `cluster` with a finite normal: the ICP target.
+PointCloud WithFiniteNormals(const PointCloud& cluster) {
+  PointCloud target;
+  for (std::size_t i = 0; i < cluster.size(); ++i) {
+    if (!cluster.normals[i].allFinite()) continue;
+    target.points.push_back(cluster.points[i]);
+    target.normals.push_back(cluster.normals[i]);
+  }
+  target.width = static_cast<std::uint32_t>(target.points.size());
+  return target;
+}
+
+// Every stride-th cluster point, at most about max_points of them: the cluster side of Cost.
+std::vector<Eigen::Vector3f> SampleCluster(const PointCloud& cluster, int max_points) {
+  std::vector<Eigen::Vector3f> samples;
+  const std::size_t stride = (cluster.size() + max_points - 1) / max_points;
+  for (std::size_t i = 0; i < cluster.size(); i += stride) samples.push_back(cluster.points[i]);
+  return samples;
+}
+
+// What a template placed in the sensor frame is scored against (see Cost).
+struct CostInputs {
+  const PinholeCamera& template_camera;
+  const RangeImage& scene_depth;                        // seen from the sensor
+  const PinholeCamera& camera;                          // the sensor's
+  const std::vector<Eigen::Vector3f>& p_SensorSamples;  // of the cluster
+  float tau;                                            // truncation, metres
+};
+
+// Result of the coarse search of one cluster.
+struct CoarseResult {
+  std::vector<Hypothesis> hypotheses;  // one per template and in-plane angle
+  bool out_of_time = false;            // the deadline passed: the search is unfinished
+};
+
+// Coarse stage: every template at every in-plane angle, its view direction along the ray to
+// the cluster's closest point and its closest point on that point, scored by Cost. The
+// deadline is checked before each in-plane angle.
+CoarseResult CoarseSearch(const std::vector<RangeTemplate>& all, const Eigen::Vector3f& closest,
+                          const CostInputs& in, const TemplateMatchOptions& options) {
+  const Eigen::Matrix3d R_align = RotationZTo(closest.cast<double>());
+  CoarseResult coarse;
+  std::vector<Hypothesis>& hypotheses = coarse.hypotheses;
+  hypotheses.reserve(all.size() * options.in_plane_steps);
+  bool& out_of_time = coarse.out_of_time;
+  for (int k = 0; k < options.in_plane_steps && !out_of_time; ++k) {
+    out_of_time = std::chrono::steady_clock::now() > options.deadline;
+    const Eigen::Matrix3d R = R_align * Eigen::AngleAxisd(2.0 * M_PI * k / options.in_plane_steps,
+                                                          Eigen::Vector3d::UnitZ())
+                                            .toRotationMatrix();
+    for (std::size_t t = 0; t < all.size(); ++t) {
+      Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+      X.linear() = R;
+      X.translation() = closest.cast<double>() - R * all[t].p_CameraClosest.cast<double>();
+      const double cost = Cost(all[t], in.template_camera, X.cast<float>(), in.scene_depth,
+                               in.camera, in.p_SensorSamples, in.tau);
+      hypotheses.push_back({cost, static_cast<int>(t), X});
+    }
+  }
+  return coarse;
+}
+
+// Moves the num_refine cheapest hypotheses, cheapest first, to the front; returns how many.
+std::size_t KeepCheapest(int num_refine, std::vector<Hypothesis>* hypotheses) {
+  const std::size_t keep = std::min<std::size_t>(num_refine, hypotheses->size());
+  std::partial_sort(hypotheses->begin(), hypotheses->begin() + keep, hypotheses->end(),
+                    [](const Hypothesis& a, const Hypothesis& b) { return a.cost < b.cost; });
+  return keep;
+}
+
+// The ICP target of one cluster (sensor frame) and its k-d tree.
+struct IcpTarget {
+  const PointCloud& cloud;
+  const KdTree& tree;
+};
+
+// Fine stage: ICP (coarse, then fine correspondence distance) of the template points of
+// the first `keep` hypotheses on the cluster, rescored by Cost; returns the cheapest
+// (cost_m infinite when keep is 0).
+TemplateMatch RefineHypotheses(const std::vector<RangeTemplate>& all,
+                               const std::vector<Hypothesis>& hypotheses, std::size_t keep,
+                               const IcpTarget& target, const CostInputs& in,
+                               const Eigen::Isometry3d& X_BaseSensor, std::size_t c,
+                               const TemplateMatchOptions& options) {
+  TemplateMatch best;
+  best.cost_m = std::numeric_limits<double>::infinity();
+  for (std::size_t h = 0; h < keep; ++h) {
+    const RangeTemplate& t = all[hypotheses[h].template_index];
+    PointCloud source;
+    source.points = t.p_CameraPoints;
+    source.normals = t.n_CameraPoints;
+    source.width = static_cast<std::uint32_t>(source.points.size());
+    IcpOptions icp;
+    icp.max_iterations = options.refine_iterations;
+    icp.max_correspondence_distance_m = static_cast<float>(2.0 * options.truncation_m);
+    icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
+    IcpResult coarse = RunIcp(source, target.cloud, target.tree, hypotheses[h].X_SensorCamera, icp);
+    icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
+    IcpResult fine = RunIcp(source, target.cloud, target.tree, coarse.X_TargetSource, icp);
+    const double cost = Cost(t, in.template_camera, fine.X_TargetSource.cast<float>(),
+                             in.scene_depth, in.camera, in.p_SensorSamples, in.tau);
+    if (cost < best.cost_m) {
+      best.cost_m = cost;
+      best.template_index = hypotheses[h].template_index;
+      best.cluster_index = static_cast<int>(c);
+      best.X_BaseItem = X_BaseSensor * fine.X_TargetSource * t.X_CameraItem;
+      best.fitness = fine.fitness;
+      best.inlier_rmse_m = fine.inlier_rmse_m;
+    }
+  }
+  return best;
+}
+
+// The points (and normals) of `model` (item frame) whose normal faces the sensor at
+// X_SensorItem.
+PointCloud FacingSurface(const PointCloud& model, const Eigen::Isometry3d& X_SensorItem) {
+  PointCloud facing;
+  for (std::size_t i = 0; i < model.size(); ++i) {
+    const Eigen::Vector3d p = X_SensorItem * model.points[i].cast<double>();
+    const Eigen::Vector3d n = X_SensorItem.linear() * model.normals[i].cast<double>();
+    if (n.dot(p) < 0.0) {
+      facing.points.push_back(model.points[i]);
+      facing.normals.push_back(model.normals[i]);
+    }
+  }
+  facing.width = static_cast<std::uint32_t>(facing.points.size());
+  return facing;
+}
+
+// Final stage: ICP of the model's surface facing the sensor on the cluster; `best` takes its
+// pose and figures unless its fitness fell below half of the template's.
+void RefineOnModel(const PointCloud& model, const IcpTarget& target,
+                   const Eigen::Isometry3d& X_BaseSensor, const Eigen::Isometry3d& X_SensorBase,
+                   const TemplateMatchOptions& options, TemplateMatch* best) {
+  const Eigen::Isometry3d X_SensorItem = X_SensorBase * best->X_BaseItem;
+  const PointCloud facing = FacingSurface(model, X_SensorItem);
+  if (facing.size() >= 10) {
+    IcpOptions icp;
+    icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
+    icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
+    const IcpResult final_icp = RunIcp(facing, target.cloud, target.tree, X_SensorItem, icp);
+    if (final_icp.fitness >= 0.5 * best->fitness) {
+      best->X_BaseItem = X_BaseSensor * final_icp.X_TargetSource;
+      best->fitness = final_icp.fitness;
+      best->inlier_rmse_m = final_icp.inlier_rmse_m;
+    }
+  }
 }
 
 }  // namespace
@@ -273,158 +505,39 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const Eigen::Isometry3d& X_BaseSensor,
                                           const PinholeCamera& camera,
                                           const TemplateMatchOptions& options) {
-  if (options.in_plane_steps < 1 || options.num_refine < 1 || options.refine_iterations < 1 ||
-      !(options.truncation_m > 0.0) || !(options.max_cost_m > 0.0) ||
-      options.max_cluster_points < 10 || options.max_target_points < 10 ||
-      !(options.min_cluster_extent_rel >= 0.0) ||
-      !(options.max_cluster_extent_rel >= options.min_cluster_extent_rel))
-    throw std::invalid_argument("TemplateMatchOptions: a count or threshold is out of range");
+  ValidateMatchOptions(options);
   const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
   const Eigen::Isometry3f X_SensorBase_f = X_SensorBase.cast<float>();
-  // The scene's range image seen from the sensor.
-  RangeImage scene_depth;
-  scene_depth.width = camera.width();
-  scene_depth.height = camera.height();
-  scene_depth.depth_m.assign(static_cast<std::size_t>(camera.width()) * camera.height(), kNaN);
-  for (const auto& p_Base : scene.points) {
-    if (!p_Base.allFinite()) continue;
-    const Eigen::Vector3f p = X_SensorBase_f * p_Base;
-    if (p.z() <= 0.0f) continue;
-    const Eigen::Vector2d uv =
-        camera.NormalizedToPixel(Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()));
-    const int u = static_cast<int>(std::lround(uv.x()));
-    const int v = static_cast<int>(std::lround(uv.y()));
-    if (u < 0 || v < 0 || u >= camera.width() || v >= camera.height()) continue;
-    float& z = scene_depth.depth_m[static_cast<std::size_t>(v) * camera.width() + u];
-    if (!(z <= p.z())) z = p.z();
-  }
+  const RangeImage scene_depth = RenderSceneDepth(scene, X_SensorBase_f, camera);
   const float tau = static_cast<float>(options.truncation_m);
   const auto& all = templates.templates();
 
   std::vector<TemplateMatch> matches;
   for (std::size_t c = 0; c < clusters.size(); ++c) {
-    PointCloud cluster;
-    for (int i : clusters[c]) {
-      if (i < 0 || static_cast<std::size_t>(i) >= scene.size())
-        throw std::invalid_argument("MatchTemplates: cluster " + std::to_string(c) + " has index " +
-                                    std::to_string(i) + " out of range");
-      if (scene.points[i].allFinite()) cluster.points.push_back(X_SensorBase_f * scene.points[i]);
-    }
+    PointCloud cluster = GatherCluster(scene, clusters[c], c, X_SensorBase_f);
     if (cluster.points.size() < 10) continue;
     if (std::chrono::steady_clock::now() > options.deadline) break;
-    Eigen::AlignedBox3f box;
-    for (const auto& p : cluster.points) box.extend(p);
-    const double extent_m = box.diagonal().norm();
-    if (extent_m < options.min_cluster_extent_rel * templates.diameter_m() ||
-        extent_m > options.max_cluster_extent_rel * templates.diameter_m())
-      continue;
-    Eigen::Vector3f closest = cluster.points.front();
-    for (const auto& p : cluster.points)
-      if (p.norm() < closest.norm()) closest = p;
-    if (cluster.points.size() > static_cast<std::size_t>(options.max_target_points)) {
-      const std::size_t step =
-          (cluster.points.size() + options.max_target_points - 1) / options.max_target_points;
-      std::vector<Eigen::Vector3f> thinned;
-      for (std::size_t i = 0; i < cluster.points.size(); i += step) {
-        thinned.push_back(cluster.points[i]);
-      }
-      cluster.points = std::move(thinned);
-    }
+    if (!HasPlausibleExtent(cluster.points, templates.diameter_m(), options)) continue;
+    const Eigen::Vector3f closest = ClosestToSensor(cluster.points);
+    ThinEvenly(options.max_target_points, &cluster.points);
     cluster.width = static_cast<std::uint32_t>(cluster.points.size());
     NormalOptions normal_options;  // viewpoint: the sensor origin
     cluster = EstimateNormals(cluster, normal_options);
-    PointCloud target;  // points with valid normals, for ICP
-    for (std::size_t i = 0; i < cluster.size(); ++i) {
-      if (!cluster.normals[i].allFinite()) continue;
-      target.points.push_back(cluster.points[i]);
-      target.normals.push_back(cluster.normals[i]);
-    }
-    target.width = static_cast<std::uint32_t>(target.points.size());
+    const PointCloud target = WithFiniteNormals(cluster);  // for ICP
     if (target.size() < 10) continue;
     const KdTree tree(target.points);
+    const std::vector<Eigen::Vector3f> samples = SampleCluster(cluster, options.max_cluster_points);
+    const CostInputs cost_inputs{templates.camera(), scene_depth, camera, samples, tau};
 
-    std::vector<Eigen::Vector3f> samples;
-    const std::size_t stride =
-        (cluster.size() + options.max_cluster_points - 1) / options.max_cluster_points;
-    for (std::size_t i = 0; i < cluster.size(); i += stride) samples.push_back(cluster.points[i]);
+    CoarseResult coarse = CoarseSearch(all, closest, cost_inputs, options);
+    if (coarse.out_of_time) break;  // An unfinished coarse search says nothing about the cluster.
+    const std::size_t keep = KeepCheapest(options.num_refine, &coarse.hypotheses);
 
-    // Coarse stage: every template at every in-plane angle, closest points aligned.
-    const Eigen::Matrix3d R_align = RotationZTo(closest.cast<double>());
-    std::vector<Hypothesis> hypotheses;
-    hypotheses.reserve(all.size() * options.in_plane_steps);
-    bool out_of_time = false;
-    for (int k = 0; k < options.in_plane_steps && !out_of_time; ++k) {
-      out_of_time = std::chrono::steady_clock::now() > options.deadline;
-      const Eigen::Matrix3d R = R_align * Eigen::AngleAxisd(2.0 * M_PI * k / options.in_plane_steps,
-                                                            Eigen::Vector3d::UnitZ())
-                                              .toRotationMatrix();
-      for (std::size_t t = 0; t < all.size(); ++t) {
-        Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-        X.linear() = R;
-        X.translation() = closest.cast<double>() - R * all[t].p_CameraClosest.cast<double>();
-        const double cost =
-            Cost(all[t], templates.camera(), X.cast<float>(), scene_depth, camera, samples, tau);
-        hypotheses.push_back({cost, static_cast<int>(t), X});
-      }
-    }
-    if (out_of_time) break;  // An unfinished coarse search says nothing about the cluster.
-    const std::size_t keep = std::min<std::size_t>(options.num_refine, hypotheses.size());
-    std::partial_sort(hypotheses.begin(), hypotheses.begin() + keep, hypotheses.end(),
-                      [](const Hypothesis& a, const Hypothesis& b) { return a.cost < b.cost; });
-
-    // Fine stage: ICP of the template points on the cluster, then rescoring.
-    TemplateMatch best;
-    best.cost_m = std::numeric_limits<double>::infinity();
-    for (std::size_t h = 0; h < keep; ++h) {
-      const RangeTemplate& t = all[hypotheses[h].template_index];
-      PointCloud source;
-      source.points = t.p_CameraPoints;
-      source.normals = t.n_CameraPoints;
-      source.width = static_cast<std::uint32_t>(source.points.size());
-      IcpOptions icp;
-      icp.max_iterations = options.refine_iterations;
-      icp.max_correspondence_distance_m = static_cast<float>(2.0 * options.truncation_m);
-      icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
-      IcpResult coarse = RunIcp(source, target, tree, hypotheses[h].X_SensorCamera, icp);
-      icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
-      IcpResult fine = RunIcp(source, target, tree, coarse.X_TargetSource, icp);
-      const double cost = Cost(t, templates.camera(), fine.X_TargetSource.cast<float>(),
-                               scene_depth, camera, samples, tau);
-      if (cost < best.cost_m) {
-        best.cost_m = cost;
-        best.template_index = hypotheses[h].template_index;
-        best.cluster_index = static_cast<int>(c);
-        best.X_BaseItem = X_BaseSensor * fine.X_TargetSource * t.X_CameraItem;
-        best.fitness = fine.fitness;
-        best.inlier_rmse_m = fine.inlier_rmse_m;
-      }
-    }
+    const IcpTarget icp_target{target, tree};
+    TemplateMatch best = RefineHypotheses(all, coarse.hypotheses, keep, icp_target, cost_inputs,
+                                          X_BaseSensor, c, options);
     if (!(best.cost_m < options.max_cost_m)) continue;
-
-    // Final ICP of the model's surface facing the sensor.
-    const Eigen::Isometry3d X_SensorItem = X_SensorBase * best.X_BaseItem;
-    const PointCloud& model = templates.model();
-    PointCloud facing;
-    for (std::size_t i = 0; i < model.size(); ++i) {
-      const Eigen::Vector3d p = X_SensorItem * model.points[i].cast<double>();
-      const Eigen::Vector3d n = X_SensorItem.linear() * model.normals[i].cast<double>();
-      if (n.dot(p) < 0.0) {
-        facing.points.push_back(model.points[i]);
-        facing.normals.push_back(model.normals[i]);
-      }
-    }
-    facing.width = static_cast<std::uint32_t>(facing.points.size());
-    if (facing.size() >= 10) {
-      IcpOptions icp;
-      icp.max_correspondence_distance_m = static_cast<float>(0.5 * options.truncation_m);
-      icp.loss_scale_m = static_cast<float>(0.25 * options.truncation_m);
-      const IcpResult final_icp = RunIcp(facing, target, tree, X_SensorItem, icp);
-      if (final_icp.fitness >= 0.5 * best.fitness) {
-        best.X_BaseItem = X_BaseSensor * final_icp.X_TargetSource;
-        best.fitness = final_icp.fitness;
-        best.inlier_rmse_m = final_icp.inlier_rmse_m;
-      }
-    }
+    RefineOnModel(templates.model(), icp_target, X_BaseSensor, X_SensorBase, options, &best);
     matches.push_back(best);
   }
   std::sort(matches.begin(), matches.end(),

@@ -129,6 +129,266 @@ struct LitSample {
   float radiance;
 };
 
+// Per camera pixel: the ambient radiance, and the projector mirrors lighting it with the
+// radiance each contributes when on (one entry per distinct mirror, kept per camera row so
+// that rows are filled in parallel). Pixel u of row v owns
+// row_samples[v][row_starts[v][u] .. row_starts[v][u + 1]).
+struct LightTransport {
+  std::vector<float> ambient;  // Row-major, grey levels.
+  std::vector<std::vector<LitSample>> row_samples;
+  std::vector<std::vector<std::uint32_t>> row_starts;
+};
+
+// What camera rays are traced with: the scene, the rig (camera frame, metres), the camera's
+// ray table and the area sampling of each pixel.
+struct PixelTracer {
+  const SyntheticScene& scene;
+  const ScannerRig& rig;
+  const camera::RayTable& rays;
+  const SyntheticCaptureOptions& options;
+  Eigen::Isometry3d X_ProjectorCamera;
+  Eigen::Vector3d p_CameraProjector;
+  int width;             // Camera pixels.
+  int height;            // Camera pixels.
+  int samples;           // Rays per pixel and axis (options.samples_per_axis).
+  double sample_weight;  // 1 / samples^2: share of a pixel's light per ray.
+};
+
+// Rejects options and scene objects outside their documented ranges, before any work.
+void CheckCaptureInputs(const SyntheticScene& scene, const SyntheticCaptureOptions& options) {
+  if (!(options.blur_sigma_px >= 0.0)) {
+    throw std::invalid_argument("RenderSyntheticCapture: options.blur_sigma_px must be >= 0");
+  }
+  if (!(options.noise_sigma >= 0.0)) {
+    throw std::invalid_argument("RenderSyntheticCapture: options.noise_sigma must be >= 0");
+  }
+  if (!(options.gamma > 0.0)) {
+    throw std::invalid_argument("RenderSyntheticCapture: options.gamma must be > 0");
+  }
+  if (options.samples_per_axis < 1 || options.samples_per_axis > 16) {
+    throw std::invalid_argument(
+        "RenderSyntheticCapture: options.samples_per_axis must be in [1, 16], got " +
+        std::to_string(options.samples_per_axis));
+  }
+  for (const SyntheticBox& box : scene.boxes) {
+    if (!(box.half_size_m.minCoeff() > 0.0)) {
+      throw std::invalid_argument("RenderSyntheticCapture: a box's half_size_m must be > 0");
+    }
+  }
+  for (const SyntheticChessboard& board : scene.boards) {
+    if (board.inner_corners_x < 2 || board.inner_corners_y < 2 || !(board.square_size_m > 0.0) ||
+        !(board.margin_m >= 0.0)) {
+      throw std::invalid_argument(
+          "RenderSyntheticCapture: a chessboard needs >= 2 x 2 inner corners, square_size_m > 0 "
+          "and margin_m >= 0");
+    }
+  }
+}
+
+// A width x height capture with no ground truth yet (-1 / NaN everywhere) and no images.
+SyntheticCapture MakeEmptyCapture(int width, int height) {
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  SyntheticCapture capture;
+  capture.width = width;
+  capture.height = height;
+  capture.column.assign(n, -1);
+  capture.row.assign(n, -1);
+  capture.column_exact.assign(n, kNaN);
+  capture.row_exact.assign(n, kNaN);
+  capture.depth_m.assign(n, kNaN);
+  return capture;
+}
+
+// Traces the camera ray (x, y, 1) (normalised camera coordinates): the surface it meets and,
+// if the projector lights that point (facing it, not shadowed, inside its image), where.
+RayHit TraceCameraRay(const PixelTracer& tracer, const Eigen::Vector2d& xy) {
+  const SyntheticScene& scene = tracer.scene;
+  const ScannerRig& rig = tracer.rig;
+  const Eigen::Vector3d& p_CameraProjector = tracer.p_CameraProjector;
+  RayHit hit;
+  const Eigen::Vector3d ray = Eigen::Vector3d(xy.x(), xy.y(), 1.0).normalized();
+  Eigen::Vector3d normal;
+  const double t = Intersect(scene, Eigen::Vector3d::Zero(), ray, 1e-6, &normal, &hit.albedo);
+  if (t == kNoHit) return hit;
+  hit.hit = true;
+  const Eigen::Vector3d p = t * ray;
+  hit.depth_m = p.z();
+  const Eigen::Vector3d to_projector = p_CameraProjector - p;
+  const double distance = to_projector.norm();
+  const double cosine = normal.dot(to_projector) / distance;
+  if (cosine <= 0) return hit;
+  const double blocker =
+      Intersect(scene, p_CameraProjector, -to_projector / distance, 1e-6, nullptr, nullptr);
+  if (blocker < distance - 1e-7) return hit;  // In shadow.
+  const auto uv = rig.projector.Project(tracer.X_ProjectorCamera * p);
+  if (!uv || !rig.projector.Contains(*uv)) return hit;
+  hit.lit = true;
+  hit.uv = *uv;
+  hit.column =
+      std::min(rig.projector.width() - 1, std::max(0, static_cast<int>(std::lround(uv->x()))));
+  hit.row =
+      std::min(rig.projector.height() - 1, std::max(0, static_cast<int>(std::lround(uv->y()))));
+  hit.cosine = cosine;
+  return hit;
+}
+
+// Undistorted normalised coordinates of camera pixel position (u, v) inside the image,
+// interpolated bilinearly between the ray table's pixel centres (extrapolated half a pixel
+// at the border).
+Eigen::Vector2d NormalizedAt(const PixelTracer& tracer, double u, double v) {
+  const int width = tracer.width;
+  const int height = tracer.height;
+  const camera::RayTable& rays = tracer.rays;
+  if (width < 2 || height < 2) return tracer.rig.camera.PixelToNormalized(Eigen::Vector2d(u, v));
+  const int u0 = std::min(width - 2, std::max(0, static_cast<int>(std::floor(u))));
+  const int v0 = std::min(height - 2, std::max(0, static_cast<int>(std::floor(v))));
+  const double a = u - u0;
+  const double b = v - v0;
+  const std::size_t i = static_cast<std::size_t>(v0) * width + u0;
+  const Eigen::Vector2d top =
+      (1 - a) * rays.xy[i].cast<double>() + a * rays.xy[i + 1].cast<double>();
+  const Eigen::Vector2d bottom =
+      (1 - a) * rays.xy[i + width].cast<double>() + a * rays.xy[i + width + 1].cast<double>();
+  return (1 - b) * top + b * bottom;
+}
+
+// Writes the ground truth of the ray through the centre of pixel i: depth where it meets a
+// surface, and the projector mirror (nearest and exact) where that surface is lit.
+void RecordGroundTruth(const RayHit& centre, std::size_t i, SyntheticCapture* capture) {
+  if (centre.hit) capture->depth_m[i] = static_cast<float>(centre.depth_m);
+  if (centre.lit) {
+    capture->column[i] = centre.column;
+    capture->row[i] = centre.row;
+    capture->column_exact[i] = static_cast<float>(centre.uv.x());
+    capture->row_exact[i] = static_cast<float>(centre.uv.y());
+  }
+}
+
+// Area sampling of camera pixel (u, v): traces samples x samples rays spread over the pixel,
+// merges the light of each mirror into the pixel's entries of *out_samples (those from
+// pixel_start on) and returns the pixel's ambient radiance.
+double SamplePixelArea(const PixelTracer& tracer, int u, int v, std::uint32_t pixel_start,
+                       std::vector<LitSample>* out_samples) {
+  const SyntheticCaptureOptions& options = tracer.options;
+  const int samples = tracer.samples;
+  const double sample_weight = tracer.sample_weight;
+  std::vector<LitSample>& out = *out_samples;
+  double ambient_sum = 0;
+  for (int sy = 0; sy < samples; ++sy) {
+    for (int sx = 0; sx < samples; ++sx) {
+      const double du = (sx + 0.5) / samples - 0.5;
+      const double dv = (sy + 0.5) / samples - 0.5;
+      const RayHit hit = TraceCameraRay(tracer, NormalizedAt(tracer, u + du, v + dv));
+      if (!hit.hit) continue;
+      ambient_sum += hit.albedo * options.ambient_level * sample_weight;
+      if (!hit.lit) continue;
+      const float radiance =
+          static_cast<float>(hit.albedo * hit.cosine * options.projector_level * sample_weight);
+      bool merged = false;
+      for (std::size_t k = pixel_start; k < out.size() && !merged; ++k) {
+        if (out[k].column == hit.column && out[k].row == hit.row) {
+          out[k].radiance += radiance;
+          merged = true;
+        }
+      }
+      if (!merged) out.push_back({hit.column, hit.row, radiance});
+    }
+  }
+  return ambient_sum;
+}
+
+// Traces camera row v: the ground truth at each pixel centre into `capture`, and each
+// pixel's ambient radiance and lighting mirrors into row v of `transport`. Rows are
+// independent (safe to run in parallel).
+void TraceCameraRow(const PixelTracer& tracer, int v, SyntheticCapture* capture,
+                    LightTransport* transport) {
+  const SyntheticCaptureOptions& options = tracer.options;
+  const int width = tracer.width;
+  std::vector<float>& ambient = transport->ambient;
+  std::vector<LitSample>& out = transport->row_samples[v];
+  std::vector<std::uint32_t>& starts = transport->row_starts[v];
+  starts.assign(width + 1, 0);
+  for (int u = 0; u < width; ++u) {
+    const std::size_t i = static_cast<std::size_t>(v) * width + u;
+    starts[u] = static_cast<std::uint32_t>(out.size());
+    const RayHit centre = TraceCameraRay(tracer, tracer.rays.xy[i].cast<double>());
+    RecordGroundTruth(centre, i, capture);
+    if (tracer.samples == 1) {
+      if (centre.hit) ambient[i] = static_cast<float>(centre.albedo * options.ambient_level);
+      if (centre.lit) {
+        out.push_back(
+            {centre.column, centre.row,
+             static_cast<float>(centre.albedo * centre.cosine * options.projector_level)});
+      }
+      continue;
+    }
+    ambient[i] = static_cast<float>(SamplePixelArea(tracer, u, v, starts[u], &out));
+  }
+  starts[width] = static_cast<std::uint32_t>(out.size());
+}
+
+// Whether the projector mirror lighting `sample` is on in the pattern image `description`.
+bool IsMirrorOn(const PatternSequence& patterns, const PatternImage& description,
+                const LitSample& sample) {
+  switch (description.kind) {
+    case PatternImage::Kind::kWhite:
+      return true;
+    case PatternImage::Kind::kBlack:
+      return false;
+    case PatternImage::Kind::kColumnBit:
+      return ((GrayEncode(sample.column) >> (patterns.column_bits() - 1 - description.bit)) & 1u) !=
+             static_cast<std::uint32_t>(description.inverse);
+    case PatternImage::Kind::kRowBit:
+      return ((GrayEncode(sample.row) >> (patterns.row_bits() - 1 - description.bit)) & 1u) !=
+             static_cast<std::uint32_t>(description.inverse);
+  }
+  return false;
+}
+
+// Scene radiance (grey levels, before blur and response) at every camera pixel while the
+// projector shows `description`: ambient plus the light of the mirrors that are on.
+cv::Mat PatternRadiance(const LightTransport& transport, const PatternSequence& patterns,
+                        const PatternImage& description, int width, int height) {
+  cv::Mat radiance(height, width, CV_32F);
+  for (int v = 0; v < height; ++v) {
+    const std::vector<LitSample>& samples_v = transport.row_samples[v];
+    const std::vector<std::uint32_t>& starts = transport.row_starts[v];
+    float* dst = radiance.ptr<float>(v);
+    const float* ambient_v = transport.ambient.data() + static_cast<std::size_t>(v) * width;
+    for (int u = 0; u < width; ++u) {
+      float lit = 0.0f;
+      for (std::uint32_t s = starts[u]; s < starts[u + 1]; ++s) {
+        if (IsMirrorOn(patterns, description, samples_v[s])) lit += samples_v[s].radiance;
+      }
+      dst[u] = ambient_v[u] + lit;
+    }
+  }
+  return radiance;
+}
+
+// Image formation of image k from its radiance: optical blur, gamma response, sensor noise
+// (seeded by options.seed and k, so independent of the thread schedule), 8-bit rounding.
+void ExposeImage(const SyntheticCaptureOptions& options, int k, cv::Mat* radiance_image,
+                 std::vector<std::uint8_t>* image_out) {
+  cv::Mat& radiance = *radiance_image;
+  if (options.blur_sigma_px > 0) {
+    cv::GaussianBlur(radiance, radiance, cv::Size(0, 0), options.blur_sigma_px);
+  }
+  std::mt19937 rng(options.seed * 7919u + static_cast<std::uint32_t>(k));
+  std::normal_distribution<float> noise(0.0f, static_cast<float>(options.noise_sigma));
+  std::vector<std::uint8_t>& image = *image_out;
+  const std::size_t n = image.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    float value = radiance.at<float>(static_cast<int>(i));
+    if (options.gamma != 1.0) {
+      value = 255.0f * std::pow(std::max(0.0f, value) / 255.0f, static_cast<float>(options.gamma));
+    }
+    if (options.noise_sigma > 0) value += noise(rng);
+    image[i] = static_cast<std::uint8_t>(std::min(255.0f, std::max(0.0f, std::round(value))));
+  }
+}
+
 }  // namespace
 
 ScannerRig MakeExampleRig(int camera_width, int camera_height) {
@@ -166,200 +426,40 @@ std::vector<ImageView> SyntheticCapture::views() const {
 SyntheticCapture RenderSyntheticCapture(const ScannerRig& rig, const PatternSequence& patterns,
                                         const SyntheticScene& scene,
                                         const SyntheticCaptureOptions& options) {
-  if (!(options.blur_sigma_px >= 0.0)) {
-    throw std::invalid_argument("RenderSyntheticCapture: options.blur_sigma_px must be >= 0");
-  }
-  if (!(options.noise_sigma >= 0.0)) {
-    throw std::invalid_argument("RenderSyntheticCapture: options.noise_sigma must be >= 0");
-  }
-  if (!(options.gamma > 0.0)) {
-    throw std::invalid_argument("RenderSyntheticCapture: options.gamma must be > 0");
-  }
-  if (options.samples_per_axis < 1 || options.samples_per_axis > 16) {
-    throw std::invalid_argument(
-        "RenderSyntheticCapture: options.samples_per_axis must be in [1, 16], got " +
-        std::to_string(options.samples_per_axis));
-  }
-  for (const SyntheticBox& box : scene.boxes) {
-    if (!(box.half_size_m.minCoeff() > 0.0)) {
-      throw std::invalid_argument("RenderSyntheticCapture: a box's half_size_m must be > 0");
-    }
-  }
-  for (const SyntheticChessboard& board : scene.boards) {
-    if (board.inner_corners_x < 2 || board.inner_corners_y < 2 || !(board.square_size_m > 0.0) ||
-        !(board.margin_m >= 0.0)) {
-      throw std::invalid_argument(
-          "RenderSyntheticCapture: a chessboard needs >= 2 x 2 inner corners, square_size_m > 0 "
-          "and margin_m >= 0");
-    }
-  }
+  CheckCaptureInputs(scene, options);
   const camera::PinholeCamera& cam = rig.camera;
   const int width = cam.width();
   const int height = cam.height();
   const std::size_t n = static_cast<std::size_t>(width) * height;
-  const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  SyntheticCapture capture;
-  capture.width = width;
-  capture.height = height;
-  capture.column.assign(n, -1);
-  capture.row.assign(n, -1);
-  capture.column_exact.assign(n, kNaN);
-  capture.row_exact.assign(n, kNaN);
-  capture.depth_m.assign(n, kNaN);
-  // Per pixel: ambient radiance, and the projector mirrors lighting it with the radiance each
-  // contributes when on (one entry per distinct mirror, kept per camera row).
-  std::vector<float> ambient(n, 0.0f);
-  std::vector<std::vector<LitSample>> row_samples(height);
-  std::vector<std::vector<std::uint32_t>> row_starts(height);
+  SyntheticCapture capture = MakeEmptyCapture(width, height);
+  LightTransport transport;
+  transport.ambient.assign(n, 0.0f);
+  transport.row_samples.resize(height);
+  transport.row_starts.resize(height);
   const Eigen::Isometry3d X_ProjectorCamera = rig.X_CameraProjector.inverse();
   const Eigen::Vector3d p_CameraProjector = rig.X_CameraProjector.translation();
   const camera::RayTable rays = cam.ComputeRayTable();
   const int samples = options.samples_per_axis;
-  const double sample_weight = 1.0 / (samples * samples);
-
-  // Traces the camera ray (x, y, 1).
-  const auto trace = [&](const Eigen::Vector2d& xy) {
-    RayHit hit;
-    const Eigen::Vector3d ray = Eigen::Vector3d(xy.x(), xy.y(), 1.0).normalized();
-    Eigen::Vector3d normal;
-    const double t = Intersect(scene, Eigen::Vector3d::Zero(), ray, 1e-6, &normal, &hit.albedo);
-    if (t == kNoHit) return hit;
-    hit.hit = true;
-    const Eigen::Vector3d p = t * ray;
-    hit.depth_m = p.z();
-    const Eigen::Vector3d to_projector = p_CameraProjector - p;
-    const double distance = to_projector.norm();
-    const double cosine = normal.dot(to_projector) / distance;
-    if (cosine <= 0) return hit;
-    const double blocker =
-        Intersect(scene, p_CameraProjector, -to_projector / distance, 1e-6, nullptr, nullptr);
-    if (blocker < distance - 1e-7) return hit;  // In shadow.
-    const auto uv = rig.projector.Project(X_ProjectorCamera * p);
-    if (!uv || !rig.projector.Contains(*uv)) return hit;
-    hit.lit = true;
-    hit.uv = *uv;
-    hit.column =
-        std::min(rig.projector.width() - 1, std::max(0, static_cast<int>(std::lround(uv->x()))));
-    hit.row =
-        std::min(rig.projector.height() - 1, std::max(0, static_cast<int>(std::lround(uv->y()))));
-    hit.cosine = cosine;
-    return hit;
-  };
-  // Undistorted normalised coordinates of a point inside the image, interpolated bilinearly
-  // between the ray table's pixel centres (extrapolated half a pixel at the border).
-  const auto normalized = [&](double u, double v) -> Eigen::Vector2d {
-    if (width < 2 || height < 2) return cam.PixelToNormalized(Eigen::Vector2d(u, v));
-    const int u0 = std::min(width - 2, std::max(0, static_cast<int>(std::floor(u))));
-    const int v0 = std::min(height - 2, std::max(0, static_cast<int>(std::floor(v))));
-    const double a = u - u0;
-    const double b = v - v0;
-    const std::size_t i = static_cast<std::size_t>(v0) * width + u0;
-    const Eigen::Vector2d top =
-        (1 - a) * rays.xy[i].cast<double>() + a * rays.xy[i + 1].cast<double>();
-    const Eigen::Vector2d bottom =
-        (1 - a) * rays.xy[i + width].cast<double>() + a * rays.xy[i + width + 1].cast<double>();
-    return (1 - b) * top + b * bottom;
-  };
+  const PixelTracer tracer{scene,
+                           rig,
+                           rays,
+                           options,
+                           X_ProjectorCamera,
+                           p_CameraProjector,
+                           width,
+                           height,
+                           samples,
+                           1.0 / (samples * samples)};
 
   BandPool pool;
-  pool.Run(height, [&](int v) {
-    std::vector<LitSample>& out = row_samples[v];
-    std::vector<std::uint32_t>& starts = row_starts[v];
-    starts.assign(width + 1, 0);
-    for (int u = 0; u < width; ++u) {
-      const std::size_t i = static_cast<std::size_t>(v) * width + u;
-      starts[u] = static_cast<std::uint32_t>(out.size());
-      const RayHit centre = trace(rays.xy[i].cast<double>());
-      if (centre.hit) capture.depth_m[i] = static_cast<float>(centre.depth_m);
-      if (centre.lit) {
-        capture.column[i] = centre.column;
-        capture.row[i] = centre.row;
-        capture.column_exact[i] = static_cast<float>(centre.uv.x());
-        capture.row_exact[i] = static_cast<float>(centre.uv.y());
-      }
-      if (samples == 1) {
-        if (centre.hit) ambient[i] = static_cast<float>(centre.albedo * options.ambient_level);
-        if (centre.lit) {
-          out.push_back(
-              {centre.column, centre.row,
-               static_cast<float>(centre.albedo * centre.cosine * options.projector_level)});
-        }
-        continue;
-      }
-      double ambient_sum = 0;
-      for (int sy = 0; sy < samples; ++sy) {
-        for (int sx = 0; sx < samples; ++sx) {
-          const double du = (sx + 0.5) / samples - 0.5;
-          const double dv = (sy + 0.5) / samples - 0.5;
-          const RayHit hit = trace(normalized(u + du, v + dv));
-          if (!hit.hit) continue;
-          ambient_sum += hit.albedo * options.ambient_level * sample_weight;
-          if (!hit.lit) continue;
-          const float radiance =
-              static_cast<float>(hit.albedo * hit.cosine * options.projector_level * sample_weight);
-          bool merged = false;
-          for (std::size_t k = starts[u]; k < out.size() && !merged; ++k) {
-            if (out[k].column == hit.column && out[k].row == hit.row) {
-              out[k].radiance += radiance;
-              merged = true;
-            }
-          }
-          if (!merged) out.push_back({hit.column, hit.row, radiance});
-        }
-      }
-      ambient[i] = static_cast<float>(ambient_sum);
-    }
-    starts[width] = static_cast<std::uint32_t>(out.size());
-  });
+  pool.Run(height, [&](int v) { TraceCameraRow(tracer, v, &capture, &transport); });
 
   const int num_images = patterns.num_images();
   capture.images.assign(num_images, std::vector<std::uint8_t>(n));
   pool.Run(num_images, [&](int k) {
     const PatternImage description = patterns.Describe(k);
-    const auto is_on = [&](const LitSample& sample) {
-      switch (description.kind) {
-        case PatternImage::Kind::kWhite:
-          return true;
-        case PatternImage::Kind::kBlack:
-          return false;
-        case PatternImage::Kind::kColumnBit:
-          return ((GrayEncode(sample.column) >> (patterns.column_bits() - 1 - description.bit)) &
-                  1u) != static_cast<std::uint32_t>(description.inverse);
-        case PatternImage::Kind::kRowBit:
-          return ((GrayEncode(sample.row) >> (patterns.row_bits() - 1 - description.bit)) & 1u) !=
-                 static_cast<std::uint32_t>(description.inverse);
-      }
-      return false;
-    };
-    cv::Mat radiance(height, width, CV_32F);
-    for (int v = 0; v < height; ++v) {
-      const std::vector<LitSample>& samples_v = row_samples[v];
-      const std::vector<std::uint32_t>& starts = row_starts[v];
-      float* dst = radiance.ptr<float>(v);
-      const float* ambient_v = ambient.data() + static_cast<std::size_t>(v) * width;
-      for (int u = 0; u < width; ++u) {
-        float lit = 0.0f;
-        for (std::uint32_t s = starts[u]; s < starts[u + 1]; ++s) {
-          if (is_on(samples_v[s])) lit += samples_v[s].radiance;
-        }
-        dst[u] = ambient_v[u] + lit;
-      }
-    }
-    if (options.blur_sigma_px > 0) {
-      cv::GaussianBlur(radiance, radiance, cv::Size(0, 0), options.blur_sigma_px);
-    }
-    std::mt19937 rng(options.seed * 7919u + static_cast<std::uint32_t>(k));
-    std::normal_distribution<float> noise(0.0f, static_cast<float>(options.noise_sigma));
-    std::vector<std::uint8_t>& image = capture.images[k];
-    for (std::size_t i = 0; i < n; ++i) {
-      float value = radiance.at<float>(static_cast<int>(i));
-      if (options.gamma != 1.0) {
-        value =
-            255.0f * std::pow(std::max(0.0f, value) / 255.0f, static_cast<float>(options.gamma));
-      }
-      if (options.noise_sigma > 0) value += noise(rng);
-      image[i] = static_cast<std::uint8_t>(std::min(255.0f, std::max(0.0f, std::round(value))));
-    }
+    cv::Mat radiance = PatternRadiance(transport, patterns, description, width, height);
+    ExposeImage(options, k, &radiance, &capture.images[k]);
   });
   return capture;
 }

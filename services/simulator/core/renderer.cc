@@ -546,6 +546,172 @@ void CheckFinite(double value, const char* field) {
   }
 }
 
+// Rejects a null output, non-rigid poses and out-of-range options of Prepare before
+// anything is touched (so that *geometry stays unchanged on error).
+void CheckPrepareArguments(const ScanPose& pose, const GeometryOptions& options,
+                           const ScanGeometry* geometry) {
+  if (geometry == nullptr) throw std::invalid_argument("Prepare: geometry is null");
+  if (!IsFinitePose(pose.X_BaseCamera)) {
+    throw std::invalid_argument("Prepare: X_BaseCamera is not a finite rigid transform");
+  }
+  if (!IsFinitePose(pose.X_BaseProjector)) {
+    throw std::invalid_argument("Prepare: X_BaseProjector is not a finite rigid transform");
+  }
+  CheckFinite(options.reference_distance_m, "GeometryOptions.reference_distance_m");
+  CheckFinite(options.shadow_epsilon_m, "GeometryOptions.shadow_epsilon_m");
+  if (options.reference_distance_m <= 0.0) {
+    throw std::invalid_argument("GeometryOptions.reference_distance_m must be positive");
+  }
+  if (options.shadow_epsilon_m < 0.0) {
+    throw std::invalid_argument("GeometryOptions.shadow_epsilon_m must not be negative");
+  }
+  if (options.num_threads < 0) {
+    throw std::invalid_argument("GeometryOptions.num_threads must not be negative");
+  }
+}
+
+// Sizes g for the pose's camera and projector (reusing its buffers) and marks every pixel
+// as seeing no surface: NaN geometry, no object, zero albedo and gain.
+void ResetScanGeometry(const ScanPose& pose, ScanGeometry* geometry) {
+  ScanGeometry& g = *geometry;
+  g.width = pose.camera.width();
+  g.height = pose.camera.height();
+  g.projector_width = pose.projector.width();
+  g.projector_height = pose.projector.height();
+  const std::size_t n = g.size();
+  g.depth_m.assign(n, kNaN);
+  g.points_camera.assign(n, Eigen::Vector3f::Constant(kNaN));
+  g.normals_camera.assign(n, Eigen::Vector3f::Constant(kNaN));
+  g.object_index.assign(n, -1);
+  g.albedo.assign(n, 0.0f);
+  g.illumination.assign(n, Illumination::kNoSurface);
+  g.projector_uv.assign(n, Eigen::Vector2f::Constant(kNaN));
+  g.gain.assign(n, 0.0f);
+}
+
+// What Prepare's camera ray packets are resolved against: the scan, the scene and the poses
+// of camera C and projector P in the robot base frame B (metres).
+struct PacketScene {
+  const ScanPose& pose;
+  const GeometryOptions& options;
+  const std::vector<Eigen::Vector3f>& rays;  // Ray direction per camera pixel, frame C.
+  const std::vector<ObjectData>& objects;
+  const std::vector<std::int32_t>& object_of_geometry;  // Object index per Embree geomID.
+  RTCScene scene;
+  Eigen::Matrix3d R_BC;
+  Eigen::Vector3d p_BC;
+  Eigen::Isometry3d X_PB;
+  Eigen::Vector3d p_BP;
+  double ref2;  // Squared reference distance of the inverse-square falloff, m^2.
+  double eps;   // Shadow ray start offset along the normal, m.
+};
+
+// Shadow rays from the hits of one camera packet toward the projector centre (valid lanes
+// -1), with what shading a lane needs once it turns out unoccluded.
+struct ShadowPacket {
+  RTCRay8 rays;
+  alignas(32) int valid[kLanes];
+  double cos_theta[kLanes];    // Between the surface normal and the direction to the projector.
+  double r_projector[kLanes];  // Distance from the hit to the projector centre, m.
+  Eigen::Vector2d uv[kLanes];  // Projector pixel coordinates of the hit.
+};
+
+// First stage of a camera packet: writes each hit's surface (depth, point, normal, object,
+// albedo) into *geometry, marks hits outside the projector image or facing away from it,
+// and aims a shadow ray from each remaining hit at the projector centre.
+void RecordHitsAndAimShadowRays(const PacketScene& context, std::size_t i0, int lanes,
+                                const RTCRayHit8& packet, ScanGeometry* geometry,
+                                ShadowPacket* shadow_packet) {
+  const ScanPose& pose = context.pose;
+  const Eigen::Matrix3d& R_BC = context.R_BC;
+  const Eigen::Vector3d& p_BC = context.p_BC;
+  const Eigen::Isometry3d& X_PB = context.X_PB;
+  const Eigen::Vector3d& p_BP = context.p_BP;
+  const double eps = context.eps;
+  ScanGeometry& g = *geometry;
+  RTCRay8& shadow = shadow_packet->rays;
+  int* const shadow_valid = shadow_packet->valid;
+  double* const cos_theta = shadow_packet->cos_theta;
+  double* const r_projector = shadow_packet->r_projector;
+  Eigen::Vector2d* const uv = shadow_packet->uv;
+  Eigen::Vector3d p_BX[kLanes];
+  Eigen::Vector3d n_B[kLanes];
+  for (int k = 0; k < kLanes; ++k) {
+    shadow_valid[k] = 0;
+    shadow.tnear[k] = 0.0f;
+    shadow.tfar[k] = 0.0f;
+    shadow.time[k] = 0.0f;
+    shadow.mask[k] = 0xFFFFFFFFu;
+    shadow.id[k] = static_cast<unsigned>(k);
+    shadow.flags[k] = 0;
+    if (k >= lanes || packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) continue;
+    const std::size_t i = i0 + k;
+    const Eigen::Vector3d d_C = context.rays[i].cast<double>();
+    const Eigen::Vector3d d_B = R_BC * d_C;
+    const double t = packet.ray.tfar[k];
+    p_BX[k] = p_BC + t * d_B;
+    n_B[k] =
+        Eigen::Vector3d(packet.hit.Ng_x[k], packet.hit.Ng_y[k], packet.hit.Ng_z[k]).normalized();
+    if (n_B[k].dot(d_B) > 0.0) n_B[k] = -n_B[k];  // Toward the camera.
+    const std::int32_t object_index = context.object_of_geometry[packet.hit.geomID[k]];
+    const float albedo = context.objects[object_index].AlbedoAt(packet.hit.primID[k],
+                                                                packet.hit.u[k], packet.hit.v[k]);
+    const Eigen::Vector3d p_CX = t * d_C;
+    g.depth_m[i] = static_cast<float>(p_CX.z());
+    g.points_camera[i] = p_CX.cast<float>();
+    g.normals_camera[i] = (R_BC.transpose() * n_B[k]).cast<float>();
+    g.object_index[i] = object_index;
+    g.albedo[i] = albedo;
+
+    const std::optional<Eigen::Vector2d> projected = pose.projector.Project(X_PB * p_BX[k]);
+    if (!projected || !pose.projector.Contains(*projected)) {
+      g.illumination[i] = Illumination::kOutsideProjector;
+      continue;
+    }
+    uv[k] = *projected;
+    const Eigen::Vector3d to_projector = p_BP - p_BX[k];
+    r_projector[k] = to_projector.norm();
+    const Eigen::Vector3d l_B = to_projector / r_projector[k];
+    cos_theta[k] = n_B[k].dot(l_B);
+    if (cos_theta[k] <= 0.0) {
+      g.illumination[i] = Illumination::kFacingAway;
+      continue;
+    }
+    const Eigen::Vector3d origin = p_BX[k] + eps * n_B[k];
+    shadow_valid[k] = -1;
+    shadow.org_x[k] = static_cast<float>(origin.x());
+    shadow.org_y[k] = static_cast<float>(origin.y());
+    shadow.org_z[k] = static_cast<float>(origin.z());
+    shadow.dir_x[k] = static_cast<float>(l_B.x());
+    shadow.dir_y[k] = static_cast<float>(l_B.y());
+    shadow.dir_z[k] = static_cast<float>(l_B.z());
+    shadow.tfar[k] = static_cast<float>(std::max(0.0, r_projector[k] - eps));
+  }
+}
+
+// Last stage of a camera packet, after rtcOccluded8: marks occluded shadow rays' pixels
+// shadowed and gives the others the projector coordinates and the gain (albedo, cosine,
+// optional inverse-square falloff) they are lit with.
+void ShadeUnoccludedHits(const PacketScene& context, std::size_t i0, const ShadowPacket& shadow,
+                         ScanGeometry* geometry) {
+  const GeometryOptions& options = context.options;
+  const double ref2 = context.ref2;
+  ScanGeometry& g = *geometry;
+  for (int k = 0; k < kLanes; ++k) {
+    if (shadow.valid[k] == 0) continue;
+    const std::size_t i = i0 + k;
+    if (shadow.rays.tfar[k] < 0.0f) {  // Embree sets tfar to -inf when occluded.
+      g.illumination[i] = Illumination::kShadowed;
+      continue;
+    }
+    g.illumination[i] = Illumination::kLit;
+    g.projector_uv[i] = shadow.uv[k].cast<float>();
+    const double r = shadow.r_projector[k];
+    const double falloff = options.inverse_square_falloff ? ref2 / (r * r) : 1.0;
+    g.gain[i] = static_cast<float>(g.albedo[i] * shadow.cos_theta[k] * falloff);
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -783,131 +949,39 @@ ScanGeometry StructuredLightRenderer::Prepare(const ScanPose& pose,
 
 void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOptions& options,
                                       ScanGeometry* geometry) const {
-  if (geometry == nullptr) throw std::invalid_argument("Prepare: geometry is null");
-  if (!IsFinitePose(pose.X_BaseCamera)) {
-    throw std::invalid_argument("Prepare: X_BaseCamera is not a finite rigid transform");
-  }
-  if (!IsFinitePose(pose.X_BaseProjector)) {
-    throw std::invalid_argument("Prepare: X_BaseProjector is not a finite rigid transform");
-  }
-  CheckFinite(options.reference_distance_m, "GeometryOptions.reference_distance_m");
-  CheckFinite(options.shadow_epsilon_m, "GeometryOptions.shadow_epsilon_m");
-  if (options.reference_distance_m <= 0.0) {
-    throw std::invalid_argument("GeometryOptions.reference_distance_m must be positive");
-  }
-  if (options.shadow_epsilon_m < 0.0) {
-    throw std::invalid_argument("GeometryOptions.shadow_epsilon_m must not be negative");
-  }
-  if (options.num_threads < 0) {
-    throw std::invalid_argument("GeometryOptions.num_threads must not be negative");
-  }
+  CheckPrepareArguments(pose, options, geometry);
   const int threads = ResolveThreads(options.num_threads);
   const auto rays = impl_->Rays(pose.camera, threads);
 
   ScanGeometry& g = *geometry;
-  g.width = pose.camera.width();
-  g.height = pose.camera.height();
-  g.projector_width = pose.projector.width();
-  g.projector_height = pose.projector.height();
-  const std::size_t n = g.size();
-  g.depth_m.assign(n, kNaN);
-  g.points_camera.assign(n, Eigen::Vector3f::Constant(kNaN));
-  g.normals_camera.assign(n, Eigen::Vector3f::Constant(kNaN));
-  g.object_index.assign(n, -1);
-  g.albedo.assign(n, 0.0f);
-  g.illumination.assign(n, Illumination::kNoSurface);
-  g.projector_uv.assign(n, Eigen::Vector2f::Constant(kNaN));
-  g.gain.assign(n, 0.0f);
+  ResetScanGeometry(pose, &g);
 
-  const Eigen::Matrix3d R_BC = pose.X_BaseCamera.linear();
-  const Eigen::Vector3d p_BC = pose.X_BaseCamera.translation();
-  const Eigen::Isometry3d X_PB = pose.X_BaseProjector.inverse();
-  const Eigen::Vector3d p_BP = pose.X_BaseProjector.translation();
-  const double ref2 = options.reference_distance_m * options.reference_distance_m;
-  const double eps = options.shadow_epsilon_m;
   const Impl& impl = *impl_;
-  RTCScene scene = impl.scene;
+  const PacketScene context{pose,
+                            options,
+                            *rays,
+                            impl.objects,
+                            impl.object_of_geometry,
+                            impl.scene,
+                            pose.X_BaseCamera.linear(),
+                            pose.X_BaseCamera.translation(),
+                            pose.X_BaseProjector.inverse(),
+                            pose.X_BaseProjector.translation(),
+                            options.reference_distance_m * options.reference_distance_m,
+                            options.shadow_epsilon_m};
 
   impl.CastCameraRays(
       *rays, g.width, g.height, pose.X_BaseCamera, threads,
       [&](std::size_t i0, int lanes, const RTCRayHit8& packet, RTCIntersectContext* coherent) {
         // Shadow rays of the packet's hits, which all end at the projector centre, also
         // travel as one packet.
-        RTCRay8 shadow;
-        alignas(32) int shadow_valid[kLanes];
-        Eigen::Vector3d p_BX[kLanes];
-        Eigen::Vector3d n_B[kLanes];
-        double cos_theta[kLanes];
-        double r_projector[kLanes];
-        Eigen::Vector2d uv[kLanes];
-        for (int k = 0; k < kLanes; ++k) {
-          shadow_valid[k] = 0;
-          shadow.tnear[k] = 0.0f;
-          shadow.tfar[k] = 0.0f;
-          shadow.time[k] = 0.0f;
-          shadow.mask[k] = 0xFFFFFFFFu;
-          shadow.id[k] = static_cast<unsigned>(k);
-          shadow.flags[k] = 0;
-          if (k >= lanes || packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) continue;
-          const std::size_t i = i0 + k;
-          const Eigen::Vector3d d_C = (*rays)[i].cast<double>();
-          const Eigen::Vector3d d_B = R_BC * d_C;
-          const double t = packet.ray.tfar[k];
-          p_BX[k] = p_BC + t * d_B;
-          n_B[k] = Eigen::Vector3d(packet.hit.Ng_x[k], packet.hit.Ng_y[k], packet.hit.Ng_z[k])
-                       .normalized();
-          if (n_B[k].dot(d_B) > 0.0) n_B[k] = -n_B[k];  // Toward the camera.
-          const std::int32_t object_index = impl.object_of_geometry[packet.hit.geomID[k]];
-          const float albedo = impl.objects[object_index].AlbedoAt(
-              packet.hit.primID[k], packet.hit.u[k], packet.hit.v[k]);
-          const Eigen::Vector3d p_CX = t * d_C;
-          g.depth_m[i] = static_cast<float>(p_CX.z());
-          g.points_camera[i] = p_CX.cast<float>();
-          g.normals_camera[i] = (R_BC.transpose() * n_B[k]).cast<float>();
-          g.object_index[i] = object_index;
-          g.albedo[i] = albedo;
-
-          const std::optional<Eigen::Vector2d> projected = pose.projector.Project(X_PB * p_BX[k]);
-          if (!projected || !pose.projector.Contains(*projected)) {
-            g.illumination[i] = Illumination::kOutsideProjector;
-            continue;
-          }
-          uv[k] = *projected;
-          const Eigen::Vector3d to_projector = p_BP - p_BX[k];
-          r_projector[k] = to_projector.norm();
-          const Eigen::Vector3d l_B = to_projector / r_projector[k];
-          cos_theta[k] = n_B[k].dot(l_B);
-          if (cos_theta[k] <= 0.0) {
-            g.illumination[i] = Illumination::kFacingAway;
-            continue;
-          }
-          const Eigen::Vector3d origin = p_BX[k] + eps * n_B[k];
-          shadow_valid[k] = -1;
-          shadow.org_x[k] = static_cast<float>(origin.x());
-          shadow.org_y[k] = static_cast<float>(origin.y());
-          shadow.org_z[k] = static_cast<float>(origin.z());
-          shadow.dir_x[k] = static_cast<float>(l_B.x());
-          shadow.dir_y[k] = static_cast<float>(l_B.y());
-          shadow.dir_z[k] = static_cast<float>(l_B.z());
-          shadow.tfar[k] = static_cast<float>(std::max(0.0, r_projector[k] - eps));
-        }
-        if (std::none_of(shadow_valid, shadow_valid + kLanes, [](int v) { return v != 0; })) {
+        ShadowPacket shadow;
+        RecordHitsAndAimShadowRays(context, i0, lanes, packet, &g, &shadow);
+        if (std::none_of(shadow.valid, shadow.valid + kLanes, [](int v) { return v != 0; })) {
           return;
         }
-        rtcOccluded8(shadow_valid, scene, coherent, &shadow);
-        for (int k = 0; k < kLanes; ++k) {
-          if (shadow_valid[k] == 0) continue;
-          const std::size_t i = i0 + k;
-          if (shadow.tfar[k] < 0.0f) {  // Embree sets tfar to -inf when occluded.
-            g.illumination[i] = Illumination::kShadowed;
-            continue;
-          }
-          g.illumination[i] = Illumination::kLit;
-          g.projector_uv[i] = uv[k].cast<float>();
-          const double r = r_projector[k];
-          const double falloff = options.inverse_square_falloff ? ref2 / (r * r) : 1.0;
-          g.gain[i] = static_cast<float>(g.albedo[i] * cos_theta[k] * falloff);
-        }
+        rtcOccluded8(shadow.valid, context.scene, coherent, &shadow.rays);
+        ShadeUnoccludedHits(context, i0, shadow, &g);
       });
 }
 
