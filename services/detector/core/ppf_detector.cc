@@ -6,6 +6,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstddef>
+#include <cstdint>
 #include <exception>
 #include <limits>
 #include <mutex>
@@ -13,6 +15,8 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "services/detector/core/ppf_cloud.h"
 
@@ -455,8 +459,11 @@ AppearancePose SearchAppearancePose(const ObjectModel& model, const PpfScene& sc
   return out;
 }
 
-PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
-                             const PpfDetectorOptions& options) {
+namespace {
+
+// Throws std::invalid_argument naming the first bad field of DetectPpf's options, or for an
+// empty prepared scene; the checks run in a fixed order (that of the messages below).
+void ValidateDetectorInputs(const PpfScene& scene, const PpfDetectorOptions& options) {
   if (options.coarse_icp_stride < 1) {
     throw std::invalid_argument("PpfDetectorOptions: coarse_icp_stride must be >= 1");
   }
@@ -494,173 +501,269 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
   if (!(options.seed_refine_fraction >= 0.0f && options.seed_refine_fraction < 1.0f)) {
     throw std::invalid_argument("PpfDetectorOptions: seed_refine_fraction must be in [0, 1)");
   }
-  PpfDetectionResult result;
-  auto start = std::chrono::steady_clock::now();
-  result.match = MatchPpf(model.table(), scene.sampled, scene.sampled_tree, options.match);
-  result.match_s = Seconds(start);
+}
 
-  start = std::chrono::steady_clock::now();
-  const float step = model.sampling_distance_m();
-  IcpOptions coarse = options.icp;
-  coarse.max_correspondence_distance_m = options.coarse_icp_distance_rel * step;
-  coarse.loss_scale_m = options.icp_loss_scale_rel * step * 2.0f;
-  coarse.max_iterations = options.coarse_icp_iterations;
-  IcpOptions fine = options.icp;
-  fine.max_correspondence_distance_m = options.icp_distance_rel * step;
-  fine.loss_scale_m = options.icp_loss_scale_rel * step;
+// How a verified hypothesis ranks (higher is better): support - conflicts +
+// appearance_weight * print correlation (0 without appearance evidence).
+double RankOf(double support, double conflict_fraction, const AppearanceScore& appearance,
+              const PpfDetectorOptions& options) {
+  return support - conflict_fraction +
+         options.appearance_weight * (appearance.defined ? appearance.correlation : 0.0);
+}
+
+// One hypothesis to refine: a voted one (index into the match's hypotheses) or a seed pose
+// (index into the seed_source's poses).
+struct RefineJob {
+  bool seed = false;
+  std::size_t index = 0;
+};
+
+// Refines one hypothesis and measures it against the scene: ICP (coarse for voted ones, then
+// fine), the model's symmetric turn whose print fits best, the print search (voted ones) and,
+// for a seed, its unrefined pose when that agrees better. Read-only, shared by the threads.
+class HypothesisRefiner {
+ public:
+  HypothesisRefiner(const ObjectModel& model, const PpfScene& scene,
+                    const PpfDetectorOptions& options);
+
+  // Support and conflicts of X_SceneModel at the options' distances (relative to the step).
+  SceneAgreement Agreement(const Eigen::Isometry3d& X_SceneModel) const;
+
+  // The refined and measured detection of `job`, which starts at hypotheses[job.index]
+  // (voted) or seed_poses[job.index] (seed).
+  PpfDetection Refine(const RefineJob& job, const std::vector<PpfHypothesis>& hypotheses,
+                      const std::vector<Eigen::Isometry3d>& seed_poses) const;
+
+ private:
+  // ICP from X (X_SceneModel, a copy the passes move): the coarse pass (not for a seed: the
+  // scene's surfaces place it already, and the pass would let it slide to a neighbour's),
+  // then the fine one. Sets d->icp and d->X_SceneModel (X as the coarse pass left it when
+  // the fine one finds too few correspondences).
+  void FitIcp(Eigen::Isometry3d X, bool seed, PpfDetection* d) const;
+
+  // Moves *d to the nearby pose whose print fits better (SearchAppearancePose) when that
+  // ranks higher: the print may not buy a worse fit of the shape. Returns the agreement of
+  // the pose kept when the search compared two, so that it is measured once.
+  std::optional<SceneAgreement> SearchPrint(PpfDetection* d) const;
+
+  const ObjectModel& model_;
+  const PpfScene& scene_;
+  const PpfDetectorOptions& options_;
+  const float step_m_;  // the model's sampling distance, metres
+  IcpOptions coarse_;
+  IcpOptions fine_;
+  // Every coarse_icp_stride-th ICP point of the model; empty without a coarse pass.
+  geometry::PointCloud coarse_model_;
+  const float support_m_;  // support_distance_rel * step_m_, metres
+};
+
+HypothesisRefiner::HypothesisRefiner(const ObjectModel& model, const PpfScene& scene,
+                                     const PpfDetectorOptions& options)
+    : model_(model),
+      scene_(scene),
+      options_(options),
+      step_m_(model.sampling_distance_m()),
+      coarse_(options.icp),
+      fine_(options.icp),
+      support_m_(options.support_distance_rel * step_m_) {
+  coarse_.max_correspondence_distance_m = options.coarse_icp_distance_rel * step_m_;
+  coarse_.loss_scale_m = options.icp_loss_scale_rel * step_m_ * 2.0f;
+  coarse_.max_iterations = options.coarse_icp_iterations;
+  fine_.max_correspondence_distance_m = options.icp_distance_rel * step_m_;
+  fine_.loss_scale_m = options.icp_loss_scale_rel * step_m_;
   // Only the model's side facing the sensor can have partners in the scene.
-  coarse.viewpoint = scene.viewpoint;
-  fine.viewpoint = scene.viewpoint;
-
-  geometry::PointCloud coarse_model;
+  coarse_.viewpoint = scene.viewpoint;
+  fine_.viewpoint = scene.viewpoint;
   if (options.coarse_icp_iterations > 0) {
-    coarse_model =
+    coarse_model_ =
         EveryNthPoint(model.icp_cloud(), static_cast<std::size_t>(options.coarse_icp_stride));
   }
-  const float support_m = options.support_distance_rel * step;
-  const auto agreement = [&](const Eigen::Isometry3d& X) {
-    return MeasureAgreement(model, scene, X, support_m, options.support_normal_angle_rad,
-                            options.conflict_distance_rel * step);
-  };
-  // Hypotheses rank by support - conflicts + appearance_weight * print (0 without evidence).
-  const auto rank_of = [&options](double support, double conflict_fraction,
-                                  const AppearanceScore& appearance) {
-    return support - conflict_fraction +
-           options.appearance_weight * (appearance.defined ? appearance.correlation : 0.0);
-  };
-  std::vector<PpfDetection> verified;
-  // The best-voted hypotheses, then the seed poses (refined only when no voted one passes).
-  struct Job {
-    bool seed = false;
-    std::size_t index = 0;
-  };
-  std::vector<Job> jobs;
-  const std::size_t voted = std::min(result.match.hypotheses.size(),
-                                     static_cast<std::size_t>(options.hypotheses_to_verify));
-  for (std::size_t i = 0; i < voted; ++i) jobs.push_back({false, i});
-  std::vector<Eigen::Isometry3d> seed_poses;  // Filled when the fallback is taken.
-  const auto refine_one = [&](std::size_t h) {
-    PpfDetection d;
-    const Job& job = jobs[h];
-    d.seed = job.seed;
-    Eigen::Isometry3d X =
-        job.seed ? seed_poses[job.index] : result.match.hypotheses[job.index].X_SceneModel;
-    if (!job.seed) d.votes = result.match.hypotheses[job.index].votes;
-    // A seed is placed by the scene's surfaces already; the coarse pass would let it slide
-    // to a neighbour's.
-    if (options.coarse_icp_iterations > 0 && !job.seed) {
-      const IcpResult c = RunIcp(coarse_model, scene.fine, scene.fine_tree, X, coarse);
-      if (c.correspondences >= coarse.min_correspondences) X = c.X_TargetSource;
+}
+
+SceneAgreement HypothesisRefiner::Agreement(const Eigen::Isometry3d& X_SceneModel) const {
+  return MeasureAgreement(model_, scene_, X_SceneModel, support_m_,
+                          options_.support_normal_angle_rad,
+                          options_.conflict_distance_rel * step_m_);
+}
+
+void HypothesisRefiner::FitIcp(Eigen::Isometry3d X, bool seed, PpfDetection* d) const {
+  if (options_.coarse_icp_iterations > 0 && !seed) {
+    const IcpResult c = RunIcp(coarse_model_, scene_.fine, scene_.fine_tree, X, coarse_);
+    if (c.correspondences >= coarse_.min_correspondences) X = c.X_TargetSource;
+  }
+  d->icp = RunIcp(model_.icp_cloud(), scene_.fine, scene_.fine_tree, X, fine_);
+  d->X_SceneModel = d->icp.correspondences >= fine_.min_correspondences ? d->icp.X_TargetSource : X;
+}
+
+std::optional<SceneAgreement> HypothesisRefiner::SearchPrint(PpfDetection* d) const {
+  std::optional<SceneAgreement> kept;
+  const AppearancePose ap = SearchAppearancePose(model_, scene_, d->X_SceneModel, support_m_,
+                                                 options_.support_normal_angle_rad,
+                                                 options_.appearance, options_.appearance_search);
+  if (ap.appearance.correlation > d->appearance.correlation) {
+    const SceneAgreement before = Agreement(d->X_SceneModel);
+    const SceneAgreement after = Agreement(ap.X_SceneModel);
+    if (RankOf(after.support, after.conflict_fraction, ap.appearance, options_) >
+        RankOf(before.support, before.conflict_fraction, d->appearance, options_)) {
+      d->X_SceneModel = ap.X_SceneModel;
+      d->appearance = ap.appearance;
+      kept = after;
+    } else {
+      kept = before;
     }
-    d.icp = RunIcp(model.icp_cloud(), scene.fine, scene.fine_tree, X, fine);
-    d.X_SceneModel = d.icp.correspondences >= fine.min_correspondences ? d.icp.X_TargetSource : X;
-    if (model.has_albedo() && scene.fine.has_intensities()) {
-      const SymmetricAppearance sa =
-          MatchSymmetricAppearance(model, scene, d.X_SceneModel, support_m,
-                                   options.support_normal_angle_rad, options.appearance);
-      d.X_SceneModel = sa.X_SceneModel;
-      d.symmetry = sa.symmetry;
-      d.appearance = sa.appearance;
+  }
+  return kept;
+}
+
+PpfDetection HypothesisRefiner::Refine(const RefineJob& job,
+                                       const std::vector<PpfHypothesis>& hypotheses,
+                                       const std::vector<Eigen::Isometry3d>& seed_poses) const {
+  PpfDetection d;
+  d.seed = job.seed;
+  if (!job.seed) d.votes = hypotheses[job.index].votes;
+  FitIcp(job.seed ? seed_poses[job.index] : hypotheses[job.index].X_SceneModel, job.seed, &d);
+  if (model_.has_albedo() && scene_.fine.has_intensities()) {
+    const SymmetricAppearance sa =
+        MatchSymmetricAppearance(model_, scene_, d.X_SceneModel, support_m_,
+                                 options_.support_normal_angle_rad, options_.appearance);
+    d.X_SceneModel = sa.X_SceneModel;
+    d.symmetry = sa.symmetry;
+    d.appearance = sa.appearance;
+  }
+  // The agreement of the pose kept: measured once, also when the search compared two.
+  std::optional<SceneAgreement> kept;
+  if (options_.appearance_search.levels > 0 && d.appearance.defined && !job.seed) {
+    kept = SearchPrint(&d);
+  }
+  SceneAgreement a = kept ? *kept : Agreement(d.X_SceneModel);
+  if (job.seed) {
+    // A seed placed flush on the scene's faces can be better than where ICP takes it: a
+    // thin box cut by the floor band, or pulled onto a neighbour's surface.
+    const Eigen::Isometry3d& X_seed = seed_poses[job.index];
+    const SceneAgreement s = Agreement(X_seed);
+    if (s.support - s.conflict_fraction >
+        a.support - a.conflict_fraction + options_.seed_keep_margin) {
+      a = s;
+      d.X_SceneModel = X_seed;
     }
-    // The agreement of the pose kept: measured once, also when the search compared two.
-    std::optional<SceneAgreement> kept;
-    if (options.appearance_search.levels > 0 && d.appearance.defined && !job.seed) {
-      // Kept only when it ranks higher: the print may not buy a worse fit of the shape.
-      const AppearancePose ap = SearchAppearancePose(model, scene, d.X_SceneModel, support_m,
-                                                     options.support_normal_angle_rad,
-                                                     options.appearance, options.appearance_search);
-      if (ap.appearance.correlation > d.appearance.correlation) {
-        const SceneAgreement before = agreement(d.X_SceneModel);
-        const SceneAgreement after = agreement(ap.X_SceneModel);
-        if (rank_of(after.support, after.conflict_fraction, ap.appearance) >
-            rank_of(before.support, before.conflict_fraction, d.appearance)) {
-          d.X_SceneModel = ap.X_SceneModel;
-          d.appearance = ap.appearance;
-          kept = after;
-        } else {
-          kept = before;
-        }
-      }
-    }
-    SceneAgreement a = kept ? *kept : agreement(d.X_SceneModel);
-    if (job.seed) {
-      // A seed placed flush on the scene's faces can be better than where ICP takes it: a
-      // thin box cut by the floor band, or pulled onto a neighbour's surface.
-      const Eigen::Isometry3d& X_seed = seed_poses[job.index];
-      const SceneAgreement s = agreement(X_seed);
-      if (s.support - s.conflict_fraction >
-          a.support - a.conflict_fraction + options.seed_keep_margin) {
-        a = s;
-        d.X_SceneModel = X_seed;
-      }
-    }
-    d.support = a.support;
-    d.conflict_fraction = a.conflict_fraction;
-    d.visible_points = a.visible_points;
-    return d;
-  };
-  const double min_visible =
-      std::max(static_cast<double>(options.min_visible_points),
-               options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()));
-  const auto passes = [&](const PpfDetection& d) {
+  }
+  d.support = a.support;
+  d.conflict_fraction = a.conflict_fraction;
+  d.visible_points = a.visible_points;
+  return d;
+}
+
+// Which refined hypotheses become detections (Passes), and which voted one is good enough
+// that the seeds will not be needed (Found).
+class DetectionGate {
+ public:
+  DetectionGate(const ObjectModel& model, const PpfDetectorOptions& options)
+      : options_(options),
+        min_visible_(std::max(
+            static_cast<double>(options.min_visible_points),
+            options.min_visible_fraction * static_cast<double>(model.icp_cloud().size()))) {}
+
+  bool Passes(const PpfDetection& d) const {
     // A seed was screened by its source; its support and print here are seen from one
     // viewpoint, which undercounts a merged scan's side faces, so the caller's verification
     // (every view) judges it.
-    return (d.seed || (d.support >= options.min_support &&
+    return (d.seed || (d.support >= options_.min_support &&
                        !(d.appearance.defined &&
-                         d.appearance.correlation < options.min_appearance_correlation))) &&
-           d.conflict_fraction <= options.max_conflict_fraction && d.visible_points >= min_visible;
-  };
-  // A voted hypothesis good enough that the seeds will not be needed.
-  const auto found = [&](const PpfDetection& d) {
-    return passes(d) && d.support >= options.seed_fallback_support;
-  };
+                         d.appearance.correlation < options_.min_appearance_correlation))) &&
+           d.conflict_fraction <= options_.max_conflict_fraction &&
+           d.visible_points >= min_visible_;
+  }
+
+  bool Found(const PpfDetection& d) const {
+    return Passes(d) && d.support >= options_.seed_fallback_support;
+  }
+
+ private:
+  const PpfDetectorOptions& options_;
+  const double min_visible_;  // model points that must face the sensor
+};
+
+// The refinement's jobs and results, shared by its threads: the best-voted hypotheses, then
+// the seed poses (added only when no voted hypothesis is found).
+struct RefineWork {
+  std::vector<RefineJob> jobs;
+  std::vector<Eigen::Isometry3d> seed_poses;         // Filled when the fallback is taken.
+  std::vector<std::optional<PpfDetection>> refined;  // Per job; empty: not refined.
   std::atomic<bool> voted_found{false};
-  std::vector<std::optional<PpfDetection>> refined(voted);
-  // Refines jobs [begin, end) in parallel, each taken only while the mean time of those done
-  // so far still fits before the deadline (the first always is: early_deadline while no
-  // voted hypothesis is found, refine_deadline after); the results keep the jobs' order, so
-  // that without a deadline the outcome does not depend on threads.
-  const auto refine_range = [&](std::size_t begin, std::size_t end,
-                                std::chrono::steady_clock::time_point early_deadline) {
-    std::atomic<std::size_t> next{begin};
-    std::atomic<std::int64_t> done{0};
-    std::atomic<std::int64_t> busy_ns{0};
-    std::mutex error_mutex;
-    std::exception_ptr error;
-    const auto worker = [&]() {
-      try {
-        for (std::size_t h = next++; h < end; h = next++) {
-          const auto now = std::chrono::steady_clock::now();
-          const std::int64_t n = done.load();
-          const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
-          // Once a voted hypothesis is found the seeds' share of the time is not needed.
-          if (h > begin && now + mean > (voted_found ? options.refine_deadline : early_deadline)) {
-            return;
-          }
-          refined[h] = refine_one(h);
-          if (!refined[h]->seed && found(*refined[h])) voted_found = true;
-          busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
-                         std::chrono::steady_clock::now() - now)
-                         .count();
-          ++done;
+};
+
+// Refines jobs [begin, end) of *work in parallel, each taken only while the mean time of
+// those done so far still fits before the deadline (the first always is: early_deadline while
+// no voted hypothesis is found, refine_deadline after); the results keep the jobs' order, so
+// that without a deadline the outcome does not depend on threads. Rethrows the first
+// exception of a job after all threads stopped.
+void RefineRange(const HypothesisRefiner& refiner, const DetectionGate& gate,
+                 const PpfDetectorOptions& options, const std::vector<PpfHypothesis>& hypotheses,
+                 std::size_t begin, std::size_t end,
+                 std::chrono::steady_clock::time_point early_deadline, RefineWork* work) {
+  std::atomic<bool>& voted_found = work->voted_found;
+  std::vector<std::optional<PpfDetection>>& refined = work->refined;
+  std::atomic<std::size_t> next{begin};
+  std::atomic<std::int64_t> done{0};
+  std::atomic<std::int64_t> busy_ns{0};
+  std::mutex error_mutex;
+  std::exception_ptr error;
+  const auto worker = [&]() {
+    try {
+      for (std::size_t h = next++; h < end; h = next++) {
+        const auto now = std::chrono::steady_clock::now();
+        const std::int64_t n = done.load();
+        const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
+        // Once a voted hypothesis is found the seeds' share of the time is not needed.
+        if (h > begin && now + mean > (voted_found ? options.refine_deadline : early_deadline)) {
+          return;
         }
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(error_mutex);
-        if (!error) error = std::current_exception();
-        next = end;  // the others stop too
+        refined[h] = refiner.Refine(work->jobs[h], hypotheses, work->seed_poses);
+        if (!refined[h]->seed && gate.Found(*refined[h])) voted_found = true;
+        busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
+                       std::chrono::steady_clock::now() - now)
+                       .count();
+        ++done;
       }
-    };
-    const int threads = std::clamp(options.match.num_threads > 0
-                                       ? options.match.num_threads
-                                       : static_cast<int>(std::thread::hardware_concurrency()),
-                                   1, std::max(1, static_cast<int>(end - begin)));
-    std::vector<std::thread> pool;
-    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-    worker();
-    for (std::thread& t : pool) t.join();
-    if (error) std::rethrow_exception(error);
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+      next = end;  // the others stop too
+    }
   };
+  const int threads = std::clamp(options.match.num_threads > 0
+                                     ? options.match.num_threads
+                                     : static_cast<int>(std::thread::hardware_concurrency()),
+                                 1, std::max(1, static_cast<int>(end - begin)));
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
+}
+
+// Throws std::invalid_argument when a seed pose is not a finite rigid motion.
+void CheckSeedPoses(const std::vector<Eigen::Isometry3d>& seed_poses) {
+  for (const Eigen::Isometry3d& X : seed_poses) {
+    const Eigen::Matrix3d& R = X.linear();
+    if (!X.matrix().allFinite() ||
+        !(R.transpose() * R).isApprox(Eigen::Matrix3d::Identity(), 1e-6) || R.determinant() < 0) {
+      throw std::invalid_argument("DetectPpf: a seed pose is not a finite rigid motion");
+    }
+  }
+}
+
+// Refines the best-voted hypotheses and, when none of them is found and there is a
+// seed_source, its poses (called once, here). Returns one entry per job, voted ones first,
+// empty for a job the deadline skipped.
+std::vector<std::optional<PpfDetection>> RefineHypotheses(
+    const HypothesisRefiner& refiner, const DetectionGate& gate, const PpfDetectorOptions& options,
+    const std::vector<PpfHypothesis>& hypotheses) {
+  RefineWork work;
+  const std::size_t voted =
+      std::min(hypotheses.size(), static_cast<std::size_t>(options.hypotheses_to_verify));
+  for (std::size_t i = 0; i < voted; ++i) work.jobs.push_back({false, i});
+  work.refined.resize(voted);
   // The voted hypotheses leave seed_refine_fraction of the refinement time to the seeds,
   // unless one of them is found.
   const auto refine_start = std::chrono::steady_clock::now();
@@ -672,37 +775,41 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
     voted_deadline = refine_start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                         span * (1.0 - options.seed_refine_fraction));
   }
-  if (voted > 0) refine_range(0, voted, voted_deadline);
-  if (!voted_found && options.seed_source) {
-    seed_poses = options.seed_source();
-    for (const Eigen::Isometry3d& X : seed_poses) {
-      const Eigen::Matrix3d& R = X.linear();
-      if (!X.matrix().allFinite() ||
-          !(R.transpose() * R).isApprox(Eigen::Matrix3d::Identity(), 1e-6) || R.determinant() < 0) {
-        throw std::invalid_argument("DetectPpf: a seed pose is not a finite rigid motion");
-      }
+  if (voted > 0) RefineRange(refiner, gate, options, hypotheses, 0, voted, voted_deadline, &work);
+  if (!work.voted_found && options.seed_source) {
+    work.seed_poses = options.seed_source();
+    CheckSeedPoses(work.seed_poses);
+    for (std::size_t i = 0; i < work.seed_poses.size(); ++i) work.jobs.push_back({true, i});
+    work.refined.resize(work.jobs.size());
+    if (!work.seed_poses.empty()) {
+      RefineRange(refiner, gate, options, hypotheses, voted, work.jobs.size(),
+                  options.refine_deadline, &work);
     }
-    for (std::size_t i = 0; i < seed_poses.size(); ++i) jobs.push_back({true, i});
-    refined.resize(jobs.size());
-    if (!seed_poses.empty()) refine_range(voted, jobs.size(), options.refine_deadline);
   }
-  for (std::optional<PpfDetection>& d : refined) {
-    if (!d) continue;
-    ++result.refined_hypotheses;
-    verified.push_back(std::move(*d));
-  }
-  const auto rank = [&rank_of](const PpfDetection& d) {
-    return rank_of(d.support, d.conflict_fraction, d.appearance);
+  return std::move(work.refined);
+}
+
+// Sorts the detections best rank (RankOf) first; equal ranks keep their order.
+void SortByRank(const PpfDetectorOptions& options, std::vector<PpfDetection>* detections) {
+  const auto rank = [&options](const PpfDetection& d) {
+    return RankOf(d.support, d.conflict_fraction, d.appearance, options);
   };
   std::stable_sort(
-      verified.begin(), verified.end(),
+      detections->begin(), detections->end(),
       [&rank](const PpfDetection& a, const PpfDetection& b) { return rank(a) > rank(b); });
-  if (!verified.empty()) result.best = verified.front();
-  // Keep distinct poses only: hypotheses that converged to the same place are one object.
-  for (const PpfDetection& d : verified) {
-    if (!passes(d)) continue;
+}
+
+// The ranked detections that pass the gate, without those within the match's cluster
+// distances of one kept before them: hypotheses that converged to the same place are one
+// object.
+std::vector<PpfDetection> DistinctDetections(const std::vector<PpfDetection>& ranked,
+                                             const DetectionGate& gate, const ObjectModel& model,
+                                             const PpfDetectorOptions& options) {
+  std::vector<PpfDetection> detections;
+  for (const PpfDetection& d : ranked) {
+    if (!gate.Passes(d)) continue;
     bool duplicate = false;
-    for (const PpfDetection& kept : result.detections) {
+    for (const PpfDetection& kept : detections) {
       if ((kept.X_SceneModel.translation() - d.X_SceneModel.translation()).norm() <
               options.match.cluster_translation_rel * model.diameter_m() &&
           RotationAngle(kept.X_SceneModel.linear(), d.X_SceneModel.linear()) <
@@ -711,8 +818,35 @@ PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
         break;
       }
     }
-    if (!duplicate) result.detections.push_back(d);
+    if (!duplicate) detections.push_back(d);
   }
+  return detections;
+}
+
+}  // namespace
+
+PpfDetectionResult DetectPpf(const ObjectModel& model, const PpfScene& scene,
+                             const PpfDetectorOptions& options) {
+  ValidateDetectorInputs(scene, options);
+  PpfDetectionResult result;
+  auto start = std::chrono::steady_clock::now();
+  result.match = MatchPpf(model.table(), scene.sampled, scene.sampled_tree, options.match);
+  result.match_s = Seconds(start);
+
+  start = std::chrono::steady_clock::now();
+  const HypothesisRefiner refiner(model, scene, options);
+  const DetectionGate gate(model, options);
+  std::vector<std::optional<PpfDetection>> refined =
+      RefineHypotheses(refiner, gate, options, result.match.hypotheses);
+  std::vector<PpfDetection> verified;
+  for (std::optional<PpfDetection>& d : refined) {
+    if (!d) continue;
+    ++result.refined_hypotheses;
+    verified.push_back(std::move(*d));
+  }
+  SortByRank(options, &verified);
+  if (!verified.empty()) result.best = verified.front();
+  result.detections = DistinctDetections(verified, gate, model, options);
   result.refine_s = Seconds(start);
   return result;
 }

@@ -2,9 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <future>
 #include <limits>
+#include <optional>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 #include "services/detector/core/kdtree.h"
 
@@ -150,8 +154,10 @@ double MeanPointSpacing(const geometry::PointCloud& cloud) {
   return count == 0 ? 0.0 : sum / static_cast<double>(count);
 }
 
-VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& model,
-                    const Eigen::Isometry3d& X_BaseItem, const VerifyOptions& options) {
+namespace {
+
+// Throws std::invalid_argument when the model or the options cannot be verified against.
+void CheckVerifyInputs(const geometry::PointCloud& model, const VerifyOptions& options) {
   if (model.empty()) throw std::invalid_argument("Verify: empty model");
   if (model.normals.size() != model.size())
     throw std::invalid_argument("Verify: the model needs one normal per point");
@@ -165,16 +171,28 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   if (!(options.appearance_contradiction_scale >= 0.0 &&
         options.appearance_contradiction_scale <= 1.0))
     throw std::invalid_argument("Verify: appearance_contradiction_scale must be in [0, 1]");
-  const VerificationScene::Impl& impl = *scene.impl_;
+}
 
-  // Deterministic subsample, in the sensor frame.
+// The model points Verify scores: every stride-th point with a finite position and normal.
+struct ModelSample {
+  // Points and normals (and albedo, in intensities) posed in the reference sensor's frame.
+  geometry::PointCloud sub;
+  std::vector<std::uint8_t> sub_patches;     // SurfacePatch of each model normal
+  std::vector<Eigen::Vector3f> p_ItemModel;  // sub's points in the item frame
+};
+
+// Deterministic subsample of `model` to at most options.max_model_points, posed at X_BaseItem
+// in the reference sensor's frame.
+ModelSample SubsampleModel(const VerificationScene& scene, const geometry::PointCloud& model,
+                           const Eigen::Isometry3d& X_BaseItem, const VerifyOptions& options) {
   const std::size_t stride = (model.size() + options.max_model_points - 1) /
                              static_cast<std::size_t>(options.max_model_points);
   const Eigen::Isometry3f X_SensorItem =
       (scene.X_BaseSensor().inverse() * X_BaseItem).cast<float>();
-  geometry::PointCloud sub;
-  std::vector<std::uint8_t> sub_patches;     // SurfacePatch of each model normal
-  std::vector<Eigen::Vector3f> p_ItemModel;  // sub's points in the item frame
+  ModelSample subsample;
+  geometry::PointCloud& sub = subsample.sub;
+  std::vector<std::uint8_t>& sub_patches = subsample.sub_patches;
+  std::vector<Eigen::Vector3f>& p_ItemModel = subsample.p_ItemModel;
   for (std::size_t i = 0; i < model.size(); i += stride) {
     if (!model.points[i].allFinite() || !model.normals[i].allFinite()) continue;
     p_ItemModel.push_back(model.points[i]);
@@ -184,84 +202,158 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     sub_patches.push_back(SurfacePatch(model.normals[i]));
   }
   sub.width = static_cast<std::uint32_t>(sub.points.size());
-  VerifyResult result;
-  result.num_model_points = sub.size();
-  if (sub.empty()) return result;
-  const double spacing = std::max(MeanPointSpacing(sub), 1e-4);
+  return subsample;
+}
 
-  // Per sensor: back-face culling and a splat z-buffer of the model itself give the points
-  // the sensor would see; what it measured along their rays says whether they are hidden by
-  // other surfaces (in front of them) or lie in free space (the sensor saw beyond them).
+// What the sensors showed of a model point: flags of its ClassifyVisibility state.
+enum : std::uint8_t { kVisible = 1, kHidden = 2, kClear = 4, kSeenThrough = 8, kReference = 16 };
+
+// A model point (index into sub) facing a sensor and inside its image: pixel (u, v), splat
+// radius r (pixels) and depth z (sensor frame, metres).
+struct Projected {
+  std::size_t index;
+  int u, v, r;
+  float z;
+};
+
+// The pixels a sensor's splats cover, inclusive (u1 < u0 when there are none).
+struct PixelBox {
+  int u0, v0, u1, v1;
+  int width() const { return u1 - u0 + 1; }
+  int height() const { return v1 - v0 + 1; }
+};
+
+// Back-face culling: replaces `front` by the points of `sub` (reference sensor frame) that
+// face the sensor `cam` (at X_SensorReference) and project into its image, each with a splat
+// radius of about the sample `spacing` (metres), at most 8 pixels. Returns the pixels the
+// splats cover.
+PixelBox ProjectFacingPoints(const PinholeCamera& cam, const Eigen::Isometry3f& X_SensorReference,
+                             const geometry::PointCloud& sub, double spacing,
+                             std::vector<Projected>* front_out) {
+  std::vector<Projected>& front = *front_out;
+  front.clear();
+  int u0 = cam.width(), v0 = cam.height(), u1 = -1, v1 = -1;
+  for (std::size_t i = 0; i < sub.size(); ++i) {
+    const Eigen::Vector3f p = X_SensorReference * sub.points[i];
+    if (p.z() <= 1e-3f || (X_SensorReference.linear() * sub.normals[i]).dot(p) >= 0.0f) continue;
+    const auto uv = cam.Project(p.cast<double>());
+    if (!uv) continue;
+    const int u = static_cast<int>(std::lround(uv->x()));
+    const int v = static_cast<int>(std::lround(uv->y()));
+    if (u < 0 || v < 0 || u >= cam.width() || v >= cam.height()) continue;
+    const int r = std::min(8, static_cast<int>(0.75 * cam.fx() * spacing / p.z()));
+    front.push_back({i, u, v, r, p.z()});
+    u0 = std::min(u0, u - r);
+    v0 = std::min(v0, v - r);
+    u1 = std::max(u1, u + r);
+    v1 = std::max(v1, v + r);
+  }
+  return PixelBox{u0, v0, u1, v1};
+}
+
+// The model's own z-buffer in one sensor, over its footprint `box` only (row-major, metres,
+// +inf where no splat): each splat keeps the nearest depth.
+void SplatModelDepth(const std::vector<Projected>& front, const PixelBox& box,
+                     std::vector<float>* zbuf_out) {
+  std::vector<float>& zbuf = *zbuf_out;
+  const int u0 = box.u0, v0 = box.v0;
+  const int zw = box.width(), zh = box.height();
+  zbuf.assign(static_cast<std::size_t>(zw) * zh, std::numeric_limits<float>::infinity());
+  for (const Projected& pr : front) {
+    for (int dv = -pr.r; dv <= pr.r; ++dv) {
+      for (int du = -pr.r; du <= pr.r; ++du) {
+        float& z = zbuf[static_cast<std::size_t>(pr.v + dv - v0) * zw + (pr.u + du - u0)];
+        z = std::min(z, pr.z);
+      }
+    }
+  }
+}
+
+// Marks in `state` the points of `front` that the model itself does not hide from sensor k
+// (within self_tolerance, metres, of its z-buffer `zbuf` over `box`) as visible, and what the
+// sensor measured along their rays: something in front of them (hidden), free space beyond
+// them (seen through; reference sensor only) or their surface (clear).
+void MarkSensorVisibility(const VerificationScene& scene, std::size_t k,
+                          const std::vector<Projected>& front, const PixelBox& box,
+                          const std::vector<float>& zbuf, float self_tolerance,
+                          const VerifyOptions& options, std::vector<std::uint8_t>* state_out) {
+  std::vector<std::uint8_t>& state = *state_out;
+  const int u0 = box.u0, v0 = box.v0;
+  const int zw = box.width();
+  for (const Projected& pr : front) {
+    if (pr.z > zbuf[static_cast<std::size_t>(pr.v - v0) * zw + (pr.u - u0)] + self_tolerance)
+      continue;
+    std::uint8_t& st = state[pr.index];
+    st |= kVisible;
+    if (k == 0) st |= kReference;
+    const float measured = scene.DepthAt(pr.u, pr.v, k);
+    if (!std::isfinite(measured)) continue;
+    if (measured < pr.z - options.occlusion_margin_m) {
+      st |= kHidden;
+    } else if (measured > pr.z + options.conflict_margin_m) {
+      // Free space only from the reference sensor: another sensor's depth image is the
+      // merged scene seen from there, so behind a surface that sensor did not measure it
+      // holds what the others saw beyond it, which is not free space seen through.
+      if (k == 0) st |= kSeenThrough;
+    } else {
+      st |= kClear;
+    }
+  }
+}
+
+// Per point of `sub` (reference sensor frame), the kVisible... flags over all sensors
+// (X_ReferenceSensor: each sensor's pose in the reference sensor's frame). Back-face culling
+// and a splat z-buffer of the model itself give the points a sensor would see; what it
+// measured along their rays says whether they are hidden by other surfaces (in front of
+// them) or lie in free space (the sensor saw beyond them).
+std::vector<std::uint8_t> ClassifyVisibility(
+    const VerificationScene& scene, const std::vector<Eigen::Isometry3f>& X_ReferenceSensor,
+    const geometry::PointCloud& sub, double spacing, const VerifyOptions& options) {
   const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
-  enum : std::uint8_t { kVisible = 1, kHidden = 2, kClear = 4, kSeenThrough = 8, kReference = 16 };
   std::vector<std::uint8_t> state(sub.size(), 0);
-  struct Projected {
-    std::size_t index;
-    int u, v, r;
-    float z;
-  };
   std::vector<Projected> front;
   std::vector<float> zbuf;
   for (std::size_t k = 0; k < scene.sensors().size(); ++k) {
     const PinholeCamera& cam = scene.sensors()[k].camera;
-    const Eigen::Isometry3f X_SensorReference = impl.X_ReferenceSensor[k].inverse();
-    front.clear();
-    int u0 = cam.width(), v0 = cam.height(), u1 = -1, v1 = -1;
-    for (std::size_t i = 0; i < sub.size(); ++i) {
-      const Eigen::Vector3f p = X_SensorReference * sub.points[i];
-      if (p.z() <= 1e-3f || (X_SensorReference.linear() * sub.normals[i]).dot(p) >= 0.0f) continue;
-      const auto uv = cam.Project(p.cast<double>());
-      if (!uv) continue;
-      const int u = static_cast<int>(std::lround(uv->x()));
-      const int v = static_cast<int>(std::lround(uv->y()));
-      if (u < 0 || v < 0 || u >= cam.width() || v >= cam.height()) continue;
-      const int r = std::min(8, static_cast<int>(0.75 * cam.fx() * spacing / p.z()));
-      front.push_back({i, u, v, r, p.z()});
-      u0 = std::min(u0, u - r);
-      v0 = std::min(v0, v - r);
-      u1 = std::max(u1, u + r);
-      v1 = std::max(v1, v + r);
-    }
+    const Eigen::Isometry3f X_SensorReference = X_ReferenceSensor[k].inverse();
+    const PixelBox box = ProjectFacingPoints(cam, X_SensorReference, sub, spacing, &front);
     if (front.empty()) continue;
-    // The z-buffer covers the model's footprint only.
-    const int zw = u1 - u0 + 1, zh = v1 - v0 + 1;
-    zbuf.assign(static_cast<std::size_t>(zw) * zh, std::numeric_limits<float>::infinity());
-    for (const Projected& pr : front) {
-      for (int dv = -pr.r; dv <= pr.r; ++dv) {
-        for (int du = -pr.r; du <= pr.r; ++du) {
-          float& z = zbuf[static_cast<std::size_t>(pr.v + dv - v0) * zw + (pr.u + du - u0)];
-          z = std::min(z, pr.z);
-        }
-      }
-    }
-    for (const Projected& pr : front) {
-      if (pr.z > zbuf[static_cast<std::size_t>(pr.v - v0) * zw + (pr.u - u0)] + self_tolerance)
-        continue;
-      std::uint8_t& st = state[pr.index];
-      st |= kVisible;
-      if (k == 0) st |= kReference;
-      const float measured = scene.DepthAt(pr.u, pr.v, k);
-      if (!std::isfinite(measured)) continue;
-      if (measured < pr.z - options.occlusion_margin_m) {
-        st |= kHidden;
-      } else if (measured > pr.z + options.conflict_margin_m) {
-        // Free space only from the reference sensor: another sensor's depth image is the
-        // merged scene seen from there, so behind a surface that sensor did not measure it
-        // holds what the others saw beyond it, which is not free space seen through.
-        if (k == 0) st |= kSeenThrough;
-      } else {
-        st |= kClear;
-      }
-    }
+    SplatModelDepth(front, box, &zbuf);
+    MarkSensorVisibility(scene, k, front, box, zbuf, self_tolerance, options, &state);
   }
+  return state;
+}
+
+// The scene points Verify matches against, reference sensor frame: the parts of the private
+// VerificationScene::Impl that only Verify (a friend) can name.
+struct SceneSurface {
+  const KdTree& tree;                                  // over p_SensorPoints
+  const std::vector<Eigen::Vector3f>& p_SensorPoints;  // all finite scene points
+  const std::vector<Eigen::Vector3f>& n_SensorPoints;  // empty without normals
+  const std::vector<float>& intensities;               // empty without intensities
+};
+
+// The appearance samples of the supported model points: their matched scene points
+// (reference sensor frame) and those points' shading-compensated intensities.
+struct MatchedSamples {
+  std::vector<Eigen::Vector3f> p_SensorMatched;
+  std::vector<float> intensity;
+};
+
+// Counts the visible points of `sub` (flags in `state`) into result's num_visible,
+// num_supported (a scene point within tolerance), num_conflicts and num_occluded; with
+// `appearance`, collects the supported points' samples in `matched`. Returns the supported
+// points' sum of squared distances to the scene (metres^2).
+double CountSupport(const geometry::PointCloud& sub, const std::vector<std::uint8_t>& state,
+                    const SceneSurface& impl, bool appearance, const VerifyOptions& options,
+                    MatchedSamples* matched, VerifyResult* verify_result) {
+  VerifyResult& result = *verify_result;
+  std::vector<Eigen::Vector3f>& p_SensorMatched = matched->p_SensorMatched;
+  std::vector<float>& intensity = matched->intensity;
   const float distance_sq =
       static_cast<float>(options.distance_tolerance_m * options.distance_tolerance_m);
   const float cos_normal = static_cast<float>(std::cos(options.normal_tolerance_rad));
   double sum_sq = 0.0;
-  const bool appearance = sub.has_intensities() && !impl.intensities.empty();
-  std::vector<float> albedo, intensity;
-  std::vector<std::uint8_t> patches;
-  std::vector<Eigen::Vector3f> p_SensorMatched;  // scene points of the albedo samples
   for (std::size_t i = 0; i < sub.size(); ++i) {
     const std::uint8_t st = state[i];
     if (!(st & kVisible)) continue;
@@ -303,6 +395,13 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
       ++result.num_occluded;
     }
   }
+  return sum_sq;
+}
+
+// The score and conflict fraction from result's counts, when enough unoccluded points are
+// visible (else both stay 0).
+void ScoreSupport(const VerifyOptions& options, VerifyResult* verify_result) {
+  VerifyResult& result = *verify_result;
   const std::size_t considered = result.num_visible - result.num_occluded;
   if (considered >= static_cast<std::size_t>(std::max(1, options.min_visible_points))) {
     result.score =
@@ -313,76 +412,148 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
     result.conflict_fraction =
         static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
   }
-  result.X_BaseItem_appearance = X_BaseItem;
-  if (appearance) {
-    // The albedo the pose (or a symmetric turn of it) shows at each matched scene point: that
-    // of the model point nearest the scene point, in the item frame. Not the albedo of the
-    // model point that found the match: a print's dark parts are measured worst (at a grazing
-    // angle they may not be decoded at all), so along their edges the model point on the
-    // dark side is matched by a bright scene point beside it. The points are sub's, so their
-    // albedo and patch are sub's.
-    const KdTree model_tree(p_ItemModel);
-    const float lookup_sq =
-        static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
-                           std::max(options.distance_tolerance_m, 2.0 * spacing));
-    // Where the albedo changes within a sampling step, which side a scene point belongs to
-    // is down to millimetres of registration: such model points give no sample (worked out
-    // on first look-up).
-    std::vector<std::int8_t> albedo_edge(p_ItemModel.size(), -1);
-    const float edge_radius = static_cast<float>(1.5 * spacing);
-    std::vector<std::int32_t> neighbours;
-    const auto on_albedo_edge = [&](std::int32_t i) {
-      std::int8_t& flag = albedo_edge[static_cast<std::size_t>(i)];
-      if (flag < 0) {
-        model_tree.RadiusSearch(p_ItemModel[i], edge_radius, &neighbours);
-        float lo = sub.intensities[i], hi = lo;
-        for (std::int32_t j : neighbours) {
-          const float a = sub.intensities[j];
-          if (!std::isfinite(a)) continue;
-          lo = std::min(lo, a);
-          hi = std::max(hi, a);
-        }
-        flag = hi - lo > kAlbedoEdgeContrast * hi ? 1 : 0;
+}
+
+// Whether a model point (index into p_ItemModel and sub) lies on a print edge: where the
+// albedo changes within a sampling step, which side a scene point belongs to is down to
+// millimetres of registration, so such model points give no sample. Worked out on first
+// look-up and kept.
+struct AlbedoEdges {
+  const KdTree& model_tree;                         // over p_ItemModel
+  const std::vector<Eigen::Vector3f>& p_ItemModel;  // item frame
+  const geometry::PointCloud& sub;                  // albedo in intensities
+  float edge_radius;                                // metres
+  std::vector<std::int8_t> albedo_edge;             // per point: -1 not yet known, else 0 / 1
+  std::vector<std::int32_t> neighbours;             // scratch
+
+  bool operator()(std::int32_t i) {
+    std::int8_t& flag = albedo_edge[static_cast<std::size_t>(i)];
+    if (flag < 0) {
+      model_tree.RadiusSearch(p_ItemModel[i], edge_radius, &neighbours);
+      float lo = sub.intensities[i], hi = lo;
+      for (std::int32_t j : neighbours) {
+        const float a = sub.intensities[j];
+        if (!std::isfinite(a)) continue;
+        lo = std::min(lo, a);
+        hi = std::max(hi, a);
       }
-      return flag == 1;
-    };
-    const std::size_t turns = std::max<std::size_t>(1, options.symmetries.size());
-    for (std::size_t s = 0; s < turns; ++s) {
-      const Eigen::Isometry3d X_BaseTurned =
-          options.symmetries.empty() ? X_BaseItem : X_BaseItem * options.symmetries[s];
-      const Eigen::Isometry3f X_ItemSensor =
-          (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
-      albedo.clear();
-      patches.clear();
-      std::vector<float> matched_intensity;
-      matched_intensity.reserve(intensity.size());
-      for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
-        const std::int32_t i =
-            model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
-        if (i == KdTree::kNone || !std::isfinite(sub.intensities[i]) || on_albedo_edge(i)) continue;
-        albedo.push_back(sub.intensities[i]);
-        matched_intensity.push_back(intensity[k]);
-        patches.push_back(sub_patches[i]);
-      }
-      const AppearanceScore a =
-          CorrelateAppearance(albedo, matched_intensity, options.appearance, &patches);
-      // A turn without evidence ranks as neutral: above one the print contradicts, below one
-      // it confirms.
-      const auto rank = [&](const AppearanceScore& x) {
-        return x.defined ? x.correlation : options.min_appearance_correlation;
-      };
-      if (s == 0 || rank(a) > rank(result.appearance)) {
-        result.appearance = a;
-        result.appearance_symmetry = static_cast<int>(s);
-        result.X_BaseItem_appearance = X_BaseTurned;
-      }
+      flag = hi - lo > kAlbedoEdgeContrast * hi ? 1 : 0;
     }
-    if (result.appearance.defined &&
-        result.appearance.correlation < options.min_appearance_correlation) {
-      result.appearance_contradicts = true;
-      result.score *= options.appearance_contradiction_scale;
+    return flag == 1;
+  }
+};
+
+// The appearance at one turn of the pose (X_ItemSensor: the reference sensor in the turned
+// item frame): each matched scene point's intensity against the albedo of the model point
+// nearest it in the item frame (model_tree, within lookup_sq, metres^2), but for model points
+// on a print edge. `albedo` and `patches` are scratch, kept between turns.
+AppearanceScore CorrelateTurn(const Eigen::Isometry3f& X_ItemSensor, const KdTree& model_tree,
+                              float lookup_sq, const ModelSample& subsample,
+                              const MatchedSamples& matched, const VerifyOptions& options,
+                              AlbedoEdges* edges, std::vector<float>* albedo_out,
+                              std::vector<std::uint8_t>* patches_out) {
+  const geometry::PointCloud& sub = subsample.sub;
+  const std::vector<std::uint8_t>& sub_patches = subsample.sub_patches;
+  const std::vector<Eigen::Vector3f>& p_SensorMatched = matched.p_SensorMatched;
+  const std::vector<float>& intensity = matched.intensity;
+  AlbedoEdges& on_albedo_edge = *edges;
+  std::vector<float>& albedo = *albedo_out;
+  std::vector<std::uint8_t>& patches = *patches_out;
+  albedo.clear();
+  patches.clear();
+  std::vector<float> matched_intensity;
+  matched_intensity.reserve(intensity.size());
+  for (std::size_t k = 0; k < p_SensorMatched.size(); ++k) {
+    const std::int32_t i =
+        model_tree.Nearest(X_ItemSensor * p_SensorMatched[k], nullptr, lookup_sq);
+    if (i == KdTree::kNone || !std::isfinite(sub.intensities[i]) || on_albedo_edge(i)) continue;
+    albedo.push_back(sub.intensities[i]);
+    matched_intensity.push_back(intensity[k]);
+    patches.push_back(sub_patches[i]);
+  }
+  return CorrelateAppearance(albedo, matched_intensity, options.appearance, &patches);
+}
+
+// The appearance of the best symmetric turn of X_BaseItem (the first on ties) into result's
+// appearance, appearance_symmetry and X_BaseItem_appearance; scales the score when the
+// appearance contradicts the pose.
+void ScoreAppearance(const VerificationScene& scene, const Eigen::Isometry3d& X_BaseItem,
+                     const ModelSample& subsample, double spacing, const MatchedSamples& matched,
+                     const VerifyOptions& options, VerifyResult* verify_result) {
+  VerifyResult& result = *verify_result;
+  const std::vector<Eigen::Vector3f>& p_ItemModel = subsample.p_ItemModel;
+  // The albedo the pose (or a symmetric turn of it) shows at each matched scene point: that
+  // of the model point nearest the scene point, in the item frame. Not the albedo of the
+  // model point that found the match: a print's dark parts are measured worst (at a grazing
+  // angle they may not be decoded at all), so along their edges the model point on the
+  // dark side is matched by a bright scene point beside it. The points are sub's, so their
+  // albedo and patch are sub's.
+  const KdTree model_tree(p_ItemModel);
+  const float lookup_sq = static_cast<float>(std::max(options.distance_tolerance_m, 2.0 * spacing) *
+                                             std::max(options.distance_tolerance_m, 2.0 * spacing));
+  const float edge_radius = static_cast<float>(1.5 * spacing);
+  AlbedoEdges on_albedo_edge{model_tree,
+                             p_ItemModel,
+                             subsample.sub,
+                             edge_radius,
+                             std::vector<std::int8_t>(p_ItemModel.size(), -1),
+                             std::vector<std::int32_t>()};
+  std::vector<float> albedo;
+  std::vector<std::uint8_t> patches;
+  const std::size_t turns = std::max<std::size_t>(1, options.symmetries.size());
+  for (std::size_t s = 0; s < turns; ++s) {
+    const Eigen::Isometry3d X_BaseTurned =
+        options.symmetries.empty() ? X_BaseItem : X_BaseItem * options.symmetries[s];
+    const Eigen::Isometry3f X_ItemSensor =
+        (X_BaseTurned.inverse() * scene.X_BaseSensor()).cast<float>();
+    const AppearanceScore a = CorrelateTurn(X_ItemSensor, model_tree, lookup_sq, subsample, matched,
+                                            options, &on_albedo_edge, &albedo, &patches);
+    // A turn without evidence ranks as neutral: above one the print contradicts, below one
+    // it confirms.
+    const auto rank = [&](const AppearanceScore& x) {
+      return x.defined ? x.correlation : options.min_appearance_correlation;
+    };
+    if (s == 0 || rank(a) > rank(result.appearance)) {
+      result.appearance = a;
+      result.appearance_symmetry = static_cast<int>(s);
+      result.X_BaseItem_appearance = X_BaseTurned;
     }
   }
+  if (result.appearance.defined &&
+      result.appearance.correlation < options.min_appearance_correlation) {
+    result.appearance_contradicts = true;
+    result.score *= options.appearance_contradiction_scale;
+  }
+}
+
+}  // namespace
+
+VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& model,
+                    const Eigen::Isometry3d& X_BaseItem, const VerifyOptions& options) {
+  CheckVerifyInputs(model, options);
+  const VerificationScene::Impl& impl = *scene.impl_;
+
+  // Deterministic subsample, in the sensor frame.
+  const ModelSample subsample = SubsampleModel(scene, model, X_BaseItem, options);
+  const geometry::PointCloud& sub = subsample.sub;
+  VerifyResult result;
+  result.num_model_points = sub.size();
+  if (sub.empty()) return result;
+  const double spacing = std::max(MeanPointSpacing(sub), 1e-4);
+
+  // Per sensor: which model points it would see, and whether they are hidden or in free space.
+  const std::vector<std::uint8_t> state =
+      ClassifyVisibility(scene, impl.X_ReferenceSensor, sub, spacing, options);
+  // Support of the visible points, with their appearance samples.
+  const bool appearance = sub.has_intensities() && !impl.intensities.empty();
+  MatchedSamples matched;
+  const double sum_sq = CountSupport(
+      sub, state,
+      SceneSurface{impl.tree, impl.p_SensorPoints, impl.n_SensorPoints, impl.intensities},
+      appearance, options, &matched, &result);
+  ScoreSupport(options, &result);
+  result.X_BaseItem_appearance = X_BaseItem;
+  if (appearance) ScoreAppearance(scene, X_BaseItem, subsample, spacing, matched, options, &result);
   if (result.num_supported > 0)
     result.inlier_rmse_m = std::sqrt(sum_sq / static_cast<double>(result.num_supported));
   return result;
