@@ -446,22 +446,32 @@ def same_pose(a, b, tolerance=1e-6):
                                                    for x, y in zip(a['X'], b['X']))
 
 
-def capture_detection(browser, viewer, path, attempts=10):
+def capture_detection(browser, viewer, path, attempts=10, wait_s=240.0):
     """Screenshot of the page while the server's target detection and the page's are the
-    same before and after it: returns (png bytes, camera, the detection, the view)."""
-    for attempt in range(attempts):
+    same before and after it: returns (png bytes, camera, the detection, the view). Between
+    two detections (the task moved on: a quick refusal, the next target's scans) it waits for
+    the next one, up to `wait_s`; `attempts` counts the screenshots a changing detection
+    spoiled."""
+    deadline = time.time() + wait_s
+    spoiled = 0
+    before = {}
+    while spoiled < attempts and time.time() < deadline:
         before = get_json(viewer + '/api/view')
         detection = target_detection(before)
+        if not detection:
+            time.sleep(0.1)
+            continue
         page_before = target_detection(browser.evaluate('window.pickingViewer.lastView'))
         png = browser.screenshot(path)
         camera = browser.evaluate('window.pickingViewer.cameraMatrices()')
         page_after = target_detection(browser.evaluate('window.pickingViewer.lastView'))
         after = get_json(viewer + '/api/view')
-        if (detection and same_pose(detection, page_before) and same_pose(detection, page_after)
+        if (same_pose(detection, page_before) and same_pose(detection, page_after)
                 and same_pose(detection, target_detection(after))):
             return png, camera, detection, before
-        log('the detection changed during the screenshot (attempt %d), again' % (attempt + 1))
-        time.sleep(0.5)
+        spoiled += 1
+        log('the detection changed during the screenshot (attempt %d), again' % spoiled)
+        time.sleep(0.1)
     raise Failure('no stable detection of the current item (%r) to check; detections: %s'
                   % (target_item(before), [d['item'] for d in before.get('detections') or []]))
 
