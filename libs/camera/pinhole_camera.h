@@ -2,6 +2,7 @@
 
 #include <Eigen/Core>
 
+#include <array>
 #include <optional>
 #include <vector>
 
@@ -21,6 +22,16 @@ struct Distortion {
   double k3 = 0.0;
 
   bool is_zero() const { return k1 == 0.0 && k2 == 0.0 && p1 == 0.0 && p2 == 0.0 && k3 == 0.0; }
+  /// From coefficients in OpenCV's order (k1, k2, p1, p2, k3).
+  static Distortion FromOpenCv(const std::array<double, 5>& k) {
+    Distortion d;
+    d.k1 = k[0];
+    d.k2 = k[1];
+    d.p1 = k[2];
+    d.p2 = k[3];
+    d.k3 = k[4];
+    return d;
+  }
 };
 
 /// Per-pixel viewing rays of a camera, precomputed once so that per-pixel code needs no

@@ -360,14 +360,9 @@ camera::PinholeCamera CameraFromProto(const pb::CameraIntrinsics& c, std::string
   if (c.distortion_size() > 5) {
     throw std::invalid_argument(name + ".distortion: at most 5 coefficients (k1, k2, p1, p2, k3)");
   }
-  double k[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
+  std::array<double, 5> k{};
   for (int i = 0; i < c.distortion_size(); ++i) k[i] = c.distortion(i);
-  camera::Distortion d;
-  d.k1 = k[0];
-  d.k2 = k[1];
-  d.p1 = k[2];
-  d.p2 = k[3];
-  d.k3 = k[4];
+  const camera::Distortion d = camera::Distortion::FromOpenCv(k);
   try {
     return camera::PinholeCamera(static_cast<int>(c.width()), static_cast<int>(c.height()), c.fx(),
                                  c.fy(), c.cx(), c.cy(), d);

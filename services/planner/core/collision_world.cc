@@ -263,7 +263,7 @@ FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot,
       if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
       centres[n++] = Xf[b] * s.center_B;
     }
-    const Sphere bound = b == kBodyItem ? EnclosingSphereOf(carried->spheres_Item) : arm_bounds[b];
+    const Sphere& bound = b == kBodyItem ? carried->bound_Item : arm_bounds[b];
     bound_centres[b] = Xf[b] * bound.center_B;
     bound_radii_m[b] = bound.radius_m;
   }

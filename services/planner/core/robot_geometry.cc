@@ -226,6 +226,7 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
       }
     }
   }
+  item.bound_Item = EnclosingSphereOf(item.spheres_Item);
   return item;
 }
 

@@ -128,6 +128,7 @@ struct CarriedItem {
   Eigen::AlignedBox3d box_Item;
   Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();
   SphereTree spheres_Item;  ///< Filled by MakeCarriedItem.
+  Sphere bound_Item;        ///< EnclosingSphereOf(spheres_Item), filled by MakeCarriedItem.
 };
 
 /// A carried item with its enclosing spheres. Throws std::invalid_argument for an empty or

@@ -129,14 +129,8 @@ Eigen::Vector2d CameraIntrinsics::Project(const Eigen::Vector3d& p_DevicePoint) 
 }
 
 camera::PinholeCamera CameraIntrinsics::ToPinholeCamera() const {
-  camera::Distortion d;
-  d.k1 = distortion[0];
-  d.k2 = distortion[1];
-  d.p1 = distortion[2];
-  d.p2 = distortion[3];
-  d.k3 = distortion[4];
   return camera::PinholeCamera(static_cast<int>(width), static_cast<int>(height), fx, fy, cx, cy,
-                               d);
+                               camera::Distortion::FromOpenCv(distortion));
 }
 
 void CameraIntrinsics::Validate() const {
