@@ -9,6 +9,7 @@
 #include <string>
 #include <thread>
 #include <unordered_map>
+#include <utility>
 
 #include "services/detector/core/ppf_cloud.h"
 
@@ -402,6 +403,9 @@ std::vector<PpfHypothesis> ClusterPoses(const std::vector<Eigen::Isometry3d>& po
 
 namespace {
 
+// Integer votes: a pair counts kVoteUnit, a planar pair its weight in units of 1 / kVoteUnit.
+constexpr std::uint32_t kVoteUnit = 64;
+
 struct Peak {
   std::int32_t reference = 0;
   std::int32_t rank = 0;
@@ -426,10 +430,9 @@ void ValidateMatchOptions(const PpfMatchOptions& o) {
   if (o.hypotheses_per_segment < 1) fail("hypotheses_per_segment must be >= 1");
 }
 
-}  // namespace
-
-PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene,
-                        const KdTree& scene_tree, const PpfMatchOptions& options) {
+// Validation stage of MatchPpf: throws std::invalid_argument for invalid options or inputs.
+void ValidateMatchInputs(const PpfTable& table, const geometry::PointCloud& scene,
+                         const KdTree& scene_tree, const PpfMatchOptions& options) {
   ValidateMatchOptions(options);
   CheckCloudChannels(scene, "MatchPpf scene");
   if (!scene.has_normals()) throw std::invalid_argument("MatchPpf: the scene has no normals");
@@ -446,20 +449,40 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
         "PpfMatchOptions: segments has " + std::to_string(options.segments.size()) +
         " labels, the scene has " + std::to_string(scene.size()) + " points");
   }
-  PpfMatchResult result;
+}
+
+// Read-only inputs and constants of the voting, shared by all worker threads.
+struct VoteContext {
+  const geometry::PointCloud& scene;
+  const KdTree& scene_tree;
+  const PpfQuantizer& quant;
+  const geometry::PointCloud& model;
+  int bins;
+  std::size_t acc_size;
+  bool skip_planar;
+  std::uint32_t planar_units;
+  const std::uint32_t* codes;
+  const std::uint32_t* offsets;
+  int units;
+  float code_scale;
+  std::vector<std::uint16_t> wrap;
+  std::vector<std::uint32_t> flag_bit;
+  bool skip_duplicates;
+  float radius;
+};
+
+// Setup stage of MatchPpf: vote weights, fixed-point angle tables and the other voting constants.
+VoteContext MakeVoteContext(const PpfTable& table, const geometry::PointCloud& scene,
+                            const KdTree& scene_tree, const PpfMatchOptions& options) {
   const PpfQuantizer& quant = table.quantizer();
   const geometry::PointCloud& model = table.sampled_model();
   const int bins = quant.angle_bins();
   const std::size_t acc_size = model.size() * static_cast<std::size_t>(bins);
   const bool skip_planar = options.planar_pair_weight <= 0.0f;
-  // Integer votes: a pair counts kVoteUnit, a planar pair its weight in units of 1 / kVoteUnit.
-  constexpr std::uint32_t kVoteUnit = 64;
   const std::uint32_t planar_units =
       skip_planar ? 0u
                   : std::max<std::uint32_t>(1u, static_cast<std::uint32_t>(std::lround(
                                                     options.planar_pair_weight * kVoteUnit)));
-  const std::uint32_t* codes = table.vote_codes().data();
-  const std::uint32_t* offsets = table.offsets().data();
 
   // Fixed-point angles: `units` per turn. The alpha bin of (scene code s, model code m) is
   // wrap[s - m + units + units / 2] (the extra half turn makes bin 0 start at -pi).
@@ -476,15 +499,38 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     const int coarse = c / kSub;
     flag_bit[c] = 1u << (bins <= 32 ? coarse : coarse * 32 / bins);
   }
-  const bool skip_duplicates = options.skip_duplicate_votes;
+  return VoteContext{scene,
+                     scene_tree,
+                     quant,
+                     model,
+                     bins,
+                     acc_size,
+                     skip_planar,
+                     planar_units,
+                     table.vote_codes().data(),
+                     table.offsets().data(),
+                     units,
+                     code_scale,
+                     std::move(wrap),
+                     std::move(flag_bit),
+                     options.skip_duplicate_votes,
+                     table.diameter_m()};
+}
 
+// Reference selection stage: every reference_step-th scene point with a finite point and normal.
+std::vector<std::int32_t> SelectReferencePoints(const geometry::PointCloud& scene,
+                                                int reference_step) {
   std::vector<std::int32_t> references;
-  for (std::size_t i = 0; i < scene.size(); i += options.reference_step) {
+  for (std::size_t i = 0; i < scene.size(); i += reference_step) {
     if (scene.points[i].allFinite() && scene.normals[i].allFinite()) {
       references.push_back(static_cast<std::int32_t>(i));
     }
   }
-  result.reference_points = static_cast<int>(references.size());
+  return references;
+}
+
+// Visit order stage: the reference points reordered to spread over the scene.
+std::vector<std::int32_t> SpreadVisitOrder(const std::vector<std::int32_t>& references) {
   // Visit order spread over the scene (every kSpread-th reference point first, then the
   // ones after them, ...), so that voting stopped by the deadline has covered all of it.
   constexpr std::size_t kSpread = 16;
@@ -495,10 +541,151 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
       order.push_back(references[i]);
     }
   }
+  return order;
+}
 
+// Buffers of one worker thread, reused for every reference point it votes for.
+struct VoteScratch {
+  std::vector<std::uint32_t> acc;
+  std::vector<std::uint32_t> flags;
+  std::vector<std::uint32_t> flagged;
+  std::vector<std::int32_t> neighbors;
+  std::vector<std::pair<std::uint32_t, std::int32_t>> candidates;
+};
+
+// Counters of one worker thread.
+struct VoteCounts {
+  std::int64_t lookups = 0;
+  std::int64_t votes = 0;
+  std::int64_t duplicates = 0;
+};
+
+// Voting stage (the hot kernel): adds the votes of the pairs of reference point `ref`, whose
+// alignment is T_s, to scratch->acc and leaves scratch->flags cleared.
+void VoteReference(const VoteContext& ctx, std::int32_t ref, const Eigen::Isometry3f& T_s,
+                   VoteScratch* scratch, VoteCounts* counts) {
+  const geometry::PointCloud& scene = ctx.scene;
+  const PpfQuantizer& quant = ctx.quant;
+  const int bins = ctx.bins;
+  const int units = ctx.units;
+  const float code_scale = ctx.code_scale;
+  const bool skip_planar = ctx.skip_planar;
+  const std::uint32_t planar_units = ctx.planar_units;
+  const bool skip_duplicates = ctx.skip_duplicates;
+  const std::uint32_t* codes = ctx.codes;
+  const std::uint32_t* offsets = ctx.offsets;
+  const std::vector<std::uint16_t>& wrap = ctx.wrap;
+  const std::vector<std::uint32_t>& flag_bit = ctx.flag_bit;
+  std::vector<std::uint32_t>& acc = scratch->acc;
+  std::vector<std::uint32_t>& flags = scratch->flags;
+  std::vector<std::uint32_t>& flagged = scratch->flagged;
+  std::vector<std::int32_t>& neighbors = scratch->neighbors;
+  std::int64_t n_lookups = 0, n_votes = 0, n_duplicates = 0;
+
+  const Eigen::Vector3f& p_r = scene.points[ref];
+  const Eigen::Vector3f& n_r = scene.normals[ref];
+  const Eigen::Vector3f row_y = T_s.linear().row(1).transpose();
+  const Eigen::Vector3f row_z = T_s.linear().row(2).transpose();
+  ctx.scene_tree.RadiusSearch(p_r, ctx.radius, &neighbors);
+  for (std::int32_t i : neighbors) {
+    if (i == ref) continue;
+    const Eigen::Vector3f& p_i = scene.points[i];
+    const Eigen::Vector3f& n_i = scene.normals[i];
+    std::uint32_t key = 0;
+    bool planar = false;
+    if (!quant.PairKey(p_r, n_r, p_i, n_i, &key, &planar)) continue;
+    std::uint32_t w = kVoteUnit;
+    if (planar) {
+      if (skip_planar) continue;
+      w = planar_units;
+    }
+    // alpha_s: rotation angle of p_i about x after T_s (PairAngle), as a code.
+    const Eigen::Vector3f d = p_i - p_r;
+    const float theta = FastAtan2(row_z.dot(d), row_y.dot(d));
+    const int s_code = std::clamp(static_cast<int>((theta + kPi) * code_scale), 0, units - 1);
+    if (skip_duplicates) {
+      std::uint32_t& word = flags[key];
+      const std::uint32_t bit = flag_bit[s_code];
+      if (word & bit) {
+        ++n_duplicates;
+        continue;
+      }
+      if (word == 0) flagged.push_back(key);
+      word |= bit;
+    }
+    ++n_lookups;
+    const std::uint32_t* b = codes + offsets[key];
+    const std::uint32_t* e = codes + offsets[key + 1];
+    n_votes += e - b;
+    const std::uint16_t* wrap_s = wrap.data() + s_code + units + units / 2;
+    for (; b != e; ++b) {
+      const std::uint32_t c = *b;
+      acc[(c >> kCodeShift) * bins + wrap_s[-static_cast<int>(c & kCodeMask)]] += w;
+    }
+  }
+  for (std::uint32_t key : flagged) flags[key] = 0;
+  flagged.clear();
+  counts->lookups += n_lookups;
+  counts->votes += n_votes;
+  counts->duplicates += n_duplicates;
+}
+
+// Peak stage: moves the best accumulator cells to the front of scratch->candidates, highest
+// first, and clears the accumulator; returns how many there are (0 without votes).
+std::size_t FindAccumulatorPeaks(const VoteContext& ctx, const PpfMatchOptions& options,
+                                 VoteScratch* scratch) {
+  const std::size_t acc_size = ctx.acc_size;
+  std::vector<std::uint32_t>& acc = scratch->acc;
+  std::vector<std::pair<std::uint32_t, std::int32_t>>& candidates = scratch->candidates;
+  // The highest peaks of this reference point: the maximum, then every cell with at
+  // least peak_ratio of it, highest first (ties by cell index).
+  std::uint32_t best = 0;
+  for (std::size_t a = 0; a < acc_size; ++a) best = std::max(best, acc[a]);
+  if (best == 0) return 0;
+  const std::uint32_t threshold =
+      std::max<std::uint32_t>(1u, static_cast<std::uint32_t>(std::ceil(options.peak_ratio * best)));
+  candidates.clear();
+  for (std::size_t a = 0; a < acc_size; ++a) {
+    if (acc[a] >= threshold) candidates.emplace_back(acc[a], static_cast<std::int32_t>(a));
+  }
+  std::fill(acc.begin(), acc.end(), 0u);
+  const std::size_t k =
+      std::min(candidates.size(), static_cast<std::size_t>(options.peaks_per_reference));
+  std::partial_sort(candidates.begin(), candidates.begin() + k, candidates.end(),
+                    [](const auto& x, const auto& y) {
+                      return x.first != y.first ? x.first > y.first : x.second < y.second;
+                    });
+  return k;
+}
+
+// Pose stage: appends the poses X_SceneModel of the first k peak candidates of `ref` to *peaks.
+void AppendPeakPoses(const VoteContext& ctx, std::int32_t ref, const Eigen::Isometry3f& T_s,
+                     const std::vector<std::pair<std::uint32_t, std::int32_t>>& candidates,
+                     std::size_t k, std::vector<Peak>* peaks) {
+  const int bins = ctx.bins;
+  const geometry::PointCloud& model = ctx.model;
+  const Eigen::Isometry3d X_SceneAligned = ToDouble(T_s).inverse();
+  for (std::size_t rank = 0; rank < k; ++rank) {
+    const int m = candidates[rank].second / bins;
+    const int bin = candidates[rank].second % bins;
+    const Eigen::Isometry3d T_m = ToDouble(AlignToXAxis(model.points[m], model.normals[m]));
+    const Eigen::Isometry3d R_x(
+        Eigen::AngleAxisd(ctx.quant.AlphaBinCenter(bin), Eigen::Vector3d::UnitX()));
+    peaks->push_back({ref, static_cast<std::int32_t>(rank),
+                      static_cast<float>(candidates[rank].first) / kVoteUnit,
+                      Orthonormalized(X_SceneAligned * R_x * T_m)});
+  }
+}
+
+// Parallel voting stage: votes for the reference points of `order` on worker threads until
+// the deadline; returns the peaks by reference point and rank and fills the counters of
+// *result (whose reference_points must be set).
+std::vector<Peak> VoteAllReferences(const VoteContext& ctx, const PpfMatchOptions& options,
+                                    const std::vector<std::int32_t>& order,
+                                    PpfMatchResult* result) {
   int threads = options.num_threads > 0 ? options.num_threads
                                         : static_cast<int>(std::thread::hardware_concurrency());
-  threads = std::clamp(threads, 1, std::max(1, static_cast<int>(references.size())));
+  threads = std::clamp(threads, 1, std::max(1, result->reference_points));
   std::vector<std::vector<Peak>> peaks(threads);
   std::vector<std::int64_t> lookups(threads, 0);
   std::vector<std::int64_t> votes_cast(threads, 0);
@@ -508,15 +695,12 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   std::atomic<bool> timed_out{false};
   const bool has_deadline = options.deadline != std::chrono::steady_clock::time_point::max();
   constexpr std::size_t kChunk = 8;
-  const float radius = table.diameter_m();
 
   auto worker = [&](int t) {
-    std::vector<std::uint32_t> acc(acc_size, 0);
-    std::vector<std::uint32_t> flags(skip_duplicates ? quant.num_keys() : 0, 0);
-    std::vector<std::uint32_t> flagged;
-    std::vector<std::int32_t> neighbors;
-    std::vector<std::pair<std::uint32_t, std::int32_t>> candidates;
-    std::int64_t n_lookups = 0, n_votes = 0, n_duplicates = 0;
+    VoteScratch scratch;
+    scratch.acc.assign(ctx.acc_size, 0u);
+    scratch.flags.assign(ctx.skip_duplicates ? ctx.quant.num_keys() : 0u, 0u);
+    VoteCounts counts;
     for (;;) {
       if (has_deadline && std::chrono::steady_clock::now() >= options.deadline) {
         timed_out = true;
@@ -528,85 +712,15 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
       voted[t] += static_cast<int>(stop - start);
       for (std::size_t r = start; r < stop; ++r) {
         const std::int32_t ref = order[r];
-        const Eigen::Vector3f& p_r = scene.points[ref];
-        const Eigen::Vector3f& n_r = scene.normals[ref];
-        const Eigen::Isometry3f T_s = AlignToXAxis(p_r, n_r);
-        const Eigen::Vector3f row_y = T_s.linear().row(1).transpose();
-        const Eigen::Vector3f row_z = T_s.linear().row(2).transpose();
-        scene_tree.RadiusSearch(p_r, radius, &neighbors);
-        for (std::int32_t i : neighbors) {
-          if (i == ref) continue;
-          const Eigen::Vector3f& p_i = scene.points[i];
-          const Eigen::Vector3f& n_i = scene.normals[i];
-          std::uint32_t key = 0;
-          bool planar = false;
-          if (!quant.PairKey(p_r, n_r, p_i, n_i, &key, &planar)) continue;
-          std::uint32_t w = kVoteUnit;
-          if (planar) {
-            if (skip_planar) continue;
-            w = planar_units;
-          }
-          // alpha_s: rotation angle of p_i about x after T_s (PairAngle), as a code.
-          const Eigen::Vector3f d = p_i - p_r;
-          const float theta = FastAtan2(row_z.dot(d), row_y.dot(d));
-          const int s_code = std::clamp(static_cast<int>((theta + kPi) * code_scale), 0, units - 1);
-          if (skip_duplicates) {
-            std::uint32_t& word = flags[key];
-            const std::uint32_t bit = flag_bit[s_code];
-            if (word & bit) {
-              ++n_duplicates;
-              continue;
-            }
-            if (word == 0) flagged.push_back(key);
-            word |= bit;
-          }
-          ++n_lookups;
-          const std::uint32_t* b = codes + offsets[key];
-          const std::uint32_t* e = codes + offsets[key + 1];
-          n_votes += e - b;
-          const std::uint16_t* wrap_s = wrap.data() + s_code + units + units / 2;
-          for (; b != e; ++b) {
-            const std::uint32_t c = *b;
-            acc[(c >> kCodeShift) * bins + wrap_s[-static_cast<int>(c & kCodeMask)]] += w;
-          }
-        }
-        for (std::uint32_t key : flagged) flags[key] = 0;
-        flagged.clear();
-
-        // The highest peaks of this reference point: the maximum, then every cell with at
-        // least peak_ratio of it, highest first (ties by cell index).
-        std::uint32_t best = 0;
-        for (std::size_t a = 0; a < acc_size; ++a) best = std::max(best, acc[a]);
-        if (best == 0) continue;
-        const std::uint32_t threshold = std::max<std::uint32_t>(
-            1u, static_cast<std::uint32_t>(std::ceil(options.peak_ratio * best)));
-        candidates.clear();
-        for (std::size_t a = 0; a < acc_size; ++a) {
-          if (acc[a] >= threshold) candidates.emplace_back(acc[a], static_cast<std::int32_t>(a));
-        }
-        std::fill(acc.begin(), acc.end(), 0u);
-        const std::size_t k =
-            std::min(candidates.size(), static_cast<std::size_t>(options.peaks_per_reference));
-        std::partial_sort(candidates.begin(), candidates.begin() + k, candidates.end(),
-                          [](const auto& x, const auto& y) {
-                            return x.first != y.first ? x.first > y.first : x.second < y.second;
-                          });
-        const Eigen::Isometry3d X_SceneAligned = ToDouble(T_s).inverse();
-        for (std::size_t rank = 0; rank < k; ++rank) {
-          const int m = candidates[rank].second / bins;
-          const int bin = candidates[rank].second % bins;
-          const Eigen::Isometry3d T_m = ToDouble(AlignToXAxis(model.points[m], model.normals[m]));
-          const Eigen::Isometry3d R_x(
-              Eigen::AngleAxisd(quant.AlphaBinCenter(bin), Eigen::Vector3d::UnitX()));
-          peaks[t].push_back({ref, static_cast<std::int32_t>(rank),
-                              static_cast<float>(candidates[rank].first) / kVoteUnit,
-                              Orthonormalized(X_SceneAligned * R_x * T_m)});
-        }
+        const Eigen::Isometry3f T_s = AlignToXAxis(ctx.scene.points[ref], ctx.scene.normals[ref]);
+        VoteReference(ctx, ref, T_s, &scratch, &counts);
+        const std::size_t k = FindAccumulatorPeaks(ctx, options, &scratch);
+        if (k > 0) AppendPeakPoses(ctx, ref, T_s, scratch.candidates, k, &peaks[t]);
       }
     }
-    lookups[t] = n_lookups;
-    votes_cast[t] = n_votes;
-    duplicates[t] = n_duplicates;
+    lookups[t] = counts.lookups;
+    votes_cast[t] = counts.votes;
+    duplicates[t] = counts.duplicates;
   };
   std::vector<std::thread> pool;
   for (int t = 1; t < threads; ++t) pool.emplace_back(worker, t);
@@ -616,87 +730,108 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   std::vector<Peak> all;
   for (int t = 0; t < threads; ++t) {
     all.insert(all.end(), peaks[t].begin(), peaks[t].end());
-    result.pair_lookups += lookups[t];
-    result.votes_cast += votes_cast[t];
-    result.duplicate_pairs += duplicates[t];
-    result.voted_reference_points += voted[t];
+    result->pair_lookups += lookups[t];
+    result->votes_cast += votes_cast[t];
+    result->duplicate_pairs += duplicates[t];
+    result->voted_reference_points += voted[t];
   }
-  result.voted_reference_points = std::min(result.voted_reference_points, result.reference_points);
-  result.timed_out = timed_out.load() && result.voted_reference_points < result.reference_points;
+  result->voted_reference_points =
+      std::min(result->voted_reference_points, result->reference_points);
+  result->timed_out = timed_out.load() && result->voted_reference_points < result->reference_points;
   std::sort(all.begin(), all.end(), [](const Peak& a, const Peak& b) {
     return a.reference != b.reference ? a.reference < b.reference : a.rank < b.rank;
   });
+  return all;
+}
 
-  // Pose clusters of a set of peaks, merged where a symmetric model is placed identically,
-  // by votes; the best `keep` of them.
-  const auto cluster = [&](const std::vector<const Peak*>& group, std::size_t keep) {
-    std::vector<Eigen::Isometry3d> poses;
-    std::vector<double> votes;
-    poses.reserve(group.size());
-    votes.reserve(group.size());
-    for (const Peak* p : group) {
-      poses.push_back(p->X_SceneModel);
-      votes.push_back(p->votes);
-    }
-    std::vector<PpfHypothesis> clusters =
-        ClusterPoses(poses, votes, options.cluster_translation_rel * table.diameter_m(),
-                     options.cluster_rotation_rad);
-    const std::size_t candidates = std::min(clusters.size(), 3 * keep);
-    std::vector<bool> merged(candidates, false);
-    if (options.symmetry_tolerance_rel > 0.0f && candidates > 1) {
-      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-      for (const auto& p : model.points) centroid += p.cast<double>();
-      centroid /= static_cast<double>(model.size());
-      const std::size_t stride = std::max<std::size_t>(1, model.size() / 200);
-      const double tolerance = options.symmetry_tolerance_rel * quant.distance_step_m();
-      for (std::size_t j = 1; j < candidates; ++j) {
-        for (std::size_t i = 0; i < j; ++i) {
-          if (merged[i]) continue;
-          const Eigen::Isometry3d& X_i = clusters[i].X_SceneModel;
-          const Eigen::Isometry3d& X_j = clusters[j].X_SceneModel;
-          if ((X_i * centroid - X_j * centroid).norm() > 2.0 * quant.distance_step_m()) continue;
-          const Eigen::Isometry3f X_rel = (X_i.inverse() * X_j).cast<float>();
-          double sum = 0.0;
-          std::size_t count = 0;
-          for (std::size_t m = 0; m < model.size(); m += stride, ++count) {
-            float d2 = 0.0f;
-            table.model_tree().Nearest(X_rel * model.points[m], &d2);
-            sum += std::sqrt(d2);
-          }
-          if (sum / static_cast<double>(count) < tolerance) {
-            merged[j] = true;
-            clusters[i].votes += clusters[j].votes;
-            clusters[i].num_poses += clusters[j].num_poses;
-            break;
-          }
+// Symmetry merge stage: marks each of the first `candidates` clusters that places the model
+// like an earlier unmarked one, whose votes and poses it joins.
+std::vector<bool> MergeSymmetricClusters(const PpfTable& table, const PpfMatchOptions& options,
+                                         std::size_t candidates,
+                                         std::vector<PpfHypothesis>* clusters_io) {
+  const PpfQuantizer& quant = table.quantizer();
+  const geometry::PointCloud& model = table.sampled_model();
+  std::vector<PpfHypothesis>& clusters = *clusters_io;
+  std::vector<bool> merged(candidates, false);
+  if (options.symmetry_tolerance_rel > 0.0f && candidates > 1) {
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto& p : model.points) centroid += p.cast<double>();
+    centroid /= static_cast<double>(model.size());
+    const std::size_t stride = std::max<std::size_t>(1, model.size() / 200);
+    const double tolerance = options.symmetry_tolerance_rel * quant.distance_step_m();
+    for (std::size_t j = 1; j < candidates; ++j) {
+      for (std::size_t i = 0; i < j; ++i) {
+        if (merged[i]) continue;
+        const Eigen::Isometry3d& X_i = clusters[i].X_SceneModel;
+        const Eigen::Isometry3d& X_j = clusters[j].X_SceneModel;
+        if ((X_i * centroid - X_j * centroid).norm() > 2.0 * quant.distance_step_m()) continue;
+        const Eigen::Isometry3f X_rel = (X_i.inverse() * X_j).cast<float>();
+        double sum = 0.0;
+        std::size_t count = 0;
+        for (std::size_t m = 0; m < model.size(); m += stride, ++count) {
+          float d2 = 0.0f;
+          table.model_tree().Nearest(X_rel * model.points[m], &d2);
+          sum += std::sqrt(d2);
+        }
+        if (sum / static_cast<double>(count) < tolerance) {
+          merged[j] = true;
+          clusters[i].votes += clusters[j].votes;
+          clusters[i].num_poses += clusters[j].num_poses;
+          break;
         }
       }
     }
-    std::vector<PpfHypothesis> out;
-    for (std::size_t c = 0; c < clusters.size(); ++c) {
-      if (c < candidates && merged[c]) continue;
-      out.push_back(clusters[c]);
-    }
-    std::stable_sort(out.begin(), out.end(), [](const PpfHypothesis& a, const PpfHypothesis& b) {
-      return a.votes > b.votes;
-    });
-    if (out.size() > keep) out.resize(keep);
-    return out;
-  };
+  }
+  return merged;
+}
 
+// Pose clustering stage: pose clusters of a set of peaks, merged where a symmetric model is
+// placed identically, by votes; the best `keep` of them.
+std::vector<PpfHypothesis> ClusterPeaks(const PpfTable& table, const PpfMatchOptions& options,
+                                        const std::vector<const Peak*>& group, std::size_t keep) {
+  std::vector<Eigen::Isometry3d> poses;
+  std::vector<double> votes;
+  poses.reserve(group.size());
+  votes.reserve(group.size());
+  for (const Peak* p : group) {
+    poses.push_back(p->X_SceneModel);
+    votes.push_back(p->votes);
+  }
+  std::vector<PpfHypothesis> clusters =
+      ClusterPoses(poses, votes, options.cluster_translation_rel * table.diameter_m(),
+                   options.cluster_rotation_rad);
+  const std::size_t candidates = std::min(clusters.size(), 3 * keep);
+  const std::vector<bool> merged = MergeSymmetricClusters(table, options, candidates, &clusters);
+  std::vector<PpfHypothesis> out;
+  for (std::size_t c = 0; c < clusters.size(); ++c) {
+    if (c < candidates && merged[c]) continue;
+    out.push_back(clusters[c]);
+  }
+  std::stable_sort(out.begin(), out.end(), [](const PpfHypothesis& a, const PpfHypothesis& b) {
+    return a.votes > b.votes;
+  });
+  if (out.size() > keep) out.resize(keep);
+  return out;
+}
+
+// Result assembly stage: the hypotheses of all peaks, or of each segment in rounds.
+void AssembleHypotheses(const PpfTable& table, const PpfMatchOptions& options,
+                        const std::vector<Peak>& all, PpfMatchResult* result) {
   const auto max_hypotheses = static_cast<std::size_t>(options.max_hypotheses);
   if (options.segments.empty()) {
     std::vector<const Peak*> group;
     group.reserve(all.size());
     for (const Peak& p : all) group.push_back(&p);
-    result.hypotheses = cluster(group, max_hypotheses);
-    return result;
+    result->hypotheses = ClusterPeaks(table, options, group, max_hypotheses);
+    return;
   }
   // Per segment (by label, in order of the labels), then in rounds over the segments.
   std::map<std::int32_t, std::vector<const Peak*>> groups;
   for (const Peak& p : all) groups[options.segments[p.reference]].push_back(&p);
   std::vector<std::vector<PpfHypothesis>> per_segment;
-  for (const auto& [label, group] : groups) per_segment.push_back(cluster(group, max_hypotheses));
+  for (const auto& [label, group] : groups) {
+    per_segment.push_back(ClusterPeaks(table, options, group, max_hypotheses));
+  }
   std::stable_sort(per_segment.begin(), per_segment.end(),
                    [](const std::vector<PpfHypothesis>& a, const std::vector<PpfHypothesis>& b) {
                      const double va = a.empty() ? 0.0 : a.front().votes;
@@ -706,8 +841,8 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
   const auto per = static_cast<std::size_t>(options.hypotheses_per_segment);
   for (std::size_t round = 0; round < per; ++round) {
     for (const auto& hypotheses : per_segment) {
-      if (round < hypotheses.size() && result.hypotheses.size() < max_hypotheses) {
-        result.hypotheses.push_back(hypotheses[round]);
+      if (round < hypotheses.size() && result->hypotheses.size() < max_hypotheses) {
+        result->hypotheses.push_back(hypotheses[round]);
       }
     }
   }
@@ -721,9 +856,23 @@ PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene
     return a.votes > b.votes;
   });
   for (const PpfHypothesis& h : rest) {
-    if (result.hypotheses.size() >= max_hypotheses) break;
-    result.hypotheses.push_back(h);
+    if (result->hypotheses.size() >= max_hypotheses) break;
+    result->hypotheses.push_back(h);
   }
+}
+
+}  // namespace
+
+PpfMatchResult MatchPpf(const PpfTable& table, const geometry::PointCloud& scene,
+                        const KdTree& scene_tree, const PpfMatchOptions& options) {
+  ValidateMatchInputs(table, scene, scene_tree, options);
+  PpfMatchResult result;
+  const VoteContext ctx = MakeVoteContext(table, scene, scene_tree, options);
+  const std::vector<std::int32_t> references = SelectReferencePoints(scene, options.reference_step);
+  result.reference_points = static_cast<int>(references.size());
+  const std::vector<std::int32_t> order = SpreadVisitOrder(references);
+  const std::vector<Peak> all = VoteAllReferences(ctx, options, order, &result);
+  AssembleHypotheses(table, options, all, &result);
   return result;
 }
 

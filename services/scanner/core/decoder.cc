@@ -524,208 +524,287 @@ struct Candidates {
   std::vector<float> fills;
 };
 
-}  // namespace
+// The name that SubpixelRefiner's errors begin with.
+const char* const kRefinerName = "SubpixelRefiner";
 
-SubpixelRefiner::SubpixelRefiner(const PatternSequence& patterns, const RefinementOptions& options)
-    : patterns_(patterns), options_(options) {
-  Require(options.num_threads >= 0,
-          "options.num_threads must not be negative, got " + std::to_string(options.num_threads),
-          "SubpixelRefiner");
-  Require(options.max_gap_px >= 0 && options.max_gap_px <= 16,
-          "options.max_gap_px must be in [0, 16], got " + std::to_string(options.max_gap_px),
-          "SubpixelRefiner");
-  pool_ = std::make_unique<BandPool>(options.num_threads);
+// Bands of kRefineRowsPerBand camera rows covering `height` rows.
+inline int NumRefineBands(int height) {
+  return (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
 }
 
-SubpixelRefiner::~SubpixelRefiner() = default;
+// Validation stage, second half: every valid pixel's column (row) is inside the projector.
+// The bands are checked in parallel; only if one fails is the map searched for the first
+// offending pixel, to name it.
+void CheckInsideProjector(const PatternSequence& patterns, const CorrespondenceMap& map,
+                          BandPool* pool) {
+  const int width = map.width;
+  const int height = map.height;
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  const int projector_width = patterns.projector_width();
+  const int projector_height = patterns.projector_height();
+  const int num_bands = NumRefineBands(height);
+  const std::uint16_t* column = map.column.data();
+  const std::uint16_t* row = map.row.data();
+  const std::uint8_t* valid = map.valid.data();
+  std::atomic<int> outside{0};
+  pool->Run(num_bands, [&](int band) {
+    const std::size_t i0 = static_cast<std::size_t>(band) * kRefineRowsPerBand * width;
+    const std::size_t i1 =
+        static_cast<std::size_t>(std::min(height, (band + 1) * kRefineRowsPerBand)) * width;
+    int local = 0;
+    for (std::size_t i = i0; i < i1; ++i) {
+      local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+    }
+    if (local) outside.store(1, std::memory_order_relaxed);
+  });
+  if (outside.load()) {
+    for (std::size_t i = 0; i < n; ++i) {
+      Require(!valid[i] || (column[i] < projector_width && row[i] < projector_height),
+              "valid pixel " + std::to_string(i) + " has correspondence (" +
+                  std::to_string(column[i]) + ", " + std::to_string(row[i]) + ") outside the " +
+                  std::to_string(projector_width) + " x " + std::to_string(projector_height) +
+                  " projector",
+              kRefinerName);
+    }
+  }
+}
 
-RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
-                                         CorrespondenceMap* map) const {
-  const char* const kWho = "SubpixelRefiner";
-  Require(map != nullptr, "map is null", kWho);
-  CheckCapture(patterns_, images, kWho);
+// Validation stage: the map, the captures and the map's codes, before anything is written.
+void CheckRefineInputs(const PatternSequence& patterns, const std::vector<ImageView>& images,
+                       const CorrespondenceMap* map, BandPool* pool) {
+  Require(map != nullptr, "map is null", kRefinerName);
+  CheckCapture(patterns, images, kRefinerName);
   const int width = images[0].width;
   const int height = images[0].height;
   Require(map->width == width && map->height == height,
           "map is " + std::to_string(map->width) + " x " + std::to_string(map->height) +
               " but the images are " + std::to_string(width) + " x " + std::to_string(height),
-          kWho);
+          kRefinerName);
   const std::size_t n = static_cast<std::size_t>(width) * height;
   Require(map->column.size() == n && map->row.size() == n && map->valid.size() == n,
-          "map buffers are not width * height = " + std::to_string(n) + " long", kWho);
-  const int projector_width = patterns_.projector_width();
-  const int projector_height = patterns_.projector_height();
-  const int num_bands = (height + kRefineRowsPerBand - 1) / kRefineRowsPerBand;
-  {
-    const std::uint16_t* column = map->column.data();
-    const std::uint16_t* row = map->row.data();
-    const std::uint8_t* valid = map->valid.data();
-    std::atomic<int> outside{0};
-    pool_->Run(num_bands, [&](int band) {
-      const std::size_t i0 = static_cast<std::size_t>(band) * kRefineRowsPerBand * width;
-      const std::size_t i1 =
-          static_cast<std::size_t>(std::min(height, (band + 1) * kRefineRowsPerBand)) * width;
-      int local = 0;
-      for (std::size_t i = i0; i < i1; ++i) {
-        local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
-      }
-      if (local) outside.store(1, std::memory_order_relaxed);
-    });
-    if (outside.load()) {
-      for (std::size_t i = 0; i < n; ++i) {
-        Require(!valid[i] || (column[i] < projector_width && row[i] < projector_height),
-                "valid pixel " + std::to_string(i) + " has correspondence (" +
-                    std::to_string(column[i]) + ", " + std::to_string(row[i]) + ") outside the " +
-                    std::to_string(projector_width) + " x " + std::to_string(projector_height) +
-                    " projector",
-                kWho);
-      }
-    }
-  }
+          "map buffers are not width * height = " + std::to_string(n) + " long", kRefinerName);
+  CheckInsideProjector(patterns, *map, pool);
+}
 
-  map->column_subpixel.resize(n);
-  map->row_subpixel.resize(n);
+// What the stages of the refinement share: sizes, options, the map's buffers and the
+// captures of every Gray-code bit.
+struct RefineContext {
+  int width = 0;
+  int height = 0;
+  int num_bands = 0;
+  int num_strips = 0;
+  int column_bits = 0;
+  int row_bits = 0;
+  int max_gap = 0;
+  bool refine_rows = false;
+  const std::uint16_t* column_code = nullptr;
+  const std::uint16_t* row_code = nullptr;
+  const std::uint8_t* valid = nullptr;
+  float* column_subpixel = nullptr;
+  float* row_subpixel = nullptr;
   // Pattern and inverse image of each bit, indexed by the bit's place in the value (0 = LSB).
   std::array<const ImageView*, PatternSequence::kMaxBits> column_pattern{};
   std::array<const ImageView*, PatternSequence::kMaxBits> column_inverse{};
   std::array<const ImageView*, PatternSequence::kMaxBits> row_pattern{};
   std::array<const ImageView*, PatternSequence::kMaxBits> row_inverse{};
-  const int column_bits = patterns_.column_bits();
-  const int row_bits = patterns_.row_bits();
-  for (int b = 0; b < column_bits; ++b) {
-    column_pattern[column_bits - 1 - b] = &images[patterns_.ColumnImageIndex(b, false)];
-    column_inverse[column_bits - 1 - b] = &images[patterns_.ColumnImageIndex(b, true)];
-  }
-  for (int b = 0; b < row_bits; ++b) {
-    row_pattern[row_bits - 1 - b] = &images[patterns_.RowImageIndex(b, false)];
-    row_inverse[row_bits - 1 - b] = &images[patterns_.RowImageIndex(b, true)];
-  }
+};
 
-  const int max_gap = options_.max_gap_px;
-  const bool refine_rows = options_.refine_rows;
-  const int num_strips =
-      refine_rows ? (width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip : 0;
+// Setup stage: sizes the sub-pixel maps and gathers the bands, strips, buffers and the
+// captures of each bit.
+RefineContext PrepareRefinement(const PatternSequence& patterns, const RefinementOptions& options,
+                                const std::vector<ImageView>& images, CorrespondenceMap* map) {
+  RefineContext ctx;
+  ctx.width = images[0].width;
+  ctx.height = images[0].height;
+  const std::size_t n = static_cast<std::size_t>(ctx.width) * ctx.height;
+  map->column_subpixel.resize(n);
+  map->row_subpixel.resize(n);
+  ctx.column_bits = patterns.column_bits();
+  ctx.row_bits = patterns.row_bits();
+  for (int b = 0; b < ctx.column_bits; ++b) {
+    ctx.column_pattern[ctx.column_bits - 1 - b] = &images[patterns.ColumnImageIndex(b, false)];
+    ctx.column_inverse[ctx.column_bits - 1 - b] = &images[patterns.ColumnImageIndex(b, true)];
+  }
+  for (int b = 0; b < ctx.row_bits; ++b) {
+    ctx.row_pattern[ctx.row_bits - 1 - b] = &images[patterns.RowImageIndex(b, false)];
+    ctx.row_inverse[ctx.row_bits - 1 - b] = &images[patterns.RowImageIndex(b, true)];
+  }
+  ctx.max_gap = options.max_gap_px;
+  ctx.refine_rows = options.refine_rows;
+  ctx.num_bands = NumRefineBands(ctx.height);
+  ctx.num_strips =
+      ctx.refine_rows ? (ctx.width + kRefineColumnsPerStrip - 1) / kRefineColumnsPerStrip : 0;
+  ctx.column_code = map->column.data();
+  ctx.row_code = map->row.data();
+  ctx.valid = map->valid.data();
+  ctx.column_subpixel = map->column_subpixel.data();
+  ctx.row_subpixel = map->row_subpixel.data();
+  return ctx;
+}
+
+// What the line scans count, added to by every task.
+struct ScanCounters {
   std::atomic<std::size_t> column_knots{0};
   std::atomic<std::size_t> row_knots{0};
   std::atomic<std::size_t> total_valid{0};
-  // Valid pixels left NaN: columns per band of rows, rows per strip of columns.
-  std::vector<Candidates> column_candidates(num_bands);
-  std::vector<Candidates> row_candidates(num_strips);
-  const std::uint16_t* column_code = map->column.data();
-  const std::uint16_t* row_code = map->row.data();
-  const std::uint8_t* valid = map->valid.data();
-  float* column_subpixel = map->column_subpixel.data();
-  float* row_subpixel = map->row_subpixel.data();
+};
 
+// Column kernel: refines the columns of one band of camera rows, along the rows.
+void RefineBandColumns(const RefineContext& ctx, int band, Candidates* band_candidates,
+                       ScanCounters* counters) {
+  const int width = ctx.width;
+  const int height = ctx.height;
+  const int column_bits = ctx.column_bits;
+  const int max_gap = ctx.max_gap;
+  const bool refine_rows = ctx.refine_rows;
+  const auto& column_pattern = ctx.column_pattern;
+  const auto& column_inverse = ctx.column_inverse;
+  const std::uint16_t* column_code = ctx.column_code;
+  const std::uint16_t* row_code = ctx.row_code;
+  const std::uint8_t* valid = ctx.valid;
+  float* column_subpixel = ctx.column_subpixel;
+  float* row_subpixel = ctx.row_subpixel;
+  std::vector<std::size_t>& candidates = band_candidates->pixels;
+  std::size_t knots = 0;
+  std::size_t count = 0;
+  const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
+  for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
+    const std::size_t offset = static_cast<std::size_t>(y) * width;
+    std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
+    std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
+    for (int b = 0; b < column_bits; ++b) {
+      pattern[b] = column_pattern[b]->row(y);
+      inverse[b] = column_inverse[b]->row(y);
+    }
+    const auto diff = [&](int x, int bit) {
+      return static_cast<int>(pattern[bit][x]) - static_cast<int>(inverse[bit][x]);
+    };
+    const LineView line{column_code + offset, valid + offset, column_subpixel + offset, 1};
+    const auto unrefined = [&](int x) { candidates.push_back(offset + x); };
+    LineScan scan;
+    // Along a row every bit has edges every 2^(bit + 1) projector columns: all are read.
+    const int prefetch_bits = column_bits;
+    for (int x = 0; x < width; ++x) {
+      if ((x & 63) == 0) {
+        for (int b = 0; b < prefetch_bits; ++b) {
+          Prefetch(pattern[b] + x + kPrefetchAheadBytes);
+          Prefetch(inverse[b] + x + kPrefetchAheadBytes);
+        }
+      }
+      if (!line.valid[x]) continue;
+      ++count;
+      knots += ScanValidPixel(x, line.code[x], max_gap, diff, line, &scan, unrefined);
+    }
+    FinishLine(width, line, &scan, unrefined);
+    if (!refine_rows) {
+      IntegerCoordinates(width, row_code + offset, valid + offset, row_subpixel + offset);
+    }
+  }
+  counters->column_knots.fetch_add(knots, std::memory_order_relaxed);
+  counters->total_valid.fetch_add(count, std::memory_order_relaxed);
+}
+
+// Row kernel: refines the rows of one strip of camera columns, along the columns.
+void RefineStripRows(const RefineContext& ctx, int strip, Candidates* strip_candidates,
+                     ScanCounters* counters) {
+  const int width = ctx.width;
+  const int height = ctx.height;
+  const int row_bits = ctx.row_bits;
+  const int max_gap = ctx.max_gap;
+  const auto& row_pattern = ctx.row_pattern;
+  const auto& row_inverse = ctx.row_inverse;
+  const std::uint16_t* row_code = ctx.row_code;
+  const std::uint8_t* valid = ctx.valid;
+  float* row_subpixel = ctx.row_subpixel;
+  // A strip of columns, scanned row by row with one line scan per column: the map and the
+  // captures are read row-major, and runs are written within a few rows of the scan.
+  const int x0 = strip * kRefineColumnsPerStrip;
+  const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
+  const int strip_width = x1 - x0;
+  std::vector<std::size_t>& candidates = strip_candidates->pixels;
+  std::array<LineScan, kRefineColumnsPerStrip> scans{};
+  std::size_t knots = 0;
+  std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
+  std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
+  std::array<std::ptrdiff_t, PatternSequence::kMaxBits> pattern_stride{};
+  std::array<std::ptrdiff_t, PatternSequence::kMaxBits> inverse_stride{};
+  for (int b = 0; b < row_bits; ++b) {
+    pattern[b] = row_pattern[b]->data + x0;
+    inverse[b] = row_inverse[b]->data + x0;
+    pattern_stride[b] = row_pattern[b]->stride_bytes;
+    inverse_stride[b] = row_inverse[b]->stride_bytes;
+  }
+  const auto column_line = [&](int j) {
+    return LineView{row_code + x0 + j, valid + x0 + j, row_subpixel + x0 + j, width};
+  };
+  const int prefetch_bits = std::min(kPrefetchBits, row_bits);
+  for (int y = 0; y < height; ++y) {
+    if (y + kPrefetchAheadRows < height) {
+      for (int b = 0; b < prefetch_bits; ++b) {
+        const std::uint8_t* p = pattern[b] + (y + kPrefetchAheadRows) * pattern_stride[b];
+        const std::uint8_t* q = inverse[b] + (y + kPrefetchAheadRows) * inverse_stride[b];
+        Prefetch(p);
+        Prefetch(p + strip_width - 1);
+        Prefetch(q);
+        Prefetch(q + strip_width - 1);
+      }
+    }
+    const std::size_t offset = static_cast<std::size_t>(y) * width + x0;
+    const std::uint16_t* code = row_code + offset;
+    const std::uint8_t* line_valid = valid + offset;
+    for (int j = 0; j < strip_width; ++j) {
+      if (!line_valid[j]) continue;
+      const auto diff = [&](int yy, int bit) {
+        return static_cast<int>(pattern[bit][yy * pattern_stride[bit] + j]) -
+               static_cast<int>(inverse[bit][yy * inverse_stride[bit] + j]);
+      };
+      const auto unrefined = [&](int yy) {
+        candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
+      };
+      knots += ScanValidPixel(y, code[j], max_gap, diff, column_line(j), &scans[j], unrefined);
+    }
+  }
+  for (int j = 0; j < strip_width; ++j) {
+    FinishLine(height, column_line(j), &scans[j], [&](int yy) {
+      candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
+    });
+  }
+  counters->row_knots.fetch_add(knots, std::memory_order_relaxed);
+}
+
+// Line-scan stage: runs the column kernel on every band and the row kernel on every strip.
+void ScanLines(const RefineContext& ctx, BandPool* pool, std::vector<Candidates>* column_candidates,
+               std::vector<Candidates>* row_candidates, ScanCounters* counters) {
+  const int num_strips = ctx.num_strips;
   // Rows along camera columns (tasks [0, num_strips), the larger ones, first so that the
   // bands even out the threads' load at the end) and columns along camera rows (tasks
   // [num_strips, num_strips + num_bands)): independent, so one job.
-  pool_->Run(num_bands + num_strips, [&](int task) {
+  pool->Run(ctx.num_bands + num_strips, [&](int task) {
     if (task >= num_strips) {
       const int band = task - num_strips;
-      std::vector<std::size_t>& candidates = column_candidates[band].pixels;
-      std::size_t knots = 0;
-      std::size_t count = 0;
-      const int y1 = std::min(height, (band + 1) * kRefineRowsPerBand);
-      for (int y = band * kRefineRowsPerBand; y < y1; ++y) {
-        const std::size_t offset = static_cast<std::size_t>(y) * width;
-        std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
-        std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
-        for (int b = 0; b < column_bits; ++b) {
-          pattern[b] = column_pattern[b]->row(y);
-          inverse[b] = column_inverse[b]->row(y);
-        }
-        const auto diff = [&](int x, int bit) {
-          return static_cast<int>(pattern[bit][x]) - static_cast<int>(inverse[bit][x]);
-        };
-        const LineView line{column_code + offset, valid + offset, column_subpixel + offset, 1};
-        const auto unrefined = [&](int x) { candidates.push_back(offset + x); };
-        LineScan scan;
-        // Along a row every bit has edges every 2^(bit + 1) projector columns: all are read.
-        const int prefetch_bits = column_bits;
-        for (int x = 0; x < width; ++x) {
-          if ((x & 63) == 0) {
-            for (int b = 0; b < prefetch_bits; ++b) {
-              Prefetch(pattern[b] + x + kPrefetchAheadBytes);
-              Prefetch(inverse[b] + x + kPrefetchAheadBytes);
-            }
-          }
-          if (!line.valid[x]) continue;
-          ++count;
-          knots += ScanValidPixel(x, line.code[x], max_gap, diff, line, &scan, unrefined);
-        }
-        FinishLine(width, line, &scan, unrefined);
-        if (!refine_rows) {
-          IntegerCoordinates(width, row_code + offset, valid + offset, row_subpixel + offset);
-        }
-      }
-      column_knots.fetch_add(knots, std::memory_order_relaxed);
-      total_valid.fetch_add(count, std::memory_order_relaxed);
+      RefineBandColumns(ctx, band, &(*column_candidates)[band], counters);
       return;
     }
-    // A strip of columns, scanned row by row with one line scan per column: the map and the
-    // captures are read row-major, and runs are written within a few rows of the scan.
-    const int strip = task;
-    const int x0 = strip * kRefineColumnsPerStrip;
-    const int x1 = std::min(width, x0 + kRefineColumnsPerStrip);
-    const int strip_width = x1 - x0;
-    std::vector<std::size_t>& candidates = row_candidates[strip].pixels;
-    std::array<LineScan, kRefineColumnsPerStrip> scans{};
-    std::size_t knots = 0;
-    std::array<const std::uint8_t*, PatternSequence::kMaxBits> pattern{};
-    std::array<const std::uint8_t*, PatternSequence::kMaxBits> inverse{};
-    std::array<std::ptrdiff_t, PatternSequence::kMaxBits> pattern_stride{};
-    std::array<std::ptrdiff_t, PatternSequence::kMaxBits> inverse_stride{};
-    for (int b = 0; b < row_bits; ++b) {
-      pattern[b] = row_pattern[b]->data + x0;
-      inverse[b] = row_inverse[b]->data + x0;
-      pattern_stride[b] = row_pattern[b]->stride_bytes;
-      inverse_stride[b] = row_inverse[b]->stride_bytes;
-    }
-    const auto column_line = [&](int j) {
-      return LineView{row_code + x0 + j, valid + x0 + j, row_subpixel + x0 + j, width};
-    };
-    const int prefetch_bits = std::min(kPrefetchBits, row_bits);
-    for (int y = 0; y < height; ++y) {
-      if (y + kPrefetchAheadRows < height) {
-        for (int b = 0; b < prefetch_bits; ++b) {
-          const std::uint8_t* p = pattern[b] + (y + kPrefetchAheadRows) * pattern_stride[b];
-          const std::uint8_t* q = inverse[b] + (y + kPrefetchAheadRows) * inverse_stride[b];
-          Prefetch(p);
-          Prefetch(p + strip_width - 1);
-          Prefetch(q);
-          Prefetch(q + strip_width - 1);
-        }
-      }
-      const std::size_t offset = static_cast<std::size_t>(y) * width + x0;
-      const std::uint16_t* code = row_code + offset;
-      const std::uint8_t* line_valid = valid + offset;
-      for (int j = 0; j < strip_width; ++j) {
-        if (!line_valid[j]) continue;
-        const auto diff = [&](int yy, int bit) {
-          return static_cast<int>(pattern[bit][yy * pattern_stride[bit] + j]) -
-                 static_cast<int>(inverse[bit][yy * inverse_stride[bit] + j]);
-        };
-        const auto unrefined = [&](int yy) {
-          candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
-        };
-        knots += ScanValidPixel(y, code[j], max_gap, diff, column_line(j), &scans[j], unrefined);
-      }
-    }
-    for (int j = 0; j < strip_width; ++j) {
-      FinishLine(height, column_line(j), &scans[j], [&](int yy) {
-        candidates.push_back(static_cast<std::size_t>(yy) * width + x0 + j);
-      });
-    }
-    row_knots.fetch_add(knots, std::memory_order_relaxed);
+    RefineStripRows(ctx, task, &(*row_candidates)[task], counters);
   });
+}
 
-  // What the pixels across the line give the candidates: columns from the pixels above and
-  // below, rows from the pixels left and right, all decided before any is written, so that
-  // fills do not feed each other.
-  pool_->Run(num_bands + num_strips, [&](int task) {
+// Fill stage, first half: what the pixels across the line give the candidates: columns from
+// the pixels above and below, rows from the pixels left and right, all decided before any is
+// written, so that fills do not feed each other.
+void ComputeFills(const RefineContext& ctx, BandPool* pool,
+                  std::vector<Candidates>* column_candidates,
+                  std::vector<Candidates>* row_candidates) {
+  const int width = ctx.width;
+  const int height = ctx.height;
+  const int num_bands = ctx.num_bands;
+  const std::uint16_t* column_code = ctx.column_code;
+  const std::uint16_t* row_code = ctx.row_code;
+  const float* column_subpixel = ctx.column_subpixel;
+  const float* row_subpixel = ctx.row_subpixel;
+  pool->Run(num_bands + ctx.num_strips, [&](int task) {
     if (task < num_bands) {
-      Candidates& c = column_candidates[task];
+      Candidates& c = (*column_candidates)[task];
       c.fills.resize(c.pixels.size());
       for (std::size_t k = 0; k < c.pixels.size(); ++k) {
         const std::size_t i = c.pixels[k];
@@ -733,7 +812,7 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
         c.fills[k] = FillAcross(column_subpixel + i, column_code + i, width, y, height - 1 - y);
       }
     } else {
-      Candidates& c = row_candidates[task - num_bands];
+      Candidates& c = (*row_candidates)[task - num_bands];
       c.fills.resize(c.pixels.size());
       for (std::size_t k = 0; k < c.pixels.size(); ++k) {
         const std::size_t i = c.pixels[k];
@@ -742,6 +821,11 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
       }
     }
   });
+}
+
+// Fill stage, second half: writes the fills found; returns how many.
+std::size_t ApplyFills(const RefineContext& ctx, const std::vector<Candidates>& column_candidates,
+                       const std::vector<Candidates>& row_candidates) {
   std::size_t filled = 0;
   const auto apply = [&](const std::vector<Candidates>& lists, float* values) {
     for (const Candidates& c : lists) {
@@ -752,12 +836,20 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
       }
     }
   };
-  apply(column_candidates, column_subpixel);
-  apply(row_candidates, row_subpixel);
+  apply(column_candidates, ctx.column_subpixel);
+  apply(row_candidates, ctx.row_subpixel);
+  return filled;
+}
 
+// Settle stage: rejects (or keeps at their integer codes) the candidates still without a
+// coordinate; returns how many there were.
+std::size_t SettleUnrefined(const RefineContext& ctx, bool reject,
+                            const std::vector<Candidates>& column_candidates,
+                            const std::vector<Candidates>& row_candidates, CorrespondenceMap* map) {
+  float* column_subpixel = ctx.column_subpixel;
+  float* row_subpixel = ctx.row_subpixel;
   // The candidates still without a coordinate cannot be refined (a pixel may be a candidate
   // of both lists; it is handled at its first appearance).
-  const bool reject = options_.reject_unrefined;
   const float kNaN = std::numeric_limits<float>::quiet_NaN();
   std::size_t unrefined = 0;
   const auto settle = [&](const std::vector<Candidates>& lists) {
@@ -783,11 +875,16 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
   };
   settle(column_candidates);
   settle(row_candidates);
+  return unrefined;
+}
 
+// Result stage: the statistics, and the map's valid count after rejections.
+RefinementResult GatherResult(const ScanCounters& counters, std::size_t filled,
+                              std::size_t unrefined, bool reject, CorrespondenceMap* map) {
   RefinementResult result;
-  result.num_refined = total_valid.load() - unrefined;
-  result.num_column_transitions = column_knots.load();
-  result.num_row_transitions = row_knots.load();
+  result.num_refined = counters.total_valid.load() - unrefined;
+  result.num_column_transitions = counters.column_knots.load();
+  result.num_row_transitions = counters.row_knots.load();
   result.num_filled_across = filled;
   if (reject) {
     result.num_rejected = unrefined;
@@ -796,6 +893,38 @@ RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
     result.num_kept_integer = unrefined;
   }
   return result;
+}
+
+}  // namespace
+
+SubpixelRefiner::SubpixelRefiner(const PatternSequence& patterns, const RefinementOptions& options)
+    : patterns_(patterns), options_(options) {
+  Require(options.num_threads >= 0,
+          "options.num_threads must not be negative, got " + std::to_string(options.num_threads),
+          "SubpixelRefiner");
+  Require(options.max_gap_px >= 0 && options.max_gap_px <= 16,
+          "options.max_gap_px must be in [0, 16], got " + std::to_string(options.max_gap_px),
+          "SubpixelRefiner");
+  pool_ = std::make_unique<BandPool>(options.num_threads);
+}
+
+SubpixelRefiner::~SubpixelRefiner() = default;
+
+RefinementResult SubpixelRefiner::Refine(const std::vector<ImageView>& images,
+                                         CorrespondenceMap* map) const {
+  CheckRefineInputs(patterns_, images, map, pool_.get());
+  const RefineContext ctx = PrepareRefinement(patterns_, options_, images, map);
+  // Valid pixels left NaN: columns per band of rows, rows per strip of columns.
+  std::vector<Candidates> column_candidates(ctx.num_bands);
+  std::vector<Candidates> row_candidates(ctx.num_strips);
+  ScanCounters counters;
+  ScanLines(ctx, pool_.get(), &column_candidates, &row_candidates, &counters);
+  ComputeFills(ctx, pool_.get(), &column_candidates, &row_candidates);
+  const std::size_t filled = ApplyFills(ctx, column_candidates, row_candidates);
+  const bool reject = options_.reject_unrefined;
+  const std::size_t unrefined =
+      SettleUnrefined(ctx, reject, column_candidates, row_candidates, map);
+  return GatherResult(counters, filled, unrefined, reject, map);
 }
 
 }  // namespace picking::scanner

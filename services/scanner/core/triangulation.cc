@@ -10,7 +10,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
-#include <type_traits>
+#include <vector>
 
 #if defined(__linux__)
 #include <sys/mman.h>
@@ -191,6 +191,336 @@ int RemoveFlagged(int w, const std::uint8_t* flags, Eigen::Vector3f* points) {
   return removed;
 }
 
+// Point, rejection, removal and normal counts of one task (or of all).
+struct Counts {
+  std::size_t points = 0;
+  std::size_t residual = 0;
+  std::size_t depth = 0;
+  std::size_t removed = 0;
+  std::size_t normals = 0;
+};
+
+// Gather stage: the sum of the counts of all tasks.
+Counts SumCounts(const std::vector<Counts>& task_counts) {
+  Counts total;
+  for (const Counts& c : task_counts) {
+    total.points += c.points;
+    total.residual += c.residual;
+    total.depth += c.depth;
+    total.removed += c.removed;
+    total.normals += c.normals;
+  }
+  return total;
+}
+
+// The projector ray table (row-major, unit direction in the camera frame and -direction .
+// centre per projector pixel) and the offsets its bilinear interpolation needs.
+struct ProjectorRayTable {
+  const Eigen::Vector4f* rays;
+  int width;        // Projector columns.
+  int last_column;  // Last column and row an interpolation cell may start at.
+  int last_row;
+  std::ptrdiff_t down;   // Offset of the next projector row, 0 for a single row.
+  std::ptrdiff_t right;  // Offset of the next projector column, 0 for a single column.
+};
+
+// Setup stage: the interpolation offsets of a width x height projector ray table.
+ProjectorRayTable MakeProjectorRayTable(const std::vector<Eigen::Vector4f>& rays, int width,
+                                        int height) {
+  ProjectorRayTable table;
+  table.rays = rays.data();
+  table.width = width;
+  table.last_column = std::max(0, width - 2);
+  table.last_row = std::max(0, height - 2);
+  table.down = height > 1 ? width : 0;
+  table.right = width > 1 ? 1 : 0;
+  return table;
+}
+
+// The projector ray of a sub-pixel correspondence, interpolated bilinearly between the rays
+// of the four nearest mirror centres (the ray table is smooth; its curvature over one
+// mirror is far below the noise).
+inline Eigen::Vector4f InterpolatedRay(const ProjectorRayTable& table, float u, float v) {
+  const int last_column = table.last_column;
+  const int last_row = table.last_row;
+  const std::ptrdiff_t down = table.down;
+  const std::ptrdiff_t right = table.right;
+  // Truncation: u in (-0.5, 0) gives u0 = 0 and a < 0, a short extrapolation.
+  const int u0 = std::min(last_column, std::max(0, static_cast<int>(u)));
+  const int v0 = std::min(last_row, std::max(0, static_cast<int>(v)));
+  const float a = u - static_cast<float>(u0);
+  const float b = v - static_cast<float>(v0);
+  const Eigen::Vector4f* e00 = table.rays + static_cast<std::size_t>(v0) * table.width + u0;
+  const Eigen::Vector4f top = e00[0] + a * (e00[right] - e00[0]);
+  if (b == 0.0f) return top;  // An integer row (rows not refined): one table row.
+  const Eigen::Vector4f bottom = e00[down] + a * (e00[down + right] - e00[down]);
+  return top + b * (bottom - top);
+}
+
+static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float) &&
+                  sizeof(Eigen::Vector2f) == 2 * sizeof(float) &&
+                  sizeof(Eigen::Vector4f) == 4 * sizeof(float),
+              "the row kernels read points and rays as packed floats");
+
+// What the row stages of one Run share: its inputs, its output cloud (sized) and the
+// constants of the row kernels.
+struct RowContext {
+  const CorrespondenceMap& map;
+  const ImageView* intensity;  // Null: no intensities.
+  geometry::PointCloud& cloud;
+  const Eigen::Vector2f* camera_rays;  // Camera ray (x, y, 1) per pixel.
+  ProjectorRayTable projector_rays;
+  IntersectConstants constants;
+  int w;  // Camera width and height in pixels.
+  int h;
+  bool subpixel;  // map.has_subpixel().
+  // The isolated-point test: whether it runs, the depth tolerance in metres, the minimum
+  // number of neighbours within it.
+  bool remove_isolated;
+  float tolerance;
+  int min_neighbors;
+};
+
+// Per-task buffers of one row: the projector rays of its pixels and their statuses.
+struct RowScratch {
+  std::vector<Eigen::Vector4f> rays;
+  std::vector<std::uint8_t> status;
+  std::vector<std::uint8_t> flags;
+};
+
+// Setup stage of a task: its row buffers for a camera row of w pixels.
+RowScratch MakeRowScratch(int w) {
+  RowScratch scratch;
+  scratch.rays.assign(static_cast<std::size_t>(w), Eigen::Vector4f::Zero());
+  scratch.status.resize(static_cast<std::size_t>(w));
+  scratch.flags.resize(static_cast<std::size_t>(w));
+  return scratch;
+}
+
+// Per-row kernel: camera row y into out[0, w), before the isolated-point test: the projector
+// ray of every valid pixel is looked up (interpolated for sub-pixel correspondences), then
+// all pixels are intersected by the vectorised kernel.
+template <bool kSubpixel>
+void TriangulateRow(const RowContext& ctx, int y, Eigen::Vector3f* out, RowScratch* scratch,
+                    Counts* counts) {
+  const CorrespondenceMap& map = ctx.map;
+  const int w = ctx.w;
+  const std::size_t row_start = static_cast<std::size_t>(y) * w;
+  const std::uint8_t* valid = map.valid.data() + row_start;
+  Eigen::Vector4f* rays = scratch->rays.data();
+  if constexpr (kSubpixel) {
+    const ProjectorRayTable& table = ctx.projector_rays;
+    const float* u = map.column_subpixel.data() + row_start;
+    const float* v = map.row_subpixel.data() + row_start;
+    for (int x = 0; x < w; ++x) {
+      if (valid[x]) rays[x] = InterpolatedRay(table, u[x], v[x]);
+    }
+  } else {
+    const std::uint16_t* column = map.column.data() + row_start;
+    const std::uint16_t* row = map.row.data() + row_start;
+    const Eigen::Vector4f* table = ctx.projector_rays.rays;
+    const int projector_width = ctx.projector_rays.width;
+    for (int x = 0; x < w; ++x) {
+      if (valid[x]) rays[x] = table[static_cast<std::size_t>(row[x]) * projector_width + column[x]];
+    }
+  }
+  IntersectRow(w, ctx.camera_rays[row_start].data(), rays->data(), valid, ctx.constants,
+               out->data(), scratch->status.data());
+  CountStatuses(w, scratch->status.data(), &counts->points, &counts->depth, &counts->residual);
+}
+
+// Per-row kernel: camera row y into out[0, w), integer or sub-pixel as the map is.
+void Triangulate(const RowContext& ctx, int y, Eigen::Vector3f* out, RowScratch* scratch,
+                 Counts* counts) {
+  if (ctx.subpixel) {
+    TriangulateRow<true>(ctx, y, out, scratch, counts);
+  } else {
+    TriangulateRow<false>(ctx, y, out, scratch, counts);
+  }
+}
+
+// Per-row kernel: the intensities (0-1) of camera row y, if there is an intensity image.
+void CopyIntensities(const RowContext& ctx, int y) {
+  const ImageView* intensity = ctx.intensity;
+  if (intensity == nullptr) return;
+  const int w = ctx.w;
+  const std::uint8_t* src = intensity->row(y);
+  float* dst = ctx.cloud.intensities.data() + static_cast<std::size_t>(y) * w;
+  for (int x = 0; x < w; ++x) dst[x] = src[x] * (1.0f / 255.0f);
+}
+
+// Filtering kernel: the isolated-point test of a row from the unfiltered rows above and below
+// (null outside the image): flags[x] = 1 for every point with fewer than min_neighbors of its
+// 8 neighbours within the depth tolerance, 0 elsewhere.
+void TestRow(const RowContext& ctx, const Eigen::Vector3f* above, const Eigen::Vector3f* row,
+             const Eigen::Vector3f* below, std::uint8_t* flags) {
+  const int w = ctx.w;
+  const float tolerance = ctx.tolerance;
+  const int min_neighbors = ctx.min_neighbors;
+  const auto general = [&](int x) {
+    const float z = row[x].z();
+    int neighbors = 0;
+    for (const Eigen::Vector3f* line : {above, row, below}) {
+      if (line == nullptr) continue;
+      for (int dx = -1; dx <= 1; ++dx) {
+        const int xx = x + dx;
+        if ((line == row && dx == 0) || xx < 0 || xx >= w) continue;
+        neighbors += std::abs(line[xx].z() - z) <= tolerance;
+      }
+    }
+    flags[x] = static_cast<std::uint8_t>(!std::isnan(z) && neighbors < min_neighbors);
+  };
+  if (above == nullptr || below == nullptr || w < 3) {
+    for (int x = 0; x < w; ++x) general(x);
+    return;
+  }
+  general(0);
+  IsolatedInterior(w, above->data(), row->data(), below->data(), tolerance, min_neighbors, flags);
+  general(w - 1);
+}
+
+// Setup stage of a task: rows [y0, y1) of the outputs are about to be written by it.
+void PopulateRows(const RowContext& ctx, int y0, int y1) {
+  geometry::PointCloud& cloud = ctx.cloud;
+  const int w = ctx.w;
+  const std::size_t i0 = static_cast<std::size_t>(y0) * w;
+  const std::size_t count = static_cast<std::size_t>(y1 - y0) * w;
+  PopulateForWrite(cloud.points.data() + i0, count * sizeof(Eigen::Vector3f));
+  if (!cloud.normals.empty()) {
+    PopulateForWrite(cloud.normals.data() + i0, count * sizeof(Eigen::Vector3f));
+  }
+}
+
+// Filtering stage without normals: flags the isolated points of every band, then removes them.
+void RemoveIsolatedInBands(const RowContext& ctx, BandPool& pool,
+                           std::vector<Counts>* band_counts) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  geometry::PointCloud& cloud = ctx.cloud;
+  const int w = ctx.w;
+  const int h = ctx.h;
+  const int num_bands = static_cast<int>(band_counts->size());
+  // Decide from the unfiltered cloud, then remove, so the result does not depend on the
+  // order in which bands run.
+  std::vector<std::vector<std::size_t>> remove(num_bands);
+  pool.Run(num_bands, [&](int band) {
+    const Eigen::Vector3f* points = cloud.points.data();
+    const auto row = [&](int y) { return points + static_cast<std::size_t>(y) * w; };
+    std::vector<std::uint8_t> flags(static_cast<std::size_t>(w));
+    const int y1 = std::min(h, (band + 1) * kRowsPerBand);
+    for (int y = band * kRowsPerBand; y < y1; ++y) {
+      const std::size_t row_start = static_cast<std::size_t>(y) * w;
+      TestRow(ctx, y > 0 ? row(y - 1) : nullptr, row(y), y + 1 < h ? row(y + 1) : nullptr,
+              flags.data());
+      for (int x = 0; x < w; ++x) {
+        if (flags[x]) remove[band].push_back(row_start + x);
+      }
+    }
+  });
+  for (int band = 0; band < num_bands; ++band) {
+    for (const std::size_t i : remove[band]) cloud.points[i].setConstant(kNaN);
+    (*band_counts)[band].removed = remove[band].size();
+  }
+}
+
+// Kernel stage without normals: triangulates in bands of kRowsPerBand rows, then filters.
+Counts TriangulateInBands(const RowContext& ctx, BandPool& pool) {
+  geometry::PointCloud& cloud = ctx.cloud;
+  const int w = ctx.w;
+  const int h = ctx.h;
+  const int num_bands = (h + kRowsPerBand - 1) / kRowsPerBand;
+  std::vector<Counts> band_counts(num_bands);
+  pool.Run(num_bands, [&](int band) {
+    PopulateRows(ctx, band * kRowsPerBand, std::min(h, (band + 1) * kRowsPerBand));
+    RowScratch scratch = MakeRowScratch(w);
+    const int y1 = std::min(h, (band + 1) * kRowsPerBand);
+    for (int y = band * kRowsPerBand; y < y1; ++y) {
+      Triangulate(ctx, y, cloud.points.data() + static_cast<std::size_t>(y) * w, &scratch,
+                  &band_counts[band]);
+      CopyIntensities(ctx, y);
+    }
+  });
+  if (ctx.remove_isolated) RemoveIsolatedInBands(ctx, pool, &band_counts);
+  return SumCounts(band_counts);
+}
+
+// Per-chunk kernel with normals: triangulates, filters and estimates normals of one chunk.
+//
+// Each chunk of rows is streamed row by row, so that every row is tested and its normals
+// computed while it and its neighbours are in cache. Row r is triangulated, row r - 1 tested
+// (it needs rows r - 2 ... r unfiltered), row r - 2 filtered (its last reader has been
+// tested) and the normals of row r - step - 2 computed (they need the filtered rows
+// step above and below). A chunk also triangulates and filters the step + 1 rows on
+// each side that its own rows depend on.
+void StreamChunk(const RowContext& ctx, int chunk, int step, float max_jump, Counts* chunk_counts) {
+  geometry::PointCloud& cloud = ctx.cloud;
+  const int w = ctx.w;
+  const int h = ctx.h;
+  const bool remove_isolated = ctx.remove_isolated;
+  const int ring_rows = 4;  // Removal flags of rows r - 2 and r - 1.
+  const int a = chunk * kRowsPerChunk;
+  const int b = std::min(h, a + kRowsPerChunk);
+  const int first = std::max(0, a - step - 1);  // Rows triangulated: [first, end).
+  const int end = std::min(h, b + step + 1);
+  const int tested_first = std::max(0, a - step);  // Rows tested and filtered.
+  const int tested_end = std::min(h, b + step);
+  // The chunk's own rows are computed in place in the cloud (no other task writes or
+  // reads them); the rows around it that it depends on go to a buffer of its own.
+  std::vector<Eigen::Vector3f> halo(static_cast<std::size_t>(2 * (step + 1)) * w);
+  std::vector<std::uint8_t> isolated(static_cast<std::size_t>(ring_rows) * w);
+  PopulateRows(ctx, a, b);
+  RowScratch scratch = MakeRowScratch(w);
+  const auto row = [&](int y) {
+    if (y >= a && y < b) return cloud.points.data() + static_cast<std::size_t>(y) * w;
+    const int slot = y < a ? y - first : (a - first) + (y - b);
+    return halo.data() + static_cast<std::size_t>(slot) * w;
+  };
+  const auto flags = [&](int y) {
+    return isolated.data() + static_cast<std::size_t>(y % ring_rows) * w;
+  };
+  Counts& counts = *chunk_counts;
+  for (int r = first; r <= b + step + 1; ++r) {
+    if (r < end) {
+      Counts row_counts;
+      Triangulate(ctx, r, row(r), &scratch, &row_counts);
+      if (r >= a && r < b) {
+        CopyIntensities(ctx, r);
+        counts.points += row_counts.points;
+        counts.residual += row_counts.residual;
+        counts.depth += row_counts.depth;
+      }
+    }
+    const int q = r - 1;
+    if (remove_isolated && q >= tested_first && q < tested_end) {
+      TestRow(ctx, q > 0 ? row(q - 1) : nullptr, row(q), q + 1 < h ? row(q + 1) : nullptr,
+              flags(q));
+    }
+    const int filtered = r - 2;
+    if (remove_isolated && filtered >= tested_first && filtered < tested_end) {
+      const int removed = RemoveFlagged(w, flags(filtered), row(filtered));
+      if (filtered >= a && filtered < b) counts.removed += static_cast<std::size_t>(removed);
+    }
+    const int y = r - step - 2;
+    if (y >= a && y < b) {
+      const std::size_t row_start = static_cast<std::size_t>(y) * w;
+      counts.normals += EstimateNormalsRow(y - step >= 0 ? row(y - step) : nullptr, row(y),
+                                           y + step < h ? row(y + step) : nullptr, w, step,
+                                           max_jump, cloud.normals.data() + row_start);
+    }
+  }
+}
+
+// Kernel stage with normals: streams the cloud in chunks of kRowsPerChunk rows (StreamChunk).
+Counts TriangulateInChunksWithNormals(const RowContext& ctx, const NormalOptions& normal_options,
+                                      BandPool& pool) {
+  const int step = normal_options.step;
+  const float max_jump = static_cast<float>(normal_options.max_depth_jump_m * step);
+  const int num_chunks = (ctx.h + kRowsPerChunk - 1) / kRowsPerChunk;
+  std::vector<Counts> chunk_counts(num_chunks);
+  pool.Run(num_chunks,
+           [&](int chunk) { StreamChunk(ctx, chunk, step, max_jump, &chunk_counts[chunk]); });
+  return SumCounts(chunk_counts);
+}
+
 }  // namespace
 
 Triangulator::Triangulator(const camera::PinholeCamera& camera,
@@ -260,10 +590,7 @@ void Triangulator::Run(const CorrespondenceMap& map, const ImageView* intensity,
   RunImpl(map, intensity, &normal_options, result, normal_result);
 }
 
-void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intensity,
-                           const NormalOptions* normal_options, TriangulationResult* result,
-                           NormalResult* normal_result) const {
-  Require(result != nullptr, "result is null");
+void Triangulator::CheckInputSizes(const CorrespondenceMap& map, const ImageView* intensity) const {
   const std::size_t n = static_cast<std::size_t>(camera_width_) * camera_height_;
   Require(map.width == camera_width_ && map.height == camera_height_,
           "correspondence map is " + std::to_string(map.width) + " x " +
@@ -279,11 +606,15 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
                 "the camera is " + std::to_string(camera_width_) + " x " +
                 std::to_string(camera_height_));
   }
-  const bool subpixel = map.has_subpixel();
-  if (subpixel) {
+  if (map.has_subpixel()) {
     Require(map.column_subpixel.size() == n && map.row_subpixel.size() == n,
             "sub-pixel correspondence maps are not width * height long");
   }
+}
+
+void Triangulator::CheckCorrespondencesInside(const CorrespondenceMap& map) const {
+  const std::size_t n = static_cast<std::size_t>(camera_width_) * camera_height_;
+  const bool subpixel = map.has_subpixel();
   const int num_bands = (camera_height_ + kRowsPerBand - 1) / kRowsPerBand;
   // The projector image spans [-0.5, size - 0.5]; NaN fails the test too.
   const float max_u = static_cast<float>(projector_width_) - 0.5f;
@@ -293,50 +624,52 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
            (!subpixel || (map.column_subpixel[i] >= -0.5f && map.column_subpixel[i] <= max_u &&
                           map.row_subpixel[i] >= -0.5f && map.row_subpixel[i] <= max_v));
   };
-  {
-    // A branch-free pass over all pixels finds whether any is bad; only then are they
-    // searched for the first one to name it.
-    std::atomic<int> outside{0};
-    const std::uint8_t* valid = map.valid.data();
-    const std::uint16_t* column = map.column.data();
-    const std::uint16_t* row = map.row.data();
-    const float* u = map.column_subpixel.data();
-    const float* v = map.row_subpixel.data();
-    const int projector_width = projector_width_;
-    const int projector_height = projector_height_;
-    pool_->Run(num_bands, [&](int band) {
-      const std::size_t i0 = static_cast<std::size_t>(band) * kRowsPerBand * camera_width_;
-      const std::size_t i1 =
-          static_cast<std::size_t>(std::min(camera_height_, (band + 1) * kRowsPerBand)) *
-          camera_width_;
-      int local = 0;
+  // A branch-free pass over all pixels finds whether any is bad; only then are they
+  // searched for the first one to name it.
+  std::atomic<int> outside{0};
+  const std::uint8_t* valid = map.valid.data();
+  const std::uint16_t* column = map.column.data();
+  const std::uint16_t* row = map.row.data();
+  const float* u = map.column_subpixel.data();
+  const float* v = map.row_subpixel.data();
+  const int projector_width = projector_width_;
+  const int projector_height = projector_height_;
+  pool_->Run(num_bands, [&](int band) {
+    const std::size_t i0 = static_cast<std::size_t>(band) * kRowsPerBand * camera_width_;
+    const std::size_t i1 =
+        static_cast<std::size_t>(std::min(camera_height_, (band + 1) * kRowsPerBand)) *
+        camera_width_;
+    int local = 0;
+    for (std::size_t i = i0; i < i1; ++i) {
+      local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+    }
+    if (subpixel) {
       for (std::size_t i = i0; i < i1; ++i) {
-        local |= valid[i] & ((column[i] >= projector_width) | (row[i] >= projector_height));
+        local |=
+            valid[i] & !((u[i] >= -0.5f) & (u[i] <= max_u) & (v[i] >= -0.5f) & (v[i] <= max_v));
       }
-      if (subpixel) {
-        for (std::size_t i = i0; i < i1; ++i) {
-          local |=
-              valid[i] & !((u[i] >= -0.5f) & (u[i] <= max_u) & (v[i] >= -0.5f) & (v[i] <= max_v));
-        }
-      }
-      if (local) outside.store(1, std::memory_order_relaxed);
-    });
-    for (std::size_t i = 0; outside.load() && i < n; ++i) {
-      if (!map.valid[i] || inside(i)) continue;
-      if (map.column[i] >= projector_width_ || map.row[i] >= projector_height_) {
-        Require(false, "correspondence (" + std::to_string(map.column[i]) + ", " +
-                           std::to_string(map.row[i]) + ") at pixel " + std::to_string(i) +
-                           " lies outside the " + std::to_string(projector_width_) + " x " +
-                           std::to_string(projector_height_) + " projector");
-      }
-      Require(false, "sub-pixel correspondence (" + std::to_string(map.column_subpixel[i]) + ", " +
-                         std::to_string(map.row_subpixel[i]) + ") at pixel " + std::to_string(i) +
+    }
+    if (local) outside.store(1, std::memory_order_relaxed);
+  });
+  for (std::size_t i = 0; outside.load() && i < n; ++i) {
+    if (!map.valid[i] || inside(i)) continue;
+    if (map.column[i] >= projector_width_ || map.row[i] >= projector_height_) {
+      Require(false, "correspondence (" + std::to_string(map.column[i]) + ", " +
+                         std::to_string(map.row[i]) + ") at pixel " + std::to_string(i) +
                          " lies outside the " + std::to_string(projector_width_) + " x " +
                          std::to_string(projector_height_) + " projector");
     }
+    Require(false, "sub-pixel correspondence (" + std::to_string(map.column_subpixel[i]) + ", " +
+                       std::to_string(map.row_subpixel[i]) + ") at pixel " + std::to_string(i) +
+                       " lies outside the " + std::to_string(projector_width_) + " x " +
+                       std::to_string(projector_height_) + " projector");
   }
+}
 
-  geometry::PointCloud& cloud = result->cloud;
+void Triangulator::SizeOutputs(const ImageView* intensity, bool with_normals,
+                               geometry::PointCloud* cloud_out) const {
+  const std::size_t n = static_cast<std::size_t>(camera_width_) * camera_height_;
+  geometry::PointCloud& cloud = *cloud_out;
   cloud.width = static_cast<std::uint32_t>(camera_width_);
   cloud.height = static_cast<std::uint32_t>(camera_height_);
   cloud.frame_id = options_.frame_id;
@@ -354,8 +687,21 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
   } else {
     cloud.intensities.clear();
   }
+  if (with_normals) {
+    cloud.normals.reserve(n);
+    AdviseHugePages(cloud.normals.data(), n * sizeof(Eigen::Vector3f));
+    cloud.normals.resize(n);
+  }
+}
 
-  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intensity,
+                           const NormalOptions* normal_options, TriangulationResult* result,
+                           NormalResult* normal_result) const {
+  Require(result != nullptr, "result is null");
+  CheckInputSizes(map, intensity);
+  CheckCorrespondencesInside(map);
+  SizeOutputs(intensity, normal_options != nullptr, &result->cloud);
+
   const float residual_scale =
       static_cast<float>(options_.max_residual_projector_px) / projector_focal_px_;
   // ray distance <= k * distance_from_projector / f
@@ -363,255 +709,25 @@ void Triangulator::RunImpl(const CorrespondenceMap& map, const ImageView* intens
   const float min_depth = static_cast<float>(options_.min_depth_m);
   const float max_depth = static_cast<float>(options_.max_depth_m);
   const Eigen::Vector3f o = p_CameraProjector_;
-  const int w = camera_width_;
-  const int h = camera_height_;
-
-  // The projector ray of a sub-pixel correspondence, interpolated bilinearly between the rays
-  // of the four nearest mirror centres (the ray table is smooth; its curvature over one
-  // mirror is far below the noise).
-  const int last_column = std::max(0, projector_width_ - 2);
-  const int last_row = std::max(0, projector_height_ - 2);
-  const std::ptrdiff_t down = projector_height_ > 1 ? projector_width_ : 0;
-  const std::ptrdiff_t right = projector_width_ > 1 ? 1 : 0;
-  const auto interpolated_ray = [&](float u, float v) -> Eigen::Vector4f {
-    // Truncation: u in (-0.5, 0) gives u0 = 0 and a < 0, a short extrapolation.
-    const int u0 = std::min(last_column, std::max(0, static_cast<int>(u)));
-    const int v0 = std::min(last_row, std::max(0, static_cast<int>(v)));
-    const float a = u - static_cast<float>(u0);
-    const float b = v - static_cast<float>(v0);
-    const Eigen::Vector4f* e00 =
-        projector_rays_.data() + static_cast<std::size_t>(v0) * projector_width_ + u0;
-    const Eigen::Vector4f top = e00[0] + a * (e00[right] - e00[0]);
-    if (b == 0.0f) return top;  // An integer row (rows not refined): one table row.
-    const Eigen::Vector4f bottom = e00[down] + a * (e00[down + right] - e00[down]);
-    return top + b * (bottom - top);
-  };
-
-  struct Counts {
-    std::size_t points = 0;
-    std::size_t residual = 0;
-    std::size_t depth = 0;
-    std::size_t removed = 0;
-    std::size_t normals = 0;
-  };
-  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float) &&
-                    sizeof(Eigen::Vector2f) == 2 * sizeof(float) &&
-                    sizeof(Eigen::Vector4f) == 4 * sizeof(float),
-                "the row kernels read points and rays as packed floats");
-  const IntersectConstants constants{o.x(), o.y(), o.z(), min_depth, max_depth, residual_factor};
-  // Per-task buffers of one row: the projector rays of its pixels and their statuses.
-  struct RowScratch {
-    std::vector<Eigen::Vector4f> rays;
-    std::vector<std::uint8_t> status;
-    std::vector<std::uint8_t> flags;
-  };
-  const auto make_scratch = [&]() {
-    RowScratch scratch;
-    scratch.rays.assign(static_cast<std::size_t>(w), Eigen::Vector4f::Zero());
-    scratch.status.resize(static_cast<std::size_t>(w));
-    scratch.flags.resize(static_cast<std::size_t>(w));
-    return scratch;
-  };
-  // Camera row y into out[0, w), before the isolated-point test: the projector ray of every
-  // valid pixel is looked up (interpolated for sub-pixel correspondences), then all pixels
-  // are intersected by the vectorised kernel.
-  const auto triangulate_row = [&](auto subpixel_tag, int y, Eigen::Vector3f* out,
-                                   RowScratch* scratch, Counts* counts) {
-    constexpr bool kSubpixel = decltype(subpixel_tag)::value;
-    const std::size_t row_start = static_cast<std::size_t>(y) * w;
-    const std::uint8_t* valid = map.valid.data() + row_start;
-    Eigen::Vector4f* rays = scratch->rays.data();
-    if constexpr (kSubpixel) {
-      const float* u = map.column_subpixel.data() + row_start;
-      const float* v = map.row_subpixel.data() + row_start;
-      for (int x = 0; x < w; ++x) {
-        if (valid[x]) rays[x] = interpolated_ray(u[x], v[x]);
-      }
-    } else {
-      const std::uint16_t* column = map.column.data() + row_start;
-      const std::uint16_t* row = map.row.data() + row_start;
-      const Eigen::Vector4f* table = projector_rays_.data();
-      for (int x = 0; x < w; ++x) {
-        if (valid[x])
-          rays[x] = table[static_cast<std::size_t>(row[x]) * projector_width_ + column[x]];
-      }
-    }
-    IntersectRow(w, rays_[row_start].data(), rays->data(), valid, constants, out->data(),
-                 scratch->status.data());
-    CountStatuses(w, scratch->status.data(), &counts->points, &counts->depth, &counts->residual);
-  };
-  const auto copy_intensities = [&](int y) {
-    if (intensity == nullptr) return;
-    const std::uint8_t* src = intensity->row(y);
-    float* dst = cloud.intensities.data() + static_cast<std::size_t>(y) * w;
-    for (int x = 0; x < w; ++x) dst[x] = src[x] * (1.0f / 255.0f);
-  };
-  const auto triangulate = [&](int y, Eigen::Vector3f* out, RowScratch* scratch, Counts* counts) {
-    if (subpixel) {
-      triangulate_row(std::true_type{}, y, out, scratch, counts);
-    } else {
-      triangulate_row(std::false_type{}, y, out, scratch, counts);
-    }
-  };
-
-  // The isolated-point test of a row from the unfiltered rows above and below (null outside
-  // the image): flags[x] = 1 for every point with fewer than min_neighbors of its 8
-  // neighbours within the depth tolerance, 0 elsewhere.
-  const bool remove_isolated = options_.remove_isolated && options_.min_neighbors > 0;
-  const float tolerance = static_cast<float>(options_.neighbor_depth_tolerance_m);
-  const int min_neighbors = options_.min_neighbors;
-  const auto test_row = [&](const Eigen::Vector3f* above, const Eigen::Vector3f* row,
-                            const Eigen::Vector3f* below, std::uint8_t* flags) {
-    const auto general = [&](int x) {
-      const float z = row[x].z();
-      int neighbors = 0;
-      for (const Eigen::Vector3f* line : {above, row, below}) {
-        if (line == nullptr) continue;
-        for (int dx = -1; dx <= 1; ++dx) {
-          const int xx = x + dx;
-          if ((line == row && dx == 0) || xx < 0 || xx >= w) continue;
-          neighbors += std::abs(line[xx].z() - z) <= tolerance;
-        }
-      }
-      flags[x] = static_cast<std::uint8_t>(!std::isnan(z) && neighbors < min_neighbors);
-    };
-    if (above == nullptr || below == nullptr || w < 3) {
-      for (int x = 0; x < w; ++x) general(x);
-      return;
-    }
-    general(0);
-    IsolatedInterior(w, above->data(), row->data(), below->data(), tolerance, min_neighbors, flags);
-    general(w - 1);
-  };
-
-  // Rows [y0, y1) of the outputs are about to be written by one task.
-  const auto populate_rows = [&](int y0, int y1) {
-    const std::size_t i0 = static_cast<std::size_t>(y0) * w;
-    const std::size_t count = static_cast<std::size_t>(y1 - y0) * w;
-    PopulateForWrite(cloud.points.data() + i0, count * sizeof(Eigen::Vector3f));
-    if (!cloud.normals.empty()) {
-      PopulateForWrite(cloud.normals.data() + i0, count * sizeof(Eigen::Vector3f));
-    }
-  };
+  const RowContext ctx{
+      map,
+      intensity,
+      result->cloud,
+      rays_.data(),
+      MakeProjectorRayTable(projector_rays_, projector_width_, projector_height_),
+      IntersectConstants{o.x(), o.y(), o.z(), min_depth, max_depth, residual_factor},
+      camera_width_,
+      camera_height_,
+      map.has_subpixel(),
+      options_.remove_isolated && options_.min_neighbors > 0,
+      static_cast<float>(options_.neighbor_depth_tolerance_m),
+      options_.min_neighbors};
 
   Counts total;
   if (normal_options == nullptr) {
-    const int num_bands = (h + kRowsPerBand - 1) / kRowsPerBand;
-    std::vector<Counts> band_counts(num_bands);
-    pool_->Run(num_bands, [&](int band) {
-      populate_rows(band * kRowsPerBand, std::min(h, (band + 1) * kRowsPerBand));
-      RowScratch scratch = make_scratch();
-      const int y1 = std::min(h, (band + 1) * kRowsPerBand);
-      for (int y = band * kRowsPerBand; y < y1; ++y) {
-        triangulate(y, cloud.points.data() + static_cast<std::size_t>(y) * w, &scratch,
-                    &band_counts[band]);
-        copy_intensities(y);
-      }
-    });
-    if (remove_isolated) {
-      // Decide from the unfiltered cloud, then remove, so the result does not depend on the
-      // order in which bands run.
-      std::vector<std::vector<std::size_t>> remove(num_bands);
-      pool_->Run(num_bands, [&](int band) {
-        const Eigen::Vector3f* points = cloud.points.data();
-        const auto row = [&](int y) { return points + static_cast<std::size_t>(y) * w; };
-        std::vector<std::uint8_t> flags(static_cast<std::size_t>(w));
-        const int y1 = std::min(h, (band + 1) * kRowsPerBand);
-        for (int y = band * kRowsPerBand; y < y1; ++y) {
-          const std::size_t row_start = static_cast<std::size_t>(y) * w;
-          test_row(y > 0 ? row(y - 1) : nullptr, row(y), y + 1 < h ? row(y + 1) : nullptr,
-                   flags.data());
-          for (int x = 0; x < w; ++x) {
-            if (flags[x]) remove[band].push_back(row_start + x);
-          }
-        }
-      });
-      for (int band = 0; band < num_bands; ++band) {
-        for (const std::size_t i : remove[band]) cloud.points[i].setConstant(kNaN);
-        band_counts[band].removed = remove[band].size();
-      }
-    }
-    for (const Counts& c : band_counts) {
-      total.points += c.points;
-      total.residual += c.residual;
-      total.depth += c.depth;
-      total.removed += c.removed;
-    }
+    total = TriangulateInBands(ctx, *pool_);
   } else {
-    // Triangulation, isolated-point removal and normals in one pass: each chunk of rows is
-    // streamed row by row, so that every row is tested and its normals computed while it and
-    // its neighbours are in cache. Row r is triangulated, row r - 1 tested
-    // (it needs rows r - 2 ... r unfiltered), row r - 2 filtered (its last reader has been
-    // tested) and the normals of row r - step - 2 computed (they need the filtered rows
-    // step above and below). A chunk also triangulates and filters the step + 1 rows on
-    // each side that its own rows depend on.
-    const int step = normal_options->step;
-    const float max_jump = static_cast<float>(normal_options->max_depth_jump_m * step);
-    cloud.normals.reserve(n);
-    AdviseHugePages(cloud.normals.data(), n * sizeof(Eigen::Vector3f));
-    cloud.normals.resize(n);
-    const int ring_rows = 4;  // Removal flags of rows r - 2 and r - 1.
-    const int num_chunks = (h + kRowsPerChunk - 1) / kRowsPerChunk;
-    std::vector<Counts> chunk_counts(num_chunks);
-    pool_->Run(num_chunks, [&](int chunk) {
-      const int a = chunk * kRowsPerChunk;
-      const int b = std::min(h, a + kRowsPerChunk);
-      const int first = std::max(0, a - step - 1);  // Rows triangulated: [first, end).
-      const int end = std::min(h, b + step + 1);
-      const int tested_first = std::max(0, a - step);  // Rows tested and filtered.
-      const int tested_end = std::min(h, b + step);
-      // The chunk's own rows are computed in place in the cloud (no other task writes or
-      // reads them); the rows around it that it depends on go to a buffer of its own.
-      std::vector<Eigen::Vector3f> halo(static_cast<std::size_t>(2 * (step + 1)) * w);
-      std::vector<std::uint8_t> isolated(static_cast<std::size_t>(ring_rows) * w);
-      populate_rows(a, b);
-      RowScratch scratch = make_scratch();
-      const auto row = [&](int y) {
-        if (y >= a && y < b) return cloud.points.data() + static_cast<std::size_t>(y) * w;
-        const int slot = y < a ? y - first : (a - first) + (y - b);
-        return halo.data() + static_cast<std::size_t>(slot) * w;
-      };
-      const auto flags = [&](int y) {
-        return isolated.data() + static_cast<std::size_t>(y % ring_rows) * w;
-      };
-      Counts& counts = chunk_counts[chunk];
-      for (int r = first; r <= b + step + 1; ++r) {
-        if (r < end) {
-          Counts row_counts;
-          triangulate(r, row(r), &scratch, &row_counts);
-          if (r >= a && r < b) {
-            copy_intensities(r);
-            counts.points += row_counts.points;
-            counts.residual += row_counts.residual;
-            counts.depth += row_counts.depth;
-          }
-        }
-        const int q = r - 1;
-        if (remove_isolated && q >= tested_first && q < tested_end) {
-          test_row(q > 0 ? row(q - 1) : nullptr, row(q), q + 1 < h ? row(q + 1) : nullptr,
-                   flags(q));
-        }
-        const int filtered = r - 2;
-        if (remove_isolated && filtered >= tested_first && filtered < tested_end) {
-          const int removed = RemoveFlagged(w, flags(filtered), row(filtered));
-          if (filtered >= a && filtered < b) counts.removed += static_cast<std::size_t>(removed);
-        }
-        const int y = r - step - 2;
-        if (y >= a && y < b) {
-          const std::size_t row_start = static_cast<std::size_t>(y) * w;
-          counts.normals += EstimateNormalsRow(y - step >= 0 ? row(y - step) : nullptr, row(y),
-                                               y + step < h ? row(y + step) : nullptr, w, step,
-                                               max_jump, cloud.normals.data() + row_start);
-        }
-      }
-    });
-    for (const Counts& c : chunk_counts) {
-      total.points += c.points;
-      total.residual += c.residual;
-      total.depth += c.depth;
-      total.removed += c.removed;
-      total.normals += c.normals;
-    }
+    total = TriangulateInChunksWithNormals(ctx, *normal_options, *pool_);
     if (normal_result != nullptr) normal_result->num_normals = total.normals;
   }
   result->num_rejected_residual = total.residual;

@@ -110,6 +110,13 @@ class Triangulator final {
   void RunImpl(const CorrespondenceMap& map, const ImageView* intensity,
                const NormalOptions* normal_options, TriangulationResult* result,
                NormalResult* normal_result) const;
+  // Validation stage of RunImpl: throws unless the map and intensity image fit the camera.
+  void CheckInputSizes(const CorrespondenceMap& map, const ImageView* intensity) const;
+  // Validation stage of RunImpl: throws unless every valid correspondence is in the projector.
+  void CheckCorrespondencesInside(const CorrespondenceMap& map) const;
+  // Setup stage of RunImpl: sizes the cloud (intensities if any, normals if with_normals).
+  void SizeOutputs(const ImageView* intensity, bool with_normals,
+                   geometry::PointCloud* cloud_out) const;
 
   int camera_width_;
   int camera_height_;
