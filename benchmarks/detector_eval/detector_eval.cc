@@ -17,6 +17,7 @@
 //                      [--patch_contrast=true|false] [--min_print=F]
 //                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
 //                      [--box_faces=true|false] [--box_continuation=true|false]
+//                      [--hypotheses=N] [--reference_step=N]
 //
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
@@ -35,6 +36,8 @@
 // without the printed texture's appearance (RefineVerifyOptions), =rank only ranks by it.
 // --appearance_search=false leaves out PPF's print-guided pose search (SearchAppearancePose);
 // --search_step_m and --search_levels set its first step and number of step halvings.
+// --hypotheses sets how many of PPF's vote clusters are kept and refined, --reference_step
+// which sampled scene points vote (every n-th).
 // --patch_contrast=false compares the print as one correlation over all faces instead of
 // per surface patch (AppearanceOptions::patch_contrast); --min_print sets the correlation
 // below which verification takes a print as contradicting the pose (halving its score).
@@ -155,6 +158,17 @@ Args Parse(int argc, char** argv) {
       if (!ParseBool("--appearance_search", *v)) {
         args.detection.estimators.ppf.appearance_search.levels = 0;
       }
+    } else if (auto v = value("--hypotheses")) {
+      // PPF's vote clusters kept and refined (PpfMatchOptions::max_hypotheses and
+      // PpfDetectorOptions::hypotheses_to_verify together).
+      const int n = std::stoi(*v);
+      if (n < 1) throw std::invalid_argument("--hypotheses must be >= 1");
+      args.detection.estimators.ppf.match.max_hypotheses = n;
+      args.detection.estimators.ppf.hypotheses_to_verify = n;
+    } else if (auto v = value("--reference_step")) {
+      const int n = std::stoi(*v);
+      if (n < 1) throw std::invalid_argument("--reference_step must be >= 1");
+      args.detection.estimators.ppf.match.reference_step = n;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
     } else if (auto v = value("--multi_sensor")) {

@@ -5,14 +5,19 @@
 # output file matches the truth everywhere, the score (beside the perfect score), the task
 # clock (robot time) and the wall time.
 #
-#   benchmarks/orchestrator/run_layouts.sh [--detectors N] [layouts...]   # default: 1 2 3
+#   benchmarks/orchestrator/run_layouts.sh [--detectors N] [--bin DIR] [layouts...]
+#
+# Layouts default to 1 2 3. --bin DIR runs the servers already built in DIR (run.sh's --bin):
+# copy build/bin there first to go on editing and building while the layouts run.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 detectors=1
+bin_args=()
 layouts=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --detectors) detectors=$2; shift 2 ;;
+    --bin) bin_args=(--bin "$(cd "$2" && pwd)"); shift 2 ;;
     *) layouts+=("$1"); shift ;;
   esac
 done
@@ -22,7 +27,7 @@ printf '%-8s %-8s %-8s %-7s %-7s %-13s %-10s\n' layout reported true "output" sc
 for n in "${layouts[@]}"; do
   start=$(date +%s)
   scripts/run.sh --no-install --task "data/apc2016/tasks/pick_layout_$n.json" \
-    --detectors "$detectors" --out "$out/layout_$n" > "$out-layout_$n.log" 2>&1 || true
+    --detectors "$detectors" "${bin_args[@]}" --out "$out/layout_$n" > "$out-layout_$n.log" 2>&1 || true
   wall=$(( $(date +%s) - start ))
   report=$out/layout_$n/report.json
   if [[ -f $report ]]; then

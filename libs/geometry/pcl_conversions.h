@@ -1,6 +1,6 @@
 #pragma once
 
-// Conversions between picking::geometry::PointCloud and PCL clouds. This header includes PCL:
+// Conversion of picking::geometry::PointCloud to a PCL cloud. This header includes PCL:
 // include it only from .cc files that use PCL.
 
 #include <pcl/point_cloud.h>
@@ -11,19 +11,8 @@
 namespace picking::geometry {
 
 /// Positions only. Width, height and frame_id (as header.frame_id) are kept; is_dense is
-/// true when every point is finite.
+/// true when every point is finite. Throws std::invalid_argument on an inconsistent cloud
+/// (ValidatePointCloud).
 pcl::PointCloud<pcl::PointXYZ> ToPclXyz(const PointCloud& cloud);
-
-/// Positions and normals (curvature 0). Throws std::invalid_argument when the cloud has no
-/// normals.
-pcl::PointCloud<pcl::PointNormal> ToPclPointNormal(const PointCloud& cloud);
-
-/// Positions and colours. Throws std::invalid_argument when the cloud has no colours.
-pcl::PointCloud<pcl::PointXYZRGB> ToPclXyzRgb(const PointCloud& cloud);
-
-/// Back from PCL: the channels the PCL point type carries; width, height and frame_id kept.
-PointCloud FromPcl(const pcl::PointCloud<pcl::PointXYZ>& cloud);
-PointCloud FromPcl(const pcl::PointCloud<pcl::PointNormal>& cloud);
-PointCloud FromPcl(const pcl::PointCloud<pcl::PointXYZRGB>& cloud);
 
 }  // namespace picking::geometry

@@ -1,6 +1,8 @@
 // PLY reading and writing (http://paulbourke.net/dataformats/ply/), streaming through a
 // buffered reader so that large models never need a second copy in memory.
 
+#include "libs/geometry/ply_io.h"
+
 #include <algorithm>
 #include <array>
 #include <charconv>
@@ -12,7 +14,7 @@
 
 #include "libs/geometry/io_internal.h"
 
-namespace picking::geometry::internal {
+namespace picking::geometry {
 namespace {
 
 enum class Encoding { kAscii, kLittleEndian, kBigEndian };
@@ -53,7 +55,9 @@ bool IsFloat(ScalarType type) {
   return type == ScalarType::kFloat32 || type == ScalarType::kFloat64;
 }
 
-enum class Role { kIgnore, kX, kY, kZ, kNx, kNy, kNz, kRed, kGreen, kBlue, kIntensity };
+// kFace: the vertex index list of a face element (read only when faces are asked for).
+enum class Role { kIgnore, kX, kY, kZ, kNx, kNy, kNz, kRed, kGreen, kBlue, kIntensity, kFace };
+constexpr std::size_t kRoles = static_cast<std::size_t>(Role::kFace) + 1;
 
 struct Property {
   std::string name;
@@ -362,8 +366,9 @@ Header ReadHeader(Reader& reader, const std::string& path) {
   return header;
 }
 
-// Assigns roles to the vertex properties; throws on partial channels.
-void AssignRoles(Element& vertex, const std::string& path) {
+// Assigns roles to the vertex properties (`scalar` is the intensity property's name); throws
+// on partial channels.
+void AssignRoles(Element& vertex, const std::string& scalar, const std::string& path) {
   auto find = [&](std::initializer_list<const char*> names) -> Property* {
     for (const char* name : names) {
       for (Property& p : vertex.properties) {
@@ -395,8 +400,8 @@ void AssignRoles(Element& vertex, const std::string& path) {
   assign({{"nx"}, {"ny"}, {"nz"}}, {Role::kNx, Role::kNy, Role::kNz}, "normals (nx ny nz)", false);
   assign({{"red", "r"}, {"green", "g"}, {"blue", "b"}}, {Role::kRed, Role::kGreen, Role::kBlue},
          "colours (red green blue)", false);
-  if (Property* p = find({"intensity"})) {
-    if (p->is_list) fail("property \"intensity\" is a list");
+  if (Property* p = find({scalar.c_str()})) {
+    if (p->is_list) fail("property \"" + scalar + "\" is a list");
     p->role = Role::kIntensity;
   }
 }
@@ -449,6 +454,7 @@ class VertexSink final {
         i_ = static_cast<float>(value);
         break;
       case Role::kIgnore:
+      case Role::kFace:
         break;
     }
   }
@@ -468,13 +474,29 @@ class VertexSink final {
   float i_ = 0.0f;
 };
 
+using Triangles = std::vector<std::array<std::uint32_t, 3>>;
+
+// A face's vertex index; one that is no uint32 becomes UINT32_MAX, which is out of range.
+std::uint32_t ToIndex(double value) {
+  constexpr std::uint32_t kMax = std::numeric_limits<std::uint32_t>::max();
+  return value >= 0 && value < kMax ? static_cast<std::uint32_t>(value) : kMax;
+}
+
+// Fans a polygon's vertex indices into triangles.
+void Fan(const std::vector<std::uint32_t>& polygon, Triangles* triangles) {
+  for (std::size_t k = 1; k + 1 < polygon.size(); ++k) {
+    triangles->push_back({polygon[0], polygon[k], polygon[k + 1]});
+  }
+}
+
 std::string Instance(const Element& element, std::uint64_t index) {
   return element.name + " " + std::to_string(index);
 }
 
 void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_index,
-                   const std::string& path, PointCloud* cloud) {
+                   const std::string& path, PointCloud* cloud, Triangles* triangles) {
   std::string line;
+  std::vector<std::uint32_t> polygon;
   int line_number = header.lines;
   for (std::size_t e = 0; e < header.elements.size(); ++e) {
     const Element& element = header.elements[e];
@@ -498,6 +520,7 @@ void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_inde
         ++line_number;
         tokens = Split(line);
       } while (tokens.empty());
+      polygon.clear();
       auto fail = [&](const std::string& what) {
         throw PointCloudIoError(path, "line " + std::to_string(line_number) + ": " +
                                           Instance(element, i) + ": " + what);
@@ -520,6 +543,7 @@ void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_inde
               fail("\"" + std::string(tokens[t]) + "\" is not a valid value of property " +
                    property.name);
             }
+            if (property.role == Role::kFace) polygon.push_back(ToIndex(value));
           }
           continue;
         }
@@ -537,6 +561,7 @@ void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_inde
              std::to_string(t) + ")");
       }
       if (sink) sink->Push();
+      Fan(polygon, triangles);
     }
   }
   while (reader.ReadLine(&line)) {
@@ -549,7 +574,7 @@ void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_inde
 }
 
 void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_index,
-                    const std::string& path, PointCloud* cloud) {
+                    const std::string& path, PointCloud* cloud, Triangles* triangles) {
   const bool swap = (header.encoding == Encoding::kBigEndian) == HostIsLittleEndian();
   std::vector<char> block;
   for (std::size_t e = 0; e < header.elements.size(); ++e) {
@@ -577,7 +602,7 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
         offset += SizeOf(p.type);
       }
       // Fast path for the usual layout in host byte order: float channels, uchar colours.
-      std::array<std::ptrdiff_t, 11> at;
+      std::array<std::ptrdiff_t, kRoles> at;
       at.fill(-1);
       bool direct = !swap;
       for (std::size_t q = 0; q < element.properties.size(); ++q) {
@@ -640,7 +665,9 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
     std::optional<VertexSink> sink;
     if (is_vertex) sink.emplace(element, cloud);
     char scratch[8];
+    std::vector<std::uint32_t> polygon;
     for (std::uint64_t i = 0; i < element.count; ++i) {
+      polygon.clear();
       for (const Property& property : element.properties) {
         if (property.is_list) {
           const std::size_t count_size = SizeOf(property.count_type);
@@ -650,8 +677,16 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
             throw PointCloudIoError(
                 path, Instance(element, i) + ": negative list count of " + property.name);
           }
-          const std::uint64_t bytes = static_cast<std::uint64_t>(count) * SizeOf(property.type);
-          if (reader.Skip(bytes) != bytes) truncated(i);
+          const auto items = static_cast<std::uint64_t>(count);
+          const std::size_t size = SizeOf(property.type);
+          if (property.role != Role::kFace) {
+            if (reader.Skip(items * size) != items * size) truncated(i);
+            continue;
+          }
+          for (std::uint64_t k = 0; k < items; ++k) {
+            if (reader.Read(scratch, size) != size) truncated(i);
+            polygon.push_back(ToIndex(LoadScalar(scratch, property.type, swap)));
+          }
           continue;
         }
         const std::size_t size = SizeOf(property.type);
@@ -659,6 +694,7 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
         if (sink) sink->Set(property, LoadScalar(scratch, property.type, swap));
       }
       if (sink) sink->Push();
+      Fan(polygon, triangles);
     }
   }
   if (reader.remaining() != 0) {
@@ -683,7 +719,7 @@ void AppendFloat(float value, std::string* out) {
 
 }  // namespace
 
-PointCloud ReadPly(const std::string& path) {
+PlyFile ReadPlyFile(const std::string& path, const PlyReadOptions& options) {
   Reader reader(path);
   Header header = ReadHeader(reader, path);
   std::size_t vertex_index = header.elements.size();
@@ -700,13 +736,22 @@ PointCloud ReadPly(const std::string& path) {
     throw PointCloudIoError(
         path, "line " + std::to_string(header.lines) + ": the header declares no vertex element");
   }
-  AssignRoles(header.elements[vertex_index], path);
+  AssignRoles(header.elements[vertex_index], options.scalar_property, path);
+  for (Element& element : header.elements) {
+    for (Property& p : element.properties) {
+      if (options.faces && element.name == "face" && p.is_list &&
+          (p.name == "vertex_indices" || p.name == "vertex_index")) {
+        p.role = Role::kFace;
+      }
+    }
+  }
 
-  PointCloud cloud;
+  PlyFile file;
+  PointCloud& cloud = file.cloud;
   if (header.encoding == Encoding::kAscii) {
-    ReadAsciiBody(reader, header, vertex_index, path, &cloud);
+    ReadAsciiBody(reader, header, vertex_index, path, &cloud, &file.triangles);
   } else {
-    ReadBinaryBody(reader, header, vertex_index, path, &cloud);
+    ReadBinaryBody(reader, header, vertex_index, path, &cloud, &file.triangles);
   }
   cloud.frame_id = header.frame_id;
   const std::size_t n = cloud.points.size();
@@ -727,8 +772,20 @@ PointCloud ReadPly(const std::string& path) {
     cloud.width = static_cast<std::uint32_t>(n);
     cloud.height = 1;
   }
-  return cloud;
+  for (std::size_t t = 0; t < file.triangles.size(); ++t) {
+    for (const std::uint32_t index : file.triangles[t]) {
+      if (index >= n) {
+        throw PointCloudIoError(path, "face " + std::to_string(t) + " has vertex index " +
+                                          std::to_string(index) + " out of range");
+      }
+    }
+  }
+  return file;
 }
+
+namespace internal {
+
+PointCloud ReadPly(const std::string& path) { return ReadPlyFile(path).cloud; }
 
 void WritePly(const std::string& path, const PointCloud& cloud, PointCloudFormat format) {
   const std::size_t n = cloud.size();
@@ -809,4 +866,5 @@ void WritePly(const std::string& path, const PointCloud& cloud, PointCloudFormat
   file.Commit();
 }
 
-}  // namespace picking::geometry::internal
+}  // namespace internal
+}  // namespace picking::geometry

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "libs/geometry/pose.h"
+
 namespace picking::ur10 {
 namespace {
 
@@ -33,13 +35,6 @@ Eigen::Isometry3d Joint(const DhParameters& dh, int i, double theta) {
   const double d[kNumJoints] = {dh.d1, 0.0, 0.0, dh.d4, dh.d5, dh.d6};
   const double a[kNumJoints] = {0.0, dh.a2, dh.a3, 0.0, 0.0, 0.0};
   return DhTransform(theta, d[i], a[i], kCosAlpha[i], kSinAlpha[i]);
-}
-
-bool IsRigid(const Eigen::Isometry3d& X) {
-  if (!X.matrix().allFinite()) return false;
-  const Eigen::Matrix3d R = X.linear();
-  return (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-6 &&
-         std::abs(R.determinant() - 1.0) < 1e-6;
 }
 
 // Orders joint vectors by (max |difference|, sum of squared differences) to `seed`.
@@ -210,7 +205,7 @@ std::vector<IkSolution> Ur10Kinematics::SolveRaw(const Eigen::Isometry3d& X_Base
 IkResult Ur10Kinematics::Solve(const Eigen::Isometry3d& X_BaseTool,
                                const IkOptions& options) const {
   IkResult result;
-  if (!IsRigid(X_BaseTool)) {
+  if (!geometry::IsValidPose(X_BaseTool)) {
     result.reason = "invalid pose: not finite or its rotation is not orthonormal";
     return result;
   }

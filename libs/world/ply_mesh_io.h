@@ -6,12 +6,12 @@
 
 namespace picking::world {
 
-/// Reads a binary little-endian PLY file: the vertex element with float or double x y z and
-/// optional uchar red green blue and float `albedo`, and an optional face element (a list of
-/// vertex indices; polygons are fanned into triangles). Other properties are skipped.
-/// A file without faces gives a mesh with vertices only (a point set). Throws
-/// std::runtime_error naming the file and what is wrong (ASCII format, truncation, a vertex
-/// index out of range, a missing x/y/z).
+/// Reads a PLY file through geometry::ReadPlyFile (ASCII or binary, either byte order): the
+/// vertex element's x y z, red green blue (or r g b) and float `albedo`, and an optional face
+/// element (vertex_indices or vertex_index lists; polygons are fanned into triangles). Other
+/// properties and elements are skipped. A file without faces gives a mesh with vertices only
+/// (a point set). Throws std::runtime_error (geometry::PointCloudIoError) naming the file and
+/// what is wrong (a malformed header, truncation, a vertex index out of range, a missing x/y/z).
 TriangleMesh ReadPly(const std::string& path);
 
 /// Writes `mesh` as binary little-endian PLY: x y z float, red green blue uchar (when the mesh

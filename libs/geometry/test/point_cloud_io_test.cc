@@ -11,6 +11,7 @@
 #include <sstream>
 #include <unordered_set>
 
+#include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/point_types.h>
 
@@ -173,6 +174,26 @@ TEST_F(PointCloudIoTest, PlyReaderAgreesWithPcl) {
   for (std::size_t i = 0; i < cloud.size(); i += 97) {
     EXPECT_EQ(cloud.points[i].x(), reference[i].x);
     EXPECT_EQ(cloud.points[i].y(), reference[i].y);
+    EXPECT_EQ(cloud.points[i].z(), reference[i].z);
+    EXPECT_EQ(cloud.colors[i][0], reference[i].r);
+    EXPECT_EQ(cloud.colors[i][1], reference[i].g);
+    EXPECT_EQ(cloud.colors[i][2], reference[i].b);
+  }
+}
+
+TEST_F(PointCloudIoTest, PcdReaderAgreesWithPcl) {
+  const PointCloud cloud = ReadPointCloud(kScene);
+  ASSERT_TRUE(cloud.has_colors());
+  pcl::PointCloud<pcl::PointXYZRGB> reference;
+  ASSERT_EQ(pcl::io::loadPCDFile(kScene, reference), 0);
+  ASSERT_EQ(cloud.size(), reference.size());
+  EXPECT_EQ(cloud.width, reference.width);
+  for (std::size_t i = 0; i < reference.size(); i += 101) {
+    if (std::isnan(reference[i].x)) {
+      EXPECT_TRUE(std::isnan(cloud.points[i].x()));
+      continue;
+    }
+    EXPECT_EQ(cloud.points[i].x(), reference[i].x);
     EXPECT_EQ(cloud.points[i].z(), reference[i].z);
     EXPECT_EQ(cloud.colors[i][0], reference[i].r);
     EXPECT_EQ(cloud.colors[i][1], reference[i].g);

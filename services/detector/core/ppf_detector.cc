@@ -8,16 +8,14 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
-#include <exception>
 #include <limits>
-#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <utility>
 #include <vector>
 
+#include "libs/parallel/parallel_for.h"
 #include "services/detector/core/ppf_cloud.h"
 
 namespace picking::detector {
@@ -695,51 +693,37 @@ struct RefineWork {
 // Refines jobs [begin, end) of *work in parallel, each taken only while the mean time of
 // those done so far still fits before the deadline (the first always is: early_deadline while
 // no voted hypothesis is found, refine_deadline after); the results keep the jobs' order, so
-// that without a deadline the outcome does not depend on threads. Rethrows the first
-// exception of a job after all threads stopped.
+// that without a deadline the outcome does not depend on threads. After the first exception
+// of a job the jobs not started are skipped, and it is rethrown once all threads stopped.
 void RefineRange(const HypothesisRefiner& refiner, const DetectionGate& gate,
                  const PpfDetectorOptions& options, const std::vector<PpfHypothesis>& hypotheses,
                  std::size_t begin, std::size_t end,
                  std::chrono::steady_clock::time_point early_deadline, RefineWork* work) {
   std::atomic<bool>& voted_found = work->voted_found;
   std::vector<std::optional<PpfDetection>>& refined = work->refined;
-  std::atomic<std::size_t> next{begin};
   std::atomic<std::int64_t> done{0};
   std::atomic<std::int64_t> busy_ns{0};
-  std::mutex error_mutex;
-  std::exception_ptr error;
-  const auto worker = [&]() {
-    try {
-      for (std::size_t h = next++; h < end; h = next++) {
-        const auto now = std::chrono::steady_clock::now();
-        const std::int64_t n = done.load();
-        const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
-        // Once a voted hypothesis is found the seeds' share of the time is not needed.
-        if (h > begin && now + mean > (voted_found ? options.refine_deadline : early_deadline)) {
-          return;
-        }
-        refined[h] = refiner.Refine(work->jobs[h], hypotheses, work->seed_poses);
-        if (!refined[h]->seed && gate.Found(*refined[h])) voted_found = true;
-        busy_ns += std::chrono::duration_cast<std::chrono::nanoseconds>(
-                       std::chrono::steady_clock::now() - now)
-                       .count();
-        ++done;
-      }
-    } catch (...) {
-      std::lock_guard<std::mutex> lock(error_mutex);
-      if (!error) error = std::current_exception();
-      next = end;  // the others stop too
+  const int jobs = static_cast<int>(end - begin);
+  const int threads =
+      std::clamp(parallel::ResolveThreads(options.match.num_threads), 1, std::max(1, jobs));
+  parallel::ParallelFor(jobs, threads, [&](int job) {
+    const std::size_t h = begin + static_cast<std::size_t>(job);
+    const auto now = std::chrono::steady_clock::now();
+    const std::int64_t n = done.load();
+    const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
+    // Once a voted hypothesis is found the seeds' share of the time is not needed. A thread
+    // whose job does not fit skips it and stops (leaves the job); the others go on.
+    if (h > begin && now + mean > (voted_found ? options.refine_deadline : early_deadline)) {
+      return false;
     }
-  };
-  const int threads = std::clamp(options.match.num_threads > 0
-                                     ? options.match.num_threads
-                                     : static_cast<int>(std::thread::hardware_concurrency()),
-                                 1, std::max(1, static_cast<int>(end - begin)));
-  std::vector<std::thread> pool;
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-  worker();
-  for (std::thread& t : pool) t.join();
-  if (error) std::rethrow_exception(error);
+    refined[h] = refiner.Refine(work->jobs[h], hypotheses, work->seed_poses);
+    if (!refined[h]->seed && gate.Found(*refined[h])) voted_found = true;
+    busy_ns +=
+        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - now)
+            .count();
+    ++done;
+    return true;
+  });
 }
 
 // Throws std::invalid_argument when a seed pose is not a finite rigid motion.

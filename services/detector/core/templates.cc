@@ -1,9 +1,5 @@
 #include "services/detector/core/templates.h"
 
-#include <pcl/io/pcd_io.h>
-#include <pcl/io/ply_io.h>
-#include <pcl/point_types.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -378,21 +374,6 @@ PointCloud SampleMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
   // The textured sampling draws the same points; only its albedo channel is dropped.
   PointCloud out = SampleTexturedMeshSurface(mesh, spacing_m, seed);
   out.intensities.clear();
-  return out;
-}
-
-PointCloud LoadModelCloud(const std::string& path) {
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  const bool ply = path.size() >= 4 && path.compare(path.size() - 4, 4, ".ply") == 0;
-  const int status = ply ? pcl::io::loadPLYFile(path, cloud) : pcl::io::loadPCDFile(path, cloud);
-  if (status < 0) throw std::runtime_error(path + ": cannot read model point cloud");
-  PointCloud out;
-  for (const auto& p : cloud.points)
-    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
-      out.points.emplace_back(p.x, p.y, p.z);
-  if (out.points.empty()) throw std::runtime_error(path + ": model point cloud has no points");
-  out.width = static_cast<std::uint32_t>(out.points.size());
-  out.height = 1;
   return out;
 }
 

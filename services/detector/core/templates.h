@@ -4,7 +4,6 @@
 
 #include <chrono>
 #include <cstdint>
-#include <string>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -31,10 +30,6 @@ std::vector<Eigen::Vector3d> FibonacciSphere(int n);
 /// an empty mesh, an out-of-range index or spacing_m <= 0.
 geometry::PointCloud SampleMeshSurface(const world::TriangleMesh& mesh, double spacing_m,
                                        std::uint32_t seed = 1);
-
-/// Loads an object model cloud (PLY or PCD, metres) with PCL. Throws std::runtime_error
-/// naming the file when it cannot be read or has no points.
-geometry::PointCloud LoadModelCloud(const std::string& path);
 
 /// Renders `model` (item frame; normals optional, used for back-face culling) seen by
 /// `camera` at X_CameraItem with a z-buffer point splat: each point covers a square of about

@@ -3,13 +3,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <future>
 #include <limits>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "libs/parallel/parallel_for.h"
 #include "services/detector/core/kdtree.h"
 
 namespace picking::detector {
@@ -92,12 +92,15 @@ VerificationScene::VerificationScene(const geometry::PointCloud& scene,
     impl_->depth[k] = std::move(depth);
     impl_->X_ReferenceSensor[k] = X_ReferenceSensor;
   };
-  std::vector<std::future<void>> images;
-  for (std::size_t k = 0; k < count; ++k) {
-    images.push_back(std::async(std::launch::async, build_depth, k));
-  }
-  impl_->tree = KdTree(impl_->p_SensorPoints);
-  for (auto& f : images) f.get();
+  // Task 0 the tree, task 1 + k sensor k's image: a thread each, as many as there are tasks.
+  const int tasks = static_cast<int>(count) + 1;
+  parallel::ParallelFor(tasks, tasks, [&](int task) {
+    if (task == 0) {
+      impl_->tree = KdTree(impl_->p_SensorPoints);
+    } else {
+      build_depth(static_cast<std::size_t>(task - 1));
+    }
+  });
 }
 
 VerificationScene::~VerificationScene() = default;

@@ -1,34 +1,18 @@
 #pragma once
 
-#include <functional>
-#include <memory>
+#include "libs/parallel/parallel_for.h"
 
 namespace picking::scanner {
 
-/// A small fixed pool of worker threads that runs the bands of an image-sized job in
-/// parallel: Run(n, fn) calls fn(0) ... fn(n - 1), each exactly once, spread over the
-/// workers and the calling thread, and returns when all are done. Threads are created once
-/// and sleep between jobs, so a job costs a wake-up, not a thread start.
-///
-/// Run may be called from one thread at a time (calls are serialised by a mutex).
-class BandPool final {
+/// The scanner's pool for the bands of an image-sized job: a parallel::ThreadPool (threads
+/// created once, sleeping between jobs) under the name the scanner's code knows it by.
+/// Run(n, fn) is ParallelFor(n, fn): fn(band) or fn(band, thread) for every band in [0, n),
+/// each exactly once, spread over the workers and the calling thread.
+class BandPool final : public parallel::ThreadPool {
  public:
-  /// @param num_threads threads working on a job including the caller; 0 uses
-  ///   std::thread::hardware_concurrency(). @throws std::invalid_argument if negative.
-  explicit BandPool(int num_threads = 0);
-  ~BandPool();
-  BandPool(const BandPool&) = delete;
-  BandPool& operator=(const BandPool&) = delete;
+  using parallel::ThreadPool::ThreadPool;
 
-  int num_threads() const;
-
-  /// Runs fn(i) for every i in [0, num_tasks). If a task throws, the remaining tasks still
-  /// run and the first exception is rethrown here.
-  void Run(int num_tasks, const std::function<void(int)>& fn);
-
- private:
-  struct State;
-  std::unique_ptr<State> state_;
+  void Run(int num_tasks, parallel::TaskRef fn) { ParallelFor(num_tasks, fn); }
 };
 
 }  // namespace picking::scanner

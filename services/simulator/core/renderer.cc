@@ -3,16 +3,15 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <mutex>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
-#include <thread>
-#include <type_traits>
 #include <utility>
+
+#include "libs/parallel/parallel_for.h"
 
 namespace picking::simulator {
 namespace {
@@ -24,39 +23,10 @@ constexpr int kRowsPerBlock = 8;
 // Rays per Embree packet (rtcIntersect8).
 constexpr int kLanes = 8;
 
-int ResolveThreads(int requested) {
-  if (requested > 0) return requested;
-  const unsigned hw = std::thread::hardware_concurrency();
-  return hw == 0 ? 1 : static_cast<int>(hw);
-}
-
-// Calls f(i, worker) for i in [0, n) on up to `threads` threads (the caller's included,
-// worker 0), items taken in order from a shared counter; worker < min(threads, n). `f` must
-// not throw. Also accepts f(i).
-template <class F>
-void ParallelFor(int n, int threads, const F& f) {
-  auto call = [&f](int i, int worker) {
-    if constexpr (std::is_invocable_v<const F&, int, int>) {
-      f(i, worker);
-    } else {
-      f(i);
-    }
-  };
-  threads = std::min(threads, n);
-  if (threads <= 1) {
-    for (int i = 0; i < n; ++i) call(i, 0);
-    return;
-  }
-  std::atomic<int> next{0};
-  auto worker = [&](int id) {
-    for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) call(i, id);
-  };
-  std::vector<std::thread> pool;
-  pool.reserve(threads - 1);
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker, t);
-  worker(0);
-  for (auto& th : pool) th.join();
-}
+// Every parallel loop here is parallel::ParallelFor over blocks of rows: threads started per
+// call (the caller's included, thread 0), blocks taken in order from a shared counter.
+using parallel::ParallelFor;
+using parallel::ResolveThreads;
 
 bool IsFinitePose(const Eigen::Isometry3d& X) {
   if (!X.matrix().allFinite()) return false;
