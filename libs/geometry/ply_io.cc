@@ -8,6 +8,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <optional>
 #include <string_view>
@@ -573,6 +574,127 @@ void ReadAsciiBody(Reader& reader, const Header& header, std::size_t vertex_inde
   }
 }
 
+// An element of fixed-size records (no lists): skipped, or read into the cloud when it is the
+// vertex element (a fast path for float channels and uchar colours in host byte order).
+void ReadFixedRecords(Reader& reader, const Element& element, bool is_vertex, bool swap,
+                      const std::function<void(std::uint64_t)>& truncated, std::vector<char>& block,
+                      PointCloud* cloud) {
+  const std::size_t stride = element.stride();
+  if (stride == 0) return;
+  if (element.count > reader.remaining() / stride) truncated(reader.remaining() / stride);
+  if (!is_vertex) {
+    reader.Skip(element.count * stride);
+    return;
+  }
+  VertexSink sink(element, cloud);
+  sink.Reserve(static_cast<std::size_t>(element.count));
+  std::vector<std::size_t> offsets;
+  std::size_t offset = 0;
+  for (const Property& p : element.properties) {
+    offsets.push_back(offset);
+    offset += SizeOf(p.type);
+  }
+  // Fast path for the usual layout in host byte order: float channels, uchar colours.
+  std::array<std::ptrdiff_t, kRoles> at;
+  at.fill(-1);
+  bool direct = !swap;
+  for (std::size_t q = 0; q < element.properties.size(); ++q) {
+    const Property& p = element.properties[q];
+    if (p.role == Role::kIgnore) continue;
+    at[static_cast<int>(p.role)] = static_cast<std::ptrdiff_t>(offsets[q]);
+    const bool is_color = p.role == Role::kRed || p.role == Role::kGreen || p.role == Role::kBlue;
+    direct &= p.type == (is_color ? ScalarType::kUint8 : ScalarType::kFloat32);
+  }
+  const bool normals = at[static_cast<int>(Role::kNx)] >= 0;
+  const bool colors = at[static_cast<int>(Role::kRed)] >= 0;
+  const bool intensity = at[static_cast<int>(Role::kIntensity)] >= 0;
+  auto offset_of = [&](Role role) { return at[static_cast<int>(role)]; };
+  constexpr std::uint64_t kBlock = 1 << 14;
+  block.resize(kBlock * stride);
+  for (std::uint64_t first = 0; first < element.count; first += kBlock) {
+    const std::uint64_t n = std::min(kBlock, element.count - first);
+    const std::size_t got = reader.Read(block.data(), n * stride);
+    if (got != n * stride) truncated(first + got / stride);
+    if (direct) {
+      for (std::uint64_t k = 0; k < n; ++k) {
+        const char* record = block.data() + k * stride;
+        Eigen::Vector3f v;
+        std::memcpy(&v[0], record + offset_of(Role::kX), 4);
+        std::memcpy(&v[1], record + offset_of(Role::kY), 4);
+        std::memcpy(&v[2], record + offset_of(Role::kZ), 4);
+        cloud->points.push_back(v);
+        if (normals) {
+          std::memcpy(&v[0], record + offset_of(Role::kNx), 4);
+          std::memcpy(&v[1], record + offset_of(Role::kNy), 4);
+          std::memcpy(&v[2], record + offset_of(Role::kNz), 4);
+          cloud->normals.push_back(v);
+        }
+        if (colors) {
+          cloud->colors.push_back({static_cast<std::uint8_t>(record[offset_of(Role::kRed)]),
+                                   static_cast<std::uint8_t>(record[offset_of(Role::kGreen)]),
+                                   static_cast<std::uint8_t>(record[offset_of(Role::kBlue)])});
+        }
+        if (intensity) {
+          float value;
+          std::memcpy(&value, record + offset_of(Role::kIntensity), 4);
+          cloud->intensities.push_back(value);
+        }
+      }
+      continue;
+    }
+    for (std::uint64_t k = 0; k < n; ++k) {
+      const char* record = block.data() + k * stride;
+      for (std::size_t q = 0; q < element.properties.size(); ++q) {
+        const Property& property = element.properties[q];
+        if (property.role == Role::kIgnore) continue;
+        sink.Set(property, LoadScalar(record + offsets[q], property.type, swap));
+      }
+      sink.Push();
+    }
+  }
+}
+
+// An element with list properties, record by record: face lists become triangles, other lists
+// are skipped, the scalars of the vertex element go to the cloud.
+void ReadListRecords(Reader& reader, const Element& element, bool is_vertex, bool swap,
+                     const std::function<void(std::uint64_t)>& truncated, const std::string& path,
+                     PointCloud* cloud, Triangles* triangles) {
+  std::optional<VertexSink> sink;
+  if (is_vertex) sink.emplace(element, cloud);
+  char scratch[8];
+  std::vector<std::uint32_t> polygon;
+  for (std::uint64_t i = 0; i < element.count; ++i) {
+    polygon.clear();
+    for (const Property& property : element.properties) {
+      if (property.is_list) {
+        const std::size_t count_size = SizeOf(property.count_type);
+        if (reader.Read(scratch, count_size) != count_size) truncated(i);
+        const double count = LoadScalar(scratch, property.count_type, swap);
+        if (count < 0) {
+          throw PointCloudIoError(
+              path, Instance(element, i) + ": negative list count of " + property.name);
+        }
+        const auto items = static_cast<std::uint64_t>(count);
+        const std::size_t size = SizeOf(property.type);
+        if (property.role != Role::kFace) {
+          if (reader.Skip(items * size) != items * size) truncated(i);
+          continue;
+        }
+        for (std::uint64_t k = 0; k < items; ++k) {
+          if (reader.Read(scratch, size) != size) truncated(i);
+          polygon.push_back(ToIndex(LoadScalar(scratch, property.type, swap)));
+        }
+        continue;
+      }
+      const std::size_t size = SizeOf(property.type);
+      if (reader.Read(scratch, size) != size) truncated(i);
+      if (sink) sink->Set(property, LoadScalar(scratch, property.type, swap));
+    }
+    if (sink) sink->Push();
+    Fan(polygon, triangles);
+  }
+}
+
 void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_index,
                     const std::string& path, PointCloud* cloud, Triangles* triangles) {
   const bool swap = (header.encoding == Encoding::kBigEndian) == HostIsLittleEndian();
@@ -580,121 +702,15 @@ void ReadBinaryBody(Reader& reader, const Header& header, std::size_t vertex_ind
   for (std::size_t e = 0; e < header.elements.size(); ++e) {
     const Element& element = header.elements[e];
     const bool is_vertex = e == vertex_index;
-    auto truncated = [&](std::uint64_t i) {
+    const std::function<void(std::uint64_t)> truncated = [&](std::uint64_t i) {
       throw PointCloudIoError(path, Instance(element, i) + ": unexpected end of file (" +
                                         std::to_string(i) + " of " + std::to_string(element.count) +
                                         " " + element.name + " elements complete)");
     };
-    if (!element.has_lists()) {
-      const std::size_t stride = element.stride();
-      if (stride == 0) continue;
-      if (element.count > reader.remaining() / stride) truncated(reader.remaining() / stride);
-      if (!is_vertex) {
-        reader.Skip(element.count * stride);
-        continue;
-      }
-      VertexSink sink(element, cloud);
-      sink.Reserve(static_cast<std::size_t>(element.count));
-      std::vector<std::size_t> offsets;
-      std::size_t offset = 0;
-      for (const Property& p : element.properties) {
-        offsets.push_back(offset);
-        offset += SizeOf(p.type);
-      }
-      // Fast path for the usual layout in host byte order: float channels, uchar colours.
-      std::array<std::ptrdiff_t, kRoles> at;
-      at.fill(-1);
-      bool direct = !swap;
-      for (std::size_t q = 0; q < element.properties.size(); ++q) {
-        const Property& p = element.properties[q];
-        if (p.role == Role::kIgnore) continue;
-        at[static_cast<int>(p.role)] = static_cast<std::ptrdiff_t>(offsets[q]);
-        const bool is_color =
-            p.role == Role::kRed || p.role == Role::kGreen || p.role == Role::kBlue;
-        direct &= p.type == (is_color ? ScalarType::kUint8 : ScalarType::kFloat32);
-      }
-      const bool normals = at[static_cast<int>(Role::kNx)] >= 0;
-      const bool colors = at[static_cast<int>(Role::kRed)] >= 0;
-      const bool intensity = at[static_cast<int>(Role::kIntensity)] >= 0;
-      auto offset_of = [&](Role role) { return at[static_cast<int>(role)]; };
-      constexpr std::uint64_t kBlock = 1 << 14;
-      block.resize(kBlock * stride);
-      for (std::uint64_t first = 0; first < element.count; first += kBlock) {
-        const std::uint64_t n = std::min(kBlock, element.count - first);
-        const std::size_t got = reader.Read(block.data(), n * stride);
-        if (got != n * stride) truncated(first + got / stride);
-        if (direct) {
-          for (std::uint64_t k = 0; k < n; ++k) {
-            const char* record = block.data() + k * stride;
-            Eigen::Vector3f v;
-            std::memcpy(&v[0], record + offset_of(Role::kX), 4);
-            std::memcpy(&v[1], record + offset_of(Role::kY), 4);
-            std::memcpy(&v[2], record + offset_of(Role::kZ), 4);
-            cloud->points.push_back(v);
-            if (normals) {
-              std::memcpy(&v[0], record + offset_of(Role::kNx), 4);
-              std::memcpy(&v[1], record + offset_of(Role::kNy), 4);
-              std::memcpy(&v[2], record + offset_of(Role::kNz), 4);
-              cloud->normals.push_back(v);
-            }
-            if (colors) {
-              cloud->colors.push_back({static_cast<std::uint8_t>(record[offset_of(Role::kRed)]),
-                                       static_cast<std::uint8_t>(record[offset_of(Role::kGreen)]),
-                                       static_cast<std::uint8_t>(record[offset_of(Role::kBlue)])});
-            }
-            if (intensity) {
-              float value;
-              std::memcpy(&value, record + offset_of(Role::kIntensity), 4);
-              cloud->intensities.push_back(value);
-            }
-          }
-          continue;
-        }
-        for (std::uint64_t k = 0; k < n; ++k) {
-          const char* record = block.data() + k * stride;
-          for (std::size_t q = 0; q < element.properties.size(); ++q) {
-            const Property& property = element.properties[q];
-            if (property.role == Role::kIgnore) continue;
-            sink.Set(property, LoadScalar(record + offsets[q], property.type, swap));
-          }
-          sink.Push();
-        }
-      }
-      continue;
-    }
-    std::optional<VertexSink> sink;
-    if (is_vertex) sink.emplace(element, cloud);
-    char scratch[8];
-    std::vector<std::uint32_t> polygon;
-    for (std::uint64_t i = 0; i < element.count; ++i) {
-      polygon.clear();
-      for (const Property& property : element.properties) {
-        if (property.is_list) {
-          const std::size_t count_size = SizeOf(property.count_type);
-          if (reader.Read(scratch, count_size) != count_size) truncated(i);
-          const double count = LoadScalar(scratch, property.count_type, swap);
-          if (count < 0) {
-            throw PointCloudIoError(
-                path, Instance(element, i) + ": negative list count of " + property.name);
-          }
-          const auto items = static_cast<std::uint64_t>(count);
-          const std::size_t size = SizeOf(property.type);
-          if (property.role != Role::kFace) {
-            if (reader.Skip(items * size) != items * size) truncated(i);
-            continue;
-          }
-          for (std::uint64_t k = 0; k < items; ++k) {
-            if (reader.Read(scratch, size) != size) truncated(i);
-            polygon.push_back(ToIndex(LoadScalar(scratch, property.type, swap)));
-          }
-          continue;
-        }
-        const std::size_t size = SizeOf(property.type);
-        if (reader.Read(scratch, size) != size) truncated(i);
-        if (sink) sink->Set(property, LoadScalar(scratch, property.type, swap));
-      }
-      if (sink) sink->Push();
-      Fan(polygon, triangles);
+    if (element.has_lists()) {
+      ReadListRecords(reader, element, is_vertex, swap, truncated, path, cloud, triangles);
+    } else {
+      ReadFixedRecords(reader, element, is_vertex, swap, truncated, block, cloud);
     }
   }
   if (reader.remaining() != 0) {
