@@ -83,7 +83,7 @@ std::vector<LayoutRegion> LayoutRegions(const world::CellModel& cell,
 }
 
 LayoutPlanner::LayoutPlanner(const world::CellModel& cell, const world::ItemModelLibrary& models,
-                             const RayScene& static_scene, LayoutOptions options)
+                             const world::RayScene& static_scene, LayoutOptions options)
     : cell_(cell),
       models_(models),
       static_scene_(static_scene),
@@ -138,7 +138,7 @@ using HeightSample = std::pair<Eigen::Vector2d, double>;
 
 // The static cell's floor under a 5 x 5 grid of the footprint; none where a ray misses it.
 std::optional<std::vector<HeightSample>> FloorUnder(const Footprint& f, const LayoutRegion& region,
-                                                    const RayScene& scene) {
+                                                    const world::RayScene& scene) {
   constexpr int kGrid = 5;
   const Eigen::AlignedBox3d& box = region.box_R;
   const Eigen::Isometry3d X_RegionBase = region.X_BaseRegion.inverse();
@@ -210,8 +210,8 @@ Eigen::Isometry3d PoseOf(const Footprint& f, const world::ItemModel& model,
 // (none if no candidate does).
 std::optional<Footprint> LowestSpot(const world::ItemModel& model, const LayoutRegion& region,
                                     const std::vector<Footprint>& occupied,
-                                    const RayScene& static_scene, const LayoutOptions& options,
-                                    std::mt19937* rng) {
+                                    const world::RayScene& static_scene,
+                                    const LayoutOptions& options, std::mt19937* rng) {
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   const Eigen::AlignedBox3d& box = region.box_R;
   const Eigen::Vector3d size = model.box_I.sizes();

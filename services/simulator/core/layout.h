@@ -10,7 +10,7 @@
 #include "libs/apc/task.h"
 #include "libs/world/cell_config.h"
 #include "libs/world/item_models.h"
-#include "services/simulator/core/ray_scene.h"
+#include "libs/world/ray_scene.h"
 
 namespace picking::simulator {
 
@@ -62,7 +62,7 @@ std::vector<LayoutRegion> LayoutRegions(const world::CellModel& cell, const Layo
 class LayoutPlanner final {
  public:
   LayoutPlanner(const world::CellModel& cell, const world::ItemModelLibrary& models,
-                const RayScene& static_scene, LayoutOptions options = {});
+                const world::RayScene& static_scene, LayoutOptions options = {});
 
   /// Layout of a whole task (bins A..L, then the tote). Throws LayoutError naming the bin if
   /// an item does not fit, apc::UnknownItemError for an unknown item.
@@ -79,7 +79,7 @@ class LayoutPlanner final {
  private:
   const world::CellModel& cell_;
   const world::ItemModelLibrary& models_;
-  const RayScene& static_scene_;
+  const world::RayScene& static_scene_;
   LayoutOptions options_;
   std::vector<LayoutRegion> regions_;
 };

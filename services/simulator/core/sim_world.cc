@@ -40,7 +40,7 @@ SimWorld::SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModel
   if (!IsRigid(cell_.config.gripper.X_ToolTcp)) {
     throw std::invalid_argument("SimWorld: the cell's gripper.X_ToolTcp is not a rigid transform");
   }
-  static_scene_ = std::make_unique<RayScene>();
+  static_scene_ = std::make_unique<world::RayScene>();
   static_scene_->Add(kShelfId, cell_.shelf, cell_.config.X_BaseShelf);
   static_scene_->Add(kToteId, cell_.tote, cell_.config.X_BaseTote);
   static_scene_->Add(kTableId, cell_.table, cell_.config.X_BaseTable);
@@ -167,9 +167,9 @@ const ur10::Ur10Kinematics& SimWorld::kinematics() const {
   return *kinematics_;
 }
 
-const RayScene& SimWorld::ItemScene() const {
+const world::RayScene& SimWorld::ItemScene() const {
   if (!item_scene_) {
-    auto scene = std::make_unique<RayScene>();
+    auto scene = std::make_unique<world::RayScene>();
     scene->Add(kShelfId, cell_.shelf, cell_.config.X_BaseShelf);
     scene->Add(kToteId, cell_.tote, cell_.config.X_BaseTote);
     scene->Add(kTableId, cell_.table, cell_.config.X_BaseTable);
@@ -186,11 +186,11 @@ GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
   if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
     throw std::invalid_argument("GuardedMove: max_distance_m must be positive and finite");
   }
-  const RayScene& scene = ItemScene();
+  const world::RayScene& scene = ItemScene();
   const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
   const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
   GuardedMoveResult result;
-  std::optional<RayHit> first;
+  std::optional<world::RayHit> first;
   for (int k = -1; k < options_.rim_samples; ++k) {
     Eigen::Vector3d p = X_BaseTcp_.translation();
     if (k >= 0) {
@@ -232,10 +232,10 @@ ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTcp,
   if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
     throw std::invalid_argument("Probe: max_distance_m must be positive and finite");
   }
-  const RayScene& scene = ItemScene();
+  const world::RayScene& scene = ItemScene();
   const Eigen::Vector3d d = direction_Base.normalized();
   const Eigen::Vector3d x = X_BaseTcp.linear().col(0), y = X_BaseTcp.linear().col(1);
-  std::optional<RayHit> first;
+  std::optional<world::RayHit> first;
   for (int k = -1; k < options_.rim_samples; ++k) {
     Eigen::Vector3d p = X_BaseTcp.translation();
     if (k >= 0) {
@@ -275,7 +275,7 @@ SuctionResult SimWorld::SuctionOn() {
     result.attached_item_id = attached_;
     return result;
   }
-  const RayScene& scene = ItemScene();
+  const world::RayScene& scene = ItemScene();
   const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
   const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
   std::vector<Eigen::Vector3d> points;
@@ -392,7 +392,7 @@ std::string SimWorld::ClassifyContainer(const world::ItemModel& model,
 
 double SimWorld::SupportBelow(int self_id, const world::ItemModel& model,
                               const Eigen::Isometry3d& X_BaseItem, double from_z) const {
-  const RayScene& scene = ItemScene();
+  const world::RayScene& scene = ItemScene();
   const Eigen::AlignedBox3d box = world::Bounds(model.mesh, X_BaseItem);
   double support = cell_.config.floor_z_m();
   constexpr int kGrid = 5;

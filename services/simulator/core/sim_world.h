@@ -12,8 +12,8 @@
 #include "libs/ur10/kinematics.h"
 #include "libs/world/cell_config.h"
 #include "libs/world/item_models.h"
+#include "libs/world/ray_scene.h"
 #include "services/simulator/core/layout.h"
-#include "services/simulator/core/ray_scene.h"
 #include "services/simulator/core/renderer.h"
 
 namespace picking::simulator {
@@ -237,7 +237,7 @@ class SimWorld final {
  private:
   enum : int { kShelfId = -2, kToteId = -3, kTableId = -4 };
   void ValidatePose(const Eigen::Isometry3d& X, const std::string& what) const;
-  const RayScene& ItemScene() const;  // items + static, rebuilt when dirty
+  const world::RayScene& ItemScene() const;  // items + static, rebuilt when dirty
   void MarkMoved() { item_scene_.reset(); }
   // Highest support below the footprint of `model` at X_BaseItem (excluding `self_id`),
   // searched from `from_z` down; returns its z (Base), at least the floor.
@@ -253,8 +253,8 @@ class SimWorld final {
   std::shared_ptr<const world::ItemModelLibrary> models_;
   SimOptions options_;
   std::shared_ptr<const ur10::Ur10Kinematics> kinematics_;
-  std::unique_ptr<RayScene> static_scene_;
-  mutable std::unique_ptr<RayScene> item_scene_;
+  std::unique_ptr<world::RayScene> static_scene_;
+  mutable std::unique_ptr<world::RayScene> item_scene_;
   std::vector<ItemState> items_;
   std::vector<std::shared_ptr<const world::ItemModel>> item_models_;  // parallel to items_
   Eigen::Isometry3d X_BaseTcp_ = Eigen::Isometry3d::Identity();

@@ -1,4 +1,4 @@
-#include "services/scanner/service/calibration_store.h"
+#include "services/scanner/core/calibration_store.h"
 
 #include <chrono>
 #include <ctime>

@@ -1,13 +1,26 @@
-#include "services/simulator/core/ray_scene.h"
+#include "libs/world/ray_scene.h"
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <string>
 
 #include "libs/world/mesh_utils.h"
 
-namespace picking::simulator {
+namespace picking::world {
+namespace {
+
+void CheckRay(bool committed, const char* who, const Eigen::Vector3d& origin,
+              const Eigen::Vector3d& direction) {
+  if (!committed) throw std::logic_error(std::string(who) + " before Commit");
+  if (!origin.allFinite() || !direction.allFinite() || !(direction.norm() > 0.0)) {
+    throw std::invalid_argument(std::string(who) + ": ray origin or direction not finite or zero");
+  }
+}
+
+}  // namespace
 
 struct RayScene::Impl {
   RTCDevice device = nullptr;
@@ -15,6 +28,38 @@ struct RayScene::Impl {
   bool committed = false;
   std::vector<int> object_of_geometry;                // Embree geometry id -> object id
   std::vector<std::vector<Eigen::Vector3d>> normals;  // per geometry, per triangle
+
+  // Nearest surface in (t_min, t_max] along origin + t * d (d unit) into *rh; false if none.
+  bool Intersect(const Eigen::Vector3d& origin, const Eigen::Vector3d& d, double t_min,
+                 double t_max, RTCRayHit* rh) const {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    rh->ray.org_x = static_cast<float>(origin.x());
+    rh->ray.org_y = static_cast<float>(origin.y());
+    rh->ray.org_z = static_cast<float>(origin.z());
+    rh->ray.dir_x = static_cast<float>(d.x());
+    rh->ray.dir_y = static_cast<float>(d.y());
+    rh->ray.dir_z = static_cast<float>(d.z());
+    rh->ray.tnear = static_cast<float>(t_min);
+    rh->ray.tfar = static_cast<float>(std::min<double>(t_max, std::numeric_limits<float>::max()));
+    rh->ray.mask = 0xFFFFFFFFu;
+    rh->ray.flags = 0;
+    rh->ray.time = 0.0f;
+    rh->hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene, &context, rh);
+    return rh->hit.geomID != RTC_INVALID_GEOMETRY_ID;
+  }
+
+  RayHit Hit(const RTCRayHit& rh, const Eigen::Vector3d& origin, const Eigen::Vector3d& d) const {
+    RayHit hit;
+    hit.distance_m = rh.ray.tfar;
+    hit.object_id = object_of_geometry[rh.hit.geomID];
+    hit.triangle = rh.hit.primID;
+    hit.p_BaseHit = origin + hit.distance_m * d;
+    hit.n_Base = normals[rh.hit.geomID][rh.hit.primID];
+    return hit;
+  }
 };
 
 RayScene::RayScene() : impl_(std::make_unique<Impl>()) {
@@ -32,13 +77,12 @@ RayScene::~RayScene() {
   if (impl_->device != nullptr) rtcReleaseDevice(impl_->device);
 }
 
-void RayScene::Add(int object_id, const world::TriangleMesh& mesh,
-                   const Eigen::Isometry3d& X_BaseObject) {
+void RayScene::Add(int object_id, const TriangleMesh& mesh, const Eigen::Isometry3d& X_BaseObject) {
   if (impl_->committed) throw std::logic_error("RayScene::Add after Commit");
   if (!X_BaseObject.matrix().allFinite()) {
     throw std::invalid_argument("RayScene::Add: pose of '" + mesh.name + "' is not finite");
   }
-  world::Validate(mesh);
+  Validate(mesh);
   if (mesh.empty()) return;
   RTCGeometry geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
   auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(
@@ -56,7 +100,7 @@ void RayScene::Add(int object_id, const world::TriangleMesh& mesh,
   std::vector<Eigen::Vector3d> normals(mesh.triangles.size());
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     for (int k = 0; k < 3; ++k) ib[3 * t + k] = mesh.triangles[t][k];
-    normals[t] = X_BaseObject.linear() * world::FaceNormal(mesh, t).cast<double>();
+    normals[t] = X_BaseObject.linear() * FaceNormal(mesh, t).cast<double>();
   }
   rtcCommitGeometry(geom);
   const unsigned id = rtcAttachGeometry(impl_->scene, geom);
@@ -78,45 +122,38 @@ void RayScene::Commit() {
 std::optional<RayHit> RayScene::Cast(const Eigen::Vector3d& p_BaseOrigin,
                                      const Eigen::Vector3d& direction_Base, double t_max,
                                      int ignore_object_id, double t_min) const {
-  if (!impl_->committed) throw std::logic_error("RayScene::Cast before Commit");
-  if (!p_BaseOrigin.allFinite() || !direction_Base.allFinite() || !(direction_Base.norm() > 0.0)) {
-    throw std::invalid_argument("RayScene::Cast: ray origin or direction not finite or zero");
-  }
+  CheckRay(impl_->committed, "RayScene::Cast", p_BaseOrigin, direction_Base);
   const Eigen::Vector3d d = direction_Base.normalized();
   double start = t_min;
   for (int guard = 0; guard < 64; ++guard) {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
     RTCRayHit rh;
-    rh.ray.org_x = static_cast<float>(p_BaseOrigin.x());
-    rh.ray.org_y = static_cast<float>(p_BaseOrigin.y());
-    rh.ray.org_z = static_cast<float>(p_BaseOrigin.z());
-    rh.ray.dir_x = static_cast<float>(d.x());
-    rh.ray.dir_y = static_cast<float>(d.y());
-    rh.ray.dir_z = static_cast<float>(d.z());
-    rh.ray.tnear = static_cast<float>(start);
-    rh.ray.tfar = static_cast<float>(std::min<double>(t_max, std::numeric_limits<float>::max()));
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.flags = 0;
-    rh.ray.time = 0.0f;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(impl_->scene, &context, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
+    if (!impl_->Intersect(p_BaseOrigin, d, start, t_max, &rh)) return std::nullopt;
     const int object = impl_->object_of_geometry[rh.hit.geomID];
     if (object == ignore_object_id && ignore_object_id != -1) {
       start = std::nextafter(rh.ray.tfar, std::numeric_limits<float>::max());
       continue;
     }
-    RayHit hit;
-    hit.distance_m = rh.ray.tfar;
-    hit.object_id = object;
-    hit.triangle = rh.hit.primID;
-    hit.p_BaseHit = p_BaseOrigin + hit.distance_m * d;
-    hit.n_Base = impl_->normals[rh.hit.geomID][rh.hit.primID];
-    return hit;
+    return impl_->Hit(rh, p_BaseOrigin, d);
   }
   return std::nullopt;
 }
 
-}  // namespace picking::simulator
+std::vector<RayHit> RayScene::CastAll(const Eigen::Vector3d& p_BaseOrigin,
+                                      const Eigen::Vector3d& direction_Base, double t_max,
+                                      double t_min) const {
+  CheckRay(impl_->committed, "RayScene::CastAll", p_BaseOrigin, direction_Base);
+  const Eigen::Vector3d d = direction_Base.normalized();
+  std::vector<RayHit> hits;
+  // Nearest hit, then the nearest beyond it: each step passes at least one surface, and the
+  // distances only grow (the last float, FLT_MAX, ends the loop).
+  double start = t_min;
+  RTCRayHit rh;
+  while (impl_->Intersect(p_BaseOrigin, d, start, t_max, &rh)) {
+    hits.push_back(impl_->Hit(rh, p_BaseOrigin, d));
+    if (!(rh.ray.tfar < std::numeric_limits<float>::max())) break;
+    start = std::nextafter(rh.ray.tfar, std::numeric_limits<float>::max());
+  }
+  return hits;
+}
+
+}  // namespace picking::world
