@@ -4,6 +4,10 @@
 #                   [PRIVATE_DEPS <targets...>])
 #     -> target picking_<name>, alias picking::<name>. Public include root is the
 #        repository root, so headers are included as "libs/geometry/pose.h".
+#        DEPS (PUBLIC): every library a header of the target includes that other targets
+#        include too; PRIVATE_DEPS: what only its .cc files (and headers only they include)
+#        need. Each library a file includes is declared, even when another dependency
+#        brings it already.
 #   picking_executable(NAME <exe> SRCS <files...> [DEPS <targets...>])
 #     -> build/bin/<exe>
 #   picking_test(NAME <name> SRCS <files...> [DEPS <targets...>] [LABELS <labels...>]

@@ -89,6 +89,8 @@ struct PlannedPick {
   double head_angle_rad = 0.0;
   /// How far along the guarded move the grasp's surface lies as detected (0: unknown).
   double contact_distance_m = 0.0;
+  /// Unit direction of the guarded move, base frame (zero: unknown).
+  Eigen::Vector3d guarded_direction_Base = Eigen::Vector3d::Zero();
 };
 
 struct TouchOutcome {

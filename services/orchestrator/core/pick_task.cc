@@ -515,7 +515,8 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
 }
 
 PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetReport& report,
-                                                      const PlannedPick& plan) {
+                                                      const PlannedPick& plan,
+                                                      const std::vector<ScanView>& views) {
   Emit(&target, Step::kGrasp, true, "approaching grasp '" + plan.grasp + "'");
   journal_.Append("begin", Key(target, "grasp"), clock_s_, {{"grasp", plan.grasp}});
   const StepOutcome approached =
@@ -536,6 +537,14 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
+  // From here on the plan whose retreat starts where the cup is.
+  const PlannedPick held_plan = ReplanAtContact(target, report, plan, touched, views);
+  return HoldAndPlace(target, report, held_plan, touched);
+}
+
+PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetReport& report,
+                                                     const PlannedPick& plan,
+                                                     const TouchOutcome& touched) {
   const SealReading seal = WithRetries("vacuum", [&] { return cell_.VacuumOn(); });
   if (!seal.attached) {
     cell_.VacuumOff();
@@ -612,6 +621,31 @@ PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetRepo
   return Attempt::kPicked;
 }
 
+PlannedPick PickTaskRunner::ReplanAtContact(Target& target, TargetReport& report,
+                                            const PlannedPick& plan, const TouchOutcome& touched,
+                                            const std::vector<ScanView>& views) {
+  const double early_m = plan.contact_distance_m - touched.distance_m;
+  if (!(options_.replan_contact_m > 0.0) || !touched.contact || plan.contact_distance_m <= 0.0 ||
+      early_m <= options_.replan_contact_m || plan.guarded_direction_Base.isZero()) {
+    return plan;
+  }
+  Eigen::Isometry3d X_BaseItem = report.X_BaseItem_detected;
+  X_BaseItem.translation() -= early_m * plan.guarded_direction_Base.normalized();
+  const auto start = Clock::now();
+  const PlannedPick again = WithRetries(
+      "plan", [&] { return cell_.PlanPick(target.bin, target.item, X_BaseItem, views); });
+  AddTime(report, "plan", Seconds(start));
+  char text[160];
+  // Another surface or head angle would start the retreat elsewhere than where the cup is.
+  const bool taken =
+      again.ok && again.grasp == plan.grasp && again.head_angle_rad == plan.head_angle_rad;
+  std::snprintf(text, sizeof(text), "the cup met the item %.1f cm before its detected surface: %s",
+                100.0 * early_m,
+                taken ? "re-planned from there" : "kept the first plan (no plan for that grasp)");
+  Emit(&target, Step::kGrasp, true, text);
+  return taken ? again : plan;
+}
+
 // The cup's contact is a first sign of what it touches, before anything is taken: where the
 // guarded move stops, compared with where the grasp's surface was detected along it.
 std::string PickTaskRunner::EarlyContact(const PlannedPick& plan,
@@ -680,7 +714,7 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
   scene.planned_path_q = plan.path_q;
   scene.head_angle_rad = plan.head_angle_rad;
   Emit(&target, Step::kPlan, true, "planned grasp '" + plan.grasp + "'", "", std::move(scene));
-  return GraspAndPlace(target, report, plan);
+  return GraspAndPlace(target, report, plan, views);
 }
 
 PickTaskResult PickTaskRunner::Run() {

@@ -87,6 +87,14 @@ struct PickTaskOptions {
   /// standing over the target, or the target is not where it was found): the vacuum is not
   /// tried, so no other item is taken. A detection is off by a centimetre or so.
   double early_contact_m = 0.02;
+  /// A contact sooner than the grasp's surface as detected by more than this (but less than
+  /// early_contact_m) re-plans the pick for where the cup met it: the item's pose moved back
+  /// along the guarded move by the difference. The retreat then starts at the cup; the plan
+  /// made for the detected surface would first push the held item on into the bin by the
+  /// difference (toward its back wall or neighbours). The new plan is taken when it grasps
+  /// the same surface with the same head angle; otherwise the first one is kept. 0: never
+  /// re-plan.
+  double replan_contact_m = 0.003;
   /// The other items of the target's container are looked for in the same detection, and
   /// the target's pose held against theirs (ResolveAgainstOthers): a target whose every
   /// pose another item fills as well is not taken.
@@ -146,7 +154,15 @@ class PickTaskRunner final {
   enum class Attempt { kPicked, kFailed, kLostCarried };
   Attempt TryTarget(Target& target, TargetReport& report);
   bool ScanAndDetect(Target& target, TargetReport& report, std::vector<ScanView>& views);
-  Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan);
+  Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan,
+                        const std::vector<ScanView>& views);
+  /// The pick re-planned for the surface where the cup met the item (replan_contact_m), or
+  /// `plan` itself.
+  PlannedPick ReplanAtContact(Target& target, TargetReport& report, const PlannedPick& plan,
+                              const TouchOutcome& touched, const std::vector<ScanView>& views);
+  /// Vacuum on, the retreat, the look back and the place, once the cup is on the item.
+  Attempt HoldAndPlace(Target& target, TargetReport& report, const PlannedPick& plan,
+                       const TouchOutcome& touched);
   /// The look back after the lift: "" when the held item may be the target (or the view
   /// cannot tell), else why it is not.
   std::string LookBack(Target& target, TargetReport& report, const PlannedPick& plan);

@@ -392,6 +392,10 @@ PlannedPick GrpcCell::PlanPick(const std::string& container, const std::string& 
   out.retreat_s = Duration(stored.response.retreat());
   out.head_angle_rad = stored.response.head_angle_rad();
   out.contact_distance_m = stored.response.contact_distance_m();
+  if (stored.response.has_guarded_direction()) {
+    out.guarded_direction_Base =
+        pc::VectorFromProto(stored.response.guarded_direction(), "guarded_direction");
+  }
   for (const cm::JointTrajectory* t :
        {&stored.response.approach(), &stored.response.descend(), &stored.response.retreat()}) {
     AppendThinned(*t, 40, out.path_q);

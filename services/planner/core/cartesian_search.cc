@@ -54,8 +54,13 @@ Lattice MakeLattice(const Eigen::Isometry3d& X_start, const Eigen::Isometry3d& X
   lattice.tilt = options.tilt_step_rad;
   const Eigen::Vector3d d = lattice.p_goal - lattice.p0;
   const double angle = lattice.q0.angularDistance(lattice.q_goal);
-  lattice.n = std::max({1, static_cast<int>(std::ceil(d.norm() / options.step_m)),
-                        static_cast<int>(std::ceil(angle / (3.0 * options.tilt_step_rad)))});
+  // A line that is a whole number of steps long up to rounding (a 0.40 m line between poses
+  // from forward kinematics measures 20.000000000001 steps of 2 cm) takes that many, not one
+  // more.
+  constexpr double kRoundingSteps = 1e-9;
+  lattice.n = std::max(
+      {1, static_cast<int>(std::ceil(d.norm() / options.step_m - kRoundingSteps)),
+       static_cast<int>(std::ceil(angle / (3.0 * options.tilt_step_rad) - kRoundingSteps))});
   const Eigen::Vector3d x =
       d.norm() > 1e-9 ? Eigen::Vector3d(d.normalized()) : Eigen::Vector3d(X_start.linear().col(2));
   lattice.y = x.unitOrthogonal();

@@ -22,14 +22,16 @@ const apc::Catalogue& Catalogue() {
 struct Script {
   bool found = true;
   bool plannable = true;
-  int no_seal_attempts = 0;      // the first n vacuum-ons do not seal
-  bool lose_in_lift = false;     // seal lost during the retreat (once)
-  bool drop_on_the_way = false;  // seal lost on the way to the tote
-  bool no_place = false;         // no motion to the tote can be planned
-  bool wrong_item_held = false;  // the look back after the lift still sees the target
-  int early_touches = 0;         // the first n guarded moves stop 4 cm before the surface
-  bool touch_refused = false;    // the robot refuses the guarded move
-  std::string confused_with;     // the first detection finds this item at the same place
+  int no_seal_attempts = 0;         // the first n vacuum-ons do not seal
+  bool lose_in_lift = false;        // seal lost during the retreat (once)
+  bool drop_on_the_way = false;     // seal lost on the way to the tote
+  bool no_place = false;            // no motion to the tote can be planned
+  bool wrong_item_held = false;     // the look back after the lift still sees the target
+  int early_touches = 0;            // the first n guarded moves stop 4 cm before the surface
+  double touch_short_m = 0.0;       // the guarded moves stop this much before the surface
+  bool replan_other_grasp = false;  // a second plan of the pick grasps another surface
+  bool touch_refused = false;       // the robot refuses the guarded move
+  std::string confused_with;        // the first detection finds this item at the same place
 };
 
 class ScriptedCell final : public CellPort {
@@ -47,6 +49,10 @@ class ScriptedCell final : public CellPort {
   std::map<std::string, std::vector<std::string>> others_asked;  // per target, last Detect
   std::string current;                                           // item being worked on
   bool held = false;
+  std::map<std::string, std::vector<Eigen::Isometry3d>> planned_at;  // X_BaseItem per PlanPick
+  std::map<std::string, std::vector<int>> plan_handles;              // per item, every PlanPick's
+  std::map<std::string, std::vector<int>> retreat_handles;  // per item, every retreat's plan
+  int plans = 0;
 
   std::vector<std::string> ScanPoses(const std::string& c) override {
     if (c == "tote") return {"scan/tote/0", "scan/tote/1"};
@@ -87,12 +93,16 @@ class ScriptedCell final : public CellPort {
     d.message = d.found ? "" : "no pose above the threshold";
     return d;
   }
-  PlannedPick PlanPick(const std::string&, const std::string& item, const Eigen::Isometry3d&,
-                       const std::vector<ScanView>&) override {
+  PlannedPick PlanPick(const std::string&, const std::string& item,
+                       const Eigen::Isometry3d& X_BaseItem, const std::vector<ScanView>&) override {
     PlannedPick p;
     p.ok = scripts[item].plannable;
     p.message = p.ok ? "" : "descend: gripper hits shelf";
-    p.grasp = "+x face";
+    p.grasp = scripts[item].replan_other_grasp && !planned_at[item].empty() ? "+z face" : "+x face";
+    planned_at[item].push_back(X_BaseItem);
+    p.handle = ++plans;
+    plan_handles[item].push_back(p.handle);
+    p.guarded_direction_Base = Eigen::Vector3d::UnitX();
     if (p.ok) p.path_q = {{0.0, -1.5, 1.5, -1.5, -1.57, 0.0}, {0.1, -1.4, 1.4, -1.6, -1.57, 0.0}};
     p.head_angle_rad = 0.5;
     p.contact_distance_m = 0.035;
@@ -106,6 +116,9 @@ class ScriptedCell final : public CellPort {
       --scripts[current].early_touches;
       return {true, plan.contact_distance_m - 0.04, 1.0};
     }
+    if (scripts[current].touch_short_m > 0.0) {
+      return {true, plan.contact_distance_m - scripts[current].touch_short_m, 1.0};
+    }
     return {true, plan.contact_distance_m + 0.005, 1.0};  // the cup compressed
   }
   SealReading VacuumOn() override {
@@ -114,7 +127,8 @@ class ScriptedCell final : public CellPort {
     return {held, held ? 40.0 : 2.0};
   }
   SealReading ReadSeal() override { return {held, held ? 40.0 : 1.0}; }
-  StepOutcome ExecuteRetreat(const PlannedPick&) override {
+  StepOutcome ExecuteRetreat(const PlannedPick& plan) override {
+    retreat_handles[current].push_back(plan.handle);
     if (held && scripts[current].lose_in_lift) {
       scripts[current].lose_in_lift = false;
       held = false;
@@ -300,6 +314,48 @@ TEST_F(PickTaskTest, ATouchFarShortOfTheSurfaceTakesNothing) {
   EXPECT_EQ(cell.vacuum_ons["rawlings_baseball"], 1);
   bool said = false;
   for (const TaskEvent& e : events) said |= e.message.find("4.0 cm before") != std::string::npos;
+  EXPECT_TRUE(said);
+}
+
+// A cup that meets the item a centimetre before its detected surface: the pick is planned
+// again for the item a centimetre nearer along the guarded move, and the retreat is that
+// plan's (the first would push the held item on by the centimetre first).
+TEST_F(PickTaskTest, AnEarlyContactReplansTheRetreatFromWhereTheCupMetTheItem) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].touch_short_m = 0.01;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.items_moved, 3);
+  const auto& planned = cell.planned_at["rawlings_baseball"];
+  ASSERT_EQ(planned.size(), 2u);
+  const Eigen::Vector3d moved = planned[1].translation() - planned[0].translation();
+  EXPECT_NEAR(moved.x(), -0.01, 1e-9);
+  EXPECT_NEAR(moved.tail<2>().norm(), 0.0, 1e-12);
+  EXPECT_EQ(cell.vacuum_ons["rawlings_baseball"], 1);
+  // The baseball's retreat is the second plan's.
+  EXPECT_EQ(cell.retreat_handles["rawlings_baseball"],
+            std::vector<int>{cell.plan_handles["rawlings_baseball"].at(1)});
+  bool said = false;
+  for (const TaskEvent& e : events)
+    said |= e.message.find("re-planned from there") != std::string::npos;
+  EXPECT_TRUE(said);
+  // Contacts within the tolerance and the other items: one plan each.
+  EXPECT_EQ(cell.planned_at["kleenex_tissue_box"].size(), 1u);
+}
+
+// A second plan that grasps another surface would start its retreat somewhere else: the first
+// plan is kept.
+TEST_F(PickTaskTest, AnEarlyContactKeepsTheFirstPlanWhenTheNewOneGraspsElsewhere) {
+  ScriptedCell cell;
+  cell.scripts["rawlings_baseball"].touch_short_m = 0.01;
+  cell.scripts["rawlings_baseball"].replan_other_grasp = true;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(cell.planned_at["rawlings_baseball"].size(), 2u);
+  bool said = false;
+  for (const TaskEvent& e : events)
+    said |= e.message.find("kept the first plan") != std::string::npos;
   EXPECT_TRUE(said);
 }
 
