@@ -292,100 +292,97 @@ double RotationAngle(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R_b) {
   return std::acos(std::clamp(c, -1.0, 1.0));
 }
 
-std::vector<PpfHypothesis> ClusterPoses(const std::vector<Eigen::Isometry3d>& poses,
-                                        const std::vector<double>& votes,
-                                        double translation_threshold_m,
-                                        double rotation_threshold_rad) {
-  if (poses.size() != votes.size()) {
-    throw std::invalid_argument("ClusterPoses: poses and votes differ in length");
+namespace {
+
+// A pose cluster of ClusterPoses: its first (most voted) pose and the vote-weighted sums of
+// the poses that joined it.
+struct PoseCluster {
+  Eigen::Isometry3d first;
+  Eigen::Quaterniond q_first;
+  Eigen::Vector3d t_sum = Eigen::Vector3d::Zero();
+  Eigen::Vector4d q_sum = Eigen::Vector4d::Zero();
+  double weight = 0.0;
+  int count = 0;
+};
+
+// The first cluster (in creation order) a pose joins. Clusters are kept by the grid cell
+// (edge = translation threshold) of their first pose, so that a pose only tests the clusters
+// of the 27 cells around it; ids ascend within a cell, and the lowest matching id is the first
+// cluster in creation order, as in a linear scan (used without a finite threshold).
+class PoseClusterIndex {
+ public:
+  PoseClusterIndex(double translation_threshold_m, double rotation_threshold_rad)
+      : translation_m_(translation_threshold_m),
+        rotation_rad_(rotation_threshold_rad),
+        use_grid_(translation_threshold_m > 0.0 && std::isfinite(translation_threshold_m)) {}
+
+  // The id of the cluster X joins, or -1.
+  std::int32_t Find(const Eigen::Isometry3d& X, const std::vector<PoseCluster>& clusters) const {
+    const auto joins = [&](const PoseCluster& c) {
+      return (c.first.translation() - X.translation()).norm() < translation_m_ &&
+             RotationAngle(c.first.linear(), X.linear()) < rotation_rad_;
+    };
+    std::int32_t found = -1;
+    if (!use_grid_ || !X.translation().allFinite()) {
+      for (std::size_t id = 0; id < clusters.size(); ++id) {
+        if (joins(clusters[id])) return static_cast<std::int32_t>(id);
+      }
+      return found;
+    }
+    const auto c = CellOf(X.translation());
+    for (std::int64_t dx = -1; dx <= 1; ++dx) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        for (std::int64_t dz = -1; dz <= 1; ++dz) {
+          const auto it = grid_.find(CellKey(c[0] + dx, c[1] + dy, c[2] + dz));
+          if (it == grid_.end()) continue;
+          for (std::int32_t id : it->second) {
+            if (found >= 0 && id >= found) break;
+            if (joins(clusters[id])) {
+              found = id;
+              break;
+            }
+          }
+        }
+      }
+    }
+    return found;
   }
-  std::vector<std::size_t> order(poses.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](std::size_t a, std::size_t b) { return votes[a] > votes[b]; });
-  struct Cluster {
-    Eigen::Isometry3d first;
-    Eigen::Quaterniond q_first;
-    Eigen::Vector3d t_sum = Eigen::Vector3d::Zero();
-    Eigen::Vector4d q_sum = Eigen::Vector4d::Zero();
-    double weight = 0.0;
-    int count = 0;
-  };
-  std::vector<Cluster> clusters;
-  // Clusters by the grid cell (edge = translation threshold) of their first pose, so that a
-  // pose only tests the clusters of the 27 cells around it; ids ascend within a cell, and the
-  // lowest matching id is the first cluster in creation order, as in a linear scan.
-  const bool use_grid = translation_threshold_m > 0.0 && std::isfinite(translation_threshold_m);
-  std::unordered_map<std::uint64_t, std::vector<std::int32_t>> grid;
-  const auto cell_of = [&](const Eigen::Vector3d& p) {
-    return (p / translation_threshold_m)
+
+  // Files a new cluster `id` whose first pose is X.
+  void Add(const Eigen::Isometry3d& X, std::int32_t id) {
+    if (!use_grid_ || !X.translation().allFinite()) return;
+    const auto c = CellOf(X.translation());
+    grid_[CellKey(c[0], c[1], c[2])].push_back(id);
+  }
+
+ private:
+  Eigen::Matrix<std::int64_t, 3, 1> CellOf(const Eigen::Vector3d& p) const {
+    return (p / translation_m_)
         .array()
         .floor()
         .cwiseMax(-1.0e6)
         .cwiseMin(1.0e6)
         .cast<std::int64_t>()
+        .matrix()
         .eval();
-  };
-  const auto cell_key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
+  }
+  static std::uint64_t CellKey(std::int64_t x, std::int64_t y, std::int64_t z) {
     constexpr std::int64_t kOffset = 1 << 20;
     return (static_cast<std::uint64_t>(x + kOffset) << 42) |
            (static_cast<std::uint64_t>(y + kOffset) << 21) |
            static_cast<std::uint64_t>(z + kOffset);
-  };
-  for (std::size_t idx : order) {
-    const Eigen::Isometry3d& X = poses[idx];
-    const auto joins = [&](const Cluster& c) {
-      return (c.first.translation() - X.translation()).norm() < translation_threshold_m &&
-             RotationAngle(c.first.linear(), X.linear()) < rotation_threshold_rad;
-    };
-    std::int32_t found = -1;
-    if (use_grid && X.translation().allFinite()) {
-      const auto c = cell_of(X.translation());
-      for (std::int64_t dx = -1; dx <= 1; ++dx) {
-        for (std::int64_t dy = -1; dy <= 1; ++dy) {
-          for (std::int64_t dz = -1; dz <= 1; ++dz) {
-            const auto it = grid.find(cell_key(c[0] + dx, c[1] + dy, c[2] + dz));
-            if (it == grid.end()) continue;
-            for (std::int32_t id : it->second) {
-              if (found >= 0 && id >= found) break;
-              if (joins(clusters[id])) {
-                found = id;
-                break;
-              }
-            }
-          }
-        }
-      }
-    } else {
-      for (std::size_t id = 0; id < clusters.size(); ++id) {
-        if (joins(clusters[id])) {
-          found = static_cast<std::int32_t>(id);
-          break;
-        }
-      }
-    }
-    Cluster* target = nullptr;
-    if (found >= 0) {
-      target = &clusters[found];
-    } else {
-      clusters.push_back({X, Eigen::Quaterniond(X.linear())});
-      target = &clusters.back();
-      if (use_grid && X.translation().allFinite()) {
-        const auto c = cell_of(X.translation());
-        grid[cell_key(c[0], c[1], c[2])].push_back(static_cast<std::int32_t>(clusters.size() - 1));
-      }
-    }
-    Eigen::Quaterniond q(X.linear());
-    if (q.dot(target->q_first) < 0.0) q.coeffs() = -q.coeffs();
-    const double w = std::max(votes[idx], 1e-12);
-    target->t_sum += w * X.translation();
-    target->q_sum += w * q.coeffs();
-    target->weight += w;
-    target->count += 1;
   }
+
+  double translation_m_, rotation_rad_;
+  bool use_grid_;
+  std::unordered_map<std::uint64_t, std::vector<std::int32_t>> grid_;
+};
+
+// The clusters' vote-weighted mean poses, most votes first.
+std::vector<PpfHypothesis> MeanPosesOf(const std::vector<PoseCluster>& clusters) {
   std::vector<PpfHypothesis> out;
   out.reserve(clusters.size());
-  for (const Cluster& c : clusters) {
+  for (const PoseCluster& c : clusters) {
     PpfHypothesis h;
     Eigen::Quaterniond q;
     q.coeffs() = c.q_sum;
@@ -399,6 +396,43 @@ std::vector<PpfHypothesis> ClusterPoses(const std::vector<Eigen::Isometry3d>& po
     return a.votes > b.votes;
   });
   return out;
+}
+
+}  // namespace
+
+std::vector<PpfHypothesis> ClusterPoses(const std::vector<Eigen::Isometry3d>& poses,
+                                        const std::vector<double>& votes,
+                                        double translation_threshold_m,
+                                        double rotation_threshold_rad) {
+  if (poses.size() != votes.size()) {
+    throw std::invalid_argument("ClusterPoses: poses and votes differ in length");
+  }
+  std::vector<std::size_t> order(poses.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return votes[a] > votes[b]; });
+  std::vector<PoseCluster> clusters;
+  PoseClusterIndex index(translation_threshold_m, rotation_threshold_rad);
+  for (std::size_t idx : order) {
+    const Eigen::Isometry3d& X = poses[idx];
+    const std::int32_t found = index.Find(X, clusters);
+    PoseCluster* target = nullptr;
+    if (found >= 0) {
+      target = &clusters[found];
+    } else {
+      clusters.push_back({X, Eigen::Quaterniond(X.linear())});
+      target = &clusters.back();
+      index.Add(X, static_cast<std::int32_t>(clusters.size() - 1));
+    }
+    Eigen::Quaterniond q(X.linear());
+    if (q.dot(target->q_first) < 0.0) q.coeffs() = -q.coeffs();
+    const double w = std::max(votes[idx], 1e-12);
+    target->t_sum += w * X.translation();
+    target->q_sum += w * q.coeffs();
+    target->weight += w;
+    target->count += 1;
+  }
+  return MeanPosesOf(clusters);
 }
 
 namespace {

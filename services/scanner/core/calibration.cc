@@ -518,21 +518,12 @@ Eigen::Vector3d RotationVector(const Eigen::Matrix3d& R) {
 
 }  // namespace
 
-HandEyeResult CalibrateHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
-                               const std::vector<Eigen::Isometry3d>& X_CameraBoard,
-                               const HandEyeOptions& options) {
-  if (X_BaseTool.size() != X_CameraBoard.size()) {
-    throw std::invalid_argument("hand-eye calibration: " + std::to_string(X_BaseTool.size()) +
-                                " robot poses but " + std::to_string(X_CameraBoard.size()) +
-                                " board poses");
-  }
-  const int min_poses = std::max(3, options.min_poses);
-  if (static_cast<int>(X_BaseTool.size()) < min_poses) {
-    throw std::invalid_argument("hand-eye calibration needs at least " + std::to_string(min_poses) +
-                                " poses, got " + std::to_string(X_BaseTool.size()));
-  }
-  // Observability: the relative tool rotations must be large enough and about at least two
-  // non-parallel axes (Tsai & Lenz); otherwise part of X_ToolCamera is undetermined.
+namespace {
+
+// Observability: the relative tool rotations must be large enough and about at least two
+// non-parallel axes (Tsai & Lenz); otherwise part of X_ToolCamera is undetermined.
+void CheckHandEyeMotions(const std::vector<Eigen::Isometry3d>& X_BaseTool,
+                         const HandEyeOptions& options) {
   std::vector<Eigen::Vector3d> axes;
   for (std::size_t i = 0; i < X_BaseTool.size(); ++i) {
     for (std::size_t j = i + 1; j < X_BaseTool.size(); ++j) {
@@ -561,7 +552,12 @@ HandEyeResult CalibrateHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
         std::to_string(max_spread) + " rad < " + std::to_string(options.min_axis_spread_rad) +
         " rad)");
   }
+}
 
+// OpenCV's hand-eye solution (the options' method) for the pose pairs: X_ToolCamera.
+Eigen::Isometry3d SolveHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
+                               const std::vector<Eigen::Isometry3d>& X_CameraBoard,
+                               const HandEyeOptions& options) {
   std::vector<cv::Mat> R_gripper2base, t_gripper2base, R_target2cam, t_target2cam;
   for (std::size_t i = 0; i < X_BaseTool.size(); ++i) {
     // Fresh matrices each time: cv::Mat shares its buffer when pushed into a vector.
@@ -596,13 +592,15 @@ HandEyeResult CalibrateHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
   cv::Mat R_cam2gripper, t_cam2gripper;
   cv::calibrateHandEye(R_gripper2base, t_gripper2base, R_target2cam, t_target2cam, R_cam2gripper,
                        t_cam2gripper, method);
-  HandEyeResult result;
-  result.X_ToolCamera = ToIsometry(R_cam2gripper, t_cam2gripper);
-  if (!result.X_ToolCamera.matrix().allFinite()) {
-    throw std::invalid_argument("hand-eye calibration failed: the solution is not finite");
-  }
+  return ToIsometry(R_cam2gripper, t_cam2gripper);
+}
 
-  // Consistency: every pose pair implies a board pose in the base frame.
+// Consistency: every pose pair implies a board pose in the base frame; their mean and
+// spread go into *result.
+void MeasureHandEyeConsistency(const std::vector<Eigen::Isometry3d>& X_BaseTool,
+                               const std::vector<Eigen::Isometry3d>& X_CameraBoard,
+                               HandEyeResult* result_ptr) {
+  HandEyeResult& result = *result_ptr;
   std::vector<Eigen::Isometry3d> X_BaseBoard;
   Eigen::Vector3d mean_translation = Eigen::Vector3d::Zero();
   Eigen::Vector4d quaternion_sum = Eigen::Vector4d::Zero();
@@ -626,6 +624,31 @@ HandEyeResult CalibrateHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
   }
   result.translation_rms_m = std::sqrt(translation_sq / X_BaseBoard.size());
   result.rotation_rms_rad = std::sqrt(rotation_sq / X_BaseBoard.size());
+}
+
+}  // namespace
+
+HandEyeResult CalibrateHandEye(const std::vector<Eigen::Isometry3d>& X_BaseTool,
+                               const std::vector<Eigen::Isometry3d>& X_CameraBoard,
+                               const HandEyeOptions& options) {
+  if (X_BaseTool.size() != X_CameraBoard.size()) {
+    throw std::invalid_argument("hand-eye calibration: " + std::to_string(X_BaseTool.size()) +
+                                " robot poses but " + std::to_string(X_CameraBoard.size()) +
+                                " board poses");
+  }
+  const int min_poses = std::max(3, options.min_poses);
+  if (static_cast<int>(X_BaseTool.size()) < min_poses) {
+    throw std::invalid_argument("hand-eye calibration needs at least " + std::to_string(min_poses) +
+                                " poses, got " + std::to_string(X_BaseTool.size()));
+  }
+  CheckHandEyeMotions(X_BaseTool, options);
+  HandEyeResult result;
+  result.X_ToolCamera = SolveHandEye(X_BaseTool, X_CameraBoard, options);
+  if (!result.X_ToolCamera.matrix().allFinite()) {
+    throw std::invalid_argument("hand-eye calibration failed: the solution is not finite");
+  }
+
+  MeasureHandEyeConsistency(X_BaseTool, X_CameraBoard, &result);
   return result;
 }
 
