@@ -457,6 +457,15 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
   timing.max_velocity_rad_s = model.max_velocity_rad_s() * speed_fraction;
   timing.max_acceleration_rad_s2 = model.max_acceleration_rad_s2() * speed_fraction;
   timing.sample_period_s = options_.sample_period_s;
+  // The tcp's speed bound, met segment by segment: |dp/ds| by a forward difference of the
+  // tcp's position along the path's tangent.
+  timing.max_point_speed = 0.97 * options_.max_tcp_speed_m_s;
+  timing.point_speed_rate = [&robot](const JointVector& q, const JointVector& dq_ds) {
+    constexpr double kStepRad = 1e-6;
+    return (robot.X_BaseTcp(q + kStepRad * dq_ds).translation() - robot.X_BaseTcp(q).translation())
+               .norm() /
+           kStepRad;
+  };
   auto fail = [&](const std::string& kind, const std::string& message,
                   const CollisionReport* report) {
     PlanFailure f;
@@ -476,7 +485,8 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
     timing.max_velocity_rad_s = model.max_velocity_rad_s() * speed_fraction;
     timing.max_acceleration_rad_s2 = model.max_acceleration_rad_s2() * speed_fraction;
     TimeOptimalResult timed = TimeParametrizeTimeOptimal(path_rad, timing);
-    // The robot also limits the tcp's speed: slow the whole motion down (speeds by k,
+    // The timing keeps the tcp within its bound at samples along the path; should it pass
+    // the robot's limit between them, slow the whole motion down (speeds by k,
     // accelerations by k^2 keep the path and its timing law's shape) until it holds.
     for (int round = 0; round < 4; ++round) {
       double v_max = 0.0;

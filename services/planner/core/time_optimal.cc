@@ -93,6 +93,16 @@ void Validate(const std::vector<JointVector>& waypoints, const TimeOptimalOption
     fail("integration_step_s must be in [1e-6, 0.1] s, got " +
          std::to_string(options.integration_step_s));
   }
+  if (options.point_speed_rate) {
+    if (!(std::isfinite(options.max_point_speed) && options.max_point_speed > 0.0)) {
+      fail("max_point_speed must be finite and > 0 with a point_speed_rate, got " +
+           std::to_string(options.max_point_speed));
+    }
+    if (!(options.point_speed_step_rad >= 1e-4 && options.point_speed_step_rad <= 1.0)) {
+      fail("point_speed_step_rad must be in [1e-4, 1] rad, got " +
+           std::to_string(options.point_speed_step_rad));
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -112,6 +122,9 @@ struct Segment {
   double angle = 0.0;                     // arc: turned angle, rad
   double line_accel = 0.0;                // line: largest path acceleration
   double line_x = 0.0;                    // line: largest s_dot^2
+  // arc: squared joint speed limits on it (the blend limits, lowered where a point speed bound
+  // asks for it: TimeOptimalOptions::point_speed_rate).
+  JointVector v_sq = JointVector::Zero();
 };
 
 JointVector Position(const Segment& seg, double s) {
@@ -244,6 +257,7 @@ Path BuildPath(const std::vector<JointVector>& corners, double max_deviation, co
                    &deviations[i])) {
       continue;
     }
+    arcs[i].v_sq = blend_limits.v_sq;
     const JointVector d1 = (corners[i + 1] - corners[i]).normalized();
     if (!BlendPaysOff(arcs[i], t[i], MakeLine(corners[i - 1], arcs[i].d0, 1.0, exact),
                       (corners[i] - corners[i - 1]).norm(), MakeLine(corners[i], d1, 1.0, exact),
@@ -272,19 +286,23 @@ Path BuildPath(const std::vector<JointVector>& corners, double max_deviation, co
   return path;
 }
 
+double PointSpeedFactor(const Segment& seg, const TimeOptimalOptions& options);  // stage 2b
+
 // Duration of the rest-to-rest motion that stops at every corner: per segment a trapezoid
-// (or triangle) of the path parameter limited by the tightest joint.
-double StopEverywhereDuration(const std::vector<JointVector>& corners, const Limits& exact) {
+// (or triangle) of the path parameter limited by the tightest joint (and the point speed
+// bound, if any).
+double StopEverywhereDuration(const std::vector<JointVector>& corners, const Limits& exact,
+                              const TimeOptimalOptions& options) {
   double duration = 0.0;
   for (std::size_t i = 1; i < corners.size(); ++i) {
     const JointVector delta = corners[i] - corners[i - 1];
-    double v = kInf, a = kInf;
-    for (int j = 0; j < kNumJoints; ++j) {
-      if (delta[j] == 0.0) continue;
-      v = std::min(v, exact.v[j] / std::abs(delta[j]));
-      a = std::min(a, exact.a[j] / std::abs(delta[j]));
-    }
-    duration += v * v / a >= 1.0 ? 2.0 / std::sqrt(a) : v / a + 1.0 / v;
+    const double length = delta.norm();
+    if (!(length > 0.0)) continue;
+    Segment line = MakeLine(corners[i - 1], delta / length, length, exact);
+    if (options.point_speed_rate) line.line_x *= PointSpeedFactor(line, options);
+    const double v = std::sqrt(line.line_x);  // path speed and acceleration, rad/s, rad/s^2
+    const double a = line.line_accel;
+    duration += v * v / a >= length ? 2.0 * std::sqrt(length / a) : length / v + v / a;
   }
   return duration;
 }
@@ -315,12 +333,12 @@ double AccelerationLimitX(const JointVector& dq, const JointVector& ddq, const L
 
 // The velocity limit curve: the largest x within every joint's speed limit; *active is the
 // joint that sets it.
-double VelocityLimitX(const JointVector& dq, const Limits& limits, int* active = nullptr) {
+double VelocityLimitX(const JointVector& dq, const JointVector& v_sq, int* active = nullptr) {
   double x = kInf;
   for (int i = 0; i < kNumJoints; ++i) {
     const double w = dq[i] * dq[i];
-    if (w > 0.0 && limits.v_sq[i] / w < x) {
-      x = limits.v_sq[i] / w;
+    if (w > 0.0 && v_sq[i] / w < x) {
+      x = v_sq[i] / w;
       if (active) *active = i;
     }
   }
@@ -331,7 +349,7 @@ double LimitX(const Segment& seg, double s, const Limits& limits) {
   if (!seg.is_arc) return seg.line_x;
   JointVector dq, ddq;
   Tangents(seg, s, &dq, &ddq);
-  return std::min(AccelerationLimitX(dq, ddq, limits), VelocityLimitX(dq, limits));
+  return std::min(AccelerationLimitX(dq, ddq, limits), VelocityLimitX(dq, seg.v_sq));
 }
 
 double AccelerationLimitXAt(const Segment& seg, double s, const Limits& limits) {
@@ -430,6 +448,50 @@ void PathAccelerationBounds(const JointVector& dq, const JointVector& ddq, doubl
   *hi = kInf;
   const JointArray no_speed_limit = JointArray::Constant(kInf);
   NarrowBounds(MakeStepEnd(dq, ddq, x, 0.0), limits.a.array(), no_speed_limit, lo, hi);
+}
+
+// Stage 2b: the point speed bound. The factor (<= 1) on the squared joint speed limits of
+// `seg` that keeps the point within options.max_point_speed at every sample: the smallest
+// (bound / rate)^2 over the joint speed limit curve's x there.
+double PointSpeedFactor(const Segment& seg, const TimeOptimalOptions& options) {
+  const int n =
+      std::max(2, static_cast<int>(std::ceil(seg.length / options.point_speed_step_rad)) + 1);
+  double factor = 1.0;
+  JointVector dq, ddq;
+  for (int k = 0; k < n; ++k) {
+    const double s = seg.length * k / (n - 1);
+    Tangents(seg, s, &dq, &ddq);
+    const double rate = options.point_speed_rate(Position(seg, s), dq);
+    if (!std::isfinite(rate) || rate < 0.0) {
+      throw std::invalid_argument(
+          "TimeParametrizeTimeOptimal: point_speed_rate returned a negative or non-finite rate");
+    }
+    if (rate == 0.0) continue;
+    const double x_point = (options.max_point_speed / rate) * (options.max_point_speed / rate);
+    const double x_speed = seg.is_arc ? VelocityLimitX(dq, seg.v_sq) : seg.line_x;
+    if (std::isfinite(x_speed)) factor = std::min(factor, x_point / x_speed);
+  }
+  return factor;
+}
+
+// Lowers each segment's speed limits by its PointSpeedFactor. A blend takes no higher factor
+// than the segment after it, so that the speed limit curve never drops where a blend ends
+// (where a line or blend begins, a drop is a switching point candidate like any junction).
+void BoundPointSpeed(const TimeOptimalOptions& options, Path* path) {
+  for (std::vector<Segment>& piece : path->pieces) {
+    std::vector<double> factor(piece.size());
+    for (std::size_t k = 0; k < piece.size(); ++k) factor[k] = PointSpeedFactor(piece[k], options);
+    for (std::size_t k = piece.size(); k-- > 1;) {
+      if (piece[k - 1].is_arc) factor[k - 1] = std::min(factor[k - 1], factor[k]);
+    }
+    for (std::size_t k = 0; k < piece.size(); ++k) {
+      if (piece[k].is_arc) {
+        piece[k].v_sq *= factor[k];
+      } else {
+        piece[k].line_x *= factor[k];
+      }
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -540,7 +602,7 @@ void PhasePlane::CollectCandidates() {
       JointVector dq, ddq;
       Tangents(seg, s, &dq, &ddq);
       if (AccelerationLimitXAt(seg, s - eps, blend_) > x &&
-          AccelerationLimitXAt(seg, s + eps, blend_) > x && x <= VelocityLimitX(dq, blend_)) {
+          AccelerationLimitXAt(seg, s + eps, blend_) > x && x <= VelocityLimitX(dq, seg.v_sq)) {
         candidates_.push_back({k, s});
       }
     }
@@ -582,11 +644,11 @@ bool PhasePlane::ArcStep(const Segment& seg, double s_known, double x_known, dou
   JointVector dq, ddq;
   TangentsAt(seg, s_known, &dq, &ddq);
   const StepEnd known = MakeStepEnd(dq, ddq, x_known, 0.0);
-  const JointArray slack_known_v = blend_.v_sq.array() - x_known * dq.array().square();
+  const JointArray slack_known_v = seg.v_sq.array() - x_known * dq.array().square();
   TangentsAt(seg, s_far, &dq, &ddq);
   const StepEnd far = MakeStepEnd(dq, ddq, x_known, k);
   const JointArray a = blend_.a.array();
-  const JointArray v_sq = blend_.v_sq.array();
+  const JointArray v_sq = seg.v_sq.array();
   double lo = -kInf, hi = kInf;
   // The margins depend on |u| and the largest x of the step: bound both from the previous
   // step's u or else from the step without margins, and widen the bounds if the step with
@@ -705,9 +767,9 @@ bool PhasePlane::FollowInfeasible(const Segment& seg, double s) const {
   JointVector dq, ddq;
   Tangents(seg, s, &dq, &ddq);
   int i = 0;
-  const double x = VelocityLimitX(dq, blend_, &i);
+  const double x = VelocityLimitX(dq, seg.v_sq, &i);
   // Following x = v_i^2 / dq_i^2 needs u = x' / 2 = -v_i^2 ddq_i / dq_i^3.
-  const double u_follow = -blend_.v_sq[i] * ddq[i] / (dq[i] * dq[i] * dq[i]);
+  const double u_follow = -seg.v_sq[i] * ddq[i] / (dq[i] * dq[i] * dq[i]);
   double lo, hi;
   PathAccelerationBounds(dq, ddq, x, blend_, &lo, &hi);
   return u_follow < lo;
@@ -738,7 +800,7 @@ bool PhasePlane::NextVelocitySwitchingPoint(const PathPos& from, const PathPos& 
         }
         JointVector dq, ddq;
         Tangents(seg, hi, &dq, &ddq);
-        if (VelocityLimitX(dq, blend_) <= AccelerationLimitX(dq, ddq, blend_)) {
+        if (VelocityLimitX(dq, seg.v_sq) <= AccelerationLimitX(dq, ddq, blend_)) {
           *found = {k, hi};
           return true;
         }
@@ -1064,7 +1126,8 @@ TimeOptimalResult Parametrize(const std::vector<JointVector>& corners, const Joi
                               const TimeOptimalOptions& options, double max_deviation) {
   const Limits exact = MakeLimits(options, 1.0);
   const Limits blend = MakeLimits(options, 1.0 - kBlendSlack);
-  const Path path = BuildPath(corners, max_deviation, exact, blend);
+  Path path = BuildPath(corners, max_deviation, exact, blend);
+  if (options.point_speed_rate) BoundPointSpeed(options, &path);
   TimeOptimalResult result;
   result.num_blends = path.num_blends;
   result.num_stops = path.num_stops;
@@ -1104,8 +1167,9 @@ TimeOptimalResult TimeParametrizeTimeOptimal(const std::vector<JointVector>& way
   }
   TimeOptimalResult result =
       Parametrize(corners, waypoints_rad.back(), options, options.max_deviation_rad);
+  // Stopping at every corner can beat blends that must be passed slowly.
   if (result.num_blends > 0 &&
-      result.duration_s > StopEverywhereDuration(corners, MakeLimits(options, 1.0))) {
+      result.duration_s > StopEverywhereDuration(corners, MakeLimits(options, 1.0), options)) {
     result = Parametrize(corners, waypoints_rad.back(), options, 0.0);
   }
   return result;

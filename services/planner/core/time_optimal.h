@@ -1,5 +1,7 @@
 #pragma once
 
+#include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -27,6 +29,15 @@ struct TimeOptimalOptions {
   /// radius. Smaller steps bring the result closer to the time optimum, at a cost in speed:
   /// 0.001 s takes twice as long on paths of many blends for trajectories 0.1 % shorter.
   double integration_step_s = 0.004;
+  /// Optional speed bound on a point the arm carries (the tool centre point; m/s):
+  /// point_speed_rate(q, dq_ds) is that point's speed per unit joint-space path speed at q,
+  /// moving along the unit tangent dq_ds (|J(q) dq_ds| for the point's Jacobian J). Each line
+  /// and blend of the path has its joint speed limits lowered just enough that the point
+  /// stays within max_point_speed at samples point_speed_step_rad apart, so the motion slows
+  /// only where the point moves fast, not as a whole. Empty: no bound.
+  std::function<double(const JointVector& q, const JointVector& dq_ds)> point_speed_rate;
+  double max_point_speed = std::numeric_limits<double>::infinity();
+  double point_speed_step_rad = 0.02;
 };
 
 /// One sample of a time-parametrised joint trajectory. Time from the trajectory start in s,

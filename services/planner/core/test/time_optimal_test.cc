@@ -5,12 +5,14 @@
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "libs/ur10/kinematics.h"
 #include "libs/ur10/ur10_model.h"
 #include "services/robot/core/trajectory.h"
 
@@ -213,6 +215,57 @@ TEST(TimeOptimalTest, SmoothPathsStayWithinTheLimitsAndBeatStoppingAtCorners) {
       EXPECT_LT(r.duration_s, 0.6 * robot) << what;
     }
   }
+}
+
+// A point 0.35 m out along the flange's z axis (where a suction cup's lip is), base frame.
+Eigen::Vector3d LipPosition(const JointVector& q) {
+  static const ur10::Ur10Kinematics kinematics(Model());
+  return kinematics.ForwardKinematics(q) * Eigen::Vector3d(0.0, 0.0, 0.35);
+}
+
+// The lip's largest speed between consecutive samples, m/s.
+double MaxLipSpeed(const TimeOptimalResult& r) {
+  double worst = 0.0;
+  for (std::size_t i = 1; i < r.samples.size(); ++i) {
+    const double h = r.samples[i].time_s - r.samples[i - 1].time_s;
+    if (h <= 0.0) continue;
+    worst = std::max(
+        worst, (LipPosition(r.samples[i].q_rad) - LipPosition(r.samples[i - 1].q_rad)).norm() / h);
+  }
+  return worst;
+}
+
+TEST(TimeOptimalTest, APointSpeedBoundSlowsOnlyWhereThePointMovesFast) {
+  constexpr double kBound = 0.45;  // m/s
+  std::mt19937 rng(2016);
+  double bounded_total = 0.0, uniform_total = 0.0;
+  for (int trial = 0; trial < 12; ++trial) {
+    const bool smooth = trial % 2 == 1;
+    const auto path = smooth ? SmoothPath(&rng, 60, 0.05) : RandomUr10Path(&rng, 6);
+    const std::string what = "trial " + std::to_string(trial);
+    TimeOptimalOptions o = Ur10Options(trial % 4 < 2 ? 0.01 : 0.2);
+    o.max_point_speed = kBound;
+    o.point_speed_rate = [](const JointVector& q, const JointVector& dq_ds) {
+      constexpr double kStep = 1e-6;
+      return (LipPosition(q + kStep * dq_ds) - LipPosition(q)).norm() / kStep;
+    };
+    const TimeOptimalResult bounded = TimeParametrizeTimeOptimal(path, o);
+    ExpectValid(path, o, bounded, what);
+    // Sampled every 0.02 rad of the path, the bound holds between samples within a few %.
+    EXPECT_LE(MaxLipSpeed(bounded), 1.03 * kBound) << what;
+    // The old way: the unbounded timing slowed as a whole (speeds by k, accelerations by k^2).
+    TimeOptimalOptions plain = Ur10Options(o.max_deviation_rad);
+    const double k = std::min(1.0, kBound / MaxLipSpeed(TimeParametrizeTimeOptimal(path, plain)));
+    plain.max_velocity_rad_s *= k;
+    plain.max_acceleration_rad_s2 *= k * k;
+    const double uniform = TimeParametrizeTimeOptimal(path, plain).duration_s;
+    EXPECT_LE(bounded.duration_s, uniform * 1.001) << what;
+    bounded_total += bounded.duration_s;
+    uniform_total += uniform;
+  }
+  EXPECT_LT(bounded_total, 0.7 * uniform_total);
+  std::printf("point speed bound: %.1f s in all, %.1f s slowed as a whole\n", bounded_total,
+              uniform_total);
 }
 
 TEST(TimeOptimalTest, StraightMoveIsTheAnalyticTrapezoid) {
