@@ -39,7 +39,7 @@ struct BinDetectionOptions {
 /// the scanner service merges views without voxels: the views' organised clouds stacked
 /// row-wise in one organised cloud, their sensors' poses in `view_poses`; the sensor pose and
 /// intrinsics, bin box and items are the first view's, the timings the sums. DetectInBin
-/// then passes the view poses as the detector service passes DetectParams.view_sensor_poses
+/// then passes the view poses as the detector service passes DetectParams.X_frame_sensor
 /// (detector::SceneOptions::view_poses): the views are split (each view's intrinsics fitted,
 /// its shading divided out of its intensities), and poses are verified from every view's
 /// sensor (unless multi_sensor_verification is off). Throws std::invalid_argument when

@@ -29,7 +29,7 @@
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
 // and detects in the views stacked as the scanner stacks them (MergeViews), through the
-// detector service's own workflow with the views' poses (DetectParams.view_sensor_poses,
+// detector service's own workflow with the views' poses (DetectParams.X_frame_sensor,
 // detector::SceneOptions::view_poses): each view's print compensated and screened
 // by its own sensor, poses verified from every view's sensor (--multi_sensor=false: from the
 // first view's alone). --appearance=false ranks and accepts poses

@@ -105,10 +105,10 @@ DetectCall RequestFor(const detector_eval::BinScan& scan, const std::string& tar
   *region->mutable_size_m() = proto_convert::VectorToProto(scan.bin_box.size_m);
   region->set_wall_margin_m(0.01);
   for (const Eigen::Isometry3d& pose : scan.view_poses) {
-    *call.params.add_view_sensor_poses() = proto_convert::PoseToProto(pose);
+    *call.params.add_x_frame_sensor() = proto_convert::PoseToProto(pose);
   }
   auto chunks = proto_convert::CloudToChunks(scan.cloud);
-  *chunks.front().mutable_header()->mutable_sensor_pose() =
+  *chunks.front().mutable_header()->mutable_x_frame_sensor() =
       proto_convert::PoseToProto(scan.X_BaseCamera);
   call.cloud =
       std::make_shared<const std::vector<picking::common::v1::PointCloudChunk>>(std::move(chunks));

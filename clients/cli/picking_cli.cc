@@ -271,9 +271,10 @@ int Watch(pb::OrchestratorService::Stub& stub, const std::string& id, const Args
   request.set_task_id(id);
   auto reader = stub.WatchTask(&ctx, request);
   Display display(args.time_limit_s > 0.0 ? args.time_limit_s : 900.0);
-  pb::TaskEvent event;
+  pb::WatchTaskResponse response;
   pb::TaskState last = pb::TASK_STATE_RUNNING;
-  while (reader->Read(&event)) {
+  while (reader->Read(&response)) {
+    const pb::TaskEvent& event = response.event();
     if (args.json) {
       std::cout << EventJson(event).dump() << "\n" << std::flush;
     } else {

@@ -91,7 +91,8 @@ function watch(client, taskId) {
   return new Promise((resolve, reject) => {
     const events = [];
     const stream = client.WatchTask({ task_id: taskId });
-    stream.on('data', (event) => {
+    stream.on('data', (response) => {
+      const event = response.event;
       console.log(eventLine(event));
       events.push(eventRecord(event));
     });

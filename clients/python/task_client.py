@@ -51,7 +51,8 @@ def event_record(pb, event):
 def watch(pb, stub, task_id, timeout_s):
     """Streams the task's events until it ends; returns them as records."""
     events = []
-    for event in stub.WatchTask(pb.WatchTaskRequest(task_id=task_id), timeout=timeout_s):
+    for response in stub.WatchTask(pb.WatchTaskRequest(task_id=task_id), timeout=timeout_s):
+        event = response.event
         print(event_line(pb, event), flush=True)
         events.append(event_record(pb, event))
     return events

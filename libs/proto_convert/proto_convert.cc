@@ -206,8 +206,8 @@ void CloudAssembler::Add(const pb::PointCloudChunk& chunk) {
     if (h.has_normals()) cloud_.normals.resize(total_);
     if (h.has_colors()) cloud_.colors.resize(total_);
     if (h.has_intensities()) cloud_.intensities.resize(total_);
-    if (h.has_sensor_pose()) {
-      sensor_pose_ = PoseFromProto(h.sensor_pose(), "cloud header.sensor_pose");
+    if (h.has_x_frame_sensor()) {
+      sensor_pose_ = PoseFromProto(h.x_frame_sensor(), "cloud header.X_frame_sensor");
       has_sensor_pose_ = true;
     }
     started_ = true;

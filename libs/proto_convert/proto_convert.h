@@ -79,7 +79,7 @@ class CloudAssembler final {
   geometry::PointCloud Finish();
   bool started() const { return started_; }
   std::uint64_t points_received() const { return next_; }
-  /// The sensor pose from the header, if any.
+  /// The sensor pose from the header (X_frame_sensor: X_FrameSensor), if any.
   bool has_sensor_pose() const { return has_sensor_pose_; }
   const Eigen::Isometry3d& sensor_pose() const { return sensor_pose_; }
 

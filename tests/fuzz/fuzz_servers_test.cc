@@ -98,7 +98,7 @@ std::string PlaneCloudChunk(int n) {
   chunk.mutable_header()->set_point_count(n * n);
   chunk.mutable_header()->set_width(n);
   chunk.mutable_header()->set_height(n);
-  chunk.mutable_header()->mutable_sensor_pose()->mutable_orientation()->set_w(1.0);
+  chunk.mutable_header()->mutable_x_frame_sensor()->mutable_orientation()->set_w(1.0);
   chunk.set_point_count(n * n);
   chunk.set_positions(positions);
   return Text(chunk);
@@ -375,7 +375,7 @@ TEST(FuzzServers, Orchestrator) {
   orchestrator::v1::WatchTaskRequest watch;
   watch.set_task_id(started.task_id());
   auto events = stub->WatchTask(&watch_context, watch);
-  orchestrator::v1::TaskEvent event;
+  orchestrator::v1::WatchTaskResponse event;
   while (events->Read(&event)) {
   }
   ASSERT_TRUE(events->Finish().ok());

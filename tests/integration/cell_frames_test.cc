@@ -130,8 +130,8 @@ class CellFramesTest : public ::testing::Test {
     int poses = 0;
     while (reader->Read(&response)) {
       if (response.has_summary()) {
-        poses = response.summary().x_frame_camera_size();
-        if (poses == 1) *X = FromProto(response.summary().x_frame_camera(0));
+        poses = response.summary().x_frame_sensor_size();
+        if (poses == 1) *X = FromProto(response.summary().x_frame_sensor(0));
       }
     }
     const grpc::Status status = reader->Finish();

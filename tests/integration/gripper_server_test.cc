@@ -123,7 +123,7 @@ TEST_F(GripperSerialServerTest, VacuumReachesASeal) {
   EXPECT_TRUE(response.state().item_attached());
   EXPECT_TRUE(response.state().vacuum_on());
   EXPECT_GE(response.state().vacuum_kpa(), 15.0);
-  EXPECT_EQ(response.state().backend(), "serial");
+  EXPECT_EQ(response.state().backend(), pb::GRIPPER_BACKEND_SERIAL);
   EXPECT_EQ(response.state().kind(), pb::GRIPPER_KIND_TOTE);
   EXPECT_TRUE(mcu_.relay_on());
 
@@ -212,7 +212,7 @@ TEST_F(GripperSerialServerTest, GarbledLinesAndLostRepliesAreHandled) {
   // Noise, an overlong line and a stale reply arrive before the server asks anything.
   mcu_.SendRaw("garbage\n" + std::string(400, '~') + "\n$OK 4242*00\n");
   pb::GetStateResponse state = State();
-  EXPECT_EQ(state.backend(), "serial");
+  EXPECT_EQ(state.backend(), pb::GRIPPER_BACKEND_SERIAL);
 
   mcu_.GarbleNextReplies(1);
   state = State();

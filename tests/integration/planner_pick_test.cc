@@ -134,9 +134,9 @@ class PlannerPickTest : public ::testing::Test {
         camera->set_fy(460.0), camera->set_cx(240.0), camera->set_cy(192.0);
     *request.mutable_x_base_camera() = pc::PoseToProto(X_BaseCamera);
     auto reader = sim_->RenderDepth(&ctx, request);
-    common::ImageChunk chunk;
+    sim::RenderDepthResponse response;
     std::string bytes;
-    while (reader->Read(&chunk)) bytes += chunk.data();
+    while (reader->Read(&response)) bytes += response.chunk().data();
     EXPECT_TRUE(reader->Finish().ok());
     std::vector<float> depth(bytes.size() / 4);
     std::memcpy(depth.data(), bytes.data(), depth.size() * 4);
@@ -409,7 +409,7 @@ TEST_F(PlannerPickTest, ThePickExecutesOnTheSimRobotAndTheGuardedMoveTouchesTheI
     *request.mutable_trajectory() = t;
     request.set_start_tolerance_rad(0.01);
     auto reader = robot_stub_->ExecuteTrajectory(&ctx, request);
-    rb::ExecuteTrajectoryProgress progress;
+    rb::ExecuteTrajectoryResponse progress;
     bool done = false;
     while (reader->Read(&progress)) done = done || progress.done();
     const grpc::Status status = reader->Finish();

@@ -276,7 +276,7 @@ class RobotClient {
   }
   // Runs a trajectory and collects its progress messages.
   grpc::Status Execute(const robot::JointTrajectory& trajectory,
-                       std::vector<rb::ExecuteTrajectoryProgress>* progress) {
+                       std::vector<rb::ExecuteTrajectoryResponse>* progress) {
     grpc::ClientContext ctx;
     rb::ExecuteTrajectoryRequest request;
     for (const auto& p : trajectory.points) {
@@ -285,7 +285,7 @@ class RobotClient {
       for (int j = 0; j < 6; ++j) point->add_positions_rad(p.q_rad[j]);
     }
     auto reader = stub_->ExecuteTrajectory(&ctx, request);
-    rb::ExecuteTrajectoryProgress message;
+    rb::ExecuteTrajectoryResponse message;
     while (reader->Read(&message)) progress->push_back(message);
     return reader->Finish();
   }
@@ -464,7 +464,7 @@ class SimRobotTest : public ::testing::Test {
 
 TEST_F(SimRobotTest, GetStateReportsTheSimulatedArm) {
   const rb::GetStateResponse state = client_.State();
-  EXPECT_EQ(state.backend(), "sim");
+  EXPECT_EQ(state.backend(), rb::ROBOT_BACKEND_SIM);
   EXPECT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
   EXPECT_TRUE(Joints(state.joints().positions_rad()).isApprox(StartJoints()));
   const Eigen::Isometry3d X = kin_.ForwardKinematics(StartJoints());
@@ -497,6 +497,8 @@ TEST_F(SimRobotTest, MoveJointsReachesTheTarget) {
       1e-9);
   EXPECT_LT((sim_.q() - target).cwiseAbs().maxCoeff(), 1e-9);
   EXPECT_GT(sim_.placements(), 10);  // streamed, not jumped
+  // Simulated seconds (one command period per sample sent), not wall time: the same on a busy
+  // machine.
   EXPECT_GT(response.duration_s(), 0.3);
   EXPECT_EQ(client_.State().status(), rb::ROBOT_STATUS_IDLE);
 }
@@ -572,7 +574,7 @@ TEST_F(SimRobotTest, MotionsIntoTheShelfOrTheArmAreRefusedAndNothingMoves) {
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
   EXPECT_NE(s.error_message().find("hits shelf"), std::string::npos) << s.error_message();
   // A trajectory there, whatever its timing.
-  std::vector<rb::ExecuteTrajectoryProgress> progress;
+  std::vector<rb::ExecuteTrajectoryResponse> progress;
   s = client_.Execute(SlowPath(StartJoints(), q_board), &progress);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
   EXPECT_NE(s.error_message().find("hits shelf"), std::string::npos) << s.error_message();
@@ -722,7 +724,7 @@ TEST_F(SimRobotTest, ExecuteTrajectoryStreamsProgressEndingWithDone) {
   q1[0] += 0.3;
   q1[4] += 0.2;
   const robot::JointTrajectory trajectory = SlowPath(StartJoints(), q1);
-  std::vector<rb::ExecuteTrajectoryProgress> progress;
+  std::vector<rb::ExecuteTrajectoryResponse> progress;
   const grpc::Status s = client_.Execute(trajectory, &progress);
   ASSERT_TRUE(s.ok()) << s.error_message();
   ASSERT_GE(progress.size(), 3u);
@@ -781,10 +783,10 @@ TEST_F(SimRobotTest, StreamStateEndsWhenTheClientCancels) {
   rb::StreamStateRequest request;
   request.set_rate_hz(200.0);
   auto reader = client_.stub().StreamState(&ctx, request);
-  rb::GetStateResponse message;
+  rb::StreamStateResponse message;
   for (int i = 0; i < 3; ++i) {
     ASSERT_TRUE(reader->Read(&message));
-    EXPECT_EQ(message.backend(), "sim");
+    EXPECT_EQ(message.state().backend(), rb::ROBOT_BACKEND_SIM);
   }
   ctx.TryCancel();
   while (reader->Read(&message)) {
@@ -803,6 +805,29 @@ TEST_F(SimRobotTest, StreamStateEndsWhenTheClientCancels) {
 class SimRobotRealTimeTest : public SimRobotTest {
  protected:
   SimRobotRealTimeTest() : SimRobotTest({"--sim.time_scale=1"}) {}
+
+  // The first state other than MOVING that the server streams: the client waits on the
+  // server's word that a motion has ended, in blocking reads rather than a polling loop (the
+  // deadline only bounds a hang). The state as read, MOVING if the stream ended first.
+  rb::GetStateResponse FirstStateNotMoving() {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    rb::StreamStateRequest request;
+    request.set_rate_hz(100.0);
+    auto stream = client_.stub().StreamState(&ctx, request);
+    rb::GetStateResponse state;
+    state.set_status(rb::ROBOT_STATUS_MOVING);
+    rb::StreamStateResponse read;
+    while (stream->Read(&read)) {
+      state = read.state();
+      if (state.status() != rb::ROBOT_STATUS_MOVING) break;
+    }
+    ctx.TryCancel();
+    while (stream->Read(&read)) {
+    }
+    stream->Finish();
+    return state;
+  }
 };
 
 TEST_F(SimRobotRealTimeTest, StopInterruptsAMoveAndMovesAreExclusive) {
@@ -841,10 +866,7 @@ TEST_F(SimRobotRealTimeTest, AMovePastItsDeadlineIsStoppedAndIdleMeansReady) {
   rb::MoveJointsResponse response;
   ASSERT_EQ(client_.stub().MoveJoints(&ctx, request, &response).error_code(),
             grpc::StatusCode::DEADLINE_EXCEEDED);
-  rb::GetStateResponse state = client_.State();
-  for (int poll = 0; poll < 100000 && state.status() == rb::ROBOT_STATUS_MOVING; ++poll) {
-    state = client_.State();
-  }
+  const rb::GetStateResponse state = FirstStateNotMoving();
   ASSERT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
   rb::MoveJointsResponse back;
   const grpc::Status next = client_.MoveJoints(StartJoints(), &back);
@@ -876,7 +898,7 @@ class UrRobotTest : public ::testing::Test {
 TEST_F(UrRobotTest, PowersOnAndReportsTheControllerState) {
   EXPECT_EQ(fake_.dashboard_commands(), (std::vector<std::string>{"power on", "brake release"}));
   const rb::GetStateResponse state = client_.State();
-  EXPECT_EQ(state.backend(), "ur");
+  EXPECT_EQ(state.backend(), rb::ROBOT_BACKEND_UR);
   EXPECT_EQ(state.status(), rb::ROBOT_STATUS_IDLE);
   EXPECT_LT((Joints(state.joints().positions_rad()) - fake_.q()).cwiseAbs().maxCoeff(), 1e-9);
 }
@@ -932,7 +954,7 @@ TEST_F(UrRobotTest, ExecuteTrajectoryStreamsProgressEndingWithDone) {
   JointVector q1 = fake_.q();
   q1[0] += 0.2;
   const robot::JointTrajectory trajectory = SlowPath(fake_.q(), q1);
-  std::vector<rb::ExecuteTrajectoryProgress> progress;
+  std::vector<rb::ExecuteTrajectoryResponse> progress;
   const grpc::Status s = client_.Execute(trajectory, &progress);
   ASSERT_TRUE(s.ok()) << s.error_message();
   ASSERT_GE(progress.size(), 2u);

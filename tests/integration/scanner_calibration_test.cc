@@ -768,9 +768,9 @@ TEST(ScannerDroppedFrameTest, ADroppedFrameIsDataLossAndTheNextCaptureWorks) {
   for (int round = 0; round < 2; ++round) {
     grpc::ClientContext ctx;
     auto reader = server.stub().CaptureImages(&ctx, pb::CaptureImagesRequest());
-    common::v1::ImageChunk chunk;
+    pb::CaptureImagesResponse response;
     int images = 0;
-    while (reader->Read(&chunk)) images += chunk.has_header() ? 1 : 0;
+    while (reader->Read(&response)) images += response.chunk().has_header() ? 1 : 0;
     const grpc::Status status = reader->Finish();
     if (round == 0) {
       EXPECT_EQ(status.error_code(), grpc::StatusCode::DATA_LOSS) << status.error_message();
@@ -883,9 +883,10 @@ class ScannerAravisTest : public ::testing::Test {
   static grpc::Status CaptureImages(pb::ScannerService::Stub& stub, int* images) {
     grpc::ClientContext ctx;
     auto reader = stub.CaptureImages(&ctx, pb::CaptureImagesRequest());
-    common::v1::ImageChunk chunk;
+    pb::CaptureImagesResponse response;
     *images = 0;
-    while (reader->Read(&chunk)) {
+    while (reader->Read(&response)) {
+      const common::v1::ImageChunk& chunk = response.chunk();
       if (chunk.has_header()) {
         ++*images;
         EXPECT_EQ(chunk.header().width(), 512u);

@@ -304,7 +304,7 @@ TEST_F(ScannerReplayTest, ScanOfAPlaneStreamsACloudOnThePlane) {
   request.mutable_decode()->set_min_neighbours(3);
   auto reader = stub_->Scan(&ctx, request);
   pb::ScanResponse response;
-  std::vector<std::string> stages;
+  std::vector<pb::ScanStage> stages;
   int chunks = 0;
   std::uint64_t expected_points = 0;
   std::vector<float> xyz, normals;
@@ -341,7 +341,8 @@ TEST_F(ScannerReplayTest, ScanOfAPlaneStreamsACloudOnThePlane) {
   const grpc::Status status = reader->Finish();
   ASSERT_TRUE(status.ok()) << status.error_message();
   ASSERT_TRUE(summary_seen);
-  EXPECT_EQ(stages, (std::vector<std::string>{"capture", "decode", "triangulate", "merge"}));
+  EXPECT_EQ(stages, (std::vector<pb::ScanStage>{pb::SCAN_STAGE_CAPTURE, pb::SCAN_STAGE_DECODE,
+                                                pb::SCAN_STAGE_TRIANGULATE, pb::SCAN_STAGE_MERGE}));
   EXPECT_GT(chunks, 1) << "a megapixel cloud must arrive in several chunks";
   ASSERT_EQ(xyz.size(), 3 * expected_points);
 
@@ -494,10 +495,11 @@ TEST_F(ScannerReplayTest, ALongSessionNameGetsAReadableInvalidArgument) {
 TEST_F(ScannerReplayTest, CaptureImagesStreamsTheNamedSequence) {
   grpc::ClientContext ctx;
   auto reader = stub_->CaptureImages(&ctx, pb::CaptureImagesRequest());
-  common::v1::ImageChunk chunk;
+  pb::CaptureImagesResponse response;
   std::vector<std::string> names;
   std::uint64_t bytes = 0;
-  while (reader->Read(&chunk)) {
+  while (reader->Read(&response)) {
+    const common::v1::ImageChunk& chunk = response.chunk();
     if (chunk.has_header()) {
       names.push_back(chunk.header().name());
       EXPECT_EQ(chunk.header().index(), names.size() - 1);
@@ -904,8 +906,8 @@ ScannedCloud RunScan(pb::ScannerService::Stub* stub, const pb::ScanRequest& requ
       if (response.cloud().has_header()) {
         out.width = response.cloud().header().width();
         out.height = response.cloud().header().height();
-        out.has_sensor_pose = response.cloud().header().has_sensor_pose();
-        out.sensor_pose = response.cloud().header().sensor_pose();
+        out.has_sensor_pose = response.cloud().header().has_x_frame_sensor();
+        out.sensor_pose = response.cloud().header().x_frame_sensor();
       }
       const auto p = DecodeFloats(response.cloud().positions());
       out.xyz.insert(out.xyz.end(), p.begin(), p.end());
@@ -1063,9 +1065,10 @@ class ScannerWithSimulatorTest : public ::testing::Test {
     *m->mutable_distortion() = c.distortion();
     *request.mutable_x_base_camera() = ToPose(X_BaseCamera.R, X_BaseCamera.p);
     auto reader = sim_stub_->RenderDepth(&ctx, request);
-    common::v1::ImageChunk chunk;
+    sim::RenderDepthResponse response;
     std::string bytes;
-    while (reader->Read(&chunk)) {
+    while (reader->Read(&response)) {
+      const common::v1::ImageChunk& chunk = response.chunk();
       if (chunk.has_header()) {
         EXPECT_EQ(chunk.header().format(), common::v1::PIXEL_FORMAT_FLOAT32);
         truth.width = static_cast<int>(chunk.header().width());
@@ -1346,7 +1349,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
   ASSERT_EQ(cloud.width, static_cast<std::uint32_t>(width));
   ASSERT_EQ(cloud.height, 3u * static_cast<std::uint32_t>(height));
   ASSERT_EQ(cloud.xyz.size(), 3u * cloud.width * cloud.height);
-  ASSERT_EQ(cloud.summary.x_frame_camera_size(), 3);
+  ASSERT_EQ(cloud.summary.x_frame_sensor_size(), 3);
   EXPECT_FALSE(cloud.has_sensor_pose);  // Three sensors: their poses are in the summary.
 
   std::vector<TruthView> truth;
@@ -1355,7 +1358,7 @@ TEST_F(ScannerWithSimulatorTest, ThreeViewsMergedInTheBaseFrameMatchTheTrueSurfa
     truth.push_back(Truth(cameras[k]));
     bin_surface.push_back(BinSurface(truth.back()));
     // The scanner placed view k where the robot held the camera (hand-eye and pose chain).
-    const Rigid X_BaseCamera = FromProto(cloud.summary.x_frame_camera(static_cast<int>(k)));
+    const Rigid X_BaseCamera = FromProto(cloud.summary.x_frame_sensor(static_cast<int>(k)));
     EXPECT_LT(std::sqrt(Sub(X_BaseCamera.p, cameras[k].p).Dot(Sub(X_BaseCamera.p, cameras[k].p))),
               1e-6);
     for (int c = 0; c < 3; ++c) {

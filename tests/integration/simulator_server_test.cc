@@ -376,8 +376,9 @@ Rendered Render(sim::SimulatorService::Stub* stub, const sim::RenderPatternsRequ
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
   auto reader = stub->RenderPatterns(&ctx, req);
-  common::ImageChunk chunk;
-  while (reader->Read(&chunk)) {
+  sim::RenderPatternsResponse response;
+  while (reader->Read(&response)) {
+    const common::ImageChunk& chunk = response.chunk();
     if (chunk.has_header()) {
       out.headers.push_back(chunk.header());
       out.pixels.emplace_back();
@@ -627,11 +628,11 @@ TEST(SimulatorServerTest, ALongRenderEndsWhenTheServerIsAskedToStop) {
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
   auto reader = stub->RenderPatterns(&ctx, req);
-  common::ImageChunk chunk;
-  ASSERT_TRUE(reader->Read(&chunk));  // the render is under way
+  sim::RenderPatternsResponse response;
+  ASSERT_TRUE(reader->Read(&response));  // the render is under way
   ASSERT_EQ(::kill(server.pid(), SIGTERM), 0);
-  int images = chunk.has_header() ? 1 : 0;
-  while (reader->Read(&chunk)) images += chunk.has_header() ? 1 : 0;
+  int images = response.chunk().has_header() ? 1 : 0;
+  while (reader->Read(&response)) images += response.chunk().has_header() ? 1 : 0;
   const grpc::Status s = reader->Finish();
   EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
   EXPECT_NE(s.error_message().find("shutting down"), std::string::npos) << s.error_message();
@@ -654,9 +655,10 @@ DepthImage RenderDepth(sim::SimulatorService::Stub* stub, const sim::RenderDepth
   DepthImage out;
   grpc::ClientContext ctx;
   auto reader = stub->RenderDepth(&ctx, req);
-  common::ImageChunk chunk;
+  sim::RenderDepthResponse response;
   std::string bytes;
-  while (reader->Read(&chunk)) {
+  while (reader->Read(&response)) {
+    const common::ImageChunk& chunk = response.chunk();
     if (chunk.has_header()) out.headers.push_back(chunk.header());
     if (out.headers.size() == 1) bytes += chunk.data();
   }

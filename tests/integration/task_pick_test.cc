@@ -169,8 +169,9 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
     orch::WatchTaskRequest request;
     request.set_task_id(started.task_id());
     auto reader = stub->WatchTask(&ctx, request);
-    orch::TaskEvent event;
-    while (reader->Read(&event)) {
+    orch::WatchTaskResponse response;
+    while (reader->Read(&response)) {
+      const orch::TaskEvent& event = response.event();
       std::printf("[%7.1f s] %-36s %-7s %s %s\n", event.time_s(), event.item().c_str(),
                   orch::Step_Name(event.step()).c_str() + 5, event.step_ok() ? "" : "FAIL",
                   event.message().c_str());
@@ -272,8 +273,9 @@ TEST_F(TaskPickTest, StowLayout1TheOutputFileMatchesTheSimulatorsTruth) {
     orch::WatchTaskRequest request;
     request.set_task_id(started.task_id());
     auto reader = stub->WatchTask(&ctx, request);
-    orch::TaskEvent event;
-    while (reader->Read(&event)) {
+    orch::WatchTaskResponse response;
+    while (reader->Read(&response)) {
+      const orch::TaskEvent& event = response.event();
       std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
                   event.message().c_str());
     }
@@ -337,8 +339,9 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
     orch::WatchTaskRequest watch;
     watch.set_task_id(started.task_id());
     auto reader = stub->WatchTask(&ctx, watch);
-    orch::TaskEvent event;
-    while (reader->Read(&event)) {
+    orch::WatchTaskResponse response;
+    while (reader->Read(&response)) {
+      const orch::TaskEvent& event = response.event();
       if (event.step() == orch::STEP_DETECT && second_detector) {
         ::kill(second_detector->pid(), SIGKILL);
         EXPECT_EQ(second_detector->Stop(), 128 + SIGKILL);
@@ -379,10 +382,10 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
     orch::WatchTaskRequest watch;
     watch.set_task_id(started.task_id());
     auto reader = stub->WatchTask(&ctx, watch);
-    orch::TaskEvent event;
+    orch::WatchTaskResponse response;
     std::uint64_t expected = 0;
-    while (reader->Read(&event)) EXPECT_EQ(event.sequence(), expected++);
-    EXPECT_EQ(event.state(), orch::TASK_STATE_SUCCEEDED) << event.message();
+    while (reader->Read(&response)) EXPECT_EQ(response.event().sequence(), expected++);
+    EXPECT_EQ(response.event().state(), orch::TASK_STATE_SUCCEEDED) << response.event().message();
   }
   orch::GetTaskResponse task;
   {

@@ -220,7 +220,7 @@ TEST_F(TlsTest, TheRobotCallsTheSimulatorOverMutualTls) {
   const grpc::Status status =
       RobotState(robot.Channel(runtime::ChannelFactory(certs_->Client("picking"), "")), &state);
   ASSERT_TRUE(status.ok()) << status.error_message();
-  EXPECT_EQ(state.backend(), "sim");
+  EXPECT_EQ(state.backend(), robot::v1::ROBOT_BACKEND_SIM);
   EXPECT_EQ(state.joints().positions_rad_size(), 6);
 
   // The same robot without certificates: the simulator refuses it, so its state is unknown.

@@ -176,6 +176,7 @@ ItemDetections DetectItem(const std::shared_ptr<const ModelLibrary>& library,
   input.X_BaseSensor = scene.X_BaseSensor;
   input.camera = scene.camera;
   input.budget_start = budget_start;
+  input.clock = query.budget_clock;
   ItemDetections out;
   out.chain = chain.Run(input);
   context->CheckDeadline();  // an estimator stopped by the deadline is not "not found"

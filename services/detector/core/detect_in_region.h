@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/estimators.h"
 #include "services/detector/core/model_library.h"
@@ -94,6 +95,10 @@ struct ItemQuery {
   /// Multiplies the item's time budget (> 0): a detector sharing its cores with other work
   /// keeps the search a quiet machine would make.
   double budget_scale = 1.0;
+  /// The clock the item's time budget is judged by (DetectItem's `budget_start` is one of its
+  /// time points): the steady clock, or a test's (BudgetClock::Frozen: the same search
+  /// whatever the machine's load).
+  BudgetClock budget_clock;
 };
 
 struct ItemDetections {
@@ -104,8 +109,9 @@ struct ItemDetections {
 };
 
 /// Runs the item's chain on the prepared scene. The item's time budget counts from
-/// `budget_start` (the first item's includes the shared preparation). Throws NotFoundError
-/// (libs/errors) for an unknown item, TimeoutError when the context's deadline passes.
+/// `budget_start`, a time point of query.budget_clock (the first item's includes the shared
+/// preparation). Throws NotFoundError (libs/errors) for an unknown item, TimeoutError when the
+/// context's deadline passes.
 ItemDetections DetectItem(const std::shared_ptr<const ModelLibrary>& library,
                           const PreparedScene& scene, const std::shared_ptr<SceneContext>& context,
                           const ItemQuery& query,

@@ -339,15 +339,14 @@ ChainResult DetectionChain::Run(const EstimatorInput& input) const {
   if (object.time_budget_s > 0.0) {
     const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
         std::chrono::duration<double>(object.time_budget_s));
-    const auto start = input.budget_start.value_or(std::chrono::steady_clock::now());
+    const auto start = input.budget_start.value_or(input.clock.Now());
     budgeted.budget_end = std::min(input.budget_end, start + budget);
   }
   ChainResult result;
   bool first = true;
   bool budget_spent = false;
   for (Method method : object.Order()) {
-    budget_spent =
-        budget_spent || (!first && std::chrono::steady_clock::now() > budgeted.budget_end);
+    budget_spent = budget_spent || (!first && input.clock.Now() > budgeted.budget_end);
     first = false;
     const auto it = estimators_.find(method);
     if (budget_spent || it == estimators_.end()) {

@@ -13,6 +13,7 @@
 
 #include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/budget_clock.h"
 
 namespace picking::detector {
 
@@ -148,10 +149,15 @@ struct EstimatorInput {
   std::optional<PinholeCamera> camera;
   /// End of the call's time budget (set by DetectionChain::Run from the item's
   /// time_budget_s): an estimator with a long search stops it here and returns what it found.
+  /// A time point of `clock`.
   std::chrono::steady_clock::time_point budget_end = std::chrono::steady_clock::time_point::max();
-  /// When the work on the item began (e.g. before a shared pre-processing): DetectionChain::Run
-  /// counts the item's time_budget_s from here; unset, from the start of Run.
+  /// When the work on the item began (e.g. before a shared pre-processing), a time point of
+  /// `clock`: DetectionChain::Run counts the item's time_budget_s from here; unset, from the
+  /// start of Run.
   std::optional<std::chrono::steady_clock::time_point> budget_start;
+  /// The clock the budget is judged by, in the chain and in every estimator's search (the
+  /// steady clock by default; a test's own clock makes the search independent of the load).
+  BudgetClock clock;
 };
 
 /// A pose estimation strategy (PPF, SIFT, range templates, or a fake in tests).
@@ -213,7 +219,7 @@ struct ChainResult {
 
 /// Runs an item's methods in its configured order until one returns a detection that passes
 /// that method's thresholds (the first such candidate in the estimator's ranking), or the
-/// item's time budget is spent (no further method started).
+/// item's time budget is spent on EstimatorInput::clock (no further method started).
 class DetectionChain final {
  public:
   /// Throws std::invalid_argument on a null estimator or two estimators for one method.

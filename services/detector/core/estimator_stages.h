@@ -14,6 +14,8 @@
 
 namespace picking::detector::estimator_stages {
 
+// Measures the durations reported in DetectionTimings. Decisions on the time budget read
+// EstimatorInput::clock instead (budget_clock.h).
 using Clock = std::chrono::steady_clock;
 
 double SecondsSince(Clock::time_point start);

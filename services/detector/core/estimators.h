@@ -68,7 +68,9 @@ class SceneContext final {
   const Eigen::Isometry3d& X_BaseSensor() const { return X_BaseSensor_; }
   const std::optional<PinholeCamera>& camera() const { return camera_; }
 
-  /// Work after this time point throws TimeoutError (checked between stages).
+  /// Work after this time point throws TimeoutError (checked between stages). The call's
+  /// deadline, which its client counts in wall time: judged on the steady clock, not on the
+  /// items' budget clock (EstimatorInput::clock).
   void set_deadline(std::chrono::steady_clock::time_point deadline) { deadline_ = deadline; }
   /// Throws TimeoutError (libs/errors) when the deadline has passed.
   void CheckDeadline() const;
@@ -234,8 +236,9 @@ class PpfEstimator final : public Estimator {
  private:
   // Box poses on the scene's planar patches that pass the screening, best first, for
   // DetectPpf to refine and verify (PpfSearchOptions::fit_boxes); none without a
-  // verification scene. Patches are no longer screened after `deadline`.
+  // verification scene. Patches are no longer screened after `deadline` (on `clock`).
   std::vector<Eigen::Isometry3d> BoxFaceSeeds(const LoadedModel& model, const PpfScene& scene,
+                                              const BudgetClock& clock,
                                               std::chrono::steady_clock::time_point deadline);
   // Spheres by a direct fit of the item's radius, each refined and verified.
   std::vector<Detection> EstimateSpheres(const LoadedModel& model, const PpfScene& scene,
@@ -247,6 +250,7 @@ class PpfEstimator final : public Estimator {
                                    double* seed_s);
   // For a box: the best candidate's near-square quarter-turns, then the translation polish
   // of the best and of its best turn, each result passed to `add` (which appends to `out`).
+  // `verify_start` is a time point of input.clock.
   void RefineBoxCandidates(const LoadedModel& model, const EstimatorInput& input,
                            std::chrono::steady_clock::time_point verify_start,
                            const std::function<void(Detection)>& add, std::vector<Detection>& out);

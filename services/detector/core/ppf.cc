@@ -736,7 +736,7 @@ std::vector<Peak> VoteAllReferences(const VoteContext& ctx, const PpfMatchOption
     scratch.flags.assign(ctx.skip_duplicates ? ctx.quant.num_keys() : 0u, 0u);
     VoteCounts counts;
     for (;;) {
-      if (has_deadline && std::chrono::steady_clock::now() >= options.deadline) {
+      if (has_deadline && options.clock.Now() >= options.deadline) {
         timed_out = true;
         break;
       }

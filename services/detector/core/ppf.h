@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/kdtree.h"
 
 namespace picking::detector {
@@ -198,6 +199,8 @@ struct PpfMatchOptions {
   /// far (PpfMatchResult::timed_out). Reference points are visited in an order spread over
   /// the whole scene, so a partial vote still covers it. Default: no limit.
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
+  /// The clock `deadline` is judged by (read by the voting threads).
+  BudgetClock clock;
 };
 
 /// One pose cluster.

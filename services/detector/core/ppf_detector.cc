@@ -691,10 +691,11 @@ struct RefineWork {
 };
 
 // Refines jobs [begin, end) of *work in parallel, each taken only while the mean time of
-// those done so far still fits before the deadline (the first always is: early_deadline while
-// no voted hypothesis is found, refine_deadline after); the results keep the jobs' order, so
-// that without a deadline the outcome does not depend on threads. After the first exception
-// of a job the jobs not started are skipped, and it is rethrown once all threads stopped.
+// those done so far (on options.clock) still fits before the deadline (the first always is:
+// early_deadline while no voted hypothesis is found, refine_deadline after); the results keep
+// the jobs' order, so that without a deadline the outcome does not depend on threads. After
+// the first exception of a job the jobs not started are skipped, and it is rethrown once all
+// threads stopped.
 void RefineRange(const HypothesisRefiner& refiner, const DetectionGate& gate,
                  const PpfDetectorOptions& options, const std::vector<PpfHypothesis>& hypotheses,
                  std::size_t begin, std::size_t end,
@@ -708,7 +709,7 @@ void RefineRange(const HypothesisRefiner& refiner, const DetectionGate& gate,
       std::clamp(parallel::ResolveThreads(options.match.num_threads), 1, std::max(1, jobs));
   parallel::ParallelFor(jobs, threads, [&](int job) {
     const std::size_t h = begin + static_cast<std::size_t>(job);
-    const auto now = std::chrono::steady_clock::now();
+    const auto now = options.clock.Now();
     const std::int64_t n = done.load();
     const auto mean = std::chrono::nanoseconds(n > 0 ? busy_ns.load() / n : 0);
     // Once a voted hypothesis is found the seeds' share of the time is not needed. A thread
@@ -719,8 +720,7 @@ void RefineRange(const HypothesisRefiner& refiner, const DetectionGate& gate,
     refined[h] = refiner.Refine(work->jobs[h], hypotheses, work->seed_poses);
     if (!refined[h]->seed && gate.Found(*refined[h])) voted_found = true;
     busy_ns +=
-        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - now)
-            .count();
+        std::chrono::duration_cast<std::chrono::nanoseconds>(options.clock.Now() - now).count();
     ++done;
     return true;
   });
@@ -750,7 +750,7 @@ std::vector<std::optional<PpfDetection>> RefineHypotheses(
   work.refined.resize(voted);
   // The voted hypotheses leave seed_refine_fraction of the refinement time to the seeds,
   // unless one of them is found.
-  const auto refine_start = std::chrono::steady_clock::now();
+  const auto refine_start = options.clock.Now();
   auto voted_deadline = options.refine_deadline;
   if (options.seed_source &&
       options.refine_deadline != std::chrono::steady_clock::time_point::max()) {

@@ -9,6 +9,7 @@
 
 #include "libs/geometry/point_cloud.h"
 #include "services/detector/core/appearance.h"
+#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/icp.h"
 #include "services/detector/core/kdtree.h"
 #include "services/detector/core/model.h"
@@ -53,21 +54,21 @@ class ViewRangeGrid final {
   std::vector<float> ranges_;
 };
 
+/// Whether one more step of a loop that began at `start` and has done `done` (> 0) steps fits
+/// before `deadline`, judged on `clock` by the mean time of the steps so far. With done == 0
+/// it does (the first step always runs).
+inline bool TimeForAnother(const BudgetClock& clock, std::chrono::steady_clock::time_point start,
+                           std::int64_t done, std::chrono::steady_clock::time_point deadline) {
+  if (done <= 0) return true;
+  const auto now = clock.Now();
+  return now + (now - start) / done <= deadline;
+}
+
 /// A scene prepared for one object model: the fine cloud with normals (ICP target and
 /// verification) and the cloud sampled with the model's distance step (PPF voting), both in
 /// the scene frame S, metres, with their search trees. `fine` keeps the scene's intensities
 /// (voxel-averaged; the luma of its colours when it has colours only) for the appearance
 /// check.
-/// Whether one more step of a loop that began at `start` and has done `done` (> 0) steps fits
-/// before `deadline`, judged by the mean time of the steps so far. With done == 0 it does
-/// (the first step always runs).
-inline bool TimeForAnother(std::chrono::steady_clock::time_point start, std::int64_t done,
-                           std::chrono::steady_clock::time_point deadline) {
-  if (done <= 0) return true;
-  const auto now = std::chrono::steady_clock::now();
-  return now + (now - start) / done <= deadline;
-}
-
 struct PpfScene {
   geometry::PointCloud fine;
   geometry::PointCloud sampled;
@@ -172,6 +173,9 @@ struct PpfDetectorOptions {
   /// caller's time budget, as PpfMatchOptions::deadline is for the voting.
   std::chrono::steady_clock::time_point refine_deadline =
       std::chrono::steady_clock::time_point::max();
+  /// The clock refine_deadline (and the seeds' share of it) is judged by, also the one that
+  /// times the refinements for that judgement; the voting's deadline is judged by match.clock.
+  BudgetClock clock;
   /// Appearance: when the model has albedo and the scene intensities, each refined
   /// hypothesis is also tried turned by the model's symmetries (a box's 180 degree flips, a
   /// cylinder's turns) and the turn whose albedo best explains the scene's intensities is

@@ -61,6 +61,7 @@ PpfEstimator::PpfEstimator(std::shared_ptr<const ModelLibrary> library,
 
 std::vector<Eigen::Isometry3d> PpfEstimator::BoxFaceSeeds(const LoadedModel& model,
                                                           const PpfScene& scene,
+                                                          const BudgetClock& clock,
                                                           Clock::time_point deadline) {
   if (search_.box_max_refined == 0) return {};
   const geometry::PointCloud& icp_cloud = model.object->icp_cloud();
@@ -82,7 +83,7 @@ std::vector<Eigen::Isometry3d> PpfEstimator::BoxFaceSeeds(const LoadedModel& mod
   const float screen_conflict_m = ppf_.conflict_distance_rel * step;
   std::vector<std::pair<double, Eigen::Isometry3d>> screened;
   for (const PlanarPatch& patch : patches) {
-    if (Clock::now() > deadline) break;
+    if (clock.Now() > deadline) break;
     for (Eigen::Isometry3d X : BoxPosesOnPatch(patch, half_size, faces)) {
       // BoxPosesOnPatch places the box's centre; the item frame may sit elsewhere in it.
       X.translation() -= X.linear() * p_ItemCentre;
@@ -148,15 +149,17 @@ PpfDetectorOptions PpfEstimator::VotingOptions(const std::shared_ptr<const Loade
                                                double* seed_s) {
   PpfDetectorOptions ppf = ppf_;
   if (search_.fit_boxes && model->spec.kind == ModelSourceKind::kShapeBox) {
-    ppf.seed_source = [this, model, &scene, seed_s, budget_end = input.budget_end]() {
-      const auto seed_start = Clock::now();
+    ppf.seed_source = [this, model, &scene, seed_s, budget_end = input.budget_end,
+                       clock = input.clock]() {
+      const auto seed_start = Clock::now();  // measures seed_s
+      const auto budget_now = clock.Now();   // shares out the budget
       const Clock::time_point deadline =
           budget_end == Clock::time_point::max()
               ? budget_end
-              : seed_start + std::chrono::duration_cast<Clock::duration>(
-                                 std::max(Clock::duration::zero(), budget_end - seed_start) *
+              : budget_now + std::chrono::duration_cast<Clock::duration>(
+                                 std::max(Clock::duration::zero(), budget_end - budget_now) *
                                  search_.box_budget_fraction);
-      std::vector<Eigen::Isometry3d> seeds = BoxFaceSeeds(*model, scene, deadline);
+      std::vector<Eigen::Isometry3d> seeds = BoxFaceSeeds(*model, scene, clock, deadline);
       *seed_s = SecondsSince(seed_start);
       return seeds;
     };
@@ -175,8 +178,10 @@ PpfDetectorOptions PpfEstimator::VotingOptions(const std::shared_ptr<const Loade
     }
     ppf.match.segments = std::move(labels);
   }
+  ppf.match.clock = input.clock;
+  ppf.clock = input.clock;
   if (input.budget_end != Clock::time_point::max()) {
-    const auto now = Clock::now();
+    const auto now = input.clock.Now();
     const auto remaining = std::max(Clock::duration::zero(), input.budget_end - now);
     ppf.match.deadline = now + std::chrono::duration_cast<Clock::duration>(
                                    remaining * search_.voting_budget_fraction);
@@ -193,7 +198,8 @@ void PpfEstimator::RefineBoxCandidates(const LoadedModel& model, const Estimator
   const auto by_score = [](const Detection& a, const Detection& b) { return a.score < b.score; };
   const auto time_for_another = [&]() {
     context_->CheckDeadline();
-    return TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end);
+    return TimeForAnother(input.clock, verify_start, static_cast<std::int64_t>(out.size()),
+                          input.budget_end);
   };
   const auto [half_size, p_ItemCentre] = BoxExtentOf(model.object->icp_cloud());
   const std::size_t turned_from = out.size();
@@ -222,10 +228,10 @@ void PpfEstimator::RefineBoxCandidates(const LoadedModel& model, const Estimator
     const PosePolish polished = PolishTranslation(
         best.X_BaseItem, best.score, axes, search_.box_polish_step_m, search_.box_polish_levels,
         [&](const Eigen::Isometry3d& X) -> std::optional<double> {
-          const auto now = Clock::now();
+          const auto now = input.clock.Now();
           if (!time_for_another() || now + last > deadline) return std::nullopt;
           Detection d = RefineAndVerify(model, *context_, Method::kPpf, X, false, refine_);
-          last = Clock::now() - now;
+          last = input.clock.Now() - now;
           const double score = d.score;
           if (score > best.score) best = std::move(d);
           return score;
@@ -243,7 +249,7 @@ void PpfEstimator::RefineBoxCandidates(const LoadedModel& model, const Estimator
   for (std::size_t i = 0; i < starts.size(); ++i) {
     Clock::time_point deadline = Clock::time_point::max();
     if (input.budget_end != Clock::time_point::max()) {
-      const auto now = Clock::now();
+      const auto now = input.clock.Now();
       deadline = now + std::max(Clock::duration::zero(), input.budget_end - now) /
                            static_cast<int>(starts.size() - i);
     }
@@ -280,11 +286,12 @@ std::vector<Detection> PpfEstimator::Estimate(const EstimatorInput& input) {
     d.timings.refine_s += result.refine_s;
     out.push_back(std::move(d));
   };
-  const auto verify_start = Clock::now();
+  const auto verify_start = input.clock.Now();
   for (const PpfDetection& hypothesis : result.detections) {
     context_->CheckDeadline();
     // The best come first; the next is verified when the mean time so far leaves room for it.
-    if (!TimeForAnother(verify_start, static_cast<std::int64_t>(out.size()), input.budget_end)) {
+    if (!TimeForAnother(input.clock, verify_start, static_cast<std::int64_t>(out.size()),
+                        input.budget_end)) {
       break;
     }
     // DetectPpf has refined the pose with ICP already.

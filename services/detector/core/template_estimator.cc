@@ -48,12 +48,13 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
                            std::to_string(clusters.cloud.size()) + " points clustered)");
   }
   context_->CheckDeadline();
-  if (Clock::now() > input.budget_end) {
+  if (input.clock.Now() > input.budget_end) {
     throw NoCandidateError("the item's time budget was spent before a cluster was matched");
   }
   const auto estimate_start = Clock::now();
   TemplateMatchOptions match = match_;
   match.deadline = std::min(match.deadline, input.budget_end);
+  match.clock = input.clock;  // the budget's; a configured deadline is judged on it too
   const std::vector<TemplateMatch> matches =
       MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
                      *context_->camera(), match);
@@ -65,7 +66,7 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   std::vector<Detection> out;
   for (const TemplateMatch& m : matches) {
     context_->CheckDeadline();
-    if (!out.empty() && Clock::now() > input.budget_end) break;
+    if (!out.empty() && input.clock.Now() > input.budget_end) break;
     Detection d =
         RefineAndVerify(*model, *context_, Method::kRangeTemplates, m.X_BaseItem, true, refine_);
     d.timings.preprocess_s = preprocess_s;

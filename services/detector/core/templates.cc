@@ -250,7 +250,7 @@ CoarseResult CoarseSearch(const std::vector<RangeTemplate>& all, const Eigen::Ve
   hypotheses.reserve(all.size() * options.in_plane_steps);
   bool& out_of_time = coarse.out_of_time;
   for (int k = 0; k < options.in_plane_steps && !out_of_time; ++k) {
-    out_of_time = std::chrono::steady_clock::now() > options.deadline;
+    out_of_time = options.clock.Now() > options.deadline;
     const Eigen::Matrix3d R = R_align * Eigen::AngleAxisd(2.0 * M_PI * k / options.in_plane_steps,
                                                           Eigen::Vector3d::UnitZ())
                                             .toRotationMatrix();
@@ -497,7 +497,7 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
   for (std::size_t c = 0; c < clusters.size(); ++c) {
     PointCloud cluster = GatherCluster(scene, clusters[c], c, X_SensorBase_f);
     if (cluster.points.size() < 10) continue;
-    if (std::chrono::steady_clock::now() > options.deadline) break;
+    if (options.clock.Now() > options.deadline) break;
     if (!HasPlausibleExtent(cluster.points, templates.diameter_m(), options)) continue;
     const Eigen::Vector3f closest = ClosestToSensor(cluster.points);
     ThinEvenly(options.max_target_points, &cluster.points);

@@ -8,6 +8,7 @@
 
 #include "libs/geometry/point_cloud.h"
 #include "libs/world/mesh.h"
+#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/detection.h"
 
 namespace picking::detector {
@@ -117,6 +118,8 @@ struct TemplateMatchOptions {
   /// The search stops at this time point (the call's time budget; checked between clusters
   /// and in-plane rotations) and returns the matches of the clusters finished so far.
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
+  /// The clock `deadline` is judged by.
+  BudgetClock clock;
 };
 
 struct TemplateMatch {

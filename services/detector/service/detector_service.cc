@@ -16,6 +16,7 @@
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/log.h"
 #include "libs/runtime/status.h"
+#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/detect_in_region.h"
 #include "services/detector/core/detection.h"
 #include "services/detector/core/estimators.h"
@@ -50,14 +51,55 @@ pb::Method ToProto(const std::string& method_name) {
   return ToProto(MethodFromString(method_name));
 }
 
+pb::ModelSource ToProto(ModelSourceKind kind) {
+  return kind == ModelSourceKind::kScan ? pb::MODEL_SOURCE_SCAN : pb::MODEL_SOURCE_SHAPE;
+}
+
+pb::ModelSymmetry ToProto(ModelSymmetry symmetry) {
+  switch (symmetry) {
+    case ModelSymmetry::kNone:
+      return pb::MODEL_SYMMETRY_NONE;
+    case ModelSymmetry::kBox:
+      return pb::MODEL_SYMMETRY_BOX;
+    case ModelSymmetry::kCylinderX:
+      return pb::MODEL_SYMMETRY_CYLINDER_X;
+    case ModelSymmetry::kCylinderZ:
+      return pb::MODEL_SYMMETRY_CYLINDER_Z;
+    case ModelSymmetry::kSphere:
+      return pb::MODEL_SYMMETRY_SPHERE;
+  }
+  throw std::logic_error("ToProto: invalid ModelSymmetry");
+}
+
+// The symmetry a manifest's note asks for, as the model library uses it: a free-form note is
+// no symmetry.
+pb::ModelSymmetry SymmetryToProto(const std::string& note) {
+  try {
+    return ToProto(ModelSymmetryFromString(note));
+  } catch (const std::invalid_argument&) {
+    return pb::MODEL_SYMMETRY_NONE;
+  }
+}
+
 // Settings of the service that are not the model library's.
 struct ServiceSettings {
   std::uint64_t max_points = 5'000'000;
   // Multiplies every item's time budget: a detector sharing its cores with other work keeps
   // the search a quiet machine would make, at the cost of slower calls.
   double time_budget_scale = 1.0;
+  // The clock the items' time budgets are judged by: the steady one, or (budget_clock=frozen,
+  // for tests) one standing still, so that every method searches as on a quiet machine.
+  BudgetClock budget_clock;
   PinholeCamera default_camera{640, 480, 525.0, 525.0, 319.5, 239.5};  // Unorganised clouds.
 };
+
+// The `budget_clock` setting. Throws std::invalid_argument for an unknown value.
+BudgetClock BudgetClockSetting(const std::string& value) {
+  if (value == "steady") return BudgetClock();
+  if (value == "frozen") return BudgetClock::Frozen();
+  throw std::invalid_argument("setting 'budget_clock' must be 'steady' or 'frozen', got '" + value +
+                              "'");
+}
 
 // The call deadline on the steady clock (max when the call has none).
 Clock::time_point SteadyDeadline(const grpc::ServerContext* ctx) {
@@ -174,15 +216,15 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       ValidateParams(params);
       // Stacked views' sensor poses, checked before the cloud is read.
       std::vector<Eigen::Isometry3d> view_poses;
-      for (int k = 0; k < params.view_sensor_poses_size(); ++k) {
-        view_poses.push_back(pc::PoseFromProto(
-            params.view_sensor_poses(k), "params.view_sensor_poses[" + std::to_string(k) + "]"));
+      for (int k = 0; k < params.x_frame_sensor_size(); ++k) {
+        view_poses.push_back(pc::PoseFromProto(params.x_frame_sensor(k),
+                                               "params.X_frame_sensor[" + std::to_string(k) + "]"));
       }
       ReceivedScene received = ReadCloud(reader, settings_);
       response->set_points_received(received.points_received);
       // An item's time budget covers its share of the work on the received cloud: the first
       // item's includes the shared pre-processing.
-      Clock::time_point budget_start = Clock::now();
+      Clock::time_point budget_start = settings_.budget_clock.Now();
 
       SceneOptions scene_options;
       if (params.has_region()) {
@@ -198,7 +240,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       try {
         scene = PrepareScene(std::move(received.cloud), received.X_BaseSensor, scene_options);
       } catch (const ViewPosesError& e) {
-        throw std::invalid_argument(std::string("params.view_sensor_poses: ") + e.what());
+        throw std::invalid_argument(std::string("params.X_frame_sensor: ") + e.what());
       } catch (const EmptyRegionError& e) {
         throw std::invalid_argument(std::string("params.region: ") + e.what());
       }
@@ -221,7 +263,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           result->mutable_status()->set_message(status.error_message());
         }
         if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
-        budget_start = Clock::now();
+        budget_start = settings_.budget_clock.Now();
       }
       context->CheckDeadline();
       return grpc::Status::OK;
@@ -277,8 +319,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       for (const ModelSpec& spec : library_->manifest().models()) {
         pb::ModelInfo* info = response->add_models();
         info->set_item(spec.item);
-        info->set_source(spec.SourceKindName());
-        info->set_symmetry(spec.symmetry);
+        info->set_source(ToProto(spec.kind));
+        info->set_symmetry(SymmetryToProto(spec.symmetry));
         const ObjectConfig config = library_->ConfigFor(spec.item);
         info->set_preferred_method(ToProto(config.preferred));
         for (Method m : config.fallbacks) info->add_fallbacks(ToProto(m));
@@ -351,6 +393,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     item_query.min_score = query.min_score();
     item_query.max_results = query.max_results() == 0 ? 1 : query.max_results();
     item_query.budget_scale = settings_.time_budget_scale;
+    item_query.budget_clock = settings_.budget_clock;
     const ItemDetections found = DetectItem(library_, scene, context, item_query, budget_start);
     for (const ChainAttempt& attempt : found.chain.attempts) {
       const bool ran = attempt.outcome != AttemptOutcome::kUnavailable &&
@@ -394,6 +437,7 @@ runtime::ServiceSet BuildDetectorServices(const runtime::Config& config) {
   if (!(settings.time_budget_scale > 0.0) || !std::isfinite(settings.time_budget_scale)) {
     throw std::invalid_argument("setting 'time_budget_scale' must be positive and finite");
   }
+  settings.budget_clock = BudgetClockSetting(config.GetString("budget_clock", "steady"));
   try {
     settings.default_camera =
         PinholeCamera(static_cast<int>(config.GetInt("camera.width", 640)),

@@ -27,6 +27,13 @@ pb::JointMode ModeToProto(JointMode mode) {
   return pb::JOINT_MODE_UNSPECIFIED;
 }
 
+// A backend's name as the contract names it ("sim", "serial"; a test's fake has none).
+pb::GripperBackend BackendToProto(const std::string& name) {
+  if (name == "sim") return pb::GRIPPER_BACKEND_SIM;
+  if (name == "serial") return pb::GRIPPER_BACKEND_SERIAL;
+  return pb::GRIPPER_BACKEND_UNSPECIFIED;
+}
+
 JointMode ModeFromProto(pb::JointMode mode) {
   switch (mode) {
     case pb::JOINT_MODE_UNACTUATED:
@@ -119,7 +126,7 @@ pb::GetStateResponse StateToProto(const GripperState& state) {
   out.set_accel_x_m_s2(state.reading.gravity_head_m_s2.x());
   out.set_accel_y_m_s2(state.reading.gravity_head_m_s2.y());
   out.set_accel_z_m_s2(state.reading.gravity_head_m_s2.z());
-  out.set_backend(state.backend);
+  out.set_backend(BackendToProto(state.backend));
   return out;
 }
 

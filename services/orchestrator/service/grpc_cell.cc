@@ -155,7 +155,7 @@ double GrpcCell::Execute(const cm::JointTrajectory& trajectory) {
   *request.mutable_trajectory() = trajectory;
   request.set_start_tolerance_rad(0.01);
   auto reader = robot_->ExecuteTrajectory(&ctx, request);
-  rb::ExecuteTrajectoryProgress progress;
+  rb::ExecuteTrajectoryResponse progress;
   bool done = false, moved = false;
   while (reader->Read(&progress)) {
     moved = true;
@@ -248,8 +248,8 @@ ScanView GrpcCell::Scan() {
   ThrowIfFailed("scanner", "Scan", reader->Finish());
   ScanView out;
   out.cloud_Base = std::make_shared<geometry::PointCloud>(assembler.Finish());
-  if (summary.x_frame_camera_size() > 0) {
-    out.X_BaseCamera = pc::PoseFromProto(summary.x_frame_camera(0), "X_frame_camera");
+  if (summary.x_frame_sensor_size() > 0) {
+    out.X_BaseCamera = pc::PoseFromProto(summary.x_frame_sensor(0), "X_frame_sensor");
   }
   out.capture_s = summary.capture_time_s();
   return out;
@@ -286,11 +286,11 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
   *params.mutable_region()->mutable_size_m() = pc::VectorToProto(size_m);
   params.mutable_region()->set_wall_margin_m(options_.wall_margin_m);
   if (views.size() > 1) {
-    for (const ScanView& v : views)
-      *params.add_view_sensor_poses() = pc::PoseToProto(v.X_BaseCamera);
+    for (const ScanView& v : views) *params.add_x_frame_sensor() = pc::PoseToProto(v.X_BaseCamera);
   }
   std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(StackViews(views));
-  *chunks.front().mutable_header()->mutable_sensor_pose() = pc::PoseToProto(views[0].X_BaseCamera);
+  *chunks.front().mutable_header()->mutable_x_frame_sensor() =
+      pc::PoseToProto(views[0].X_BaseCamera);
   dt::DetectResponse response;
   Detection out;
   ThrowIfFailed("detector", "Detect", options_.detect(params, chunks, &response, &out.replica));

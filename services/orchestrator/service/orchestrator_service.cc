@@ -56,6 +56,12 @@ common::v1::Container ContainerOrUnspecified(const std::string& name) {
   return proto_convert::ContainerFromName(name);
 }
 
+// The detector's method as the pick journals it (its contract's name, "METHOD_PPF").
+dt::Method MethodToProto(const std::string& name) {
+  dt::Method method = dt::METHOD_UNSPECIFIED;
+  return dt::Method_Parse(name, &method) ? method : dt::METHOD_UNSPECIFIED;
+}
+
 void SceneToProto(const EventScene& scene, pb::TaskEvent* out) {
   if (!scene.scan_Base.empty()) {
     auto* positions = out->mutable_scan()->mutable_positions_m();
@@ -70,7 +76,7 @@ void SceneToProto(const EventScene& scene, pb::TaskEvent* out) {
     pb::ItemDetection* detection = out->mutable_detection();
     *detection->mutable_x_base_item() = proto_convert::PoseToProto(scene.X_BaseItem);
     detection->set_score(scene.detection_score);
-    detection->set_method(scene.method);
+    detection->set_method(MethodToProto(scene.method));
   }
   for (const auto& q : scene.planned_path_q) {
     out->add_planned_path()->mutable_positions_rad()->Add(q.begin(), q.end());
@@ -181,13 +187,16 @@ class OrchestratorServiceImpl final : public pb::OrchestratorService::Service {
   }
 
   grpc::Status WatchTask(grpc::ServerContext* ctx, const pb::WatchTaskRequest* request,
-                         grpc::ServerWriter<pb::TaskEvent>* writer) override {
+                         grpc::ServerWriter<pb::WatchTaskResponse>* writer) override {
     return runtime::Guard([&] {
       std::atomic<bool> broken{false};
       tasks_->Watch(
           request->task_id(),
           [&](const TaskEvent& e) {
-            if (!broken && !writer->Write(ToProto(e))) broken = true;
+            if (broken) return;
+            pb::WatchTaskResponse response;
+            *response.mutable_event() = ToProto(e);
+            if (!writer->Write(response)) broken = true;
           },
           [&] { return broken.load() || ctx->IsCancelled() || runtime::ShuttingDown(); });
       if (runtime::ShuttingDown()) {

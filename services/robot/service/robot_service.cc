@@ -32,6 +32,14 @@ JointVector ToJointVector(const std::array<double, 6>& q) {
   return v;
 }
 
+// The `backend` setting as the contract names it; the setting is checked when the backend is
+// connected ("sim" or "ur").
+pb::RobotBackend BackendToProto(const std::string& name) {
+  if (name == "sim") return pb::ROBOT_BACKEND_SIM;
+  if (name == "ur") return pb::ROBOT_BACKEND_UR;
+  return pb::ROBOT_BACKEND_UNSPECIFIED;
+}
+
 std::string Num(double v) {
   std::ostringstream os;
   os << v;
@@ -180,7 +188,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
   }
 
   grpc::Status StreamState(grpc::ServerContext* context, const pb::StreamStateRequest* request,
-                           grpc::ServerWriter<pb::GetStateResponse>* writer) override {
+                           grpc::ServerWriter<pb::StreamStateResponse>* writer) override {
     return runtime::Guard([&] {
       double rate_hz = request->rate_hz();
       if (rate_hz == 0.0) rate_hz = 10.0;
@@ -193,7 +201,9 @@ class RobotServiceImpl final : public pb::RobotService::Service {
       auto next = std::chrono::steady_clock::now();
       while (true) {
         if (context->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
-        if (!writer->Write(StateToProto(CurrentState()))) return grpc::Status::OK;
+        pb::StreamStateResponse sample;
+        *sample.mutable_state() = StateToProto(CurrentState());
+        if (!writer->Write(sample)) return grpc::Status::OK;
         next += period;
         // Wait in short slices so a cancel or a shutdown ends the stream promptly.
         while (std::chrono::steady_clock::now() < next) {
@@ -340,7 +350,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
 
   grpc::Status ExecuteTrajectory(
       grpc::ServerContext* context, const pb::ExecuteTrajectoryRequest* request,
-      grpc::ServerWriter<pb::ExecuteTrajectoryProgress>* writer) override {
+      grpc::ServerWriter<pb::ExecuteTrajectoryResponse>* writer) override {
     return runtime::Guard([&] {
       const JointTrajectory trajectory = TrajectoryFromProto(request->trajectory());
       double tolerance = request->start_tolerance_rad();
@@ -370,7 +380,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
         return runtime::InvalidArgument("trajectory: " + check.reason);
       }
       auto report = [&](const TrajectoryProgress& progress) {
-        pb::ExecuteTrajectoryProgress message;
+        pb::ExecuteTrajectoryResponse message;
         message.set_time_from_start_s(progress.time_s);
         message.set_fraction_done(std::clamp(progress.fraction, 0.0, 1.0));
         *message.mutable_joints() = JointStateToProto(progress.state);
@@ -384,7 +394,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
         status = StatusOf(result, watch);
       }
       if (!status.ok()) return status;
-      pb::ExecuteTrajectoryProgress last;
+      pb::ExecuteTrajectoryResponse last;
       last.set_time_from_start_s(trajectory.duration_s());
       last.set_fraction_done(1.0);
       *last.mutable_joints() = JointStateToProto(result.final_state);
@@ -650,7 +660,7 @@ class RobotServiceImpl final : public pb::RobotService::Service {
         pc::PoseToProto(state.X_BaseTool * checker_.X_ToolTcpAt(state.gripper_head_angle_rad));
     *out.mutable_tcp_wrench()->mutable_force_n() = pc::VectorToProto(state.wrench_base.head<3>());
     *out.mutable_tcp_wrench()->mutable_torque_nm() = pc::VectorToProto(state.wrench_base.tail<3>());
-    out.set_backend(options_.backend_name);
+    out.set_backend(BackendToProto(options_.backend_name));
     out.set_stamp_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
                               std::chrono::system_clock::now().time_since_epoch())
                               .count());

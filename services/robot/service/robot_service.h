@@ -14,7 +14,8 @@ namespace picking::robot {
 
 /// Settings of the RobotService adapter beyond the SafetyLimits.
 struct RobotServiceOptions {
-  /// Name reported in GetStateResponse.backend ("sim" or "ur").
+  /// The `backend` setting, "sim" or "ur" (GetStateResponse.backend: ROBOT_BACKEND_SIM or
+  /// ROBOT_BACKEND_UR).
   std::string backend_name = "sim";
   /// Fractions used when a request leaves MotionOptions at 0, in (0, 1].
   double default_speed_fraction = 0.5;

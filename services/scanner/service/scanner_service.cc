@@ -7,6 +7,7 @@
 #include <optional>
 #include <stdexcept>
 #include <system_error>
+#include <utility>
 
 #include "libs/errors/errors.h"
 #include "libs/proto_convert/proto_convert.h"
@@ -34,6 +35,20 @@ namespace pc = ::picking::proto_convert;
 // Views of one Scan: the paper takes 3 of a shelf bin and 2 of the tote; each view is a
 // full pattern sequence (about a second), so the bound keeps one call's work bounded.
 constexpr int kMaxScanViews = 16;
+
+pb::ScanStage ToProto(ScanStage stage) {
+  switch (stage) {
+    case ScanStage::kCapture:
+      return pb::SCAN_STAGE_CAPTURE;
+    case ScanStage::kDecode:
+      return pb::SCAN_STAGE_DECODE;
+    case ScanStage::kTriangulate:
+      return pb::SCAN_STAGE_TRIANGULATE;
+    case ScanStage::kMerge:
+      return pb::SCAN_STAGE_MERGE;
+  }
+  throw std::logic_error("ToProto: invalid ScanStage");
+}
 
 common::v1::CameraIntrinsics IntrinsicsToProto(const CameraIntrinsics& c) {
   common::v1::CameraIntrinsics out;
@@ -220,14 +235,14 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
             pb::ScanResponse progress;
             progress.mutable_progress()->set_view_index(static_cast<std::uint32_t>(view));
             progress.mutable_progress()->set_view_count(static_cast<std::uint32_t>(count));
-            progress.mutable_progress()->set_stage(ScanStageName(stage));
+            progress.mutable_progress()->set_stage(ToProto(stage));
             writer->Write(progress);
           });
       std::vector<common::v1::PointCloudChunk> chunks = pc::CloudToChunks(result.cloud);
       // One view has one sensor pose, which consumers use for visibility reasoning; a merge
       // of several views has none (each view's pose is in the summary).
       if (result.views.size() == 1 && !chunks.empty()) {
-        *chunks.front().mutable_header()->mutable_sensor_pose() =
+        *chunks.front().mutable_header()->mutable_x_frame_sensor() =
             pc::PoseToProto(result.views.front().X_FrameCamera);
       }
       for (auto& chunk : chunks) {
@@ -240,7 +255,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
       summary->set_point_count(result.num_points);
       for (const auto& v : result.views) {
         summary->add_valid_fraction(v.valid_fraction);
-        *summary->add_x_frame_camera() = pc::PoseToProto(v.X_FrameCamera);
+        *summary->add_x_frame_sensor() = pc::PoseToProto(v.X_FrameCamera);
       }
       summary->set_capture_time_s(result.capture_time_s);
       summary->set_processing_time_s(result.processing_time_s);
@@ -254,7 +269,7 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
   }
 
   grpc::Status CaptureImages(grpc::ServerContext* context, const pb::CaptureImagesRequest* request,
-                             grpc::ServerWriter<common::v1::ImageChunk>* writer) override {
+                             grpc::ServerWriter<pb::CaptureImagesResponse>* writer) override {
     return runtime::Guard([&] {
       if (!std::isfinite(request->exposure_s()) || request->exposure_s() < 0 ||
           request->exposure_s() > 10.0) {
@@ -272,9 +287,10 @@ class ScannerServiceImpl final : public pb::ScannerService::Service {
         image.name = PatternName(pipeline->patterns().Describe(static_cast<int>(i)));
         image.index = static_cast<std::uint32_t>(i);
         image.data = images[i].pixels;
-        for (const auto& chunk : pc::ImageToChunks(image)) {
-          if (!writer->Write(chunk))
-            return grpc::Status(grpc::StatusCode::CANCELLED, "client gone");
+        for (auto& chunk : pc::ImageToChunks(image)) {
+          pb::CaptureImagesResponse out;
+          *out.mutable_chunk() = std::move(chunk);
+          if (!writer->Write(out)) return grpc::Status(grpc::StatusCode::CANCELLED, "client gone");
         }
       }
       return grpc::Status::OK;

@@ -116,12 +116,12 @@ std::vector<GrayImage> SimulatorClient::Render(const PatternRenderRequest& reque
   auto reader = stub_->RenderPatterns(&ctx, req);
   pc::ImageAssembler assembler;
   std::vector<GrayImage> images;
-  common::v1::ImageChunk chunk;
+  simpb::RenderPatternsResponse response;
   std::string stream_error;
-  while (reader->Read(&chunk)) {
+  while (reader->Read(&response)) {
     if (!stream_error.empty()) continue;
     try {
-      if (!assembler.Add(chunk)) continue;
+      if (!assembler.Add(response.chunk())) continue;
     } catch (const std::invalid_argument& e) {
       stream_error = e.what();
       ctx.TryCancel();

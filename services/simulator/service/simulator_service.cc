@@ -16,6 +16,7 @@
 #include <sstream>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "libs/apc/catalogue.h"
@@ -542,7 +543,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
 
   grpc::Status RenderPatterns(grpc::ServerContext* context,
                               const pb::RenderPatternsRequest* request,
-                              grpc::ServerWriter<common::ImageChunk>* writer) override {
+                              grpc::ServerWriter<pb::RenderPatternsResponse>* writer) override {
     return runtime::Guard([&] {
       // Everything is validated before any image is sent.
       const camera::PinholeCamera camera_model = PinholeFromProto(request->camera(), "camera");
@@ -598,8 +599,10 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
           out.name = patterns[first + k].name;
           out.index = static_cast<std::uint32_t>(first + k);
           out.data = images[k].pixels;
-          for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
-            if (!writer->Write(chunk)) {
+          for (common::ImageChunk& chunk : pc::ImageToChunks(out)) {
+            pb::RenderPatternsResponse response;
+            *response.mutable_chunk() = std::move(chunk);
+            if (!writer->Write(response)) {
               return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
             }
           }
@@ -610,7 +613,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
   }
 
   grpc::Status RenderDepth(grpc::ServerContext* context, const pb::RenderDepthRequest* request,
-                           grpc::ServerWriter<common::ImageChunk>* writer) override {
+                           grpc::ServerWriter<pb::RenderDepthResponse>* writer) override {
     return runtime::Guard([&] {
       const camera::PinholeCamera camera_model = PinholeFromProto(request->camera(), "camera");
       if (!request->has_x_base_camera()) throw std::invalid_argument("X_base_camera is unset");
@@ -636,8 +639,10 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       static_assert(sizeof(float) == 4, "FLOAT32 pixels");
       // Little-endian IEEE 754 on the wire, as on every supported host.
       std::memcpy(out.data.data(), depth.depth_m.data(), out.data.size());
-      for (const common::ImageChunk& chunk : pc::ImageToChunks(out)) {
-        if (!writer->Write(chunk)) {
+      for (common::ImageChunk& chunk : pc::ImageToChunks(out)) {
+        pb::RenderDepthResponse response;
+        *response.mutable_chunk() = std::move(chunk);
+        if (!writer->Write(response)) {
           return grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading");
         }
       }

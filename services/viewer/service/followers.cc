@@ -6,6 +6,7 @@
 
 #include "libs/proto_convert/proto_convert.h"
 #include "libs/runtime/log.h"
+#include "picking/detector/v1/detector.pb.h"
 #include "picking/orchestrator/v1/orchestrator.grpc.pb.h"
 #include "picking/robot/v1/robot.grpc.pb.h"
 
@@ -62,7 +63,7 @@ ViewEvent FromProto(const pb::TaskEvent& e) {
       ViewEvent::Found found;
       found.X_BaseItem = pc::PoseFromProto(e.detection().x_base_item(), "detection.X_base_item");
       found.score = e.detection().score();
-      found.method = Word(e.detection().method(), "METHOD_");
+      found.method = Word(picking::detector::v1::Method_Name(e.detection().method()), "METHOD_");
       out.detection = found;
     } catch (const std::exception& error) {
       runtime::LogWarning("event with an invalid detection pose", {{"error", error.what()}});
@@ -226,8 +227,8 @@ bool TaskFollower::Watch(const TaskHeader& header) {
   pb::WatchTaskRequest request;
   request.set_task_id(header.task_id);
   auto reader = stub->WatchTask(&ctx, request);
-  pb::TaskEvent event;
-  while (reader->Read(&event)) Publish(view, view.Apply(FromProto(event)));
+  pb::WatchTaskResponse response;
+  while (reader->Read(&response)) Publish(view, view.Apply(FromProto(response.event())));
   const grpc::Status status = reader->Finish();
   if (!status.ok() && !stop_) {
     SetStatus(false, "orchestrator: " + status.error_message() + ": retrying");

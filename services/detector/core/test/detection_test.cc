@@ -2,10 +2,13 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <exception>
 #include <fstream>
+#include <functional>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -13,7 +16,26 @@
 namespace picking::detector {
 namespace {
 
-// Returns fixed candidates (or throws) and counts its calls.
+using TimePoint = std::chrono::steady_clock::time_point;
+using std::chrono::milliseconds;
+
+// A budget clock the test moves by hand, from an arbitrary start: a fake method "takes" the
+// time it advances it by, and the machine's load has no say.
+class ManualClock final {
+ public:
+  static constexpr TimePoint kStart = TimePoint(std::chrono::hours(1000));
+
+  BudgetClock clock() const {
+    return BudgetClock([this] { return kStart + std::chrono::nanoseconds(elapsed_ns_.load()); });
+  }
+  void Advance(std::chrono::nanoseconds d) { elapsed_ns_ += d.count(); }
+
+ private:
+  std::atomic<std::int64_t> elapsed_ns_{0};
+};
+
+// Returns fixed candidates (or throws) and counts its calls; `work` runs first (e.g. moves
+// a ManualClock: a method with a long search).
 class FakeEstimator final : public Estimator {
  public:
   FakeEstimator(Method method, std::vector<Detection> candidates, bool throws = false)
@@ -23,12 +45,14 @@ class FakeEstimator final : public Estimator {
     ++calls;
     last_item = input.item;
     budget_end = input.budget_end;
+    if (work) work();
     if (throws_) throw std::runtime_error("fake failure");
     return candidates_;
   }
   int calls = 0;
   std::string last_item;
-  std::chrono::steady_clock::time_point budget_end;
+  TimePoint budget_end;
+  std::function<void()> work;
 
  private:
   Method method_;
@@ -136,7 +160,6 @@ TEST(DetectionChainTest, PerMethodThresholdOverride) {
   EXPECT_TRUE(chain.Run({"duck", &scene, {}, std::nullopt}).detection.has_value());
 }
 
-// Sleeps for a given time before answering: a method with a long search.
 // Throws the exception it is given, as an estimator does that cannot run or finds nothing.
 class RaisingEstimator final : public Estimator {
  public:
@@ -199,9 +222,44 @@ TEST(DetectionChainTest, EveryMethodSaysWhyItGaveNothing) {
   EXPECT_STREQ(ToString(AttemptOutcome::kNotStarted), "not started");
 }
 
-// The budget counts from the caller's start: one that began long ago is spent once the
-// preferred method has run (no waiting, no clock to spin on).
+// The budget is judged on the input's clock: a preferred method that takes longer than the
+// budget leaves no time for the fallback, one that takes less does, whatever the wall time
+// (no sleeping, no spinning on the steady clock).
 TEST(DetectionChainTest, NoFallbackIsStartedOnceTheTimeBudgetIsSpent) {
+  ManualClock time;
+  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
+  auto templates = std::make_shared<FakeEstimator>(Method::kRangeTemplates,
+                                                   std::vector<Detection>{MakeDetection(0.9, 1.0)});
+  ObjectConfig c = Config(Method::kPpf, {Method::kRangeTemplates}, 0.5);
+  c.time_budget_s = 0.01;
+  const DetectionChain chain(DetectorConfig(c), {ppf, templates});
+  geometry::PointCloud scene;
+  EstimatorInput input{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
+  input.clock = time.clock();
+
+  ppf->work = [&time] { time.Advance(milliseconds(20)); };
+  const ChainResult spent = chain.Run(input);
+  EXPECT_FALSE(spent.detection.has_value());
+  EXPECT_EQ(ppf->calls, 1);        // the preferred method always runs ...
+  EXPECT_EQ(templates->calls, 0);  // ... the fallback is not started, and says so
+  ASSERT_EQ(spent.attempts.size(), 2u);
+  EXPECT_EQ(spent.attempts[1].outcome, AttemptOutcome::kNotStarted);
+  EXPECT_NE(spent.attempts[1].reason.find("time budget"), std::string::npos);
+  // Counted from the start of Run on the input's clock.
+  EXPECT_EQ(ppf->budget_end, ManualClock::kStart + milliseconds(10));
+
+  ppf->work = [&time] { time.Advance(milliseconds(5)); };
+  const TimePoint run_start = input.clock.Now();
+  const ChainResult in_time = chain.Run(input);
+  ASSERT_TRUE(in_time.detection.has_value());
+  EXPECT_EQ(templates->calls, 1);
+  EXPECT_EQ(templates->budget_end, run_start + milliseconds(10));
+}
+
+// The budget counts from the caller's start (its pre-processing counts) when it gives one;
+// an earlier end the caller gives is kept; no budget is no end.
+TEST(DetectionChainTest, TheBudgetCountsFromTheCallersStart) {
+  const BudgetClock frozen = BudgetClock::Frozen(ManualClock::kStart);
   auto ppf = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{});
   auto templates = std::make_shared<FakeEstimator>(Method::kRangeTemplates,
                                                    std::vector<Detection>{MakeDetection(0.9, 1.0)});
@@ -209,29 +267,40 @@ TEST(DetectionChainTest, NoFallbackIsStartedOnceTheTimeBudgetIsSpent) {
   c.time_budget_s = 0.01;
   geometry::PointCloud scene;
   EstimatorInput late{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
-  const auto started = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  late.clock = frozen;
+  const TimePoint started = ManualClock::kStart - std::chrono::seconds(1);
   late.budget_start = started;
   const ChainResult spent = DetectionChain(DetectorConfig(c), {ppf, templates}).Run(late);
   EXPECT_FALSE(spent.detection.has_value());
-  EXPECT_EQ(ppf->calls, 1);        // the preferred method always runs ...
-  EXPECT_EQ(templates->calls, 0);  // ... the fallback is not started, and says so
-  ASSERT_EQ(spent.attempts.size(), 2u);
-  EXPECT_EQ(spent.attempts[1].outcome, AttemptOutcome::kNotStarted);
-  EXPECT_NE(spent.attempts[1].reason.find("time budget"), std::string::npos);
-  EXPECT_EQ(ppf->budget_end, started + std::chrono::milliseconds(10));
+  EXPECT_EQ(templates->calls, 0);
+  EXPECT_EQ(ppf->budget_end, started + milliseconds(10));
 
   c.time_budget_s = 0.0;  // no budget: the whole chain
   const ChainResult whole = DetectionChain(DetectorConfig(c), {ppf, templates}).Run(late);
   ASSERT_TRUE(whole.detection.has_value());
   EXPECT_EQ(templates->calls, 1);
-  EXPECT_EQ(ppf->budget_end, std::chrono::steady_clock::time_point::max());
+  EXPECT_EQ(ppf->budget_end, TimePoint::max());
 
-  // A budget the caller started earlier (its pre-processing counts) is kept.
   c.time_budget_s = 10.0;
   EstimatorInput early{"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt};
-  early.budget_end = std::chrono::steady_clock::now() + std::chrono::milliseconds(5);
+  early.clock = frozen;
+  early.budget_end = ManualClock::kStart + milliseconds(5);
   DetectionChain(DetectorConfig(c), {ppf, templates}).Run(early);
   EXPECT_EQ(ppf->budget_end, early.budget_end);
+}
+
+TEST(BudgetClockTest, SteadyByDefaultFrozenOrTheCallersOwn) {
+  const TimePoint before = std::chrono::steady_clock::now();
+  EXPECT_GE(BudgetClock().Now(), before);
+  const BudgetClock frozen = BudgetClock::Frozen(ManualClock::kStart);
+  EXPECT_EQ(frozen.Now(), ManualClock::kStart);
+  EXPECT_EQ(frozen.Now(), ManualClock::kStart);
+  ManualClock time;
+  const BudgetClock manual = time.clock();
+  const BudgetClock copy = manual;  // copies share the time source
+  time.Advance(milliseconds(3));
+  EXPECT_EQ(copy.Now(), ManualClock::kStart + milliseconds(3));
+  EXPECT_THROW(BudgetClock(std::function<TimePoint()>()), std::invalid_argument);
 }
 
 TEST(DetectionChainTest, RejectsBadConstruction) {

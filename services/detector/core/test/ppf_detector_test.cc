@@ -58,8 +58,8 @@ TEST_F(MilkSceneTest, RecoversPoseOfMovedModel) {
   }
 }
 
-// A refine deadline that has passed stops after the best-voted hypothesis, which alone
-// still finds the milk at its true pose.
+// A refine deadline that has passed (on the options' clock, standing still here) stops after
+// the best-voted hypothesis, which alone still finds the milk at its true pose.
 TEST_F(MilkSceneTest, RefineDeadlineKeepsOnlyTheBestVotedHypothesis) {
   const ObjectModel model(*milk_, ObjectModelOptions{});
   const PpfScene scene = PreparePpfScene(*scene_, model);
@@ -67,7 +67,9 @@ TEST_F(MilkSceneTest, RefineDeadlineKeepsOnlyTheBestVotedHypothesis) {
   EXPECT_EQ(all.refined_hypotheses, std::min<int>(PpfDetectorOptions{}.hypotheses_to_verify,
                                                   static_cast<int>(all.match.hypotheses.size())));
   PpfDetectorOptions options;
-  options.refine_deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  const auto start = std::chrono::steady_clock::time_point(std::chrono::hours(1000));
+  options.clock = BudgetClock::Frozen(start);
+  options.refine_deadline = start - std::chrono::seconds(1);
   const PpfDetectionResult first = DetectPpf(model, scene, options);
   EXPECT_EQ(first.refined_hypotheses, 1);
   ASSERT_FALSE(first.detections.empty());

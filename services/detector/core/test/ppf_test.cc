@@ -337,15 +337,18 @@ TEST(PpfMatchTest, SegmentsEachContributeTheirBestPoses) {
   EXPECT_THROW(MatchPpf(table, scene, tree, bad), std::invalid_argument);
 }
 
-// A deadline that has passed stops the voting before any reference point: no hypothesis,
-// and the result says so; without a deadline every reference point votes.
+// A deadline that has passed (on the options' clock, standing still here) stops the voting
+// before any reference point: no hypothesis, and the result says so; without a deadline every
+// reference point votes.
 TEST(PpfMatchTest, DeadlineStopsTheVoting) {
   const geometry::PointCloud box = BoxSurface(0.12f, 0.07f, 0.04f, 0.01f);
   const float diameter = std::sqrt(0.12f * 0.12f + 0.07f * 0.07f + 0.04f * 0.04f) + 1e-3f;
   const PpfTable table(box, diameter, 0.01f);
   const KdTree tree(box.points);
   PpfMatchOptions options;
-  options.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  const auto start = std::chrono::steady_clock::time_point(std::chrono::hours(1000));
+  options.clock = BudgetClock::Frozen(start);
+  options.deadline = start;
   const PpfMatchResult stopped = MatchPpf(table, box, tree, options);
   EXPECT_TRUE(stopped.timed_out);
   EXPECT_EQ(stopped.voted_reference_points, 0);

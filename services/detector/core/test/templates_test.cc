@@ -283,8 +283,12 @@ TEST(RangeTemplateMatchTest, SkipsImplausibleClustersAndStopsAtTheDeadline) {
   too_large.max_cluster_extent_rel = 3.0;
   EXPECT_TRUE(match(too_large).empty());
   TemplateMatchOptions late = defaults;
-  late.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  const auto start = std::chrono::steady_clock::time_point(std::chrono::hours(1000));
+  late.clock = BudgetClock::Frozen(start);  // the search's time stands still, past its deadline
+  late.deadline = start - std::chrono::seconds(1);
   EXPECT_TRUE(match(late).empty());
+  late.deadline = start + std::chrono::seconds(1);  // ... or before it: the whole search
+  EXPECT_EQ(match(late).size(), found.size());
   TemplateMatchOptions bad = defaults;
   bad.min_cluster_extent_rel = 2.0;  // above max
   EXPECT_THROW(match(bad), std::invalid_argument);

@@ -90,7 +90,7 @@ TEST_F(GripperServiceTest, SetVacuumWaitsForTheSealOrAnswersDeadlineExceeded) {
   EXPECT_TRUE(response.state().item_attached());
   EXPECT_TRUE(response.state().vacuum_on());
   EXPECT_GT(response.state().vacuum_kpa(), 15.0);
-  EXPECT_EQ(response.state().backend(), "sim");
+  EXPECT_EQ(response.state().backend(), pb::GRIPPER_BACKEND_SIM);
   EXPECT_EQ(response.state().kind(), pb::GRIPPER_KIND_TOTE);
 
   for (double bad : {std::nan(""), -1.0, 11.0}) {

@@ -36,7 +36,7 @@ SharedCloud MilkScene() {
       geometry::ReadPointCloud(TestData("pointclouds/milk_cartoon_all_small_clorox.pcd"));
   cloud.frame_id = "base";
   auto chunks = proto_convert::CloudToChunks(cloud);
-  *chunks.front().mutable_header()->mutable_sensor_pose() =
+  *chunks.front().mutable_header()->mutable_x_frame_sensor() =
       proto_convert::PoseToProto(Eigen::Isometry3d::Identity());
   return std::make_shared<const std::vector<picking::common::v1::PointCloudChunk>>(
       std::move(chunks));
