@@ -16,6 +16,9 @@ find_package(PCL 1.13 REQUIRED COMPONENTS common io kdtree search features filte
 find_package(octomap REQUIRED)
 find_package(fcl REQUIRED)
 find_package(embree 3 REQUIRED)
+# Bullet (the simulator's settled layouts): Debian's libbullet-dev ships a pkg-config file;
+# its CMake config has relative paths. Single precision, Bullet's default.
+pkg_check_modules(BULLET REQUIRED IMPORTED_TARGET GLOBAL bullet)
 pkg_check_modules(ARAVIS REQUIRED IMPORTED_TARGET aravis-0.8)
 # The viewer's HTTP server (Debian builds it as a library; its flags select the same ABI).
 pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)

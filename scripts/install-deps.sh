@@ -13,6 +13,8 @@ packages=(
   # maths, vision, geometry, planning
   libeigen3-dev libopencv-dev libopencv-contrib-dev libpcl-dev liboctomap-dev libfcl-dev
   libembree-dev
+  # rigid-body physics: the simulator's settled layouts (Bullet 3.24)
+  libbullet-dev
   # cameras (GenICam through Aravis, and its fake GigE Vision camera for tests)
   libaravis-dev aravis-tools
   # configuration formats
