@@ -64,8 +64,11 @@ apc::Task SimulatedBinScanner::ReadTask(const std::string& path) const {
   return apc::ReadTaskFile(path, impl_->models->catalogue());
 }
 
-void SimulatedBinScanner::LoadTask(const apc::Task& task, std::uint32_t seed) {
-  impl_->world->LoadTask(task, seed);
+void SimulatedBinScanner::LoadTask(const apc::Task& task, std::uint32_t seed,
+                                   simulator::LayoutMode mode) {
+  simulator::LayoutOptions layout;
+  layout.mode = mode;
+  impl_->world->LoadTask(task, seed, layout);
   impl_->hidden_ids.clear();
 }
 

@@ -11,6 +11,7 @@
 #include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
 #include "services/detector/core/preprocess.h"
+#include "services/simulator/core/layout.h"
 
 namespace picking::detector_eval {
 
@@ -81,8 +82,10 @@ class SimulatedBinScanner final {
 
   /// Reads an APC task file with the catalogue. Throws apc::TaskFileError.
   apc::Task ReadTask(const std::string& path) const;
-  /// Lays out `task` in the shelf and tote (seeded). Throws simulator::LayoutError.
-  void LoadTask(const apc::Task& task, std::uint32_t seed);
+  /// Lays out `task` in the shelf and tote (seeded; tidy, or settled by physics). Throws
+  /// simulator::LayoutError.
+  void LoadTask(const apc::Task& task, std::uint32_t seed,
+                simulator::LayoutMode mode = simulator::LayoutMode::kTidy);
   /// Removes every item of `bin` whose name is `item` (to scan a bin without it). Throws
   /// std::invalid_argument for an unknown bin.
   void RemoveItems(const std::string& bin, const std::string& item);

@@ -17,8 +17,10 @@
 //                      [--patch_contrast=true|false] [--min_print=F]
 //                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
 //                      [--box_faces=true|false] [--box_continuation=true|false]
-//                      [--hypotheses=N] [--reference_step=N]
+//                      [--hypotheses=N] [--reference_step=N] [--layout_mode=tidy|settled]
 //
+// --layout_mode=settled drops the items and lets them settle by physics (stacked, leaning,
+// standing on end: simulator::PhysicsLayout) instead of laying them side by side.
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
 // the load factor); --ppf_segments and --sphere_fit switch PPF's per-cluster hypotheses and
 // the sphere fit of ball models (detector::PpfSearchOptions) for comparisons; --box_faces
@@ -86,6 +88,7 @@ struct Args {
   std::string cache_dir;  // empty: a fresh temporary folder
   double view_offset_m = 0.15;
   double side_height_m = 0.25;
+  simulator::LayoutMode layout_mode = simulator::LayoutMode::kTidy;
 };
 
 bool ParseBool(const std::string& key, const std::string& v) {
@@ -115,6 +118,8 @@ Args Parse(int argc, char** argv) {
     } else if (auto v = value("--views")) {
       args.views = std::stoi(*v);
       if (args.views != 1 && args.views != 3) throw std::invalid_argument("--views must be 1 or 3");
+    } else if (auto v = value("--layout_mode")) {
+      args.layout_mode = simulator::LayoutModeFromString(*v);
     } else if (auto v = value("--view_offset_m")) {
       args.view_offset_m = std::stod(*v);
     } else if (auto v = value("--side_height_m")) {
@@ -468,7 +473,7 @@ int Run(const Args& args) {
   for (const std::string& layout : args.layouts) {
     const apc::Task task =
         scanner.ReadTask(data_dir + "/apc2016/tasks/pick_layout_" + layout + ".json");
-    scanner.LoadTask(task, args.seed);
+    scanner.LoadTask(task, args.seed, args.layout_mode);
     for (const apc::WorkOrderEntry& entry : task.work_order) {
       if (!args.bins.empty() &&
           std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {

@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
       "                           tool centre point (default <data_dir>/cell/default_cell.yaml)",
       "layout=FILE                APC 2016 task file loaded at start (default none)",
       "seed=N                     layout seed (default 1)",
+      "layout_mode=tidy|settled   items side by side, or dropped and settled by physics",
       "tool.cup_radius_m=R        radius of the cup's lip (default 0.015)",
       "contact.stiffness_n_per_m=K  spring of the compliant cup (default 2000)",
       "suction.sealed_kpa / suction.open_kpa=P  vacuum with / without a seal (default 25 / 3)"};

@@ -115,6 +115,24 @@ TEST(SimulatorServerTest, LoadsTheLayoutSettingAtStart) {
   EXPECT_EQ(server.Stop(), 0);
 }
 
+// layout_mode=settled: the layout setting's items dropped and settled by physics, every one
+// in its bin or the tote; an unknown mode stops the server with the setting named.
+TEST(SimulatorServerTest, SettlesTheLayoutByPhysicsWhenAsked) {
+  ServerProcess server(ServerBinary(kBinary), {"--layout=" + std::string(PICKING_DATA_DIR) +
+                                                   "/apc2016/tasks/pick_layout_1.json",
+                                               "--seed=7", "--layout_mode=settled"});
+  auto stub = sim::SimulatorService::NewStub(server.Channel());
+  grpc::ClientContext ctx;
+  sim::GetGroundTruthResponse truth;
+  ASSERT_TRUE(stub->GetGroundTruth(&ctx, sim::GetGroundTruthRequest(), &truth).ok());
+  EXPECT_EQ(truth.items_size(), 46);
+  EXPECT_EQ(server.Stop(), 0);
+  const ProgramResult r =
+      RunProgram(ServerBinary(kBinary), {"--listen=127.0.0.1:0", "--layout_mode=stacked"});
+  EXPECT_EQ(r.exit_status, 2) << r.output;
+  EXPECT_NE(r.output.find("layout_mode"), std::string::npos) << r.output;
+}
+
 // One server for the RPC tests; each test loads the layout it needs.
 class SimulatorRpcTest : public ::testing::Test {
  protected:

@@ -53,6 +53,13 @@ bool FlatTopped(const world::ItemModel& model) {
 
 }  // namespace
 
+LayoutMode LayoutModeFromString(const std::string& text) {
+  if (text == "tidy") return LayoutMode::kTidy;
+  if (text == "settled") return LayoutMode::kSettled;
+  throw std::invalid_argument("layout mode '" + text.substr(0, 40) +
+                              "' is not 'tidy' or 'settled'");
+}
+
 std::vector<LayoutRegion> LayoutRegions(const world::CellModel& cell,
                                         const LayoutOptions& options) {
   std::vector<LayoutRegion> regions;

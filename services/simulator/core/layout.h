@@ -14,10 +14,19 @@
 
 namespace picking::simulator {
 
+/// How a task's items are laid out: side by side on their containers' floors, none
+/// touching (LayoutPlanner), or dropped one at a time and settled by rigid-body physics, so
+/// that they stack, lean and stand on end (PhysicsLayout, physics_layout.h).
+enum class LayoutMode { kTidy, kSettled };
+
+/// "tidy" or "settled"; throws std::invalid_argument naming the value otherwise.
+LayoutMode LayoutModeFromString(const std::string& text);
+
 /// Options of the layout planner. Defaults suit the APC 2016 pod and tote.
 struct LayoutOptions {
-  int candidates_per_item = 400;     ///< Random poses tried per item; the lowest feasible wins.
-  double wall_margin_m = 0.004;      ///< Minimal gap between an item and the bin walls / back.
+  LayoutMode mode = LayoutMode::kTidy;  ///< SimWorld::LoadTask: which of the two layouts.
+  int candidates_per_item = 400;        ///< Random poses tried per item; the lowest feasible wins.
+  double wall_margin_m = 0.004;         ///< Minimal gap between an item and the bin walls / back.
   double opening_margin_m = 0.01;    ///< Minimal gap between an item and the bin's opening plane.
   double clearance_m = 0.001;        ///< Gap between an item and the surface it rests on.
   double yaw_jitter_rad = 0.15;      ///< Items are turned by 0 or 90 deg plus up to this much.

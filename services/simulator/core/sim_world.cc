@@ -8,6 +8,7 @@
 
 #include "libs/apc/bins.h"
 #include "libs/world/mesh_utils.h"
+#include "services/simulator/core/physics_layout.h"
 
 namespace picking::simulator {
 namespace {
@@ -56,8 +57,11 @@ void SimWorld::ValidatePose(const Eigen::Isometry3d& X, const std::string& what)
 }
 
 void SimWorld::LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutOptions& layout) {
-  const LayoutPlanner planner(cell_, *models_, *static_scene_, layout);
-  const std::vector<PlacedItem> placed = planner.Plan(task, seed);  // may throw: no change yet
+  // Either may throw: nothing has changed yet.
+  const std::vector<PlacedItem> placed =
+      layout.mode == LayoutMode::kSettled
+          ? PhysicsLayout(cell_, *models_).Settle(task, seed).items
+          : LayoutPlanner(cell_, *models_, *static_scene_, layout).Plan(task, seed);
   std::vector<ItemState> items;
   std::vector<std::shared_ptr<const world::ItemModel>> item_models;
   int id = 0;

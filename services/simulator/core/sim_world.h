@@ -145,9 +145,9 @@ class SimWorld final {
            std::shared_ptr<const ur10::Ur10Kinematics> kinematics = nullptr);
   ~SimWorld();
 
-  /// Replaces every item by the layout of `task` (bins and tote) drawn with `seed`, clears
-  /// the event log, releases the gripper. Throws LayoutError (naming the bin) or
-  /// apc::UnknownItemError; then nothing changes.
+  /// Replaces every item by the layout of `task` (bins and tote) drawn with `seed` (tidy or
+  /// settled by physics: layout.mode), clears the event log, releases the gripper. Throws
+  /// LayoutError (naming the bin) or apc::UnknownItemError; then nothing changes.
   void LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutOptions& layout = {});
 
   /// Adds one item resting in `container` (a bin or "tote") beside what is there. Returns

@@ -106,12 +106,14 @@ apc::Task ParseTaskJson(const std::string& json_text, const apc::Catalogue& cata
 
 // Loads `task` into the world: ResourceExhaustedError naming the bin when items do not fit,
 // NotFoundError for an item without a model.
-void LoadTaskInto(SimWorld& world, const apc::Task& task, std::uint64_t seed) {
+void LoadTaskInto(SimWorld& world, const apc::Task& task, std::uint64_t seed, LayoutMode mode) {
   if (seed > std::numeric_limits<std::uint32_t>::max()) {
     throw std::invalid_argument("seed must be below 2^32, got " + std::to_string(seed));
   }
   try {
-    world.LoadTask(task, static_cast<std::uint32_t>(seed));
+    LayoutOptions layout;
+    layout.mode = mode;
+    world.LoadTask(task, static_cast<std::uint32_t>(seed), layout);
   } catch (const LayoutError& e) {
     throw ResourceExhaustedError(e.what());
   } catch (const apc::UnknownItemError& e) {
@@ -304,7 +306,7 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
           ParseTaskJson(request->task_json(), world_->models().catalogue(), "task_json");
       std::lock_guard<std::mutex> lock(mutex_);
       ++scene_generation_;
-      LoadTaskInto(*world_, task, request->seed());
+      LoadTaskInto(*world_, task, request->seed(), options_.layout_mode);
       in_collision_ = false;
       const auto instances = Instances(world_->items());
       for (const ItemState& s : world_->items()) {
@@ -744,6 +746,11 @@ runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config) {
   SimulatorServiceOptions options;
   options.sealed_kpa = config.GetDouble("suction.sealed_kpa", options.sealed_kpa);
   options.open_kpa = config.GetDouble("suction.open_kpa", options.open_kpa);
+  try {
+    options.layout_mode = LayoutModeFromString(config.GetString("layout_mode", "tidy"));
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("setting 'layout_mode': ") + e.what());
+  }
   options.Validate();
 
   // The cell description: the static cell and the gripper (the tool centre point, the tube).
@@ -766,7 +773,7 @@ runtime::ServiceSet BuildSimulatorServices(const runtime::Config& config) {
     text << in.rdbuf();
     try {
       LoadTaskInto(*world, ParseTaskJson(text.str(), models->catalogue(), layout_path),
-                   static_cast<std::uint64_t>(seed));
+                   static_cast<std::uint64_t>(seed), options.layout_mode);
     } catch (const std::exception& e) {
       throw std::invalid_argument(std::string("setting 'layout': ") + e.what());
     }

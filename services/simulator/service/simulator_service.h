@@ -17,6 +17,8 @@ struct SimulatorServiceOptions {
   double open_kpa = 3.0;
   /// Most patterns one RenderPatterns call may ask for.
   int max_patterns = 256;
+  /// How LoadLayout (and the `layout` setting) lays items out: tidy or settled by physics.
+  LayoutMode layout_mode = LayoutMode::kTidy;
   /// Throws std::invalid_argument naming the field: need 0 <= open_kpa < sealed_kpa, finite,
   /// and max_patterns > 0.
   void Validate() const;

@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "libs/apc/bins.h"
+#include "libs/apc/task.h"
 #include "libs/world/mesh_utils.h"
 
 namespace picking::simulator {
@@ -247,6 +248,41 @@ TEST_F(SimWorldTest, BadRequestsThrowAndChangeNothing) {
   bad.bin_contents["bin_A"] = std::vector<std::string>(10, "kleenex_paper_towels");
   EXPECT_THROW(world_->LoadTask(bad, 1), LayoutError);
   EXPECT_EQ(world_->state(), before);
+}
+
+// pick_layout_1 settled by physics: every item in its container, the same poses for the
+// same seed, not the tidy layout; a bin that cannot hold its items is refused and the world
+// is left as it was.
+TEST_F(SimWorldTest, ASettledLayoutKeepsEveryItemInItsContainer) {
+  const apc::Task task = apc::ReadTaskFile(
+      apc::DefaultDataDir() + "/apc2016/tasks/pick_layout_1.json", models_->catalogue());
+  LayoutOptions settled;
+  settled.mode = LayoutMode::kSettled;
+  world_->LoadTask(task, 7, settled);
+  for (const auto& [bin, items] : task.bin_contents) {
+    EXPECT_EQ(world_->ItemsIn(bin).size(), items.size()) << bin;
+  }
+  EXPECT_EQ(world_->ItemsIn("tote").size(), task.tote_contents.size());
+  const std::vector<ItemState> first = world_->items();
+  world_->LoadTask(task, 7, settled);
+  ASSERT_EQ(world_->items().size(), first.size());
+  for (std::size_t i = 0; i < first.size(); ++i) {
+    EXPECT_EQ(world_->items()[i].X_BaseItem.matrix(), first[i].X_BaseItem.matrix());
+  }
+  world_->LoadTask(task, 7);
+  int moved = 0;
+  for (std::size_t i = 0; i < first.size(); ++i) {
+    moved += !world_->items()[i].X_BaseItem.isApprox(first[i].X_BaseItem, 1e-6);
+  }
+  EXPECT_GT(moved, 0);
+  const SimState before = world_->state();
+  apc::Task overfull;
+  for (int i = 0; i < apc::kNumBins; ++i) overfull.bin_contents[apc::BinName(i)] = {};
+  overfull.bin_contents["bin_F"] = std::vector<std::string>(8, "kleenex_paper_towels");
+  EXPECT_THROW(world_->LoadTask(overfull, 1, settled), LayoutError);
+  EXPECT_EQ(world_->state(), before);
+  EXPECT_EQ(LayoutModeFromString("settled"), LayoutMode::kSettled);
+  EXPECT_THROW(LayoutModeFromString("stacked"), std::invalid_argument);
 }
 
 TEST_F(SimWorldTest, SceneMeshesFollowTheItems) {
