@@ -17,6 +17,8 @@
 #   --detectors N     detector replicas (default 1)
 #   --time-scale X    how much faster than real time the simulated arm moves (default 10)
 #   --seed N          layout seed of the simulator (default 7)
+#   --settled         items dropped and settled by physics (stacked, leaning) instead of
+#                     side by side (the simulator's layout_mode=settled)
 #   --out DIR         output folder (default runs/<date-time>)
 #   --no-install      do not install missing packages
 #   --bin DIR         use the servers already built in DIR (nothing is installed or built)
@@ -36,6 +38,7 @@ task=data/apc2016/tasks/pick_layout_1.json
 detectors=1
 time_scale=10
 seed=7
+layout_mode=tidy
 out=""
 install=1
 bin=""
@@ -49,6 +52,7 @@ while [[ $# -gt 0 ]]; do
     --detectors) detectors=$2; shift 2 ;;
     --time-scale) time_scale=$2; shift 2 ;;
     --seed) seed=$2; shift 2 ;;
+    --settled) layout_mode=settled; shift ;;
     --out) out=$2; shift 2 ;;
     --no-install) install=0; shift ;;
     --bin) bin=$2; install=0; shift 2 ;;
@@ -140,7 +144,7 @@ start() {
 }
 
 echo "starting the cell (logs in $out/logs):"
-start sim simulator picking-simulator --layout="$task" --seed="$seed"
+start sim simulator picking-simulator --layout="$task" --seed="$seed" --layout_mode="$layout_mode"
 start robot robot picking-robot --backend=sim --sim.address="$sim" --sim.time_scale="$time_scale"
 start gripper gripper picking-gripper --backend=sim --sim.address="$sim"
 start scanner scanner picking-scanner --sim.address="$sim" --calibration.dir="$out/calibration"
