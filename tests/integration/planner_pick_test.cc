@@ -202,6 +202,24 @@ class PlannerPickTest : public ::testing::Test {
     return std::make_unique<planner::StaticCell>(cell, options);
   }
 
+  // Stages of PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot, defined below it.
+  // The target's index among the truth's items, -1 if it is not there.
+  static int TargetIndex(const sim::GetGroundTruthResponse& truth,
+                         const apc::WorkOrderEntry& entry);
+  // PlanPick for the target at X_BaseItem in `scene`, from its bin's first scan pose.
+  static grpc::Status RequestPick(const apc::WorkOrderEntry& entry,
+                                  const Eigen::Isometry3d& X_BaseItem, const std::string& scene,
+                                  pl::PlanPickResponse* response);
+  // A refusal is ABORTED with a typed PlanFailure of one of `kinds`; *kind receives its kind.
+  static void ExpectTypedRefusal(const grpc::Status& status, const std::set<std::string>& kinds,
+                                 const std::string& what, std::string* kind);
+  // Every trajectory of a plan is free against the simulator's true geometry and within the
+  // limits; the retreat, from a centimetre up, also with the item on the cup.
+  static void CheckPlannedPick(const sim::GetGroundTruthResponse& truth, int index,
+                               const apc::WorkOrderEntry& entry,
+                               const Eigen::Isometry3d& X_BaseItem,
+                               const pl::PlanPickResponse& response, const std::string& what);
+
   static ServerProcess* simulator_;
   static ServerProcess* planner_;
   static ServerProcess* robot_;
@@ -260,8 +278,87 @@ TEST(PlannerSealTolerance, IsTheSimulatorsAndBoundsTheGraspTilt) {
   EXPECT_LE(planner::GraspOptions{}.max_tilt_rad, sim.seal_angle_tolerance_rad);
 }
 
-TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
+int PlannerPickTest::TargetIndex(const sim::GetGroundTruthResponse& truth,
+                                 const apc::WorkOrderEntry& entry) {
+  for (int i = 0; i < truth.items_size(); ++i) {
+    if (truth.items(i).item().name() == entry.item &&
+        pc::ContainerName(truth.items(i).container()) == entry.bin) {
+      return i;
+    }
+  }
+  return -1;
+}
+
+grpc::Status PlannerPickTest::RequestPick(const apc::WorkOrderEntry& entry,
+                                          const Eigen::Isometry3d& X_BaseItem,
+                                          const std::string& scene,
+                                          pl::PlanPickResponse* response) {
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
+  auto writer = plan_->PlanPick(&ctx, response);
+  pl::PlanPickRequest request;
+  auto* params = request.mutable_params();
+  params->set_item(entry.item);
+  *params->mutable_x_base_item() = pc::PoseToProto(X_BaseItem);
+  params->set_container(pc::ContainerFromName(entry.bin));
+  *params->mutable_start() = ToProto(named_->at("scan/" + entry.bin + "/0"));
+  params->set_scene_id(scene);
+  writer->Write(request);
+  writer->WritesDone();
+  return writer->Finish();
+}
+
+void PlannerPickTest::ExpectTypedRefusal(const grpc::Status& status,
+                                         const std::set<std::string>& kinds,
+                                         const std::string& what, std::string* kind) {
+  ASSERT_EQ(status.error_code(), grpc::StatusCode::ABORTED)
+      << what << ": " << status.error_message();
+  google::rpc::Status details;
+  ASSERT_TRUE(details.ParseFromString(status.error_details())) << what;
+  ASSERT_GT(details.details_size(), 0) << what;
+  pl::PlanFailure failure;
+  ASSERT_TRUE(details.details(0).UnpackTo(&failure)) << what;
+  EXPECT_FALSE(failure.stage().empty());
+  EXPECT_EQ(kinds.count(failure.kind()), 1u) << what << ": kind '" << failure.kind() << "'";
+  EXPECT_FALSE(failure.message().empty());
+  *kind = failure.kind();
+  std::printf("%s: no plan: %s\n", what.c_str(), failure.message().c_str());
+}
+
+void PlannerPickTest::CheckPlannedPick(const sim::GetGroundTruthResponse& truth, int index,
+                                       const apc::WorkOrderEntry& entry,
+                                       const Eigen::Isometry3d& X_BaseItem,
+                                       const pl::PlanPickResponse& response,
+                                       const std::string& what) {
   const ur10::Ur10Model& model = kinematics_->model();
+  const auto truth_cell = TruthCell(truth, index);
+  // The arm with the gripper's head as the plan bends it.
+  const planner::RobotGeometry robot = robot_geometry_->WithGripper(
+      robot_geometry_->gripper().AtHeadAngle(response.head_angle_rad()));
+  const planner::ExactChecker exact(robot, *truth_cell, nullptr);
+  const Eigen::Isometry3d X_BaseTcp = pc::PoseFromProto(response.grasp().x_base_tcp(), "grasp");
+  const planner::CarriedItem carried = planner::MakeCarriedItem(
+      entry.item, items_->Get(entry.item)->box_I, X_BaseTcp.inverse() * X_BaseItem);
+  CheckTrajectory(response.approach(), model, exact, nullptr, 0.008, what + " approach");
+  CheckTrajectory(response.descend(), model, exact, nullptr, 0.001, what + " descend");
+  // The retreat's first samples lift the item off its support; from a centimetre up it
+  // must be free with the item too.
+  CheckTrajectory(response.retreat(), model, exact, nullptr, 0.001, what + " retreat");
+  const auto& retreat = response.retreat();
+  const double end = retreat.points(retreat.points_size() - 1).time_from_start_s();
+  for (double time = 0.0; time <= end; time += 0.001) {
+    const JointVector q = At(retreat, time);
+    const double lifted =
+        (kinematics_->ForwardKinematics(q) * robot.gripper().X_ToolTcp).translation().z() -
+        X_BaseTcp.translation().z();
+    if (lifted < 0.01) continue;
+    const planner::CollisionReport r = exact.Check(q, &carried);
+    ASSERT_FALSE(r.in_collision) << what << " retreat with the item at t = " << time
+                                 << " s: " << r.ToString();
+  }
+}
+
+TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
   int targets = 0, planned = 0, bent = 0;
   std::map<int, int> planned_in_layout;
   std::map<std::string, int> refusals_by_kind;
@@ -276,49 +373,20 @@ TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
                               std::to_string(layout) + ".json",
                           *catalogue_);
     for (const apc::WorkOrderEntry& entry : task.work_order) {
-      int index = -1;
-      for (int i = 0; i < truth.items_size(); ++i) {
-        if (truth.items(i).item().name() == entry.item &&
-            pc::ContainerName(truth.items(i).container()) == entry.bin) {
-          index = i;
-          break;
-        }
-      }
+      const int index = TargetIndex(truth, entry);
       ASSERT_GE(index, 0) << entry.item << " in " << entry.bin;
       ++targets;
       const Eigen::Isometry3d X_BaseItem =
           pc::PoseFromProto(truth.items(index).x_base_item(), "X_base_item");
       const std::string scene = BuildScene(entry.bin, entry.item, X_BaseItem);
-      grpc::ClientContext ctx;
-      ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
       pl::PlanPickResponse response;
-      auto writer = plan_->PlanPick(&ctx, &response);
-      pl::PlanPickRequest request;
-      auto* params = request.mutable_params();
-      params->set_item(entry.item);
-      *params->mutable_x_base_item() = pc::PoseToProto(X_BaseItem);
-      params->set_container(pc::ContainerFromName(entry.bin));
-      *params->mutable_start() = ToProto(named_->at("scan/" + entry.bin + "/0"));
-      params->set_scene_id(scene);
-      writer->Write(request);
-      writer->WritesDone();
-      const grpc::Status status = writer->Finish();
+      const grpc::Status status = RequestPick(entry, X_BaseItem, scene, &response);
       const std::string what =
           "layout " + std::to_string(layout) + " " + entry.bin + " " + entry.item;
       if (!status.ok()) {
-        // No plan: ABORTED with a typed reason per attempt.
-        ASSERT_EQ(status.error_code(), grpc::StatusCode::ABORTED)
-            << what << ": " << status.error_message();
-        google::rpc::Status details;
-        ASSERT_TRUE(details.ParseFromString(status.error_details())) << what;
-        ASSERT_GT(details.details_size(), 0) << what;
-        pl::PlanFailure failure;
-        ASSERT_TRUE(details.details(0).UnpackTo(&failure)) << what;
-        EXPECT_FALSE(failure.stage().empty());
-        EXPECT_EQ(kinds.count(failure.kind()), 1u) << what << ": kind '" << failure.kind() << "'";
-        EXPECT_FALSE(failure.message().empty());
-        ++refusals_by_kind[failure.kind()];
-        std::printf("%s: no plan: %s\n", what.c_str(), failure.message().c_str());
+        std::string kind;
+        ASSERT_NO_FATAL_FAILURE(ExpectTypedRefusal(status, kinds, what, &kind));
+        ++refusals_by_kind[kind];
         continue;
       }
       ++planned;
@@ -326,32 +394,8 @@ TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
       std::printf("%s: planned in %.1f ms (%u nodes), grasp '%s'\n", what.c_str(),
                   1e3 * response.planning_time_s(), response.nodes_expanded(),
                   response.grasp().surface().c_str());
-      const auto truth_cell = TruthCell(truth, index);
-      // The arm with the gripper's head as the plan bends it.
-      const planner::RobotGeometry robot = robot_geometry_->WithGripper(
-          robot_geometry_->gripper().AtHeadAngle(response.head_angle_rad()));
       if (response.head_angle_rad() != 0.0) ++bent;
-      const planner::ExactChecker exact(robot, *truth_cell, nullptr);
-      const Eigen::Isometry3d X_BaseTcp = pc::PoseFromProto(response.grasp().x_base_tcp(), "grasp");
-      const planner::CarriedItem carried = planner::MakeCarriedItem(
-          entry.item, items_->Get(entry.item)->box_I, X_BaseTcp.inverse() * X_BaseItem);
-      CheckTrajectory(response.approach(), model, exact, nullptr, 0.008, what + " approach");
-      CheckTrajectory(response.descend(), model, exact, nullptr, 0.001, what + " descend");
-      // The retreat's first samples lift the item off its support; from a centimetre up it
-      // must be free with the item too.
-      CheckTrajectory(response.retreat(), model, exact, nullptr, 0.001, what + " retreat");
-      const auto& retreat = response.retreat();
-      const double end = retreat.points(retreat.points_size() - 1).time_from_start_s();
-      for (double time = 0.0; time <= end; time += 0.001) {
-        const JointVector q = At(retreat, time);
-        const double lifted =
-            (kinematics_->ForwardKinematics(q) * robot.gripper().X_ToolTcp).translation().z() -
-            X_BaseTcp.translation().z();
-        if (lifted < 0.01) continue;
-        const planner::CollisionReport r = exact.Check(q, &carried);
-        ASSERT_FALSE(r.in_collision)
-            << what << " retreat with the item at t = " << time << " s: " << r.ToString();
-      }
+      ASSERT_NO_FATAL_FAILURE(CheckPlannedPick(truth, index, entry, X_BaseItem, response, what));
     }
   }
   std::printf(

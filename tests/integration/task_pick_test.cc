@@ -305,6 +305,50 @@ TEST_F(TaskPickTest, StowLayout1TheOutputFileMatchesTheSimulatorsTruth) {
   }
 }
 
+// Watches the task: kills the second detector replica at the first detection, then the
+// orchestrator at the first grasp step (the approach under way). Returns the item it was
+// grasping ("" if no grasp came).
+std::string KillReplicaThenOrchestrator(orch::OrchestratorService::Stub& stub,
+                                        const std::string& task_id,
+                                        std::unique_ptr<ServerProcess>* second_detector,
+                                        ServerProcess& orchestrator) {
+  grpc::ClientContext ctx;
+  orch::WatchTaskRequest watch;
+  watch.set_task_id(task_id);
+  auto reader = stub.WatchTask(&ctx, watch);
+  orch::WatchTaskResponse response;
+  std::string grasped;
+  while (reader->Read(&response)) {
+    const orch::TaskEvent& event = response.event();
+    if (event.step() == orch::STEP_DETECT && *second_detector) {
+      ::kill((*second_detector)->pid(), SIGKILL);
+      EXPECT_EQ((*second_detector)->Stop(), 128 + SIGKILL);
+      second_detector->reset();
+    }
+    if (event.step() == orch::STEP_GRASP) {
+      grasped = event.item();
+      ::kill(orchestrator.pid(), SIGKILL);
+      break;
+    }
+  }
+  ctx.TryCancel();
+  return grasped;
+}
+
+// Completed places per item in a task journal (its "done" records of ".../<item>/<n>/place").
+std::map<std::string, int> CompletedPlaces(const std::string& journal) {
+  std::map<std::string, int> placed;
+  std::stringstream lines(journal);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.find("\"type\":\"done\"") == std::string::npos) continue;
+    const std::size_t end = line.find("/place\"");
+    if (end == std::string::npos) continue;
+    const std::size_t start = line.rfind("/", line.rfind("/", end - 1) - 1) + 1;
+    ++placed[line.substr(start, line.find('/', start) - start)];
+  }
+  return placed;
+}
+
 // Faults mid-task: one of two detector replicas is killed at the first detection, then the
 // orchestrator itself in the middle of its first grasp's approach (the arm moving). A new
 // orchestrator on the same task folder resumes the task: nothing is lost (the output file
@@ -333,28 +377,8 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
     grpc::ClientContext ctx;
     ASSERT_TRUE(stub->StartTask(&ctx, request, &started).ok());
   }
-  std::string first_grasped;
-  {
-    grpc::ClientContext ctx;
-    orch::WatchTaskRequest watch;
-    watch.set_task_id(started.task_id());
-    auto reader = stub->WatchTask(&ctx, watch);
-    orch::WatchTaskResponse response;
-    while (reader->Read(&response)) {
-      const orch::TaskEvent& event = response.event();
-      if (event.step() == orch::STEP_DETECT && second_detector) {
-        ::kill(second_detector->pid(), SIGKILL);
-        EXPECT_EQ(second_detector->Stop(), 128 + SIGKILL);
-        second_detector.reset();
-      }
-      if (event.step() == orch::STEP_GRASP) {
-        first_grasped = event.item();
-        ::kill(orchestrator->pid(), SIGKILL);
-        break;
-      }
-    }
-    ctx.TryCancel();
-  }
+  const std::string first_grasped =
+      KillReplicaThenOrchestrator(*stub, started.task_id(), &second_detector, *orchestrator);
   ASSERT_FALSE(first_grasped.empty()) << "no grasp was tried before the time limit";
   EXPECT_EQ(orchestrator->Stop(), 128 + SIGKILL);
   orchestrator = std::make_unique<ServerProcess>(ServerBinary("picking-orchestrator"), flags);
@@ -399,17 +423,8 @@ TEST_F(TaskPickTest, AKilledReplicaAndAKilledOrchestratorCostNothingAndRepeatNoP
   const apc::Task reported = ExpectOutputMatchesTruth(task.result().output_file(), truth);
   // Nothing repeated: the journal records one completed place per item in the tote, and none
   // for any other.
-  const std::string journal =
-      ReadText(*dir_ + "/fault_tasks/" + started.task_id() + "/journal.jsonl");
-  std::map<std::string, int> placed;
-  std::stringstream lines(journal);
-  for (std::string line; std::getline(lines, line);) {
-    if (line.find("\"type\":\"done\"") == std::string::npos) continue;
-    const std::size_t end = line.find("/place\"");
-    if (end == std::string::npos) continue;
-    const std::size_t start = line.rfind("/", line.rfind("/", end - 1) - 1) + 1;
-    ++placed[line.substr(start, line.find('/', start) - start)];
-  }
+  std::map<std::string, int> placed =
+      CompletedPlaces(ReadText(*dir_ + "/fault_tasks/" + started.task_id() + "/journal.jsonl"));
   for (const std::string& item : reported.tote_contents) EXPECT_EQ(placed[item], 1) << item;
   int placed_total = 0;
   for (const auto& [item, n] : placed) placed_total += n;
