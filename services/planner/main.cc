@@ -17,6 +17,8 @@ int main(int argc, char** argv) {
       "grasps=FILE             suction points per item (default <data_dir>/planner/grasps.yaml)",
       "search.step_m=M         cartesian search step (default 0.02)",
       "search.node_budget=N    nodes per cartesian search (default 1500)",
+      "search.time_budget_s=S  search time of one PlanPick over all its grasps; then a",
+      "                        typed 'search budget spent' refusal (default 1)",
       "guarded_distance_m=M    the descent stops this short of the grasp (default 0.05)",
       "scene.cut_margin_m=M    growth of the target's hull when cut out (default 0.02)",
       "scene.ttl_s=S           scenes kept after their last use (default 120)",

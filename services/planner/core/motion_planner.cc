@@ -1374,6 +1374,21 @@ bool MotionPlanner::TryRolls(const PickRequest& request, const GraspCandidate& c
   return false;
 }
 
+PlanFailure MotionPlanner::SearchBudgetSpent(const PickRequest& request,
+                                             const GraspCandidate& grasp,
+                                             int grasps_searched) const {
+  PlanFailure f;
+  f.stage = "search";
+  f.kind = "search budget spent";
+  f.grasp = grasp.surface;
+  char budget[32];
+  std::snprintf(budget, sizeof(budget), "%.2f s", options_.search_time_budget_s);
+  f.message = "the pick of '" + request.item + "' in " + request.container +
+              " spent its search budget of " + budget + " over " + std::to_string(grasps_searched) +
+              " searched grasps; the bin is too crowded around it for now";
+  return f;
+}
+
 PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene* scene,
                                  Deadline deadline) const {
   const auto started = std::chrono::steady_clock::now();
@@ -1414,6 +1429,9 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   }
   std::vector<PlanFailure> failures;
   const GraspContainer container = Container(request.container);
+  const Deadline search_deadline =
+      started + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                    std::chrono::duration<double>(options_.search_time_budget_s));
   for (const GraspCandidate& listed : grasps.candidates) {
     if (plan.grasps_tried >= options_.max_grasps_tried) break;
     // The tube's geometry at the grasp does not depend on the arm or the roll: a grasp it
@@ -1430,15 +1448,25 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
     }
     PlanFailure best;
     bool searched = false;
-    if (TryRolls(request, candidate, model, *checks, checks != &straight, deadline, &plan, &best,
-                 &searched)) {
-      ++plan.grasps_tried;
-      plan.rejected = failures;
-      plan.planning_time_s = Seconds(started);
-      return plan;
+    try {
+      if (TryRolls(request, candidate, model, *checks, checks != &straight,
+                   std::min(deadline, search_deadline), &plan, &best, &searched)) {
+        ++plan.grasps_tried;
+        plan.rejected = failures;
+        plan.planning_time_s = Seconds(started);
+        return plan;
+      }
+    } catch (const TimeoutError&) {
+      if (std::chrono::steady_clock::now() > deadline) throw;
+      failures.push_back(SearchBudgetSpent(request, candidate, plan.grasps_tried + 1));
+      break;
     }
     if (searched) ++plan.grasps_tried;
     failures.push_back(best);
+    if (std::chrono::steady_clock::now() > search_deadline) {
+      failures.push_back(SearchBudgetSpent(request, candidate, plan.grasps_tried));
+      break;
+    }
   }
   // The most advanced attempt first.
   auto rank = [](const PlanFailure& f) {

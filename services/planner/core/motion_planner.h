@@ -100,6 +100,11 @@ struct MotionPlannerOptions {
   /// before the search (the tube through the opening, the descent's end pose) cost
   /// microseconds and are not counted.
   int max_grasps_tried = 8;
+  /// Seconds of search a PlanPick may spend over all its grasps. When it is spent the call
+  /// answers with the typed failures so far and a "search budget spent" one, not with the
+  /// call's deadline: a dense bin whose every grasp spends its node budget is a "no plan" the
+  /// caller can act on within its own time, not a timeout it retries.
+  double search_time_budget_s = 1.0;
   /// Trajectory timing: the blend tolerance at corners and the output sample period.
   double blend_deviation_rad = 0.02;
   double sample_period_s = 0.008;
@@ -380,6 +385,9 @@ class MotionPlanner final {
                                       GraspCandidate* candidate, PlanFailure* refused) const;
   // TryGrasp at the grasp's rolls; the most advanced failure in `best` when none works, and
   // in `searched` whether any roll got past the checks before the search.
+  /// The failure that ends a PlanPick whose search budget is spent.
+  PlanFailure SearchBudgetSpent(const PickRequest& request, const GraspCandidate& grasp,
+                                int grasps_searched) const;
   bool TryRolls(const PickRequest& request, const GraspCandidate& candidate,
                 const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
                 bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best,

@@ -470,6 +470,8 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   MotionPlannerOptions options;
   options.search.node_budget =
       static_cast<int>(config.GetInt("search.node_budget", options.search.node_budget));
+  options.search_time_budget_s =
+      config.GetDouble("search.time_budget_s", options.search_time_budget_s);
   options.search.step_m = config.GetDouble("search.step_m", options.search.step_m);
   options.guarded_distance_m = config.GetDouble("guarded_distance_m", options.guarded_distance_m);
   options.cut_margin_m = config.GetDouble("scene.cut_margin_m", options.cut_margin_m);
@@ -480,8 +482,11 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   if (!(options.search.step_m >= 0.005 && options.search.step_m <= 0.1)) {
     throw std::invalid_argument("setting 'search.step_m' must be in [0.005, 0.1]");
   }
-  if (options.search.node_budget < 10 || settings.max_scenes < 1 || !(settings.scene_ttl_s > 0)) {
-    throw std::invalid_argument("search.node_budget >= 10, scene.max_scenes >= 1, scene.ttl_s > 0");
+  if (options.search.node_budget < 10 || !(options.search_time_budget_s > 0) ||
+      settings.max_scenes < 1 || !(settings.scene_ttl_s > 0)) {
+    throw std::invalid_argument(
+        "search.node_budget >= 10, search.time_budget_s > 0, scene.max_scenes >= 1, "
+        "scene.ttl_s > 0");
   }
   auto planner = std::make_shared<const MotionPlanner>(kinematics, cell, gripper, X_ToolCamera,
                                                        grasps, items, options);

@@ -472,6 +472,32 @@ TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
   }
 }
 
+TEST_F(MotionPlannerTest, ASpentSearchBudgetIsATypedRefusalNotATimeout) {
+  // A planner whose search budget is spent before the first grasp's search: the call ends
+  // well within its own deadline with a typed "no plan" the caller can act on.
+  MotionPlannerOptions hurried = planner_->options();
+  hurried.search_time_budget_s = 1e-9;
+  const auto planner = MakePlanner(GripperGeometry{}, hurried);
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box");
+  const PlanningScene scene =
+      planner->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
+  PickRequest request;
+  request.item = "kleenex_tissue_box";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  try {
+    planner->PlanPick(request, &scene, Far());
+    FAIL() << "planned with no search budget";
+  } catch (const PlanFailedError& error) {
+    bool spent = false;
+    for (const PlanFailure& f : error.failures()) spent |= f.kind == "search budget spent";
+    EXPECT_TRUE(spent) << error.what();
+  }
+  // The default budget plans the same pick.
+  EXPECT_NO_THROW(planner_->PlanPick(request, &scene, Far()));
+}
+
 TEST_F(MotionPlannerTest, BadRequestsAreRefused) {
   PickRequest request;
   request.item = "dove_beauty_bar";
