@@ -454,10 +454,8 @@ void PickTaskRunner::FinishCarriedItem() {
   }
 }
 
-bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
-                                   std::vector<ScanView>& views) {
+bool PickTaskRunner::ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views) {
   Emit(&target, Step::kScan, true, "scanning " + target.bin);
-  journal_.Append("begin", Key(target, "scan"), clock_s_);
   for (const std::string& pose : cell_.ScanPoses(target.bin)) {
     const StepOutcome moved = WithRetries("move", [&] { return cell_.MoveToNamed(pose); });
     AddTime(report, "scan", moved.robot_s);
@@ -475,13 +473,42 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
     Emit(&target, Step::kScan, true,
          "captured view " + std::to_string(views.size()) + " (" + pose + ")", "", std::move(scene));
   }
+  return true;
+}
+
+PickTaskRunner::PendingDetection PickTaskRunner::StartDetect(const Target& target,
+                                                             const std::vector<ScanView>& views) {
   Emit(&target, Step::kDetect, true, "detecting in " + std::to_string(views.size()) + " views");
-  const auto start = Clock::now();
   const std::vector<std::string> others =
       options_.detect_others ? OtherItemsIn(target.bin, target.item) : std::vector<std::string>{};
-  Detection found =
-      WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views, others); });
-  AddTime(report, "detect", Seconds(start));
+  PendingDetection pending;
+  pending.started_wall = Clock::now();
+  pending.started_clock_s = clock_s_;
+  // The call itself only: retries, events and the clock stay on the task's thread
+  // (FinishDetect). The views are copied (their clouds are shared, not copied).
+  pending.result =
+      std::async(std::launch::async, [this, bin = target.bin, item = target.item, views, others] {
+        return cell_.Detect(bin, item, views, others);
+      });
+  return pending;
+}
+
+bool PickTaskRunner::FinishDetect(Target& target, TargetReport& report, PendingDetection& pending,
+                                  const std::vector<ScanView>& views) {
+  Detection found;
+  try {
+    found = pending.result.get();
+  } catch (const CellError& e) {
+    if (!e.retryable()) throw;
+    Emit(nullptr, Step::kNone, false, std::string("detect: ") + e.what() + "; retrying");
+    const std::vector<std::string> others =
+        options_.detect_others ? OtherItemsIn(target.bin, target.item) : std::vector<std::string>{};
+    found =
+        WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, views, others); });
+  }
+  // The arm waited for what the detection took beyond the motions and steps since it began.
+  const double computed_s = Seconds(pending.started_wall);
+  AddTime(report, "detect", std::max(0.0, computed_s - (clock_s_ - pending.started_clock_s)));
   if (!found.found) {
     target.last_failure = "not detected: " + found.message;
     return false;
@@ -509,9 +536,27 @@ bool PickTaskRunner::ScanAndDetect(Target& target, TargetReport& report,
   scene.detection_score = found.score;
   scene.method = found.method;
   Emit(&target, Step::kDetect, true,
-       "found by " + found.method + " (score " + std::to_string(found.score) + ")", "",
-       std::move(scene));
+       "found by " + found.method + " (score " + std::to_string(found.score) + ", " +
+           std::to_string(computed_s) + " s of detection)",
+       "", std::move(scene));
   return true;
+}
+
+void PickTaskRunner::ScanAhead(const Target& current, Target& next, TargetReport& next_report) {
+  if (!options_.detect_ahead || next.bin == current.bin || cancel_.load()) return;
+  Ahead ahead;
+  ahead.target = &next;
+  if (!ScanViews(next, next_report, ahead.views)) return;  // its own attempt scans again
+  ahead.detection = StartDetect(next, ahead.views);
+  ahead_.emplace(std::move(ahead));
+}
+
+std::size_t PickTaskRunner::NextInRound(std::size_t i, int round) const {
+  for (std::size_t k = i + 1; k < order_.size(); ++k) {
+    const Target& t = order_[k];
+    if (!t.done && !t.given_up && t.attempts <= round) return k;
+  }
+  return std::string::npos;
 }
 
 PickTaskRunner::Attempt PickTaskRunner::GraspAndPlace(Target& target, TargetReport& report,
@@ -694,11 +739,24 @@ std::string PickTaskRunner::LookBack(Target& target, TargetReport& report,
   return wrong;
 }
 
-PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report) {
+PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report,
+                                                  Target* next, TargetReport* next_report) {
   ++target.attempts;
   report.attempts = target.attempts;
+  journal_.Append("begin", Key(target, "scan"), clock_s_);
   std::vector<ScanView> views;
-  if (!ScanAndDetect(target, report, views)) return Attempt::kFailed;
+  PendingDetection detection;
+  if (ahead_ && ahead_->target == &target) {
+    views = std::move(ahead_->views);
+    detection = std::move(ahead_->detection);
+    ahead_.reset();
+  } else {
+    ahead_.reset();  // views of another target, not taken up: its own attempt scans again
+    if (!ScanViews(target, report, views)) return Attempt::kFailed;
+    detection = StartDetect(target, views);
+  }
+  if (next) ScanAhead(target, *next, *next_report);
+  if (!FinishDetect(target, report, detection, views)) return Attempt::kFailed;
   Emit(&target, Step::kPlan, true, "planning the pick");
   const auto start = Clock::now();
   const PlannedPick plan = WithRetries("plan", [&] {
@@ -737,7 +795,10 @@ PickTaskResult PickTaskRunner::Run() {
           Emit(&target, Step::kNone, false, target.last_failure);
           continue;
         }
-        const Attempt attempt = TryTarget(target, reports[i]);
+        const std::size_t next = NextInRound(i, round);
+        const Attempt attempt = next == std::string::npos
+                                    ? TryTarget(target, reports[i], nullptr, nullptr)
+                                    : TryTarget(target, reports[i], &order_[next], &reports[next]);
         target.done = attempt == Attempt::kPicked;
         reports[i].picked = target.done;
         reports[i].failure = target.done ? "" : target.last_failure;

@@ -1,8 +1,11 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <functional>
+#include <future>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -101,6 +104,11 @@ struct PickTaskOptions {
   bool detect_others = true;
   double confusion_overlap = 0.3;
   double confusion_margin = 0.05;
+  /// While a target's detection runs, the arm takes the next target's views (when it lies in
+  /// another container, which the pick cannot disturb); that detection then runs while the
+  /// arm picks the first. The arm waits only for what detection takes beyond the robot time
+  /// of the motions it overlaps.
+  bool detect_ahead = true;
 };
 
 /// What happened to one target.
@@ -152,8 +160,33 @@ class PickTaskRunner final {
 
  private:
   enum class Attempt { kPicked, kFailed, kLostCarried };
-  Attempt TryTarget(Target& target, TargetReport& report);
-  bool ScanAndDetect(Target& target, TargetReport& report, std::vector<ScanView>& views);
+  /// A detection running beside the arm: started on the task clock at `clock_s`, it holds
+  /// the arm only for the wall time it takes beyond the task clock's advance since then.
+  struct PendingDetection {
+    std::future<Detection> result;
+    std::chrono::steady_clock::time_point started_wall;
+    double started_clock_s = 0.0;
+  };
+  /// A target whose views were taken while another target's detection ran.
+  struct Ahead {
+    const Target* target = nullptr;
+    std::vector<ScanView> views;
+    PendingDetection detection;
+  };
+  /// One attempt at `target`; `next` (may be null) is the target to take views of ahead.
+  Attempt TryTarget(Target& target, TargetReport& report, Target* next, TargetReport* next_report);
+  /// The views of the target's container, one per scan pose; false (with the reason in
+  /// target.last_failure) when the arm cannot reach one.
+  bool ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views);
+  PendingDetection StartDetect(const Target& target, const std::vector<ScanView>& views);
+  /// Waits for the detection (retrying a service that did not answer) and holds the target's
+  /// pose against the other items found; false with the reason when it is not taken.
+  bool FinishDetect(Target& target, TargetReport& report, PendingDetection& pending,
+                    const std::vector<ScanView>& views);
+  /// Takes the views of `next` and starts its detection, when detect_ahead allows it.
+  void ScanAhead(const Target& current, Target& next, TargetReport& next_report);
+  /// The first target after index `i` that the current round will try, or npos.
+  std::size_t NextInRound(std::size_t i, int round) const;
   Attempt GraspAndPlace(Target& target, TargetReport& report, const PlannedPick& plan,
                         const std::vector<ScanView>& views);
   /// The pick re-planned for the surface where the cup met the item (replan_contact_m), or
@@ -206,6 +239,7 @@ class PickTaskRunner final {
   int done_ = 0;
   std::uint64_t next_event_ = 0;
   std::string carried_key_;  ///< Journal key prefix of an attempt holding an item at resume.
+  std::optional<Ahead> ahead_;
 };
 
 /// The rules' score of what the orchestrator believes happened, with `output` as reported.

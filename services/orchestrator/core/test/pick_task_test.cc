@@ -4,10 +4,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <limits>
 
 #include <filesystem>
 #include <map>
+#include <mutex>
 #include <set>
 
 namespace picking::orchestrator {
@@ -53,13 +56,22 @@ class ScriptedCell final : public CellPort {
   std::map<std::string, std::vector<int>> plan_handles;              // per item, every PlanPick's
   std::map<std::string, std::vector<int>> retreat_handles;  // per item, every retreat's plan
   int plans = 0;
+  // Detections run beside the arm (PickTaskOptions::detect_ahead): every call holds this.
+  std::mutex mu;
 
   std::vector<std::string> ScanPoses(const std::string& c) override {
+    std::lock_guard<std::mutex> lock(mu);
     if (c == "tote") return {"scan/tote/0", "scan/tote/1"};
     return {"scan/" + c + "/0", "scan/" + c + "/1", "scan/" + c + "/2"};
   }
-  StepOutcome MoveToNamed(const std::string&) override { return {true, "", 2.0}; }
+  std::vector<std::string> calls;  // "move <pose>", "detect <item>", "plan <item>", in order
+  StepOutcome MoveToNamed(const std::string& pose) override {
+    std::lock_guard<std::mutex> lock(mu);
+    calls.push_back("move " + pose);
+    return {true, "", 2.0};
+  }
   ScanView Scan() override {
+    std::lock_guard<std::mutex> lock(mu);
     if (unavailable_scans > 0) {
       --unavailable_scans;
       throw CellError("scanner", true, "connection refused");
@@ -74,8 +86,9 @@ class ScriptedCell final : public CellPort {
   }
   Detection Detect(const std::string&, const std::string& item, const std::vector<ScanView>& views,
                    const std::vector<std::string>& others) override {
+    std::lock_guard<std::mutex> lock(mu);
+    if (views.size() > 1) calls.push_back("detect " + item);
     EXPECT_GE(views.size(), 1u);
-    current = item;
     if (views.size() > 1) others_asked[item] = others;
     Detection d;
     if (!scripts[item].confused_with.empty()) {  // the other item found where this one is
@@ -95,6 +108,9 @@ class ScriptedCell final : public CellPort {
   }
   PlannedPick PlanPick(const std::string&, const std::string& item,
                        const Eigen::Isometry3d& X_BaseItem, const std::vector<ScanView>&) override {
+    std::lock_guard<std::mutex> lock(mu);
+    current = item;  // every attempt plans before it touches (detections may run ahead)
+    calls.push_back("plan " + item);
     PlannedPick p;
     p.ok = scripts[item].plannable;
     p.message = p.ok ? "" : "descend: gripper hits shelf";
@@ -110,6 +126,7 @@ class ScriptedCell final : public CellPort {
   }
   StepOutcome ExecuteApproach(const PlannedPick&) override { return {true, "", 3.0}; }
   TouchOutcome Touch(const PlannedPick& plan) override {
+    std::lock_guard<std::mutex> lock(mu);
     ++touches[current];
     if (scripts[current].touch_refused) return {false, 0.0, 0.0, "the swept path collides"};
     if (scripts[current].early_touches > 0) {
@@ -122,12 +139,14 @@ class ScriptedCell final : public CellPort {
     return {true, plan.contact_distance_m + 0.005, 1.0};  // the cup compressed
   }
   SealReading VacuumOn() override {
+    std::lock_guard<std::mutex> lock(mu);
     Script& s = scripts[current];
     held = ++vacuum_ons[current] > s.no_seal_attempts;
     return {held, held ? 40.0 : 2.0};
   }
   SealReading ReadSeal() override { return {held, held ? 40.0 : 1.0}; }
   StepOutcome ExecuteRetreat(const PlannedPick& plan) override {
+    std::lock_guard<std::mutex> lock(mu);
     retreat_handles[current].push_back(plan.handle);
     if (held && scripts[current].lose_in_lift) {
       scripts[current].lose_in_lift = false;
@@ -137,6 +156,7 @@ class ScriptedCell final : public CellPort {
   }
   PlaceOutcome MoveToPlace(const std::string& item, const std::string& container,
                            const PlannedPick&, int placed_before) override {
+    std::lock_guard<std::mutex> lock(mu);
     destinations.push_back(container);
     placed_before_each.push_back(placed_before);
     if (refused_destinations.count(container)) return {false, "no free motion", 0.0, 0.0};
@@ -145,14 +165,17 @@ class ScriptedCell final : public CellPort {
     return {true, "", 0.1, 4.0};
   }
   double VerifyHeld(const std::string&, const PlannedPick&, const ScanView&) override {
+    std::lock_guard<std::mutex> lock(mu);
     return held_looks_wrong ? 0.05 : -1.0;
   }
   StepOutcome PutBack(const PlannedPick&) override {
+    std::lock_guard<std::mutex> lock(mu);
     put_back.push_back(current);
     held = false;
     return {true, "", 6.0};
   }
   void VacuumOff() override {
+    std::lock_guard<std::mutex> lock(mu);
     if (held) placed.push_back(current);
     held = false;
   }
@@ -269,6 +292,48 @@ TEST_F(PickTaskTest, EventsCarryWhatAViewerDrawsAndTheJournalKeepsIt) {
     EXPECT_EQ(r.data.value("score", -1), events[next - 1].score);
   }
   EXPECT_EQ(next, events.size());
+}
+
+std::size_t IndexOf(const std::vector<std::string>& calls, const std::string& call) {
+  const auto it = std::find(calls.begin(), calls.end(), call);
+  return it == calls.end() ? calls.size() : static_cast<std::size_t>(it - calls.begin());
+}
+
+TEST_F(PickTaskTest, TheNextBinIsScannedWhileATargetIsDetectedAndDetectedWhileItIsPicked) {
+  ScriptedCell cell;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 3);
+  // Each bin scanned once: the views taken ahead are the ones detected in.
+  EXPECT_EQ(std::count_if(cell.calls.begin(), cell.calls.end(),
+                          [](const std::string& c) { return c.rfind("move scan/", 0) == 0; }),
+            9);
+  // bin_B's views are taken after bin_A's detection began and before bin_A's pick is
+  // planned; bin_B's detection is started before that pick too.
+  const auto& c = cell.calls;
+  EXPECT_LT(IndexOf(c, "move scan/bin_A/2"), IndexOf(c, "move scan/bin_B/0"));
+  EXPECT_LT(IndexOf(c, "move scan/bin_B/2"), IndexOf(c, "plan kleenex_tissue_box"));
+  EXPECT_LT(IndexOf(c, "plan kleenex_tissue_box"), IndexOf(c, "plan rawlings_baseball"));
+  EXPECT_LT(IndexOf(c, "move scan/bin_C/2"), IndexOf(c, "plan rawlings_baseball"));
+  // Without it, each target is scanned, detected and picked in turn.
+  options_.detect_ahead = false;
+  std::filesystem::remove(dir_ / "journal.jsonl");  // a new task, not a resumed one
+  ScriptedCell in_turn;
+  EXPECT_EQ(Run(in_turn).items_moved, 3);
+  const auto& t = in_turn.calls;
+  EXPECT_LT(IndexOf(t, "plan kleenex_tissue_box"), IndexOf(t, "move scan/bin_B/0"));
+  EXPECT_LT(IndexOf(t, "detect kleenex_tissue_box"), IndexOf(t, "move scan/bin_B/0"));
+}
+
+TEST_F(PickTaskTest, ViewsTakenAheadAreUsedByTheRetryRoundOnlyWhenTheyAreTheTargets) {
+  // bin_A's target fails its first attempt; the second round scans it again (its views were
+  // taken before its failed pick), and bin_B's views, taken ahead, serve bin_B once.
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].no_seal_attempts = 1;
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "move scan/bin_A/0"), 2);
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "move scan/bin_B/0"), 1);
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "detect rawlings_baseball"), 1);
 }
 
 TEST(ThinPoints, KeepsAtMostTheAskedNumberSpreadOverTheCloud) {
