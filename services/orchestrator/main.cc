@@ -26,6 +26,8 @@ int main(int argc, char** argv) {
       "time_limit_s=S          task clock, robot time (default 900, the rules' 15 minutes)",
       "max_attempts=N          attempts per target (default 2)",
       "min_time_per_item_s=S   skip a target with less task time left (default 25)",
+      "detect_ahead=BOOL       take the next bin's views while a target is detected, and",
+      "                        detect it while the arm picks (default true)",
       "shutdown_wait_s=S       how long SIGTERM waits for a task's current step (default 3)",
       "viewer.url=URL          the viewer's page (picking-viewer): the report links each",
       "                        item to its view there (default: no links)",

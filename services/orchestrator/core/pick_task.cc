@@ -718,10 +718,18 @@ std::string PickTaskRunner::LookBack(Target& target, TargetReport& report,
   try {
     const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
     clock_s_ += view.capture_s;  // the arm holds still for the capture
+    // The two questions go to the detectors at once (another replica where there is one).
+    auto verify =
+        std::async(std::launch::async, [&] { return cell_.VerifyHeld(target.item, plan, view); });
     const Detection seen =
         WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, {view}); });
-    const double score =
-        WithRetries("verify", [&] { return cell_.VerifyHeld(target.item, plan, view); });
+    double score = -1.0;
+    try {
+      score = verify.get();
+    } catch (const CellError& e) {
+      if (!e.retryable()) throw;
+      score = WithRetries("verify", [&] { return cell_.VerifyHeld(target.item, plan, view); });
+    }
     if (seen.found &&
         (seen.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm() <
             options_.verify_same_pose_m) {

@@ -309,6 +309,7 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
       static_cast<int>(config.GetInt("max_attempts", options.pick.max_attempts));
   options.pick.min_time_per_item_s =
       config.GetDouble("min_time_per_item_s", options.pick.min_time_per_item_s);
+  options.pick.detect_ahead = config.GetBool("detect_ahead", options.pick.detect_ahead);
   if (options.pick.time_limit_s <= 0.0 || options.pick.max_attempts < 1) {
     throw std::invalid_argument("time_limit_s must be > 0 and max_attempts >= 1");
   }
