@@ -763,8 +763,10 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
     if (!ScanViews(target, report, views)) return Attempt::kFailed;
     detection = StartDetect(target, views);
   }
-  if (next) ScanAhead(target, *next, *next_report);
   if (!FinishDetect(target, report, detection, views)) return Attempt::kFailed;
+  // Not sooner: scans (the projector's patterns decoded, the simulator's rendering) and a
+  // detection share the cores, and a detection is searched within a time budget.
+  if (next) ScanAhead(target, *next, *next_report);
   Emit(&target, Step::kPlan, true, "planning the pick");
   const auto start = Clock::now();
   const PlannedPick plan = WithRetries("plan", [&] {

@@ -104,10 +104,10 @@ struct PickTaskOptions {
   bool detect_others = true;
   double confusion_overlap = 0.3;
   double confusion_margin = 0.05;
-  /// While a target's detection runs, the arm takes the next target's views (when it lies in
-  /// another container, which the pick cannot disturb); that detection then runs while the
-  /// arm picks the first. The arm waits only for what detection takes beyond the robot time
-  /// of the motions it overlaps.
+  /// Once a target is detected, the arm takes the next target's views (when it lies in
+  /// another container, which the pick cannot disturb) and that detection runs while the arm
+  /// picks the first. The arm waits only for what detection takes beyond the robot time of
+  /// the motions it overlaps.
   bool detect_ahead = true;
 };
 

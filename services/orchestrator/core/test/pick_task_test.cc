@@ -299,7 +299,7 @@ std::size_t IndexOf(const std::vector<std::string>& calls, const std::string& ca
   return it == calls.end() ? calls.size() : static_cast<std::size_t>(it - calls.begin());
 }
 
-TEST_F(PickTaskTest, TheNextBinIsScannedWhileATargetIsDetectedAndDetectedWhileItIsPicked) {
+TEST_F(PickTaskTest, TheNextBinIsScannedAfterATargetIsDetectedAndDetectedWhileItIsPicked) {
   ScriptedCell cell;
   const PickTaskResult result = Run(cell);
   EXPECT_EQ(result.items_moved, 3);
@@ -307,10 +307,11 @@ TEST_F(PickTaskTest, TheNextBinIsScannedWhileATargetIsDetectedAndDetectedWhileIt
   EXPECT_EQ(std::count_if(cell.calls.begin(), cell.calls.end(),
                           [](const std::string& c) { return c.rfind("move scan/", 0) == 0; }),
             9);
-  // bin_B's views are taken after bin_A's detection began and before bin_A's pick is
-  // planned; bin_B's detection is started before that pick too.
+  // bin_B's views are taken after bin_A's detection and before bin_A's pick is planned;
+  // bin_B's detection is started before that pick too.
   const auto& c = cell.calls;
-  EXPECT_LT(IndexOf(c, "move scan/bin_A/2"), IndexOf(c, "move scan/bin_B/0"));
+  EXPECT_LT(IndexOf(c, "detect kleenex_tissue_box"), IndexOf(c, "move scan/bin_B/0"));
+  EXPECT_LT(IndexOf(c, "detect rawlings_baseball"), IndexOf(c, "plan kleenex_tissue_box"));
   EXPECT_LT(IndexOf(c, "move scan/bin_B/2"), IndexOf(c, "plan kleenex_tissue_box"));
   EXPECT_LT(IndexOf(c, "plan kleenex_tissue_box"), IndexOf(c, "plan rawlings_baseball"));
   EXPECT_LT(IndexOf(c, "move scan/bin_C/2"), IndexOf(c, "plan rawlings_baseball"));
