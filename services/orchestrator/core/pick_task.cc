@@ -225,15 +225,16 @@ double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3
 }
 
 std::string ResolveAgainstOthers(const std::string& item, Detection* found,
-                                 const apc::Catalogue& catalogue, double min_overlap,
-                                 double margin) {
+                                 const apc::Catalogue& catalogue, double min_overlap, double margin,
+                                 std::vector<std::string>* rivals) {
   auto size = [&](const std::string& name) {
     const apc::Item& it = catalogue.at(name);
     return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
   };
   const Eigen::Vector3d size_item = size(item);
-  // Why `pose` of the target is doubtful, or "".
-  auto doubt = [&](const PoseHypothesis& pose) -> std::string {
+  // Why `pose` of the target is doubtful, or ""; the items that fill its place into `who`.
+  auto doubt = [&](const PoseHypothesis& pose, std::vector<std::string>* who) -> std::string {
+    std::string why;
     for (const OtherDetection& other : found->others) {
       if (other.item == item || other.poses.empty()) continue;
       const PoseHypothesis& best = other.poses.front();
@@ -245,23 +246,26 @@ std::string ResolveAgainstOthers(const std::string& item, Detection* found,
       // doubt: two cylinders or two flat boxes fit each other's places both ways round, and
       // a wrong item in the tote costs more than a target left for later.)
       if (overlap < min_overlap) continue;
+      if (who) who->push_back(other.item);
+      if (!why.empty()) continue;
       char text[300];
       std::snprintf(text, sizeof(text),
                     "the place %s was found at holds %s as well (score %.2f against %.2f, %.0f%% "
                     "of the smaller box shared): one of the two poses is wrong",
                     item.c_str(), other.item.c_str(), best.score, pose.score, 100.0 * overlap);
-      return text;
+      why = text;
     }
-    return "";
+    return why;
   };
   std::vector<PoseHypothesis> poses = {{found->X_BaseItem, found->score}};
   poses.insert(poses.end(), found->alternatives.begin(), found->alternatives.end());
   std::string first_doubt;
-  for (const PoseHypothesis& pose : poses) {
-    const std::string why = doubt(pose);
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const std::string why = doubt(poses[k], k == 0 ? rivals : nullptr);
     if (why.empty()) {
-      found->X_BaseItem = pose.X_BaseItem;
-      found->score = pose.score;
+      found->X_BaseItem = poses[k].X_BaseItem;
+      found->score = poses[k].score;
+      if (rivals) rivals->clear();
       return "";
     }
     if (first_doubt.empty()) first_doubt = why;
@@ -519,12 +523,19 @@ bool PickTaskRunner::FinishDetect(Target& target, TargetReport& report, PendingD
   for (const OtherDetection& other : found.others) {
     for (const PoseHypothesis& pose : other.poses) report.poses_found.push_back({other.item, pose});
   }
-  if (const std::string other = ResolveAgainstOthers(
-          target.item, &found, catalogue_, options_.confusion_overlap, options_.confusion_margin);
+  std::vector<std::string> rivals;
+  if (const std::string other =
+          ResolveAgainstOthers(target.item, &found, catalogue_, options_.confusion_overlap,
+                               options_.confusion_margin, &rivals);
       !other.empty()) {
-    target.last_failure = "not taken: " + other;
-    Emit(&target, Step::kDetect, false, target.last_failure);
-    return false;
+    if (!(task_.kind == apc::TaskKind::kStow && options_.verify_on_table) || rivals.empty()) {
+      target.last_failure = "not taken: " + other;
+      Emit(&target, Step::kDetect, false, target.last_failure);
+      return false;
+    }
+    // Whichever it is, it is one of the tote's items: the table will tell.
+    rivals_ = rivals;
+    Emit(&target, Step::kDetect, true, other + "; taken to the table to be told apart");
   }
   report.detected = true;
   report.method = found.method;
@@ -612,6 +623,7 @@ PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetRepor
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
+  if (!rivals_.empty()) return SetDownAndIdentify(target, report, plan);
   const std::string wrong = options_.verify_after_lift ? LookBack(target, report, plan) : "";
   if (!wrong.empty()) {
     const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
@@ -620,10 +632,16 @@ PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetRepor
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
   }
+  return PlaceHeld(target, report, plan, Destinations(target));
+}
+
+PickTaskRunner::Attempt PickTaskRunner::PlaceHeld(Target& target, TargetReport& report,
+                                                  const PlannedPick& plan,
+                                                  const std::vector<std::string>& destinations) {
   journal_.Append("begin", Key(target, "place"), clock_s_);
   PlaceOutcome placed{false, "no bin has room for it", 0.0, 0.0};
   std::string to;
-  for (const std::string& destination : Destinations(target)) {
+  for (const std::string& destination : destinations) {
     Emit(&target, Step::kPlace, true, "carrying to " + destination);
     const auto start = Clock::now();
     placed = WithRetries("place", [&] {
@@ -664,6 +682,178 @@ PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetRepor
   report.placed_in = to;
   RecordPlaced(target, to, placed.drop_height_m);
   return Attempt::kPicked;
+}
+
+namespace {
+
+constexpr const char* kTableLocation = "table";
+
+std::string Joined(const std::vector<std::string>& parts, const std::string& between) {
+  std::string out;
+  for (const std::string& part : parts) out += (out.empty() ? "" : between) + part;
+  return out;
+}
+
+}  // namespace
+
+Target* PickTaskRunner::TargetFor(const std::string& item, const std::string& container) {
+  for (Target& t : order_) {
+    if (t.item == item && t.bin == container && !t.done && !t.given_up) return &t;
+  }
+  return nullptr;
+}
+
+PickTaskRunner::Attempt PickTaskRunner::SetDownAndIdentify(Target& target, TargetReport& report,
+                                                           const PlannedPick& plan) {
+  std::vector<std::string> candidates = {target.item};
+  candidates.insert(candidates.end(), rivals_.begin(), rivals_.end());
+  Emit(&target, Step::kPlace, true, "setting it down on the table: " + Joined(candidates, " or "));
+  journal_.Append("begin", Key(target, "table"), clock_s_, {{"candidates", candidates}});
+  const auto start = Clock::now();
+  const PlaceOutcome placed =
+      WithRetries("place", [&] { return cell_.MoveToPlace(target.item, kTableLocation, plan, 0); });
+  AddTime(report, "place", placed.ok ? placed.robot_s : Seconds(start));
+  if (!placed.ok) {
+    if (placed.item_lost) {
+      target.last_failure = "to the table: " + placed.message + "; the item was let go there";
+    } else {
+      const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
+      AddTime(report, "place", back.robot_s);
+      target.last_failure = "to the table: " + placed.message + (back.ok ? "; put back" : "");
+      if (back.ok) {
+        journal_.Append("failed", Key(target, "table"), clock_s_,
+                        {{"reason", target.last_failure}});
+        return Attempt::kFailed;
+      }
+    }
+    journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kLostCarried;
+  }
+  const SealReading over_table = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+  cell_.VacuumOff();
+  if (!over_table.attached) {
+    target.last_failure = "dropped on the way to the table";
+    journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kLostCarried;
+  }
+  journal_.Append("done", Key(target, "table"), clock_s_, {{"candidates", candidates}});
+  return IdentifyAndStow(target, report, candidates);
+}
+
+std::string PickTaskRunner::IdentifyInView(const std::vector<std::string>& candidates,
+                                           const ScanView& view, Detection* found,
+                                           std::string* why) {
+  const std::vector<std::string> others(candidates.begin() + 1, candidates.end());
+  *found = WithRetries(
+      "detect", [&] { return cell_.Detect(kTableLocation, candidates.front(), {view}, others); });
+  // The best pose of each candidate the view shows, best first.
+  std::vector<std::pair<double, std::string>> seen;
+  if (found->found) seen.emplace_back(found->score, candidates.front());
+  for (const OtherDetection& other : found->others) {
+    if (!other.poses.empty()) seen.emplace_back(other.poses.front().score, other.item);
+  }
+  std::sort(seen.begin(), seen.end(), std::greater<>());
+  if (seen.empty()) {
+    *why = "none of " + Joined(candidates, ", ") + " is seen there";
+    return "";
+  }
+  // The pose to pick it up by: the best candidate's.
+  if (seen.front().second != candidates.front()) {
+    for (const OtherDetection& other : found->others) {
+      if (other.item != seen.front().second) continue;
+      found->X_BaseItem = other.poses.front().X_BaseItem;
+      found->score = other.poses.front().score;
+      found->found = true;
+    }
+  }
+  if (seen.size() > 1 && seen[0].first < seen[1].first + options_.table_identity_margin) {
+    char text[200];
+    std::snprintf(text, sizeof(text), "%s and %s score alike there (%.2f, %.2f)",
+                  seen[0].second.c_str(), seen[1].second.c_str(), seen[0].first, seen[1].first);
+    *why = text;
+    return "";
+  }
+  return seen.front().second;
+}
+
+std::string PickTaskRunner::TakeFromTable(Target& target, TargetReport& report,
+                                          const std::string& item, const Detection& found,
+                                          const ScanView& view, PlannedPick* plan) {
+  *plan = WithRetries(
+      "plan", [&] { return cell_.PlanPick(kTableLocation, item, found.X_BaseItem, {view}); });
+  if (!plan->ok) return "no plan from the table: " + plan->message;
+  const StepOutcome approached =
+      WithRetries("approach", [&] { return cell_.ExecuteApproach(*plan); });
+  AddTime(report, "grasp", approached.robot_s);
+  if (!approached.ok) return "approach to the table: " + approached.message;
+  const TouchOutcome touched = WithRetries("touch", [&] { return cell_.Touch(*plan); });
+  AddTime(report, "grasp", touched.robot_s);
+  const SealReading seal = touched.refused.empty()
+                               ? WithRetries("vacuum", [&] { return cell_.VacuumOn(); })
+                               : SealReading{false, 0.0};
+  const StepOutcome lifted = WithRetries("retreat", [&] { return cell_.ExecuteRetreat(*plan); });
+  AddTime(report, "grasp", lifted.robot_s);
+  const bool held = seal.attached && lifted.ok &&
+                    WithRetries("gripper", [&] { return cell_.ReadSeal(); }).attached;
+  if (held) return "";
+  cell_.VacuumOff();
+  return !touched.refused.empty() ? "touch on the table: " + touched.refused
+         : !lifted.ok             ? "lift from the table: " + lifted.message
+                                  : "no seal on the table";
+}
+
+PickTaskRunner::Attempt PickTaskRunner::IdentifyAndStow(
+    Target& target, TargetReport& report, const std::vector<std::string>& candidates) {
+  auto left_on_table = [&](const std::string& why) {
+    target.last_failure = "on the table: " + why + "; left there";
+    journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kLostCarried;
+  };
+  const StepOutcome moved =
+      WithRetries("move", [&] { return cell_.MoveToNamed(options_.verify_pose); });
+  AddTime(report, "verify", moved.robot_s);
+  if (!moved.ok)
+    return left_on_table("cannot reach " + options_.verify_pose + ": " + moved.message);
+  const auto scan_start = Clock::now();
+  const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
+  AddTime(report, "verify", std::max(view.capture_s, Seconds(scan_start)));
+  const auto detect_start = Clock::now();
+  Detection found;
+  std::string why;
+  const std::string identity = IdentifyInView(candidates, view, &found, &why);
+  AddTime(report, "verify", Seconds(detect_start));
+  if (!found.found) return left_on_table(why);
+  Emit(&target, Step::kVerify, !identity.empty(),
+       identity.empty() ? "on the table: " + why : "on the table it is " + identity);
+  PlannedPick plan;
+  const std::string as = identity.empty() ? candidates.front() : identity;
+  if (const std::string failed = TakeFromTable(target, report, as, found, view, &plan);
+      !failed.empty()) {
+    return left_on_table(failed);
+  }
+  Target* who = identity.empty() ? nullptr : TargetFor(identity, target.bin);
+  if (!who) {
+    // Not told apart: back where it came from, which the contents still say.
+    const PlaceOutcome back = WithRetries(
+        "place", [&] { return cell_.MoveToPlace(as, target.bin, plan, PlacedIn(target.bin)); });
+    AddTime(report, "place", back.robot_s);
+    cell_.VacuumOff();
+    if (!back.ok) return left_on_table("no way back to the " + target.bin + ": " + back.message);
+    target.last_failure = "on the table: " + why + "; back in the " + target.bin;
+    journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
+    return Attempt::kFailed;
+  }
+  if (who == &target) return PlaceHeld(target, report, plan, Destinations(target));
+  // It was another of the tote's items: stowed as that one, this target tried again later.
+  ++who->attempts;
+  TargetReport& who_report = (*reports_)[static_cast<std::size_t>(who - order_.data())];
+  who_report.attempts = who->attempts;
+  const Attempt placed = PlaceHeld(*who, who_report, plan, Destinations(*who));
+  who->done = placed == Attempt::kPicked;
+  if (placed == Attempt::kLostCarried) RecordLost(*who, who->last_failure);
+  target.last_failure = "the item taken for " + target.item + " was " + identity +
+                        (who->done ? ", stowed as such" : ": " + who->last_failure);
+  return Attempt::kFailed;
 }
 
 PlannedPick PickTaskRunner::ReplanAtContact(Target& target, TargetReport& report,
@@ -751,6 +941,7 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
                                                   Target* next, TargetReport* next_report) {
   ++target.attempts;
   report.attempts = target.attempts;
+  rivals_.clear();
   journal_.Append("begin", Key(target, "scan"), clock_s_);
   std::vector<ScanView> views;
   PendingDetection detection;
@@ -790,6 +981,7 @@ PickTaskResult PickTaskRunner::Run() {
   ResumeFromJournal();
   std::vector<TargetReport> reports;
   for (const Target& t : order_) reports.push_back({t.item, t.bin, t.ease, t.attempts, t.done});
+  reports_ = &reports;
   try {
     FinishCarriedItem();
     for (std::size_t i = 0; i < order_.size(); ++i) reports[i].picked = order_[i].done;
@@ -810,7 +1002,11 @@ PickTaskResult PickTaskRunner::Run() {
                                     ? TryTarget(target, reports[i], nullptr, nullptr)
                                     : TryTarget(target, reports[i], &order_[next], &reports[next]);
         target.done = attempt == Attempt::kPicked;
-        reports[i].picked = target.done;
+        // (An attempt may also have moved another target's item: stowed as what it was.)
+        for (std::size_t k = 0; k < order_.size(); ++k) {
+          reports[k].picked = order_[k].done;
+          if (order_[k].done) reports[k].failure.clear();
+        }
         reports[i].failure = target.done ? "" : target.last_failure;
         if (attempt == Attempt::kLostCarried) {
           journal_.Append("lost", Key(target, "place"), clock_s_,
@@ -842,6 +1038,7 @@ PickTaskResult PickTaskRunner::Run() {
   result.items_moved = done_;
   result.items_failed = static_cast<int>(order_.size()) - done_;
   result.duration_s = clock_s_;
+  reports_ = nullptr;
   return result;
 }
 

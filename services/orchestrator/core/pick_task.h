@@ -109,6 +109,14 @@ struct PickTaskOptions {
   /// picks the first. The arm waits only for what detection takes beyond the robot time of
   /// the motions it overlaps.
   bool detect_ahead = true;
+  /// Stow: an item whose every pose another tote item fills about as well (see
+  /// detect_others) is taken anyway, set down on the table and looked at there alone from
+  /// `verify_pose`; it is stowed as the candidate that view shows best, by at least
+  /// `table_identity_margin` of the detection score, or put back into the tote when the view
+  /// cannot tell. Off: such an item is not taken.
+  bool verify_on_table = true;
+  std::string verify_pose = "verify";
+  double table_identity_margin = 0.05;
 };
 
 /// What happened to one target.
@@ -196,6 +204,27 @@ class PickTaskRunner final {
   /// Vacuum on, the retreat, the look back and the place, once the cup is on the item.
   Attempt HoldAndPlace(Target& target, TargetReport& report, const PlannedPick& plan,
                        const TouchOutcome& touched);
+  /// Stow, an item in doubt (rivals_): set down on the table, identified there and stowed
+  /// as what it is (or put back into the tote).
+  Attempt SetDownAndIdentify(Target& target, TargetReport& report, const PlannedPick& plan);
+  /// The item on the table, seen from the verification pose, picked up again and stowed as
+  /// the candidate it shows (the first of `candidates` is the one it was taken for).
+  Attempt IdentifyAndStow(Target& target, TargetReport& report,
+                          const std::vector<std::string>& candidates);
+  /// Which of `candidates` the view shows: "" when none, or none clearly ahead; `found` is
+  /// its detection.
+  std::string IdentifyInView(const std::vector<std::string>& candidates, const ScanView& view,
+                             Detection* found, std::string* why);
+  /// Plans and takes `item` (found in `view`) from the table: "" once it is held, else why
+  /// not (the vacuum let go).
+  std::string TakeFromTable(Target& target, TargetReport& report, const std::string& item,
+                            const Detection& found, const ScanView& view, PlannedPick* plan);
+  /// The held item released into the first of `to` a place can be planned into (the
+  /// attempt's journal keys are `target`'s; the contents and the score move `target.item`).
+  Attempt PlaceHeld(Target& target, TargetReport& report, const PlannedPick& plan,
+                    const std::vector<std::string>& to);
+  /// The target of this task that `item` in `container` stands for (not yet done), or null.
+  Target* TargetFor(const std::string& item, const std::string& container);
   /// The look back after the lift: "" when the held item may be the target (or the view
   /// cannot tell), else why it is not.
   std::string LookBack(Target& target, TargetReport& report, const PlannedPick& plan);
@@ -240,6 +269,10 @@ class PickTaskRunner final {
   std::uint64_t next_event_ = 0;
   std::string carried_key_;  ///< Journal key prefix of an attempt holding an item at resume.
   std::optional<Ahead> ahead_;
+  /// This attempt's target in doubt (stow, verify_on_table): the items its place may hold
+  /// instead, empty when it is not in doubt.
+  std::vector<std::string> rivals_;
+  std::vector<TargetReport>* reports_ = nullptr;  ///< Run()'s, one per order_ entry.
 };
 
 /// The rules' score of what the orchestrator believes happened, with `output` as reported.
@@ -261,9 +294,11 @@ double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3
 /// less `margin`. The first pose of the target, best first, that is not doubtful is kept in `found`
 /// (its pose and score); "" is returned. When every pose is doubtful, the reason, naming the
 /// other item, for the best one.
+/// `rivals` (may be null), when every pose is doubtful: the items that fill the best pose's
+/// place, in the detection's order.
 std::string ResolveAgainstOthers(const std::string& item, Detection* found,
-                                 const apc::Catalogue& catalogue, double min_overlap,
-                                 double margin);
+                                 const apc::Catalogue& catalogue, double min_overlap, double margin,
+                                 std::vector<std::string>* rivals = nullptr);
 
 /// Stow: the bins an item may go to, best first. A bin is a candidate while its items (their
 /// catalogue volumes, the new one included) fill at most `max_fill` of its volume; candidates

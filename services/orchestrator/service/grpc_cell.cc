@@ -277,6 +277,13 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
     const Eigen::AlignedBox3d inner = options_.cell.tote_inner_T();
     X_BaseRegion = options_.cell.config.X_BaseTote * Eigen::Translation3d(inner.center());
     size_m = inner.sizes();
+  } else if (container == "table") {
+    // The space over the table's top, as high as an item set down on it stands.
+    constexpr double kHeightM = 0.3;
+    X_BaseRegion =
+        options_.cell.config.X_BaseTable * Eigen::Translation3d(0.0, 0.0, 0.5 * kHeightM);
+    size_m = Eigen::Vector3d(options_.cell.config.table_size_m.x(),
+                             options_.cell.config.table_size_m.y(), kHeightM);
   } else {
     const world::BinGeometry& bin = options_.cell.bin(container);
     X_BaseRegion = options_.cell.config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center());

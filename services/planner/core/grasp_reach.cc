@@ -18,7 +18,7 @@ std::string Fixed(double v, int digits) {
 std::string FaceName(const GraspContainer& container, int axis, int open_axis,
                      const Eigen::Vector3d& normal_Base) {
   if (axis == open_axis) {
-    return container.kind == GraspContainerKind::kTote ? "floor" : "back wall";
+    return container.kind == GraspContainerKind::kOpenTop ? "floor" : "back wall";
   }
   if (std::abs(normal_Base.z()) > 0.7) return normal_Base.z() > 0.0 ? "ceiling" : "floor";
   return "side wall";
@@ -136,7 +136,7 @@ TubeReachResult CheckTubeReach(const GraspContainer& container, const GraspCandi
     return result;
   }
   result.reaches = false;
-  const bool tote = container.kind == GraspContainerKind::kTote;
+  const bool tote = container.kind == GraspContainerKind::kOpenTop;
   const std::string size_word = result.wall == "ceiling" || result.wall == "floor" ? "high"
                                 : result.wall == "back wall"                       ? "deep"
                                                                                    : "wide";

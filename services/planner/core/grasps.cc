@@ -526,11 +526,27 @@ GraspContainer ToteContainer(const world::CellModel& cell, double wall_m) {
   }
   GraspContainer container;
   container.name = "tote";
-  container.kind = GraspContainerKind::kTote;
+  container.kind = GraspContainerKind::kOpenTop;
   container.X_BaseContainer = cell.config.X_BaseTote * Eigen::Translation3d(inner.center());
   container.inner_size_m = inner.sizes();
   container.opening_direction_Base =
       (cell.config.X_BaseTote.linear() * Eigen::Vector3d::UnitZ()).normalized();
+  return container;
+}
+
+GraspContainer TableContainer(const world::CellModel& cell, double height_m) {
+  const Eigen::Vector3d size = cell.config.table_size_m;
+  if (!(height_m > 0.0) || !std::isfinite(height_m) || !(size.head<2>().minCoeff() > 0.0)) {
+    throw std::invalid_argument("TableContainer: height_m and the table's top must be > 0");
+  }
+  GraspContainer container;
+  container.name = "table";
+  container.kind = GraspContainerKind::kOpenTop;
+  container.X_BaseContainer =
+      cell.config.X_BaseTable * Eigen::Translation3d(0.0, 0.0, 0.5 * height_m);
+  container.inner_size_m = Eigen::Vector3d(size.x(), size.y(), height_m);
+  container.opening_direction_Base =
+      (cell.config.X_BaseTable.linear() * Eigen::Vector3d::UnitZ()).normalized();
   return container;
 }
 
@@ -686,8 +702,8 @@ std::string NoGraspReason(const GraspTable& table, const std::string& item, std:
         << Fixed(max_angle / kDeg, 1)
         << " deg from the opening direction (the item shows no listed surface toward the "
            "opening): re-detect or turn the item, allow a larger "
-        << (container.kind == GraspContainerKind::kTote ? "max_tote_approach_angle_rad"
-                                                        : "max_approach_angle_rad")
+        << (container.kind == GraspContainerKind::kOpenTop ? "max_tote_approach_angle_rad"
+                                                           : "max_approach_angle_rad")
         << " (max_tilt_rad cannot pass the cup's seal tolerance, "
         << Fixed(kSealAngleToleranceRad / kDeg, 0) << " deg), or add points in the grasp table '"
         << table.source() << "';";
@@ -717,7 +733,7 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
   result.container = container.name;
 
   const Eigen::Vector3d& opening = container.opening_direction_Base;
-  const double max_angle = container.kind == GraspContainerKind::kTote
+  const double max_angle = container.kind == GraspContainerKind::kOpenTop
                                ? options.max_tote_approach_angle_rad
                                : options.max_approach_angle_rad;
   const Eigen::Isometry3d X_ContainerBase = container.X_BaseContainer.inverse();

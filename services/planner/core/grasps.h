@@ -125,12 +125,14 @@ std::vector<SuctionPoint> DefaultSuctionPoints(const Eigen::Vector3d& size_m,
 /// What the item sits in, in the base frame (metres).
 enum class GraspContainerKind {
   kShelfBin,  ///< Approaches must come through the opening (max_approach_angle_rad).
-  kTote,      ///< Approaches must be near vertical (max_tote_approach_angle_rad).
+  /// Open from above, the tote or the table: approaches must be near vertical
+  /// (max_tote_approach_angle_rad) and lifts go straight up.
+  kOpenTop,
 };
 
-/// The inner volume of a shelf bin or the tote.
+/// The inner volume of a shelf bin, the tote or the space over the table.
 struct GraspContainer {
-  std::string name;  ///< "bin_A".."bin_L", "tote"; used in messages.
+  std::string name;  ///< "bin_A".."bin_L", "tote", "table"; used in messages.
   GraspContainerKind kind = GraspContainerKind::kShelfBin;
   /// Pose of the inner box's centre (axes along its sides) in the base frame.
   Eigen::Isometry3d X_BaseContainer = Eigen::Isometry3d::Identity();
@@ -149,6 +151,10 @@ GraspContainer ShelfBinContainer(const world::CellModel& cell, const std::string
 /// The tote of `cell`: its mesh bounds in the tote frame less `wall_m` on the four sides, from
 /// the floor to the rim, opening along +z of the tote frame.
 GraspContainer ToteContainer(const world::CellModel& cell, double wall_m = 0.015);
+
+/// The space over the verification table of `cell`: its top (the container's floor) by
+/// `height_m`, open upward. Items are put down on it to be looked at alone and picked again.
+GraspContainer TableContainer(const world::CellModel& cell, double height_m = 0.3);
 
 /// Free distance (metres, in [0, max_m]) from `p_Base` along the unit `direction_Base`, e.g. an
 /// obstacle query of the planner's collision world (which should ignore the item being taken).

@@ -298,11 +298,12 @@ std::shared_ptr<const MotionPlanner::Head> MotionPlanner::HeadAt(double angle_ra
 
 GraspContainer MotionPlanner::Container(const std::string& name) const {
   if (name == "tote") return ToteContainer(cell_->cell());
+  if (name == "table") return TableContainer(cell_->cell());
   for (const auto& bin : cell_->cell().bins) {
     if (bin.name == name) return ShelfBinContainer(cell_->cell(), name);
   }
   throw NotFoundError("unknown container '" + name.substr(0, 40) +
-                      "': expected bin_A..bin_L or tote");
+                      "': expected bin_A..bin_L, tote or table");
 }
 
 void MotionPlanner::ValidateStart(const JointVector& start_rad) const {
@@ -614,7 +615,7 @@ std::optional<Eigen::Isometry3d> MotionPlanner::PreGraspPose(const GraspContaine
                                                              const GraspCandidate& grasp,
                                                              double hover_m, bool bent,
                                                              std::string* reason) const {
-  const bool tote = container.kind == GraspContainerKind::kTote;
+  const bool tote = container.kind == GraspContainerKind::kOpenTop;
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d a = grasp.approach_Base;
   const Eigen::Vector3d o = container.opening_direction_Base;
@@ -830,7 +831,7 @@ bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCand
   failure->grasp = grasp.surface;
   failure->body = BodyName(kBodyTool);
   failure->obstacle = "shelf";
-  if (container.kind == GraspContainerKind::kTote) failure->obstacle = "tote";
+  if (container.kind == GraspContainerKind::kOpenTop) failure->obstacle = container.name;
   failure->message = "descend for grasp '" + grasp.surface + "': " + reach.message;
   return false;
 }
@@ -1117,7 +1118,7 @@ bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspC
   // Each lift in turn, with the retreat out of the container from where it ends: the first
   // pair that works. The failure kept is the straight lift's (or its retreat's), with the
   // furthest slide's reason added.
-  const bool tote = container.kind == GraspContainerKind::kTote;
+  const bool tote = container.kind == GraspContainerKind::kOpenTop;
   const bool bent = checks.fast.robot().gripper().bent();
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
@@ -1218,7 +1219,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const FastChecker& fast = checks.fast;
   const MotionChecker& motion = checks.motion;
   const GraspContainer container = Container(request.container);
-  const bool tote = container.kind == GraspContainerKind::kTote;
+  const bool tote = container.kind == GraspContainerKind::kOpenTop;
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d a = grasp.approach_Base;
   auto translated = [](const Eigen::Isometry3d& X, const Eigen::Vector3d& d) {
@@ -1541,18 +1542,24 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
   std::vector<PlanFailure> failures;
   // Release over the tote (item 5 cm above the rim), or just inside a bin's opening.
   std::vector<Eigen::Isometry3d> candidates;
-  if (container.kind == GraspContainerKind::kTote) {
+  if (container.kind == GraspContainerKind::kOpenTop) {
     // The item's spot first (items let go one over the other stand and stack up above the
     // rim), then the others in turn, should the arm not reach it.
     const Eigen::Vector3d x = container.X_BaseContainer.linear().col(0);
     const Eigen::Vector3d y = container.X_BaseContainer.linear().col(1);
     const double half_footprint_m = HalfFootprint(model->box_I, request.X_TcpItem);
-    const std::vector<Eigen::Vector2d> spots =
+    std::vector<Eigen::Vector2d> spots =
         ToteReleaseSpots(container.inner_size_m.head<2>(), half_footprint_m);
+    // Over the tote an item is let go 5 cm above the rim; on the table it is set down (2 cm
+    // above the top), in the middle, where the verification view looks.
+    const bool table = container.name == "table";
+    const double release_z = table ? floor_z + 0.02 : rim_z + 0.05;
+    if (table) spots.insert(spots.begin(), Eigen::Vector2d::Zero());
     for (std::size_t k = 0; k < spots.size(); ++k) {
-      const Eigen::Vector2d& spot = spots[(request.placed_before + k) % spots.size()];
+      const std::size_t first = table ? 0 : static_cast<std::size_t>(request.placed_before);
+      const Eigen::Vector2d& spot = spots[(first + k) % spots.size()];
       candidates.push_back(DownAt(centre + spot.x() * x + spot.y() * y +
-                                  Eigen::Vector3d(0, 0, rim_z - centre.z() + 0.05 + below_m)));
+                                  Eigen::Vector3d(0, 0, release_z - centre.z() + below_m)));
     }
   } else {
     // The cup points into the bin (horizontal); the item hanging from it is let go in the

@@ -87,7 +87,7 @@ void ExpectConsistent(const GraspResult& result, const std::string& item,
                       const Eigen::Isometry3d& X_BaseItem, const GraspContainer& container,
                       const GraspOptions& options = {}) {
   const ItemGrasps& grasps = F().table.at(item);
-  const double max_angle = container.kind == GraspContainerKind::kTote
+  const double max_angle = container.kind == GraspContainerKind::kOpenTop
                                ? options.max_tote_approach_angle_rad
                                : options.max_approach_angle_rad;
   for (std::size_t i = 0; i < result.candidates.size(); ++i) {
@@ -468,7 +468,7 @@ TEST(ComputeGraspsTest, ContainersOfTheCell) {
   EXPECT_GT(bin.inner_size_m.minCoeff(), 0.2);
   EXPECT_THROW(ShelfBinContainer(f.cell, "bin_Z"), std::invalid_argument);
   const GraspContainer tote = ToteContainer(f.cell);
-  EXPECT_EQ(tote.kind, GraspContainerKind::kTote);
+  EXPECT_EQ(tote.kind, GraspContainerKind::kOpenTop);
   EXPECT_LT((tote.opening_direction_Base - Eigen::Vector3d::UnitZ()).norm(), 1e-9);
   EXPECT_GT(tote.inner_size_m.x(), 0.3);
   EXPECT_THROW(ToteContainer(f.cell, -0.01), std::invalid_argument);

@@ -328,6 +328,69 @@ TEST_F(MotionPlannerTest, ATopFaceDeepInABinTakesTheHeadBent) {
   ExpectWithinLimits(placed.trajectory, model);
 }
 
+// The stow's verification: an item taken from a bin is set down on the table (not dropped),
+// and picked from the table again with a vertical lift.
+TEST_F(MotionPlannerTest, AnItemIsSetDownOnTheTableAndPickedFromItAgain) {
+  const std::string item = "kleenex_tissue_box";
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", item);
+  const PlanningScene bin_scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, item, X_BaseItem);
+  PickRequest pick;
+  pick.item = item;
+  pick.X_BaseItem = X_BaseItem;
+  pick.container = "bin_E";
+  pick.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan from_bin = planner_->PlanPick(pick, &bin_scene, Far());
+
+  PlaceRequest place;
+  place.item = item;
+  place.container = "table";
+  place.start_rad = from_bin.retreat.samples.back().q_rad;
+  place.X_TcpItem = from_bin.grasp.X_BaseTcp.inverse() * X_BaseItem;
+  const PlacePlan placed = planner_->PlanPlace(place, Far());
+  const auto& model = planner_->robot().kinematics().model();
+  ExpectWithinLimits(placed.trajectory, model);
+  EXPECT_NEAR(placed.drop_height_m, 0.02, 1e-6);  // set down, not dropped
+  const auto& config = planner_->cell().cell().config;
+  const Eigen::Vector3d p_TableRelease =
+      config.X_BaseTable.inverse() * placed.X_BaseTcp_release.translation();
+  EXPECT_LT(p_TableRelease.head<2>().norm(), 1e-6);  // over the middle of the top
+
+  // Where it lands: the released pose lowered by the drop. A scan of it and the table's top.
+  Eigen::Isometry3d X_BaseOnTable = placed.X_BaseTcp_release * place.X_TcpItem;
+  X_BaseOnTable.translation().z() -= placed.drop_height_m;
+  const Eigen::Vector3d half = 0.5 * items_->Get(item)->box_I.sizes();
+  std::vector<float> cloud;
+  auto add = [&cloud](const Eigen::Vector3d& p) {
+    cloud.insert(cloud.end(), {float(p.x()), float(p.y()), float(p.z())});
+  };
+  for (double x = -half.x(); x <= half.x(); x += 0.004) {
+    for (double y = -half.y(); y <= half.y(); y += 0.004) {
+      for (double z : {-half.z(), half.z()}) add(X_BaseOnTable * Eigen::Vector3d(x, y, z));
+    }
+  }
+  for (double x = -0.3; x <= 0.3; x += 0.005) {
+    for (double y = -0.3; y <= 0.3; y += 0.005) add(config.X_BaseTable * Eigen::Vector3d(x, y, 0));
+  }
+  const PlanningScene table_scene =
+      planner_->BuildScene("table", cloud.data(), cloud.size() / 3, item, X_BaseOnTable);
+  PickRequest again = pick;
+  again.container = "table";
+  again.X_BaseItem = X_BaseOnTable;
+  again.start_rad = Named("verify").q_rad;
+  const PickPlan from_table = planner_->PlanPick(again, &table_scene, Far());
+  ExpectWithinLimits(from_table.descend, model);
+  ExpectWithinLimits(from_table.retreat, model);
+  // Down onto its top, then straight up.
+  EXPECT_LT(from_table.guarded_direction_Base.z(), -0.95);
+  const auto& robot = planner_->robot();
+  const Eigen::Vector3d p_grasp = from_table.grasp.X_BaseTcp.translation();
+  const Eigen::Vector3d p_lifted =
+      robot.X_BaseTcp(from_table.retreat.samples.back().q_rad).translation();
+  EXPECT_GT(p_lifted.z() - p_grasp.z(), 0.1);
+  EXPECT_LT((p_lifted - p_grasp).head<2>().norm(), 0.02);
+}
+
 // A roll of paper towels lying lengthwise in a bin, grasped on its end: drawn straight back
 // by the full exit clearance (its 30 cm behind the cup and 25 cm more), the arm would leave
 // its reach; it is drawn just out of the opening instead and the roadmap carries it on to
