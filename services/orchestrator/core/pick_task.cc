@@ -420,11 +420,33 @@ void PickTaskRunner::ResumeFromJournal() {
       if (has("begin", Key(target, "grasp")) && !has("failed", Key(target, "grasp"))) {
         carried_key_ = Key(target, "");
       }
+      // Set down on the table and not yet told apart: the cup no longer holds it.
+      if (const auto table = actions.find({"done", Key(target, "table")});
+          table != actions.end() && !has("failed", Key(target, "table"))) {
+        if (carried_key_ == Key(target, "")) carried_key_.clear();
+        table_key_ = Key(target, "");
+        table_candidates_ =
+            table->second->data.value("candidates", std::vector<std::string>{target.item});
+      }
       if (!has("begin", Key(target, "scan"))) {
         target.attempts = attempt - 1;
         break;
       }
     }
+  }
+}
+
+// At resume an item of an interrupted stow attempt may lie on the table: it is told apart
+// and stowed (or put back) as that attempt would have.
+void PickTaskRunner::FinishItemOnTable() {
+  if (table_key_.empty()) return;
+  for (std::size_t i = 0; i < order_.size(); ++i) {
+    Target& target = order_[i];
+    if (target.done || Key(target, "") != table_key_) continue;
+    const Attempt attempt = IdentifyAndStow(target, (*reports_)[i], table_candidates_);
+    target.done = attempt == Attempt::kPicked;
+    if (attempt == Attempt::kLostCarried) RecordLost(target, target.last_failure);
+    return;
   }
 }
 
@@ -853,6 +875,7 @@ PickTaskRunner::Attempt PickTaskRunner::IdentifyAndStow(
   if (placed == Attempt::kLostCarried) RecordLost(*who, who->last_failure);
   target.last_failure = "the item taken for " + target.item + " was " + identity +
                         (who->done ? ", stowed as such" : ": " + who->last_failure);
+  journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
   return Attempt::kFailed;
 }
 
@@ -984,6 +1007,7 @@ PickTaskResult PickTaskRunner::Run() {
   reports_ = &reports;
   try {
     FinishCarriedItem();
+    FinishItemOnTable();
     for (std::size_t i = 0; i < order_.size(); ++i) reports[i].picked = order_[i].done;
     // Rounds over the targets: a failed one is retried after the others, up to max_attempts.
     for (int round = 0; round < options_.max_attempts; ++round) {

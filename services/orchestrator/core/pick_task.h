@@ -232,6 +232,7 @@ class PickTaskRunner final {
   std::string EarlyContact(const PlannedPick& plan, const TouchOutcome& touched) const;
   void ResumeFromJournal();
   void FinishCarriedItem();
+  void FinishItemOnTable();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
   /// A carried item let go on the way (the arm stopped, the seal gave, a put-back failed):
   /// it has left its container for somewhere outside the bins and the tote, as far as the
@@ -268,6 +269,8 @@ class PickTaskRunner final {
   int done_ = 0;
   std::uint64_t next_event_ = 0;
   std::string carried_key_;  ///< Journal key prefix of an attempt holding an item at resume.
+  std::string table_key_;    ///< ... of an attempt whose item lies on the table at resume.
+  std::vector<std::string> table_candidates_;  ///< What that item may be.
   std::optional<Ahead> ahead_;
   /// This attempt's target in doubt (stow, verify_on_table): the items its place may hold
   /// instead, empty when it is not in doubt.

@@ -65,9 +65,11 @@ class ScriptedCell final : public CellPort {
     return {"scan/" + c + "/0", "scan/" + c + "/1", "scan/" + c + "/2"};
   }
   std::vector<std::string> calls;  // "move <pose>", "detect <item>", "plan <item>", in order
+  std::set<std::string> crash_at;  // a move to one of these poses fails the task (once)
   StepOutcome MoveToNamed(const std::string& pose) override {
     std::lock_guard<std::mutex> lock(mu);
     calls.push_back("move " + pose);
+    if (crash_at.erase(pose)) throw CellError("robot", false, "the orchestrator's host died");
     return {true, "", 2.0};
   }
   ScanView Scan() override {
@@ -659,6 +661,30 @@ TEST_F(PickTaskTest, AStowItemTheTableCannotTellApartGoesBackIntoTheTote) {
   EXPECT_EQ(result.items_moved, 2);
   EXPECT_TRUE(result.final_contents.tote_contents.empty());
   EXPECT_EQ(result.targets[0].attempts, 2);
+}
+
+TEST_F(PickTaskTest, AResumedStowTellsApartTheItemItLeftOnTheTable) {
+  const apc::Task stow = TwoItemStow();
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
+  ScriptedCell cell;
+  cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";
+  cell.on_table_is = "kleenex_tissue_box";
+  cell.crash_at = {"verify"};  // the task ends with the item on the table
+  std::vector<Target> order;
+  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
+  {
+    Journal journal((dir_ / "journal.jsonl").string());
+    PickTaskRunner first(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
+    EXPECT_EQ(first.Run().state, TaskState::kFailed);
+  }
+  EXPECT_EQ(cell.destinations, std::vector<std::string>{"table"});
+  Journal journal((dir_ / "journal.jsonl").string());
+  PickTaskRunner resumed(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
+  const PickTaskResult result = resumed.Run();
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "look at the table"), 1);
+  EXPECT_EQ(result.items_moved, 2);
+  EXPECT_TRUE(result.final_contents.tote_contents.empty());
 }
 
 TEST_F(PickTaskTest, TheLookBackCatchesTheWrongItemOnTheCupAndPutsItBack) {
