@@ -16,8 +16,10 @@ int main(int argc, char** argv) {
       "preload=BOOL            build every model before serving (default false: on first use)",
       "max_points=N            largest cloud accepted, points (default 5000000)",
       "time_budget_scale=F     multiplies every item's time budget (default 1)",
-      "budget_clock=steady|frozen  clock of the items' time budgets (default steady; frozen: "
-      "budgets never run out, every method searches to its end, for tests)",
+      "budget_clock=thread_cpu|steady|frozen  clock of the items' time budgets (default "
+      "thread_cpu: the CPU time of the thread serving the call, so other work on the machine "
+      "slows a search down but does not cut it short; steady: wall time; frozen: budgets never "
+      "run out, every method searches to its end, for tests)",
       "camera.width|height|fx|fy|cx|cy=V  intrinsics for unorganised clouds "
       "(default 640x480, 525, 525, 319.5, 239.5)"};
   spec.build = picking::detector::BuildDetectorServices;

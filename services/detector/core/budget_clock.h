@@ -1,5 +1,8 @@
 #pragma once
 
+#include <pthread.h>
+#include <time.h>
+
 #include <chrono>
 #include <functional>
 #include <stdexcept>
@@ -40,6 +43,25 @@ class BudgetClock final {
   /// has.
   static BudgetClock Frozen(time_point at = time_point()) {
     return BudgetClock([at] { return at; });
+  }
+
+  /// The CPU time of `thread`, read from any thread of the process (the searches' workers
+  /// read the caller's): time passes only while that thread runs. The caller of a
+  /// ParallelFor works as its thread 0, so on a quiet machine this keeps the steady clock's
+  /// pace; on a busy one a budget is not spent while the thread waits for a core, and the
+  /// search is the one a quiet machine makes, only slower. `thread` must outlive the clock's
+  /// use. Throws std::runtime_error when the thread has no CPU clock.
+  static BudgetClock ThreadCpu(pthread_t thread) {
+    clockid_t id;
+    if (pthread_getcpuclockid(thread, &id) != 0) {
+      throw std::runtime_error("BudgetClock: the thread has no CPU-time clock");
+    }
+    return BudgetClock([id] {
+      timespec ts{};
+      clock_gettime(id, &ts);
+      return time_point(std::chrono::duration_cast<duration>(std::chrono::seconds(ts.tv_sec) +
+                                                             std::chrono::nanoseconds(ts.tv_nsec)));
+    });
   }
 
   time_point Now() const { return now_ ? now_() : std::chrono::steady_clock::now(); }

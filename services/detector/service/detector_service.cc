@@ -90,15 +90,27 @@ struct ServiceSettings {
   // The clock the items' time budgets are judged by: the steady one, or (budget_clock=frozen,
   // for tests) one standing still, so that every method searches as on a quiet machine.
   BudgetClock budget_clock;
+  // budget_clock=thread_cpu: each call's budgets by the CPU time of the thread serving it
+  // (BudgetClock::ThreadCpu), made per call.
+  bool per_call_thread_cpu = false;
+  BudgetClock ForThisCall() const {
+    return per_call_thread_cpu ? BudgetClock::ThreadCpu(pthread_self()) : budget_clock;
+  }
   PinholeCamera default_camera{640, 480, 525.0, 525.0, 319.5, 239.5};  // Unorganised clouds.
 };
 
 // The `budget_clock` setting. Throws std::invalid_argument for an unknown value.
-BudgetClock BudgetClockSetting(const std::string& value) {
-  if (value == "steady") return BudgetClock();
-  if (value == "frozen") return BudgetClock::Frozen();
-  throw std::invalid_argument("setting 'budget_clock' must be 'steady' or 'frozen', got '" + value +
-                              "'");
+void SetBudgetClock(const std::string& value, ServiceSettings* settings) {
+  settings->per_call_thread_cpu = value == "thread_cpu";
+  if (value == "steady" || value == "thread_cpu") {
+    settings->budget_clock = BudgetClock();
+  } else if (value == "frozen") {
+    settings->budget_clock = BudgetClock::Frozen();
+  } else {
+    throw std::invalid_argument(
+        "setting 'budget_clock' must be 'thread_cpu', 'steady' or 'frozen', got '" +
+        value.substr(0, 40) + "'");
+  }
 }
 
 // The call deadline on the steady clock (max when the call has none).
@@ -164,6 +176,8 @@ pb::MethodAttempt::Outcome ToProto(AttemptOutcome outcome) {
       return pb::MethodAttempt::OUTCOME_UNAVAILABLE;
     case AttemptOutcome::kNotStarted:
       return pb::MethodAttempt::OUTCOME_NOT_STARTED;
+    case AttemptOutcome::kTooLittleVisible:
+      return pb::MethodAttempt::OUTCOME_TOO_LITTLE_VISIBLE;
   }
   return pb::MethodAttempt::OUTCOME_UNSPECIFIED;
 }
@@ -185,6 +199,9 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_occluded_points(static_cast<std::uint32_t>(d.occluded_points));
   out->set_supported_points(static_cast<std::uint32_t>(d.supported_points));
   out->set_conflict_points(static_cast<std::uint32_t>(d.conflict_points));
+  out->set_unmeasured_points(static_cast<std::uint32_t>(d.unmeasured_points));
+  out->set_outline_continued_probes(static_cast<std::uint32_t>(d.outline_continued));
+  out->set_outline_edge_probes(static_cast<std::uint32_t>(d.outline_edge));
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
@@ -224,7 +241,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       response->set_points_received(received.points_received);
       // An item's time budget covers its share of the work on the received cloud: the first
       // item's includes the shared pre-processing.
-      Clock::time_point budget_start = settings_.budget_clock.Now();
+      const BudgetClock budget_clock = settings_.ForThisCall();
+      Clock::time_point budget_start = budget_clock.Now();
 
       SceneOptions scene_options;
       if (params.has_region()) {
@@ -254,7 +272,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
         pb::ItemResult* result = response->add_results();
         result->set_item(query.item());
         try {
-          DetectOne(query, scene, context, shared_preprocess_s, budget_start, result);
+          DetectOne(query, scene, context, shared_preprocess_s, budget_clock, budget_start, result);
         } catch (const TimeoutError&) {
           throw;
         } catch (...) {
@@ -263,7 +281,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           result->mutable_status()->set_message(status.error_message());
         }
         if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "cancelled");
-        budget_start = settings_.budget_clock.Now();
+        budget_start = budget_clock.Now();
       }
       context->CheckDeadline();
       return grpc::Status::OK;
@@ -374,7 +392,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
 
   void DetectOne(const pb::ItemQuery& query, const PreparedScene& scene,
                  const std::shared_ptr<SceneContext>& context, double shared_preprocess_s,
-                 Clock::time_point budget_start, pb::ItemResult* result) const {
+                 const BudgetClock& budget_clock, Clock::time_point budget_start,
+                 pb::ItemResult* result) const {
     ItemQuery item_query;
     item_query.item = query.item();
     switch (query.method()) {
@@ -393,7 +412,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
     item_query.min_score = query.min_score();
     item_query.max_results = query.max_results() == 0 ? 1 : query.max_results();
     item_query.budget_scale = settings_.time_budget_scale;
-    item_query.budget_clock = settings_.budget_clock;
+    item_query.budget_clock = budget_clock;
     const ItemDetections found = DetectItem(library_, scene, context, item_query, budget_start);
     for (const ChainAttempt& attempt : found.chain.attempts) {
       const bool ran = attempt.outcome != AttemptOutcome::kUnavailable &&
@@ -437,7 +456,7 @@ runtime::ServiceSet BuildDetectorServices(const runtime::Config& config) {
   if (!(settings.time_budget_scale > 0.0) || !std::isfinite(settings.time_budget_scale)) {
     throw std::invalid_argument("setting 'time_budget_scale' must be positive and finite");
   }
-  settings.budget_clock = BudgetClockSetting(config.GetString("budget_clock", "steady"));
+  SetBudgetClock(config.GetString("budget_clock", "thread_cpu"), &settings);
   try {
     settings.default_camera =
         PinholeCamera(static_cast<int>(config.GetInt("camera.width", 640)),

@@ -9,9 +9,11 @@
 #include <exception>
 #include <fstream>
 #include <functional>
+#include <future>
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <thread>
 
 namespace picking::detector {
 namespace {
@@ -301,6 +303,29 @@ TEST(BudgetClockTest, SteadyByDefaultFrozenOrTheCallersOwn) {
   time.Advance(milliseconds(3));
   EXPECT_EQ(copy.Now(), ManualClock::kStart + milliseconds(3));
   EXPECT_THROW(BudgetClock(std::function<TimePoint()>()), std::invalid_argument);
+}
+
+TEST(BudgetClockTest, AThreadsCpuClockStandsStillWhileTheThreadWaits) {
+  // A thread that waits (as a call's thread does while other work holds the cores) spends
+  // none of a budget judged by its CPU clock, read here from another thread.
+  std::promise<void> go;
+  std::promise<pthread_t> started;
+  std::thread waiter([&] {
+    started.set_value(pthread_self());
+    go.get_future().wait();
+  });
+  const BudgetClock waiting = BudgetClock::ThreadCpu(started.get_future().get());
+  const BudgetClock mine = BudgetClock::ThreadCpu(pthread_self());
+  const TimePoint waiting_at = waiting.Now();
+  const TimePoint mine_at = mine.Now();
+  volatile double sink = 0.0;
+  while (mine.Now() - mine_at < milliseconds(30)) {
+    for (int k = 0; k < 10000; ++k) sink = sink + 1e-9 * k;  // busy on this thread only
+  }
+  EXPECT_LT(waiting.Now() - waiting_at, milliseconds(5));
+  EXPECT_GE(mine.Now() - mine_at, milliseconds(30));
+  go.set_value();
+  waiter.join();
 }
 
 TEST(DetectionChainTest, RejectsBadConstruction) {
