@@ -305,6 +305,74 @@ TEST_F(TaskPickTest, StowLayout1TheOutputFileMatchesTheSimulatorsTruth) {
   }
 }
 
+// The stow's table, with a second orchestrator set to take every item there first: each
+// item is set down on the table, looked at from the verification pose, picked from the
+// table again and stowed; the output file says where every item is.
+TEST_F(TaskPickTest, AStowOverTheTableSetsEachItemDownTellsItAndStowsIt) {
+  const std::string task_json = R"({"bin_contents": {
+      "bin_A": ["dove_beauty_bar"], "bin_B": [], "bin_C": ["hanes_tube_socks"], "bin_D": [],
+      "bin_E": [], "bin_F": [], "bin_G": [], "bin_H": [], "bin_I": [], "bin_J": [], "bin_K": [],
+      "bin_L": []}, "tote_contents": ["kleenex_tissue_box", "folgers_classic_roast_coffee"]})";
+  {
+    auto sim_stub = sim::SimulatorService::NewStub(simulator_->Channel());
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest request;
+    request.set_task_json(task_json);
+    request.set_seed(7);
+    sim::LoadLayoutResponse loaded;
+    ASSERT_TRUE(sim_stub->LoadLayout(&ctx, request, &loaded).ok());
+  }
+  ServerProcess over_table(
+      ServerBinary("picking-orchestrator"),
+      {"--tasks_dir=" + *dir_ + "/tasks_table", "--stow.table=always",
+       "--scanner.address=" + scanner_->address(), "--detector.endpoints=" + detector_->address(),
+       "--planner.address=" + planner_->address(), "--robot.address=" + robot_->address(),
+       "--gripper.address=" + gripper_->address()});
+  auto stub = orch::OrchestratorService::NewStub(over_table.Channel());
+  orch::StartTaskResponse started;
+  {
+    grpc::ClientContext ctx;
+    orch::StartTaskRequest request;
+    request.set_task_json(task_json);
+    request.set_kind(orch::TASK_KIND_STOW);
+    request.set_time_limit_s(300.0);
+    ASSERT_TRUE(stub->StartTask(&ctx, request, &started).ok());
+  }
+  {
+    grpc::ClientContext ctx;
+    orch::WatchTaskRequest request;
+    request.set_task_id(started.task_id());
+    auto reader = stub->WatchTask(&ctx, request);
+    orch::WatchTaskResponse response;
+    while (reader->Read(&response)) {
+      const orch::TaskEvent& event = response.event();
+      std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
+                  event.message().c_str());
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+  }
+  orch::GetTaskResponse task;
+  {
+    grpc::ClientContext ctx;
+    orch::GetTaskRequest request;
+    request.set_task_id(started.task_id());
+    ASSERT_TRUE(stub->GetTask(&ctx, request, &task).ok());
+  }
+  ASSERT_EQ(task.state(), orch::TASK_STATE_SUCCEEDED) << task.error();
+  std::printf("stowed over the table: %u of 2\n", task.result().items_moved());
+  EXPECT_GE(task.result().items_moved(), 1u);
+  const sim::GetGroundTruthResponse truth = Truth();
+  ExpectOutputMatchesTruth(task.result().output_file(), truth);
+  // The simulator saw each stowed item let go on the table and taken from it again.
+  int on_table = 0;
+  for (const sim::WorldEvent& e : truth.events()) {
+    on_table +=
+        e.kind() == sim::EVENT_KIND_RELEASED && e.detail().find("table") != std::string::npos;
+  }
+  EXPECT_GE(on_table, static_cast<int>(task.result().items_moved()));
+  EXPECT_EQ(over_table.Stop(), 0);
+}
+
 // Watches the task: kills the second detector replica at the first detection, then the
 // orchestrator at the first grasp step (the approach under way). Returns the item it was
 // grasping ("" if no grasp came).

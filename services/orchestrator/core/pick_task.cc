@@ -550,7 +550,9 @@ bool PickTaskRunner::FinishDetect(Target& target, TargetReport& report, PendingD
           ResolveAgainstOthers(target.item, &found, catalogue_, options_.confusion_overlap,
                                options_.confusion_margin, &rivals);
       !other.empty()) {
-    if (!(task_.kind == apc::TaskKind::kStow && options_.verify_on_table) || rivals.empty()) {
+    if (!(task_.kind == apc::TaskKind::kStow &&
+          options_.table_check != PickTaskOptions::TableCheck::kNever) ||
+        rivals.empty()) {
       target.last_failure = "not taken: " + other;
       Emit(&target, Step::kDetect, false, target.last_failure);
       return false;
@@ -645,7 +647,10 @@ PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetRepor
     journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }
-  if (!rivals_.empty()) return SetDownAndIdentify(target, report, plan);
+  if (!rivals_.empty() || (task_.kind == apc::TaskKind::kStow &&
+                           options_.table_check == PickTaskOptions::TableCheck::kAlways)) {
+    return SetDownAndIdentify(target, report, plan);
+  }
   const std::string wrong = options_.verify_after_lift ? LookBack(target, report, plan) : "";
   if (!wrong.empty()) {
     const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });

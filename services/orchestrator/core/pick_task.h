@@ -109,12 +109,15 @@ struct PickTaskOptions {
   /// picks the first. The arm waits only for what detection takes beyond the robot time of
   /// the motions it overlaps.
   bool detect_ahead = true;
-  /// Stow: an item whose every pose another tote item fills about as well (see
-  /// detect_others) is taken anyway, set down on the table and looked at there alone from
-  /// `verify_pose`; it is stowed as the candidate that view shows best, by at least
+  /// Stow: which items are set down on the table and looked at there alone from
+  /// `verify_pose` before they are stowed. kInDoubt: an item whose every pose another tote
+  /// item fills about as well (see detect_others), which is then taken anyway; kAlways:
+  /// every item (the paper's sequence); kNever: an item in doubt is not taken. On the table
+  /// an item is stowed as the candidate the view shows best, by at least
   /// `table_identity_margin` of the detection score, or put back into the tote when the view
-  /// cannot tell. Off: such an item is not taken.
-  bool verify_on_table = true;
+  /// cannot tell.
+  enum class TableCheck { kNever, kInDoubt, kAlways };
+  TableCheck table_check = TableCheck::kInDoubt;
   std::string verify_pose = "verify";
   double table_identity_margin = 0.05;
 };
@@ -272,7 +275,7 @@ class PickTaskRunner final {
   std::string table_key_;    ///< ... of an attempt whose item lies on the table at resume.
   std::vector<std::string> table_candidates_;  ///< What that item may be.
   std::optional<Ahead> ahead_;
-  /// This attempt's target in doubt (stow, verify_on_table): the items its place may hold
+  /// This attempt's target in doubt (stow, table_check): the items its place may hold
   /// instead, empty when it is not in doubt.
   std::vector<std::string> rivals_;
   std::vector<TargetReport>* reports_ = nullptr;  ///< Run()'s, one per order_ entry.

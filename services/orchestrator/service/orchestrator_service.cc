@@ -310,6 +310,18 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   options.pick.min_time_per_item_s =
       config.GetDouble("min_time_per_item_s", options.pick.min_time_per_item_s);
   options.pick.detect_ahead = config.GetBool("detect_ahead", options.pick.detect_ahead);
+  const std::string table = config.GetString("stow.table", "in_doubt");
+  using TableCheck = PickTaskOptions::TableCheck;
+  if (table == "in_doubt") {
+    options.pick.table_check = TableCheck::kInDoubt;
+  } else if (table == "always") {
+    options.pick.table_check = TableCheck::kAlways;
+  } else if (table == "never") {
+    options.pick.table_check = TableCheck::kNever;
+  } else {
+    throw std::invalid_argument("setting 'stow.table' must be in_doubt, always or never, got '" +
+                                table.substr(0, 40) + "'");
+  }
   if (options.pick.time_limit_s <= 0.0 || options.pick.max_attempts < 1) {
     throw std::invalid_argument("time_limit_s must be > 0 and max_attempts >= 1");
   }

@@ -359,6 +359,13 @@ float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
   return slack;
 }
 
+float FastChecker::TcpInsideWorkspace(const BodyPoses& X) const {
+  const Eigen::AlignedBox3d& box = cell_.tcp_workspace_Base();
+  if (box.isEmpty()) return std::numeric_limits<float>::infinity();
+  const Eigen::Vector3d p = X[kBodyTool] * robot_.gripper().X_ToolTcp.translation();
+  return static_cast<float>(std::min((p - box.min()).minCoeff(), (box.max() - p).minCoeff()));
+}
+
 template <FastChecker::RunMode kMode>
 float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, float padding_m,
                        float cap_m, CollisionReport* report) const {
@@ -380,6 +387,15 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
     }
   };
+  // The tcp inside the robot's workspace box, by the padding: no sphere, a point.
+  if (const float inside = TcpInsideWorkspace(X) - padding_m; inside < slack) {
+    if (inside < 0.f) {
+      hit(kBodyTool, kObstacleWorkspace, nullptr, inside);
+      if constexpr (!kExplain) return slack;
+    } else {
+      slack = inside;
+    }
+  }
   const PosedSpheres posed(robot_, arm_bounds_, X, carried);
   for (int b = 1; b < num_bodies; ++b) {
     // The base (body 0) is fixed to the pedestal; it is only checked against the moving bodies.
@@ -466,6 +482,7 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
 }
 
 std::string FastChecker::ObstacleName(int obstacle) const {
+  if (obstacle == kObstacleWorkspace) return "the workspace's bounds";
   if (obstacle == kObstacleFloor) return "floor";
   if (obstacle == kObstaclePedestal) return "pedestal";
   const auto& grids = cell_.grids();
@@ -555,6 +572,9 @@ CollisionReport ExactChecker::Check(const JointVector& q_rad, const CarriedItem*
     report.obstacle = obstacle;
     return report;
   };
+  if (m.spheres.TcpInsideWorkspace(X) < 0.f) {
+    return hit(kBodyTool, m.spheres.ObstacleName(kObstacleWorkspace));
+  }
   const auto& objects = m.cell.fcl().objects;
   // From the gripper end back: the bodies that move most are the likeliest to hit.
   for (int b = num_bodies - 1; b >= 1; --b) {

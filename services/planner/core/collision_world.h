@@ -36,6 +36,11 @@ struct StaticCellOptions {
   /// frame, metres). Empty box: none.
   Eigen::AlignedBox3d pedestal_Base =
       Eigen::AlignedBox3d(Eigen::Vector3d(-0.25, -0.25, -0.70), Eigen::Vector3d(0.25, 0.25, -0.05));
+  /// The box the tool centre point must stay in (base frame, metres): the robot service's
+  /// safety workspace (data/cell/robot_cell.yaml, safety.workspace_*), which refuses any
+  /// motion that leaves it, so a plan leaving it is a collision here too. Empty box: none.
+  Eigen::AlignedBox3d tcp_workspace_Base =
+      Eigen::AlignedBox3d(Eigen::Vector3d(-1.2, -1.4, -0.68), Eigen::Vector3d(1.3, 1.4, 1.5));
 };
 
 /// The static cell as obstacles: the shelf, tote and table meshes (at their poses from the
@@ -63,6 +68,7 @@ class StaticCell final {
   const BlockBound& blocks() const { return blocks_; }
   double floor_z_m() const { return floor_z_m_; }
   const Eigen::AlignedBox3d& pedestal_Base() const { return options_.pedestal_Base; }
+  const Eigen::AlignedBox3d& tcp_workspace_Base() const { return options_.tcp_workspace_Base; }
   const world::CellModel& cell() const { return cell_; }
 
   struct Fcl;
@@ -112,6 +118,8 @@ struct CollisionReport {
 inline constexpr int kObstacleFloor = 0;
 inline constexpr int kObstaclePedestal = 1;
 inline constexpr int kObstacleFirstMesh = 2;
+/// Not an obstacle of the masks: the tool centre point outside StaticCell::tcp_workspace_Base.
+inline constexpr int kObstacleWorkspace = -1;
 
 /// What the enclosing spheres cannot rule out at one state: for each body, the obstacles it
 /// may touch (bit o of `near_obstacles[body]`, obstacles numbered as above, the scan
@@ -149,6 +157,9 @@ class FastChecker final {
   /// (from RobotGeometry::ComputePoses with the same `carried` and joints `q_rad`): the
   /// broad phase of the exact check.
   Proximity Near(const JointVector& q_rad, const BodyPoses& X, const CarriedItem* carried) const;
+  /// How far inside the cell's tcp workspace box the tool centre point is at body poses `X`
+  /// (negative: outside; infinity without a box), metres.
+  float TcpInsideWorkspace(const BodyPoses& X) const;
   /// Number of obstacles: floor, pedestal, the static meshes, the scan (last, if any).
   int num_obstacles() const;
   /// "floor", "pedestal", a static mesh's name or "scan".

@@ -663,6 +663,25 @@ TEST_F(PickTaskTest, AStowItemTheTableCannotTellApartGoesBackIntoTheTote) {
   EXPECT_EQ(result.targets[0].attempts, 2);
 }
 
+TEST_F(PickTaskTest, AStowMaySetEveryItemDownOnTheTableFirst) {
+  const apc::Task stow = TwoItemStow();
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
+  options_.table_check = PickTaskOptions::TableCheck::kAlways;
+  ScriptedCell cell;
+  Journal journal((dir_ / "journal.jsonl").string());
+  std::vector<Target> order;
+  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
+  PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
+  const PickTaskResult result = runner.Run();
+  EXPECT_EQ(result.items_moved, 2);
+  ASSERT_EQ(cell.destinations.size(), 4u);
+  EXPECT_EQ(cell.destinations[0], "table");
+  EXPECT_NE(cell.destinations[1], "table");
+  EXPECT_EQ(cell.destinations[2], "table");
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "look at the table"), 2);
+  for (const TargetReport& t : result.targets) EXPECT_EQ(t.attempts, 1) << t.item;
+}
+
 TEST_F(PickTaskTest, AResumedStowTellsApartTheItemItLeftOnTheTable) {
   const apc::Task stow = TwoItemStow();
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};

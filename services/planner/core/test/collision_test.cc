@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 
 #include <map>
 #include <random>
@@ -104,6 +105,45 @@ TEST_F(CollisionTest, ReportsWhichBodyHitsWhat) {
   EXPECT_TRUE(e.in_collision);
   EXPECT_FALSE(f.ToString().empty());
   EXPECT_NE(e.ToString().find("hits"), std::string::npos);
+}
+
+// The arm straight up puts the tcp above the robot's workspace box: a collision for both
+// checks (the robot service would refuse the motion), named as such.
+TEST_F(CollisionTest, TheTcpOutsideTheRobotsWorkspaceIsACollision) {
+  JointVector up = JointVector::Zero();
+  double best_z = -1.0;
+  for (const double wrist_1 : {0.0, -1.5707963, 1.5707963, M_PI}) {
+    for (const double wrist_2 : {0.0, -1.5707963, 1.5707963, M_PI}) {
+      JointVector q;
+      q << 0.0, -1.5707963, 0.0, wrist_1, wrist_2, 0.0;
+      const double z = robot_->X_BaseTcp(q).translation().z();
+      if (z > best_z) best_z = z, up = q;
+    }
+  }
+  ASSERT_GT(robot_->X_BaseTcp(up).translation().z(), cell_->tcp_workspace_Base().max().z());
+  const FastChecker fast(*robot_, *cell_, nullptr);
+  const ExactChecker exact(*robot_, *cell_, nullptr);
+  EXPECT_FALSE(fast.IsFree(up));
+  EXPECT_NE(fast.Check(up).ToString().find("workspace"), std::string::npos);
+  EXPECT_NE(exact.Check(up).ToString().find("workspace"), std::string::npos);
+  // Without the box, nothing else is hit there.
+  StaticCellOptions unbounded;
+  unbounded.tcp_workspace_Base.setEmpty();
+  const StaticCell open_cell(*cell_model_, unbounded);
+  EXPECT_TRUE(FastChecker(*robot_, open_cell, nullptr).IsFree(up));
+  EXPECT_FALSE(ExactChecker(*robot_, open_cell, nullptr).Check(up).in_collision);
+}
+
+// The planner's box is the robot service's (its settings file, the robot's defaults).
+TEST(WorkspaceTest, ThePlannersTcpBoxIsTheRobotServicesSafetyBox) {
+  const YAML::Node robot = YAML::LoadFile(PICKING_DATA_DIR "/cell/robot_cell.yaml");
+  const StaticCellOptions planner;
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_DOUBLE_EQ(robot["safety"]["workspace_min_m"][k].as<double>(),
+                     planner.tcp_workspace_Base.min()[k]);
+    EXPECT_DOUBLE_EQ(robot["safety"]["workspace_max_m"][k].as<double>(),
+                     planner.tcp_workspace_Base.max()[k]);
+  }
 }
 
 // Joint vectors with the tcp in and around the shelf's bins and the tote: where the planner
