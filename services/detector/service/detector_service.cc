@@ -315,6 +315,8 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       // a contradicting print lowers the score.
       VerifyOptions options = RefineVerifyOptions().verify;
       options.symmetries = model->object->symmetries();
+      // As Detect scores it: a shape model's outline is not the item's.
+      if (model->spec.kind != ModelSourceKind::kScan) options.min_outline_edge_fraction = 0.0;
       const VerifyResult r =
           detector::Verify(scene, model->object->icp_cloud(), X_BaseItem, options);
       response->set_score(r.score);
