@@ -241,12 +241,6 @@ const BinGeometry& CellModel::bin(const std::string& name) const {
   throw std::invalid_argument("unknown bin '" + name + "'");
 }
 
-Eigen::AlignedBox3d CellModel::tote_inner_T(double wall_m) const {
-  const Eigen::AlignedBox3d bounds = Bounds(tote);
-  const Eigen::Vector3d wall(wall_m, wall_m, 0.0);
-  return Eigen::AlignedBox3d(bounds.min() + wall, bounds.max() - wall);
-}
-
 CellModel LoadCellModel(const CellConfig& config) {
   CellModel model;
   model.config = config;
@@ -263,6 +257,7 @@ CellModel LoadCellModel(const CellConfig& config) {
   model.table.name = "table";
   model.table.albedo = 0.7f;
   model.bins = MeasureBins(model.shelf);
+  model.measured_tote_inner_T = MeasureToteInner(model.tote);
   return model;
 }
 

@@ -108,15 +108,18 @@ struct CellModel {
   TriangleMesh tote;              ///< In the tote frame.
   TriangleMesh table;             ///< In the table frame (top surface at z = 0).
   std::vector<BinGeometry> bins;  ///< Measured from `shelf`, in the shelf frame, A..L.
+  /// The tote's free inner box in the tote frame (its inner walls and floor up to the rim),
+  /// measured from `tote` by MeasureToteInner (shelf_bins.h).
+  Eigen::AlignedBox3d measured_tote_inner_T;
 
   /// The bin called `name`; throws std::invalid_argument naming it if unknown.
   const BinGeometry& bin(const std::string& name) const;
-  /// The tote's free inner box in the tote frame: its mesh bounds less the walls.
-  Eigen::AlignedBox3d tote_inner_T(double wall_m = 0.015) const;
+  /// The tote's free inner box in the tote frame: measured_tote_inner_T.
+  const Eigen::AlignedBox3d& tote_inner_T() const { return measured_tote_inner_T; }
 };
 
-/// Loads the meshes and measures the bins. Throws std::runtime_error on unreadable meshes or a
-/// shelf mesh without 12 bins.
+/// Loads the meshes and measures the bins and the tote. Throws std::runtime_error on unreadable
+/// meshes or a shelf mesh without 12 bins.
 CellModel LoadCellModel(const CellConfig& config);
 
 }  // namespace picking::world

@@ -204,4 +204,21 @@ std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
   return bins;
 }
 
+Eigen::AlignedBox3d MeasureToteInner(const TriangleMesh& tote_T) {
+  const Eigen::AlignedBox3d bounds_T = Bounds(tote_T);
+  const Eigen::Vector3d mid_T = bounds_T.center();
+  const MeshRayCaster caster(tote_T);
+  const auto distance = [&](const Eigen::Vector3d& direction) {
+    const auto hit = caster.Cast(mid_T, direction, 0.0, bounds_T.sizes().norm());
+    if (!hit) throw std::runtime_error("MeasureToteInner: the tote mesh has no wall or floor");
+    return hit->distance_m;
+  };
+  const Eigen::Vector3d lo(mid_T.x() - distance(-Eigen::Vector3d::UnitX()),
+                           mid_T.y() - distance(-Eigen::Vector3d::UnitY()),
+                           mid_T.z() - distance(-Eigen::Vector3d::UnitZ()));
+  const Eigen::Vector3d hi(mid_T.x() + distance(Eigen::Vector3d::UnitX()),
+                           mid_T.y() + distance(Eigen::Vector3d::UnitY()), bounds_T.max().z());
+  return Eigen::AlignedBox3d(lo, hi);
+}
+
 }  // namespace picking::world

@@ -61,4 +61,10 @@ struct MeasureBinsOptions {
 std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
                                      const MeasureBinsOptions& options = {});
 
+/// The free inner box of a tote mesh in its own frame T (z up, open at the top): rays from
+/// the centre of the mesh's bounds along -x, +x, -y, +y and -z find the inner walls and the
+/// floor; the top is the rim (the bounds' top). Throws std::runtime_error when a ray finds no
+/// wall or floor.
+Eigen::AlignedBox3d MeasureToteInner(const TriangleMesh& tote_T);
+
 }  // namespace picking::world

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "libs/world/mesh_ray_caster.h"
 #include "libs/world/mesh_utils.h"
 
 namespace picking::world {
@@ -178,6 +179,54 @@ TEST(CellConfigTest, DefaultCellLoadsAndItsBinsAreReachable) {
   EXPECT_FALSE(shelf.intersects(tote));
   EXPECT_FALSE(shelf.intersects(Bounds(cell.table, config.X_BaseTable)));
   EXPECT_NEAR(Bounds(cell.table, config.X_BaseTable).min().z(), config.floor_z_m(), 1e-6);
+}
+
+// The tote's inner box is where its mesh is: rays from inside the box, over a grid of each
+// wall and the floor (6 cm in from the edges, clear of the tote's rounded corners), hit the
+// mesh where the box's face is, and the box is open above (nothing between it and the rim).
+TEST(CellConfigTest, TheToteBoxIsMeasuredFromItsMesh) {
+  const CellModel cell = LoadCellModel(ReadCellConfig(DefaultCellConfigPath()));
+  const Eigen::AlignedBox3d& box_T = cell.tote_inner_T();
+  ASSERT_FALSE(box_T.isEmpty());
+  const Eigen::AlignedBox3d bounds_T = Bounds(cell.tote);
+  EXPECT_TRUE(bounds_T.contains(box_T));
+  EXPECT_NEAR(box_T.max().z(), bounds_T.max().z(), 1e-9);  // up to the rim
+  EXPECT_GT(box_T.sizes().minCoeff(), 0.1);
+  const MeshRayCaster caster(cell.tote);
+  constexpr double kInset = 0.06;
+  int rays = 0;
+  for (int axis = 0; axis < 3; ++axis) {
+    for (const double sign : {-1.0, 1.0}) {
+      if (axis == 2 && sign > 0) continue;  // open at the top
+      Eigen::Vector3d direction = Eigen::Vector3d::Zero();
+      direction[axis] = sign;
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      for (int i = 0; i < 5; ++i) {
+        for (int j = 0; j < 5; ++j) {
+          Eigen::Vector3d p_T = box_T.center();
+          p_T[u] = box_T.min()[u] + kInset + (box_T.sizes()[u] - 2 * kInset) * i / 4.0;
+          p_T[v] = box_T.min()[v] + kInset + (box_T.sizes()[v] - 2 * kInset) * j / 4.0;
+          const double face = sign > 0 ? box_T.max()[axis] : box_T.min()[axis];
+          const auto hit = caster.Cast(p_T, direction);
+          ASSERT_TRUE(hit) << axis << " " << sign << " " << p_T.transpose();
+          EXPECT_NEAR(hit->distance_m, std::abs(face - p_T[axis]), 1e-3)
+              << "axis " << axis << " sign " << sign << " at " << p_T.transpose();
+          ++rays;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(rays, 125);
+  for (int i = 0; i < 5; ++i) {
+    Eigen::Vector3d p_T = box_T.center();
+    p_T.x() = box_T.min().x() + kInset + (box_T.sizes().x() - 2 * kInset) * i / 4.0;
+    EXPECT_FALSE(caster.Cast(p_T, Eigen::Vector3d::UnitZ())) << p_T.transpose();
+  }
+  // A tote mesh without a floor is refused.
+  TriangleMesh open;
+  open.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  open.triangles = {{0, 1, 2}};
+  EXPECT_THROW(MeasureToteInner(open), std::runtime_error);
 }
 
 TEST(CellConfigTest, AHeadOnItsJointTurnsTheTcpAboutTheJoint) {

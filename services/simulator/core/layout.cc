@@ -75,16 +75,14 @@ std::vector<LayoutRegion> LayoutRegions(const world::CellModel& cell,
     r.box_R = Eigen::AlignedBox3d(lo, hi);
     regions.push_back(r);
   }
-  // The tote: its bounding box less the wall thickness, measured by rays from the centre.
+  // The tote: its inner box as the cell measured it from the mesh, up to
+  // tote_stack_height_m above the rim.
   LayoutRegion tote;
   tote.name = "tote";
   tote.X_BaseRegion = cell.config.X_BaseTote;
-  const Eigen::AlignedBox3d box = world::Bounds(cell.tote);
-  const double wall = 0.015;
+  const Eigen::AlignedBox3d& box = cell.tote_inner_T();
   tote.box_R = Eigen::AlignedBox3d(
-      Eigen::Vector3d(box.min().x() + wall, box.min().y() + wall, box.min().z()),
-      Eigen::Vector3d(box.max().x() - wall, box.max().y() - wall,
-                      box.max().z() + options.tote_stack_height_m));
+      box.min(), box.max() + Eigen::Vector3d(0.0, 0.0, options.tote_stack_height_m));
   regions.push_back(tote);
   return regions;
 }

@@ -9,7 +9,6 @@
 #include <stdexcept>
 
 #include "libs/apc/bins.h"
-#include "libs/world/mesh_utils.h"
 #include "libs/world/ray_scene.h"
 
 namespace picking::simulator {
@@ -71,6 +70,10 @@ namespace {
 // kept jittering (Bullet's convex-triangle contacts) and most layouts never came to rest;
 // box-box contacts rest. The boxes follow the mesh: measured by rays, 3 cm thick.
 constexpr double kWall = 0.03;
+
+// Boxes this close count as touching when deciding what a removed item supported: contacts at
+// rest are within Bullet's margins of each other.
+constexpr double kLooseTouchM = 0.002;
 
 void AddBox(PhysicsContainer* c, const Eigen::AlignedBox3d& box_P,
             const Eigen::Matrix3d& R = Eigen::Matrix3d::Identity()) {
@@ -167,25 +170,12 @@ PhysicsContainer MakeBin(const world::BinGeometry& bin, const world::RayScene& s
   return c;
 }
 
-// The tote: its inner walls and floor measured by rays from the centre of its mesh bounds;
+// The tote: its inner box as the cell measured it from the mesh (CellModel::tote_inner_T);
 // walls up to its rim.
 PhysicsContainer MakeTote(const world::CellModel& cell, const SettleOptions& o) {
-  world::RayScene tote_T;
-  tote_T.Add(0, cell.tote, Eigen::Isometry3d::Identity());
-  tote_T.Commit();
-  const Eigen::AlignedBox3d bounds_T = world::Bounds(cell.tote);
-  const Eigen::Vector3d mid_T = bounds_T.center();
-  const auto distance = [&](const Eigen::Vector3d& direction) {
-    const auto hit = tote_T.Cast(mid_T, direction, bounds_T.sizes().norm());
-    if (!hit) throw std::invalid_argument("PhysicsLayout: the tote mesh has no wall or floor");
-    return hit->distance_m;
-  };
-  const Eigen::Vector3d inner_lo(mid_T.x() - distance(-Eigen::Vector3d::UnitX()),
-                                 mid_T.y() - distance(-Eigen::Vector3d::UnitY()),
-                                 mid_T.z() - distance(-Eigen::Vector3d::UnitZ()));
-  const Eigen::Vector3d inner_hi(mid_T.x() + distance(Eigen::Vector3d::UnitX()),
-                                 mid_T.y() + distance(Eigen::Vector3d::UnitY()),
-                                 bounds_T.max().z());
+  const Eigen::AlignedBox3d& inner_T = cell.tote_inner_T();
+  if (inner_T.isEmpty()) throw std::invalid_argument("PhysicsLayout: the cell's tote box is empty");
+  const Eigen::Vector3d inner_lo = inner_T.min(), inner_hi = inner_T.max();
   PhysicsContainer c;
   c.name = "tote";
   const Eigen::Vector3d centre_T = 0.5 * (inner_lo + inner_hi);
@@ -280,8 +270,42 @@ struct Sim {
   btDiscreteDynamicsWorld world{&dispatcher, &broadphase, &solver, &config};
   std::vector<btRigidBody*> dynamic;  // parallel to the dropped items, in drop order
 
+  std::vector<const btRigidBody*> removed;  // taken out of `world` before its end
+
   ~Sim() {
-    for (auto& b : bodies) world.removeRigidBody(b.get());
+    for (auto& b : bodies) {
+      if (std::find(removed.begin(), removed.end(), b.get()) == removed.end()) {
+        world.removeRigidBody(b.get());
+      }
+    }
+  }
+
+  void Remove(btRigidBody* body) {
+    world.removeRigidBody(body);
+    removed.push_back(body);
+  }
+
+  // Gravity, the solver's settings and the container's walls.
+  void Init(const PhysicsContainer& c, const Eigen::Vector3d& gravity_P, const SettleOptions& o) {
+    world.setGravity(btVector3(gravity_P.x(), gravity_P.y(), gravity_P.z()));
+    world.getSolverInfo().m_numIterations = o.solver_iterations;
+    world.getSolverInfo().m_splitImpulse = 1;  // resolve penetration without adding energy
+    AddBody(c.shape.get(), 0.0, btTransform::getIdentity(), o);
+  }
+
+  // A dynamic item box (half sizes `half`, its centre at X_PB), one of `dynamic`.
+  btRigidBody* AddItem(const Eigen::Vector3d& half, const btTransform& X_PB,
+                       const SettleOptions& o) {
+    auto box = std::make_unique<btBoxShape>(btVector3(half.x(), half.y(), half.z()));
+    box->setMargin(std::min(o.item_margin_m, half.minCoeff() * 0.5));
+    shapes.push_back(std::move(box));
+    const double mass_kg = std::max(0.01, o.density_kg_per_m3 * 8 * half.prod());
+    btRigidBody* body = AddBody(shapes.back().get(), mass_kg, X_PB, o);
+    // Thin items falling off a pile must not pass through each other between steps.
+    body->setCcdMotionThreshold(half.minCoeff());
+    body->setCcdSweptSphereRadius(0.5 * half.minCoeff());
+    dynamic.push_back(body);
+    return body;
   }
 
   btRigidBody* AddBody(btCollisionShape* shape, double mass_kg, const btTransform& X_PB,
@@ -378,6 +402,38 @@ Eigen::Matrix3d RandomOrientation(const SettleOptions& o, bool tidy, std::mt1993
          R_face;
 }
 
+// The release of a box turned by R with its centre over `xy`: on the highest static surface
+// or body's bounding box under its footprint; none if a ray misses or it would reach above
+// the container's ceiling.
+std::optional<Release> ReleaseAt(const Sim& sim, const PhysicsContainer& c, const DropItem& item,
+                                 const SettleOptions& o, const Eigen::Matrix3d& R,
+                                 const Eigen::Vector2d& xy) {
+  const Eigen::AlignedBox3d& region = c.release_P;
+  const Eigen::Vector3d ext = R.cwiseAbs() * item.half;  // half sizes of the turned box
+  const Eigen::AlignedBox3d foot(Eigen::Vector3d(xy.x() - ext.x(), xy.y() - ext.y(), 0),
+                                 Eigen::Vector3d(xy.x() + ext.x(), xy.y() + ext.y(), 0));
+  const std::optional<double> floor =
+      StaticSupport(sim, foot, region.max().z(), region.min().z() - 0.1);
+  if (!floor) return std::nullopt;
+  double support = *floor;
+  for (const btRigidBody* body : sim.dynamic) {
+    btVector3 bmin, bmax;
+    body->getAabb(bmin, bmax);
+    if (bmax.x() < foot.min().x() || bmin.x() > foot.max().x() || bmax.y() < foot.min().y() ||
+        bmin.y() > foot.max().y()) {
+      continue;
+    }
+    support = std::max(support, static_cast<double>(bmax.z()));
+  }
+  const double z_bottom = support + o.drop_gap_m;
+  if (z_bottom + 2 * ext.z() > region.max().z()) return std::nullopt;
+  Release r;
+  r.X_PB.linear() = R;
+  r.X_PB.translation() = Eigen::Vector3d(xy.x(), xy.y(), z_bottom + ext.z());
+  r.z_bottom = z_bottom;
+  return r;
+}
+
 // The lowest of the candidate release poses whose box clears every body's bounding box and
 // stays under the container's ceiling; none if no candidate does. `tidy`: see
 // RandomOrientation.
@@ -389,44 +445,58 @@ std::optional<Release> LowestRelease(const Sim& sim, const PhysicsContainer& c,
   std::optional<Release> best;
   for (int k = 0; k < o.candidates_per_item; ++k) {
     const Eigen::Matrix3d R = RandomOrientation(o, tidy, rng);
-    const Eigen::Vector3d ext = R.cwiseAbs() * item.half;  // half sizes of the turned box
+    const Eigen::Vector3d ext = R.cwiseAbs() * item.half;
     const Eigen::Vector3d lo = region.min() + ext, hi = region.max() - ext;
     if (lo.x() > hi.x() || lo.y() > hi.y() || lo.z() > hi.z()) continue;
     const Eigen::Vector2d xy(lo.x() + unit(*rng) * (hi.x() - lo.x()),
                              lo.y() + unit(*rng) * (hi.y() - lo.y()));
-    const Eigen::AlignedBox3d foot(Eigen::Vector3d(xy.x() - ext.x(), xy.y() - ext.y(), 0),
-                                   Eigen::Vector3d(xy.x() + ext.x(), xy.y() + ext.y(), 0));
-    const std::optional<double> floor =
-        StaticSupport(sim, foot, region.max().z(), region.min().z() - 0.1);
-    if (!floor) continue;
-    double support = *floor;
+    const std::optional<Release> r = ReleaseAt(sim, c, item, o, R, xy);
+    if (r && (!best || r->z_bottom < best->z_bottom)) best = r;
+  }
+  return best;
+}
+
+// Where no random pose finds room: the item flat, square to the walls, pushed against the
+// walls or against the bounding boxes of the items already in (1 mm apart), the lowest of
+// those positions; a tight row of boxes that random positions seldom hit. No randomness.
+std::optional<Release> PackedRelease(const Sim& sim, const PhysicsContainer& c,
+                                     const DropItem& item, const SettleOptions& o) {
+  constexpr double kGapM = 0.001;
+  const Eigen::AlignedBox3d& region = c.release_P;
+  std::optional<Release> best;
+  for (const double yaw : {0.0, M_PI / 2}) {
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    const Eigen::Vector3d ext = R.cwiseAbs() * item.half;
+    const Eigen::Vector3d lo = region.min() + ext, hi = region.max() - ext;
+    if (lo.x() > hi.x() || lo.y() > hi.y() || lo.z() > hi.z()) continue;
+    std::vector<double> xs = {lo.x(), hi.x()}, ys = {lo.y(), hi.y()};
     for (const btRigidBody* body : sim.dynamic) {
       btVector3 bmin, bmax;
       body->getAabb(bmin, bmax);
-      if (bmax.x() < foot.min().x() || bmin.x() > foot.max().x() || bmax.y() < foot.min().y() ||
-          bmin.y() > foot.max().y()) {
-        continue;
-      }
-      support = std::max(support, static_cast<double>(bmax.z()));
+      xs.push_back(bmax.x() + kGapM + ext.x());
+      xs.push_back(bmin.x() - kGapM - ext.x());
+      ys.push_back(bmax.y() + kGapM + ext.y());
+      ys.push_back(bmin.y() - kGapM - ext.y());
     }
-    const double z_bottom = support + o.drop_gap_m;
-    if (z_bottom + 2 * ext.z() > region.max().z()) continue;
-    if (best && z_bottom >= best->z_bottom) continue;
-    Release r;
-    r.X_PB.linear() = R;
-    r.X_PB.translation() = Eigen::Vector3d(xy.x(), xy.y(), z_bottom + ext.z());
-    r.z_bottom = z_bottom;
-    best = r;
+    for (const double x : xs) {
+      for (const double y : ys) {
+        if (x < lo.x() || x > hi.x() || y < lo.y() || y > hi.y()) continue;
+        const std::optional<Release> r = ReleaseAt(sim, c, item, o, R, Eigen::Vector2d(x, y));
+        if (r && (!best || r->z_bottom < best->z_bottom)) best = r;
+      }
+    }
   }
   return best;
 }
 
 // Steps until, over a window of rest_time_s, every dropped body moved less than the rest
 // speeds allow (displacement, not velocity: contact jitter does not add up, creep does); a
-// failure if the budget ends first, or a body falls out or stops being finite.
+// failure if the budget ends first, or a body falls out or stops being finite. With `lost`
+// (parallel to the bodies), a body that falls out or stops being finite is taken out of the
+// simulation and flagged there instead of failing.
 std::optional<Failure> StepToRest(Sim* sim, const PhysicsContainer& c,
                                   const std::vector<DropItem>& dropped, const SettleOptions& o,
-                                  int* steps) {
+                                  int* steps, std::vector<bool>* lost = nullptr) {
   const int window = std::max(1, static_cast<int>(std::ceil(o.rest_time_s / o.time_step_s)));
   const double max_move_m = o.rest_linear_speed_m_per_s * window * o.time_step_s;
   const double max_turn_rad = o.rest_angular_speed_rad_per_s * window * o.time_step_s;
@@ -439,8 +509,15 @@ std::optional<Failure> StepToRest(Sim* sim, const PhysicsContainer& c,
     if (s % window != 0) continue;
     bool at_rest = true;
     for (std::size_t i = 0; i < sim->dynamic.size(); ++i) {
+      if (lost && (*lost)[i]) continue;
       const btTransform& X = sim->dynamic[i]->getCenterOfMassTransform();
       const std::string& name = dropped[i].model->item->name;
+      if (lost && (!FromBt(X.getOrigin()).allFinite() ||
+                   X.getOrigin().z() < c.contain_P.min().z() - 0.05)) {
+        sim->Remove(sim->dynamic[i]);
+        (*lost)[i] = true;
+        continue;
+      }
       if (!FromBt(X.getOrigin()).allFinite()) {
         return Failure{"'" + name + "' left the simulation (not finite)"};
       }
@@ -532,41 +609,36 @@ struct AttemptResult {
 };
 
 // One try at settling `items` (in drop order) in `c` beside the fixed `existing` boxes.
+// `packed`: each item goes where PackedRelease puts it when it finds a place (the last
+// attempt: a pile of boxes in rows, which random drops seldom make).
 AttemptResult SettleOnce(const PhysicsContainer& c, const std::vector<DropItem>& items,
                          const std::vector<std::pair<Eigen::Vector3d, Eigen::Isometry3d>>& fixed,
                          const Eigen::Vector3d& gravity_P, const SettleOptions& o,
-                         std::seed_seq* seed) {
+                         std::seed_seq* seed, bool packed) {
   std::mt19937 rng(*seed);
   AttemptResult out;
   Sim sim;
-  sim.world.setGravity(ToBt(gravity_P));
-  sim.world.getSolverInfo().m_numIterations = o.solver_iterations;
-  sim.world.getSolverInfo().m_splitImpulse = 1;  // resolve penetration without adding energy
-  sim.AddBody(c.shape.get(), 0.0, btTransform::getIdentity(), o);
+  sim.Init(c, gravity_P, o);
   for (const auto& [half, X_PB] : fixed) {
     sim.shapes.push_back(std::make_unique<btBoxShape>(ToBt(half)));
     sim.AddBody(sim.shapes.back().get(), 0.0, ToBt(X_PB), o);
   }
   std::vector<DropItem> dropped;
   for (const DropItem& item : items) {
-    std::optional<Release> release = LowestRelease(sim, c, item, o, false, &rng);
-    // Where a random pose finds no room, a tidy one (flat, square to the walls) may.
+    std::optional<Release> release;
+    if (packed) release = PackedRelease(sim, c, item, o);
+    if (!release) release = LowestRelease(sim, c, item, o, false, &rng);
+    // Where a random pose finds no room, a tidy one (flat, square to the walls) may, or one
+    // pushed against the walls and the items already in.
     if (!release) release = LowestRelease(sim, c, item, o, true, &rng);
+    if (!release) release = PackedRelease(sim, c, item, o);
     if (!release) {
       out.failure = Failure{"no room for '" + item.model->item->name + "' even stacked (" +
                             std::to_string(dropped.size()) + " of " + std::to_string(items.size()) +
                             " items in)"};
       return out;
     }
-    auto box = std::make_unique<btBoxShape>(ToBt(item.half));
-    box->setMargin(std::min(o.item_margin_m, item.half.minCoeff() * 0.5));
-    sim.shapes.push_back(std::move(box));
-    const double mass_kg = std::max(0.01, o.density_kg_per_m3 * 8 * item.half.prod());
-    btRigidBody* body = sim.AddBody(sim.shapes.back().get(), mass_kg, ToBt(release->X_PB), o);
-    // Thin items falling off a pile must not pass through each other between steps.
-    body->setCcdMotionThreshold(item.half.minCoeff());
-    body->setCcdSweptSphereRadius(0.5 * item.half.minCoeff());
-    sim.dynamic.push_back(body);
+    sim.AddItem(item.half, ToBt(release->X_PB), o);
     dropped.push_back(item);
     out.failure = StepToRest(&sim, c, dropped, o, &out.steps);
     if (out.failure) return out;
@@ -630,7 +702,8 @@ SettleResult PhysicsLayout::SettleIn(const std::string& container,
       o.max_tilt_rad *= 1.0 - tidiness;
       o.yaw_jitter_rad *= 1.0 - tidiness;
     }
-    AttemptResult a = SettleOnce(c, order, fixed, gravity_P, o, &seq);
+    const bool last = options_.attempts > 1 && attempt == options_.attempts - 1;
+    AttemptResult a = SettleOnce(c, order, fixed, gravity_P, o, &seq, last);
     result.steps += a.steps;
     if (a.failure) {
       failure = a.failure;
@@ -676,6 +749,204 @@ SettleResult PhysicsLayout::Settle(const apc::Task& task, std::uint32_t seed) co
   if (!task.tote_contents.empty())
     add(SettleIn("tote", task.tote_contents, {}, seed * 7919u + 1000u));
   return result;
+}
+
+namespace {
+
+// `X_PB` raised along `up_P` in 1 mm steps until the box `half` there overlaps none of the
+// `others` boxes by more than 0.1 mm (resting contact is not an overlap); at most 0.5 m.
+Eigen::Isometry3d LiftClear(const Eigen::Vector3d& half, Eigen::Isometry3d X_PB,
+                            const std::vector<DropItem>& others,
+                            const std::vector<Eigen::Isometry3d>& X_POthers,
+                            const Eigen::Vector3d& up_P, std::size_t self) {
+  constexpr double kStepM = 0.001, kMaxLiftM = 0.5, kTouchM = 1e-4;
+  for (double lift = 0.0; lift < kMaxLiftM; lift += kStepM) {
+    bool clear = true;
+    for (std::size_t j = 0; j < others.size() && clear; ++j) {
+      if (j != self) clear = BoxOverlap(half, X_PB, others[j].half, X_POthers[j]) <= kTouchM;
+    }
+    if (clear) return X_PB;
+    X_PB.translation() += kStepM * up_P;
+  }
+  return X_PB;
+}
+
+// A sweep that ignores one body (the one being swept).
+struct SweepIgnoring : btCollisionWorld::ClosestConvexResultCallback {
+  SweepIgnoring(const btCollisionObject* self, const btVector3& from, const btVector3& to)
+      : ClosestConvexResultCallback(from, to), self(self) {}
+  bool needsCollision(btBroadphaseProxy* proxy) const override {
+    if (static_cast<const btCollisionObject*>(proxy->m_clientObject) == self) return false;
+    return ClosestConvexResultCallback::needsCollision(proxy);
+  }
+  const btCollisionObject* self;
+};
+
+// How far `body` (a box, at rest) falls along -up_P before it first touches the container or
+// another item: from rest under gravity alone it moves straight down, so a sweep of its box
+// finds the contact the solver will meet. Up to `max_m` when nothing is below.
+double FallUntilContact(Sim* sim, btRigidBody* body, const Eigen::Vector3d& up_P, double max_m) {
+  const btTransform from = body->getCenterOfMassTransform();
+  btTransform to = from;
+  to.setOrigin(from.getOrigin() - ToBt(max_m * up_P));
+  SweepIgnoring sweep(body, from.getOrigin(), to.getOrigin());
+  sim->world.updateAabbs();
+  sim->world.convexSweepTest(static_cast<const btConvexShape*>(body->getCollisionShape()), from, to,
+                             sweep);
+  return sweep.hasHit() ? sweep.m_closestHitFraction * max_m : max_m;
+}
+
+}  // namespace
+
+namespace {
+
+// Which of the items lose their support when the box `removed_half` at X_PRemoved is taken
+// away: those whose boxes touch it (within `touch_m`) with their centres above its lowest
+// point, then, in turn, those touching a loose item with their centres above its centre.
+// Items under it or merely beside it keep their support.
+std::vector<bool> LooseItems(const std::vector<DropItem>& items,
+                             const std::vector<Eigen::Isometry3d>& X_PB,
+                             const Eigen::Vector3d& removed_half,
+                             const Eigen::Isometry3d& X_PRemoved, const Eigen::Vector3d& up_P,
+                             double touch_m) {
+  std::vector<bool> loose(items.size(), false);
+  std::vector<std::size_t> todo;
+  const double removed_bottom =
+      X_PRemoved.translation().dot(up_P) -
+      (X_PRemoved.linear().transpose() * up_P).cwiseAbs().dot(removed_half);
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    if (X_PB[i].translation().dot(up_P) > removed_bottom &&
+        BoxOverlap(items[i].half, X_PB[i], removed_half, X_PRemoved) > -touch_m) {
+      loose[i] = true;
+      todo.push_back(i);
+    }
+  }
+  while (!todo.empty()) {
+    const std::size_t k = todo.back();
+    todo.pop_back();
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      if (!loose[i] && X_PB[i].translation().dot(up_P) > X_PB[k].translation().dot(up_P) &&
+          BoxOverlap(items[i].half, X_PB[i], items[k].half, X_PB[k]) > -touch_m) {
+        loose[i] = true;
+        todo.push_back(i);
+      }
+    }
+  }
+  return loose;
+}
+
+}  // namespace
+
+RestResult PhysicsLayout::SettleFrom(const std::string& container,
+                                     const std::vector<PlacedItem>& items,
+                                     const std::optional<PlacedItem>& removed,
+                                     std::optional<std::size_t> released) const {
+  const PhysicsContainer& c = impl_->Find(container);
+  if (released && *released >= items.size()) {
+    throw std::out_of_range("PhysicsLayout::Release: item " + std::to_string(*released) + " of " +
+                            std::to_string(items.size()));
+  }
+  // Every input is checked before any work: a bad one changes nothing.
+  const Eigen::Isometry3d X_PBase = c.X_BaseP.inverse();
+  std::vector<PlacedItem> all = items;
+  if (removed) all.push_back(*removed);
+  std::vector<std::shared_ptr<const world::ItemModel>> models;
+  std::vector<DropItem> boxes;
+  std::vector<Eigen::Isometry3d> X_PB;  // box centres
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    if (!IsRigidPose(all[i].X_BaseItem)) {
+      throw LayoutError(container, "pose of '" + all[i].name + "' is not a finite rigid transform");
+    }
+    models.push_back(models_.Get(all[i].name));  // throws UnknownItemError
+    boxes.push_back({i, models.back().get(), 0.5 * models.back()->box_I.sizes()});
+    X_PB.push_back(X_PBase * all[i].X_BaseItem * Eigen::Translation3d(models[i]->box_I.center()));
+  }
+  const Eigen::Vector3d gravity_P = X_PBase.linear() * Eigen::Vector3d(0, 0, -9.81);
+  const Eigen::Vector3d up_P = -gravity_P.normalized();
+
+  RestResult result;
+  result.loose.assign(items.size(), false);
+  if (removed) {
+    result.loose = LooseItems({boxes.begin(), boxes.end() - 1}, X_PB, boxes.back().half,
+                              X_PB.back(), up_P, kLooseTouchM);
+    boxes.pop_back();
+    X_PB.pop_back();
+  }
+  if (released) {
+    const std::size_t r = *released;
+    const Eigen::Isometry3d lifted = LiftClear(boxes[r].half, X_PB[r], boxes, X_PB, up_P, r);
+    result.release_lift_m = (lifted.translation() - X_PB[r].translation()).norm();
+    X_PB[r] = lifted;
+    result.loose[r] = true;
+  }
+  // The loose items are bodies; the others, fixed obstacles that keep their poses exactly.
+  Sim sim;
+  sim.Init(c, gravity_P, options_);
+  std::vector<DropItem> moving;
+  for (std::size_t i = 0; i < boxes.size(); ++i) {
+    if (result.loose[i]) {
+      sim.AddItem(boxes[i].half, ToBt(X_PB[i]), options_);
+      moving.push_back(boxes[i]);
+    } else {
+      sim.shapes.push_back(std::make_unique<btBoxShape>(ToBt(boxes[i].half)));
+      sim.AddBody(sim.shapes.back().get(), 0.0, ToBt(X_PB[i]), options_);
+    }
+  }
+  if (released) {
+    const std::size_t k = std::count(result.loose.begin(), result.loose.begin() + *released, true);
+    // Far enough to pass the container's floor: a fall that meets nothing is a fall out.
+    const double max_m = X_PB[*released].translation().dot(up_P) - c.contain_P.min().z() + 0.1;
+    result.drop_height_m = FallUntilContact(&sim, sim.dynamic[k], up_P, std::max(max_m, 0.1));
+  }
+  std::vector<bool> lost(moving.size(), false);
+  if (!moving.empty()) {
+    result.at_rest = !StepToRest(&sim, c, moving, options_, &result.steps, &lost).has_value();
+  } else {
+    result.at_rest = true;
+  }
+  result.max_penetration_m = MaxPenetration(&sim, moving);
+  result.left_container.assign(items.size(), false);
+  for (std::size_t i = 0, k = 0; i < boxes.size(); ++i) {
+    Eigen::Isometry3d X_PB_end = X_PB[i];
+    if (result.loose[i]) {
+      const Eigen::Isometry3d X = FromBt(sim.dynamic[k]->getCenterOfMassTransform());
+      if (IsRigidPose(X)) X_PB_end = X;  // else it left the simulation as not finite
+      result.left_container[i] = lost[k];
+      ++k;
+    }
+    result.items.push_back(
+        {items[i].name, container,
+         result.loose[i] ? c.X_BaseP * X_PB_end * Eigen::Translation3d(-models[i]->box_I.center())
+                         : items[i].X_BaseItem});
+  }
+  return result;
+}
+
+RestResult PhysicsLayout::Resettle(const std::string& container,
+                                   const std::vector<PlacedItem>& items,
+                                   const PlacedItem& removed) const {
+  return SettleFrom(container, items, removed, std::nullopt);
+}
+
+RestResult PhysicsLayout::Release(const std::string& container,
+                                  const std::vector<PlacedItem>& items,
+                                  std::size_t released) const {
+  return SettleFrom(container, items, std::nullopt, released);
+}
+
+std::optional<std::string> PhysicsLayout::ContainerUnder(const Eigen::Vector3d& half,
+                                                         const Eigen::Isometry3d& X_BaseBox) const {
+  for (const PhysicsContainer& c : impl_->containers) {
+    const Eigen::Isometry3d X_PB = c.X_BaseP.inverse() * X_BaseBox;
+    const Eigen::Vector3d ext = X_PB.linear().cwiseAbs() * half;
+    const Eigen::Vector3d& p = X_PB.translation();
+    const Eigen::AlignedBox3d& free = c.centre_P;
+    const bool over = p.x() - ext.x() >= free.min().x() && p.x() + ext.x() <= free.max().x() &&
+                      p.y() - ext.y() >= free.min().y() && p.y() + ext.y() <= free.max().y();
+    const bool is_tote = c.name == "tote";
+    if (over && p.z() > free.min().z() && (is_tote || p.z() < free.max().z())) return c.name;
+  }
+  return std::nullopt;
 }
 
 }  // namespace picking::simulator

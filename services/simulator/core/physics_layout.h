@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -53,7 +54,8 @@ struct SettleOptions {
   /// container: Bullet's contact depth); a deeper pile is settled again.
   double max_penetration_m = 0.0009;
   /// Tries per container before a layout is refused; each retry has another seed and drops
-  /// more tidily, the last (of two or more) flat, square to the walls and untilted.
+  /// more tidily, the last (of two or more) flat, square to the walls and untilted, packed
+  /// against the walls and each other.
   int attempts = 6;
 };
 
@@ -65,6 +67,30 @@ struct SettleResult {
   int retries = 0;                 ///< Containers settled again after a failed attempt.
   double max_penetration_m = 0.0;  ///< Deepest contact at rest, item-item or item-cell.
   double max_speed_m_per_s = 0.0;  ///< Fastest item at the end.
+};
+
+/// The items of one container after they settled again from where they were
+/// (PhysicsLayout::Resettle and Release).
+struct RestResult {
+  /// Rest pose of every item, parallel to the input; an item that left the container is where
+  /// it left the simulation (see left_container).
+  std::vector<PlacedItem> items;
+  /// Parallel to `items`: the item was simulated (it lost its support, or it is the released
+  /// one); the others were fixed obstacles and keep their poses exactly.
+  std::vector<bool> loose;
+  /// Parallel to `items`: the item fell out of the container (over a bin's front lip, or out
+  /// of the simulation) and was taken out of it below the container's floor.
+  std::vector<bool> left_container;
+  /// Release: how far the released item fell before it first touched anything (the container
+  /// or an item), straight down from its release pose; every point of it, its lowest point
+  /// included, falls by this much. 0 for Resettle.
+  double drop_height_m = 0.0;
+  /// Release: how far the released item was raised before its fall because its box at the
+  /// release pose overlapped an item already there (0: it did not).
+  double release_lift_m = 0.0;
+  int steps = 0;         ///< Solver steps.
+  bool at_rest = false;  ///< False: the step budget ended first; the poses are the last ones.
+  double max_penetration_m = 0.0;  ///< Deepest contact at the end, item-item or item-cell.
 };
 
 /// Lays out items by dropping them into their container and letting rigid-body physics
@@ -84,8 +110,10 @@ struct SettleResult {
 /// of `candidates_per_item` seeded poses (position, face down, yaw, tilt) whose bounding box
 /// clears the items already there, and the pile settles before the next one. A container
 /// whose items do not fit, come to rest, stay inside or stay apart (max_penetration_m) is
-/// settled again with another seed, more tidily each time (`attempts`). The result depends
-/// only on the inputs and the seed.
+/// settled again with another seed, more tidily each time (`attempts`); the last attempt
+/// packs the items flat and square against the walls and each other (and where no random
+/// pose finds room, any attempt tries that packing for the item). The result depends only on
+/// the inputs and the seed.
 ///
 /// Construction measures the containers once; Settle and SettleIn are const but not thread
 /// safe (they share the containers' Bullet shapes).
@@ -111,10 +139,41 @@ class PhysicsLayout final {
   SettleResult SettleIn(const std::string& container, const std::vector<std::string>& items,
                         const std::vector<PlacedItem>& existing, std::uint32_t seed) const;
 
+  /// Lets the items of `container` that `removed` supported settle again from their poses,
+  /// now that it is gone: the items whose boxes touched its box (within 2 mm) with their
+  /// centres above its lowest point, and in turn the items touching those from above, are
+  /// bodies starting at rest where they are; the others are fixed obstacles (so that a pile
+  /// at rest, tidy or settled, is not stirred by a pick elsewhere in it). The solver steps
+  /// (as Settle, fixed step) until no body moved faster than the rest speeds over
+  /// rest_time_s, or max_steps_per_item steps have passed. A body that falls out of the
+  /// container (over a bin's open front) is taken out of the simulation and flagged. Throws
+  /// apc::UnknownItemError for an unknown item, LayoutError naming the container (and item)
+  /// for an unknown container or a pose that is not a finite rigid transform.
+  RestResult Resettle(const std::string& container, const std::vector<PlacedItem>& items,
+                      const PlacedItem& removed) const;
+
+  /// Lets `items[released]` go at its pose in `container`: it falls under gravity from rest
+  /// onto what lies below it and settles; the other items are fixed obstacles. Where its box
+  /// at the release pose overlaps another item's box, it is first raised until clear (in
+  /// 1 mm steps, release_lift_m). RestResult::drop_height_m is its fall until first contact.
+  /// Throws as Resettle, and std::out_of_range for `released` past the items.
+  RestResult Release(const std::string& container, const std::vector<PlacedItem>& items,
+                     std::size_t released) const;
+
+  /// The bin or the tote whose free box holds, seen from above, the whole footprint of a box
+  /// (half sizes `half`, its centre at X_BaseBox) with its centre above the container's floor
+  /// and, for a bin, below its ceiling; none otherwise (over the table, the floor, a wall).
+  std::optional<std::string> ContainerUnder(const Eigen::Vector3d& half,
+                                            const Eigen::Isometry3d& X_BaseBox) const;
+
   const SettleOptions& options() const { return options_; }
 
  private:
   struct Impl;
+  RestResult SettleFrom(const std::string& container, const std::vector<PlacedItem>& items,
+                        const std::optional<PlacedItem>& removed,
+                        std::optional<std::size_t> released) const;
+
   const world::ItemModelLibrary& models_;
   SettleOptions options_;
   std::unique_ptr<Impl> impl_;

@@ -33,10 +33,11 @@ SimWorld::SimWorld(world::CellModel cell, std::shared_ptr<const world::ItemModel
       !(options_.contact_stiffness_n_per_m > 0) || !(options_.contact_force_threshold_n > 0) ||
       !(options_.seal_flatness_tolerance_m > 0) || !(options_.seal_angle_tolerance_rad > 0) ||
       !(options_.seal_max_gap_m >= 0) || !(options_.seal_lookback_m >= 0) ||
-      !(options_.drop_event_height_m > 0) || !(options_.settle_tolerance_m > 0)) {
+      !(options_.drop_event_height_m > 0) || !(options_.fell_threshold_m > 0) ||
+      !(options_.fell_threshold_rad > 0)) {
     throw std::invalid_argument(
-        "SimOptions: cup_radius_m, stiffness, force threshold, tolerances and drop height must "
-        "be positive, rim_samples >= 3");
+        "SimOptions: cup_radius_m, stiffness, force threshold, tolerances, drop height and fell "
+        "thresholds must be positive, rim_samples >= 3");
   }
   if (!IsRigid(cell_.config.gripper.X_ToolTcp)) {
     throw std::invalid_argument("SimWorld: the cell's gripper.X_ToolTcp is not a rigid transform");
@@ -60,7 +61,7 @@ void SimWorld::LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutO
   // Either may throw: nothing has changed yet.
   const std::vector<PlacedItem> placed =
       layout.mode == LayoutMode::kSettled
-          ? PhysicsLayout(cell_, *models_).Settle(task, seed).items
+          ? Physics().Settle(task, seed).items
           : LayoutPlanner(cell_, *models_, *static_scene_, layout).Plan(task, seed);
   std::vector<ItemState> items;
   std::vector<std::shared_ptr<const world::ItemModel>> item_models;
@@ -77,6 +78,11 @@ void SimWorld::LoadTask(const apc::Task& task, std::uint32_t seed, const LayoutO
   X_TcpItem_ = Eigen::Isometry3d::Identity();
   pending_settle_box_.reset();
   MarkMoved();
+}
+
+const PhysicsLayout& SimWorld::Physics() const {
+  if (!physics_) physics_ = std::make_unique<PhysicsLayout>(cell_, *models_);
+  return *physics_;
 }
 
 int SimWorld::AddItem(const std::string& name, const std::string& container, std::uint32_t seed) {
@@ -140,7 +146,7 @@ void SimWorld::SetTcpPose(const Eigen::Isometry3d& X_BaseTcp) {
     if (pending_settle_box_ &&
         !pending_settle_box_->intersects(world::Bounds(model(attached_).mesh, s.X_BaseItem))) {
       pending_settle_box_.reset();
-      SettleAll();
+      SettleContainer(pending_settle_item_.container, &pending_settle_item_, 0);
     }
   }
 }
@@ -341,6 +347,7 @@ SuctionResult SimWorld::SuctionOn() {
     ItemState& s = Mutable(object);
     attached_ = object;
     X_TcpItem_ = X_BaseTcp_.inverse() * s.X_BaseItem;
+    pending_settle_item_ = {s.name, s.container, s.X_BaseItem};
     s.container = kGripper;
     result.attached_item_id = object;
     Log(EventKind::kAttached, s, 0.0);
@@ -357,9 +364,20 @@ int SimWorld::SuctionOff() {
   const int id = attached_;
   attached_ = 0;
   X_TcpItem_ = Eigen::Isometry3d::Identity();
+  // Let go before it left its place: what it supported has not settled yet.
+  const bool unsettled = pending_settle_box_.has_value();
   pending_settle_box_.reset();
-  Drop(Mutable(id), EventKind::kReleased);
-  SettleAll();
+  ItemState& s = Mutable(id);
+  const world::ItemModel& m = model(id);
+  const std::optional<std::string> into = Physics().ContainerUnder(
+      0.5 * m.box_I.sizes(), s.X_BaseItem * Eigen::Translation3d(m.box_I.center()));
+  if (into) {
+    SettleContainer(*into, nullptr, id);
+  } else {
+    const double fall = RestOnSupport(s);
+    LogFall(EventKind::kReleased, s, fall);
+  }
+  if (unsettled) SettleContainer(pending_settle_item_.container, &pending_settle_item_, 0);
   return id;
 }
 
@@ -382,9 +400,8 @@ std::string SimWorld::ClassifyContainer(const world::ItemModel& model,
     const Eigen::Vector3d c_S = cell_.config.X_BaseShelf.inverse() * c_Base;
     if (bin.inner_S.contains(c_S)) return bin.name;
   }
-  const Eigen::AlignedBox3d tote = world::Bounds(cell_.tote);
   const Eigen::Vector3d c_T = cell_.config.X_BaseTote.inverse() * c_Base;
-  if (tote.contains(c_T)) return kTote;
+  if (cell_.tote_inner_T().contains(c_T)) return kTote;
   const Eigen::Vector3d c_Table = cell_.config.X_BaseTable.inverse() * c_Base;
   const Eigen::Vector3d& size = cell_.config.table_size_m;
   if (std::abs(c_Table.x()) <= 0.5 * size.x() && std::abs(c_Table.y()) <= 0.5 * size.y() &&
@@ -412,7 +429,7 @@ double SimWorld::SupportBelow(int self_id, const world::ItemModel& model,
   return support;
 }
 
-void SimWorld::Drop(ItemState& s, EventKind kind) {
+double SimWorld::RestOnSupport(ItemState& s) {
   const world::ItemModel& m = model(s.id);
   // Turn the item onto the face whose normal points most nearly down.
   const Eigen::Matrix3d R = s.X_BaseItem.linear();
@@ -442,34 +459,52 @@ void SimWorld::Drop(ItemState& s, EventKind kind) {
   s.X_BaseItem = X;
   s.container = ClassifyContainer(m, X);
   MarkMoved();
-  Log(kind, s, fall);
-  if (fall > options_.drop_event_height_m) Log(EventKind::kDropped, s, fall);
-  if (s.container == kOutside) Log(EventKind::kOutside, s, fall);
+  return fall;
 }
 
-void SimWorld::SettleAll() {
-  // Lowest first, so an item falls onto already settled ones.
-  for (int pass = 0; pass < 4; ++pass) {
-    std::vector<int> ids;
-    for (const ItemState& s : items_) {
-      if (s.id != attached_) ids.push_back(s.id);
+void SimWorld::LogFall(EventKind kind, const ItemState& s, double drop_height_m) {
+  Log(kind, s, drop_height_m);
+  if (drop_height_m > options_.drop_event_height_m) Log(EventKind::kDropped, s, drop_height_m);
+  if (s.container == kOutside) Log(EventKind::kOutside, s, drop_height_m);
+}
+
+void SimWorld::SettleContainer(const std::string& container, const PlacedItem* removed,
+                               int released_id) {
+  if (container != kTote && !apc::IsBinName(container)) return;  // not simulated
+  std::vector<int> ids;
+  std::vector<PlacedItem> placed;
+  std::optional<std::size_t> released;
+  for (const ItemState& s : items_) {
+    if (s.id == released_id) released = ids.size();
+    if (s.id == released_id || (s.container == container && s.id != attached_)) {
+      ids.push_back(s.id);
+      placed.push_back({s.name, container, s.X_BaseItem});
     }
-    std::sort(ids.begin(), ids.end(), [&](int a, int b) {
-      return world::Bounds(model(a).mesh, item(a).X_BaseItem).min().z() <
-             world::Bounds(model(b).mesh, item(b).X_BaseItem).min().z();
-    });
-    bool moved = false;
-    for (int id : ids) {
-      ItemState& s = Mutable(id);
-      const world::ItemModel& m = model(id);
-      const Eigen::AlignedBox3d box = world::Bounds(m.mesh, s.X_BaseItem);
-      const double support = SupportBelow(id, m, s.X_BaseItem, box.min().z() + 1e-4);
-      if (box.min().z() - support > options_.settle_tolerance_m) {
-        Drop(s, EventKind::kFell);
-        moved = true;
-      }
+  }
+  if (placed.empty()) return;
+  const RestResult rest = released ? Physics().Release(container, placed, *released)
+                                   : Physics().Resettle(container, placed, *removed);
+  for (std::size_t k = 0; k < ids.size(); ++k) {
+    ItemState& s = Mutable(ids[k]);
+    const world::ItemModel& m = model(s.id);
+    const Eigen::Isometry3d& X_after = rest.items[k].X_BaseItem;
+    const Eigen::Vector3d c_before = s.X_BaseItem * m.box_I.center();
+    const double turn =
+        Eigen::AngleAxisd(X_after.linear() * s.X_BaseItem.linear().transpose()).angle();
+    const bool moved = (X_after * m.box_I.center() - c_before).norm() > options_.fell_threshold_m ||
+                       turn > options_.fell_threshold_rad;
+    if (!rest.loose[k] || (k != released && !moved && !rest.left_container[k])) continue;
+    s.X_BaseItem = X_after;
+    s.container = ClassifyContainer(m, X_after);
+    // Out over a bin's lip: the rest of its fall is outside the physics' containers.
+    if (rest.left_container[k]) RestOnSupport(s);
+    MarkMoved();
+    if (k == released) {
+      LogFall(EventKind::kReleased, s, rest.drop_height_m);
+    } else {
+      LogFall(EventKind::kFell, s,
+              std::max(0.0, c_before.z() - (s.X_BaseItem * m.box_I.center()).z()));
     }
-    if (!moved) break;
   }
 }
 

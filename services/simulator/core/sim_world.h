@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -14,6 +15,7 @@
 #include "libs/world/item_models.h"
 #include "libs/world/ray_scene.h"
 #include "services/simulator/core/layout.h"
+#include "services/simulator/core/physics_layout.h"
 #include "services/simulator/core/renderer.h"
 
 namespace picking::simulator {
@@ -39,10 +41,15 @@ struct ItemState {
 };
 
 enum class EventKind {
-  kAttached,   ///< The suction cup sealed on the item; it follows the cup.
-  kReleased,   ///< The item left the gripper and fell `drop_height_m` onto `container`.
-  kDropped,    ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
-  kFell,       ///< The item lost its support (e.g. the item below was picked) and settled.
+  kAttached,  ///< The suction cup sealed on the item; it follows the cup.
+  /// The item left the gripper and fell onto `container`: `drop_height_m` is how far it
+  /// fell before it first touched anything (every point of it, its lowest included), the
+  /// height the APC rules' drop penalty is about.
+  kReleased,
+  kDropped,  ///< A fall from higher than SimOptions::drop_event_height_m (penalised).
+  /// The item lost its support (e.g. the item below was picked) and settled again by physics:
+  /// `drop_height_m` is how far its centre fell (0 if it slid or turned without falling).
+  kFell,
   kOutside,    ///< The item came to rest outside every bin, the tote, the table and gripper.
   kCollision,  ///< The arm, gripper or carried item hit the cell (see Event::detail).
 };
@@ -93,10 +100,14 @@ struct SimOptions {
   double contact_force_threshold_n = 10.0;    ///< A guarded move stops at this force.
   double seal_flatness_tolerance_m = 0.002;   ///< Max deviation of lip points from a plane.
   double seal_angle_tolerance_rad = 0.35;     ///< Max angle between surface normal and -z_tcp.
-  double seal_max_gap_m = 0.004;      ///< Lip points may be at most this far in front of the cup.
-  double seal_lookback_m = 0.02;      ///< Surfaces up to this far behind the lip (compressed cup).
-  double drop_event_height_m = 0.3;   ///< Falls above this are recorded as kDropped.
-  double settle_tolerance_m = 0.002;  ///< An item hanging higher than this above support falls.
+  double seal_max_gap_m = 0.004;     ///< Lip points may be at most this far in front of the cup.
+  double seal_lookback_m = 0.02;     ///< Surfaces up to this far behind the lip (compressed cup).
+  double drop_event_height_m = 0.3;  ///< Falls above this are recorded as kDropped.
+  /// After a pick, an item of the container that the physics moved by more than this much
+  /// (its centre, or its turn) fell: it gets its new pose and a kFell event. Smaller moves
+  /// are the solver's jitter on a pile at rest and leave the item where it was.
+  double fell_threshold_m = 0.005;
+  double fell_threshold_rad = 3.0 * M_PI / 180.0;
 };
 
 /// Result of a guarded move along the TCP's +z axis.
@@ -185,11 +196,18 @@ class SimWorld final {
   void LogCollision(const std::string& detail);
 
   /// Vacuum on: seals if the lip meets one flat surface facing the cup; a sealed item is
-  /// attached (it follows the cup, X_TcpItem kept). Already attached: returns the seal.
+  /// attached (it follows the cup, X_TcpItem kept). Already attached: returns the seal. Once
+  /// the attached item has left the box it occupied (SetTcpPose), the items it supported in
+  /// the bin or tote it came from settle again by physics (PhysicsLayout::Resettle): each one
+  /// moved by more than the fell thresholds gets its new pose and a kFell event.
   SuctionResult SuctionOn();
 
-  /// Vacuum off: an attached item is released and falls onto the highest support under it
-  /// (turned onto its nearest face). Returns the released item's id (0: none).
+  /// Vacuum off: an attached item is released. Over a bin or the tote (its whole box within
+  /// the container's walls, seen from above) it falls by physics on to what lies below and
+  /// settles there (PhysicsLayout::Release; the items already there stay); elsewhere it falls
+  /// on to the highest support under it, turned onto its nearest face. Logs kReleased with
+  /// the fall until first contact, and kDropped / kOutside where they apply. Returns the
+  /// released item's id (0: none).
   int SuctionOff();
 
   /// Teleports an item (tests, scripted scenarios); its container is re-derived from the
@@ -230,7 +248,8 @@ class SimWorld final {
   const world::ItemModel& model(int item_id) const;
 
   /// Container of an item at X_BaseItem from geometry alone (box centre inside a bin's free
-  /// box, the tote's box, or above the table top); "outside" otherwise.
+  /// box, the tote's inner box (CellModel::tote_inner_T), or above the table top); "outside"
+  /// otherwise.
   std::string ClassifyContainer(const world::ItemModel& model,
                                 const Eigen::Isometry3d& X_BaseItem) const;
 
@@ -243,9 +262,18 @@ class SimWorld final {
   // searched from `from_z` down; returns its z (Base), at least the floor.
   double SupportBelow(int self_id, const world::ItemModel& model,
                       const Eigen::Isometry3d& X_BaseItem, double from_z) const;
-  // Turns the item onto its nearest face and lets it fall; logs events.
-  void Drop(ItemState& item, EventKind kind);
-  void SettleAll();
+  // Turns the item onto its nearest face and puts it on the highest support under it (for a
+  // fall outside the bins and the tote, which the physics does not simulate); returns how far
+  // its lowest point fell.
+  double RestOnSupport(ItemState& item);
+  // Logs `kind`, then kDropped and kOutside where they apply.
+  void LogFall(EventKind kind, const ItemState& item, double drop_height_m);
+  // The physics of one bin or the tote, built on first use.
+  const PhysicsLayout& Physics() const;
+  // Lets the items of `container` (a bin or the tote) settle again by physics: those that
+  // `removed` supported (a pick), or item `released_id` let go there; logs kReleased and
+  // kFell events.
+  void SettleContainer(const std::string& container, const PlacedItem* removed, int released_id);
   void Log(EventKind kind, const ItemState& item, double drop_height_m);
   ItemState& Mutable(int item_id);
 
@@ -263,9 +291,11 @@ class SimWorld final {
   bool vacuum_on_ = false;
   int attached_ = 0;
   Eigen::Isometry3d X_TcpItem_ = Eigen::Isometry3d::Identity();
-  // Where the attached item was when picked: once it has left that box, what rested on it
-  // falls.
+  // The attached item as it lay when picked (its container and pose) and its bounds then:
+  // once it has left that box, the items it supported settle again.
   std::optional<Eigen::AlignedBox3d> pending_settle_box_;
+  PlacedItem pending_settle_item_;
+  mutable std::unique_ptr<PhysicsLayout> physics_;
   std::vector<Event> events_;
   std::vector<LayoutRegion> regions_;
 };

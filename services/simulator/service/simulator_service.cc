@@ -367,11 +367,8 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
             pc::PoseToProto(X_BaseShelf * Eigen::Translation3d(bin.inner_S.center()));
         *out->mutable_size_m() = pc::VectorToProto(bin.inner_S.sizes());
       }
-      // The tote's inner box: its mesh bounds less the wall (as the layout uses it).
-      const Eigen::AlignedBox3d tote = world::Bounds(cell.tote);
-      constexpr double kToteWallM = 0.015;
-      const Eigen::AlignedBox3d inner(tote.min() + Eigen::Vector3d(kToteWallM, kToteWallM, 0.0),
-                                      tote.max() - Eigen::Vector3d(kToteWallM, kToteWallM, 0.0));
+      // The tote's inner box, measured from its mesh (as the layouts use it).
+      const Eigen::AlignedBox3d& inner = cell.tote_inner_T();
       *response->mutable_x_base_tote() =
           pc::PoseToProto(cell.config.X_BaseTote * Eigen::Translation3d(inner.center()));
       *response->mutable_tote_inner_size_m() = pc::VectorToProto(inner.sizes());

@@ -12,33 +12,10 @@
 #include "libs/apc/task.h"
 #include "libs/world/mesh_utils.h"
 #include "services/simulator/core/sim_world.h"
+#include "services/simulator/core/test/box_penetration.h"
 
 namespace picking::simulator {
 namespace {
-
-// How deep two oriented boxes (half sizes, poses of their centres) interpenetrate: the least
-// overlap over the 15 separating axes of two boxes; <= 0 when they are apart.
-double BoxPenetration(const Eigen::Vector3d& ha, const Eigen::Isometry3d& Xa,
-                      const Eigen::Vector3d& hb, const Eigen::Isometry3d& Xb) {
-  const Eigen::Matrix3d A = Xa.linear(), B = Xb.linear();
-  const Eigen::Vector3d d = Xb.translation() - Xa.translation();
-  std::vector<Eigen::Vector3d> axes;
-  for (int i = 0; i < 3; ++i) {
-    axes.push_back(A.col(i));
-    axes.push_back(B.col(i));
-    for (int j = 0; j < 3; ++j) {
-      const Eigen::Vector3d c = A.col(i).cross(B.col(j));
-      if (c.norm() > 1e-6) axes.push_back(c.normalized());
-    }
-  }
-  double least = std::numeric_limits<double>::infinity();
-  for (const Eigen::Vector3d& n : axes) {
-    const double ra = (A.transpose() * n).cwiseAbs().dot(ha);
-    const double rb = (B.transpose() * n).cwiseAbs().dot(hb);
-    least = std::min(least, ra + rb - std::abs(n.dot(d)));
-  }
-  return least;
-}
 
 TEST(BoxPenetrationTest, MeasuresOverlapAndSeparation) {
   const Eigen::Vector3d h(0.1, 0.05, 0.02);
@@ -90,7 +67,7 @@ PhysicsLayout* PhysicsLayoutTest::layout_ = nullptr;
 std::pair<Eigen::Isometry3d, Eigen::AlignedBox3d> ContainerBox(const world::CellModel& cell,
                                                                const std::string& container) {
   if (container == kTote) {
-    Eigen::AlignedBox3d box = cell.tote_inner_T(0.0);
+    Eigen::AlignedBox3d box = cell.tote_inner_T();
     box.max().z() += SettleOptions{}.tote_stack_height_m;
     return {cell.config.X_BaseTote, box};
   }
@@ -209,6 +186,179 @@ TEST_F(PhysicsLayoutTest, ExistingItemsAreObstacles) {
   for (const auto& bin : world_->cell().bins) task.bin_contents[bin.name] = {};
   task.bin_contents["bin_E"] = {"crayola_24_ct", "dove_beauty_bar", "kleenex_tissue_box"};
   CheckSettled(world_->cell(), *models_, *world_, task, all);
+}
+
+// How far an item moved between two poses: its box centre's shift and its turn.
+std::pair<double, double> Moved(const world::ItemModel& model, const Eigen::Isometry3d& X_before,
+                                const Eigen::Isometry3d& X_after) {
+  const double shift = (X_after * model.box_I.center() - X_before * model.box_I.center()).norm();
+  const double turn = Eigen::AngleAxisd(X_after.linear() * X_before.linear().transpose()).angle();
+  return {shift, turn};
+}
+
+// Every item of pick_layout_1's bins taken away in turn, tidy and settled: the items it did
+// not support keep their poses exactly; those it did settle, come to rest inside the bin
+// (or leave it over the lip) and enter no other item by more than 1 mm; the same poses on
+// every run.
+TEST_F(PhysicsLayoutTest, TakingAnyItemAwayLeavesTheRestConsistent) {
+  const apc::Task task = Task("pick_layout_1");
+  for (const LayoutMode mode : {LayoutMode::kTidy, LayoutMode::kSettled}) {
+    LayoutOptions options;
+    options.mode = mode;
+    world_->LoadTask(task, 5, options);
+    int loose = 0, fell = 0;
+    for (const auto& [bin, names] : task.bin_contents) {
+      std::vector<PlacedItem> all;
+      for (const ItemState& s : world_->ItemsIn(bin)) all.push_back({s.name, bin, s.X_BaseItem});
+      for (std::size_t r = 0; r < all.size(); ++r) {
+        SCOPED_TRACE(std::string(mode == LayoutMode::kTidy ? "tidy " : "settled ") + bin +
+                     " without " + all[r].name);
+        std::vector<PlacedItem> items = all;
+        items.erase(items.begin() + r);
+        const RestResult rest = layout_->Resettle(bin, items, all[r]);
+        EXPECT_TRUE(rest.at_rest);
+        ASSERT_EQ(rest.items.size(), items.size());
+        std::vector<Eigen::Vector3d> half;
+        std::vector<Eigen::Isometry3d> X_BaseBox;
+        for (std::size_t i = 0; i < items.size(); ++i) {
+          const auto model = models_->Get(items[i].name);
+          half.push_back(0.5 * model->box_I.sizes());
+          X_BaseBox.push_back(rest.items[i].X_BaseItem *
+                              Eigen::Translation3d(model->box_I.center()));
+          if (!rest.loose[i]) {
+            EXPECT_EQ(rest.items[i].X_BaseItem.matrix(), items[i].X_BaseItem.matrix());
+            continue;
+          }
+          ++loose;
+          fell += (X_BaseBox.back().translation() - items[i].X_BaseItem * model->box_I.center())
+                      .norm() > 0.005;
+          if (!rest.left_container[i]) {
+            EXPECT_EQ(world_->ClassifyContainer(*model, rest.items[i].X_BaseItem), bin)
+                << items[i].name;
+          }
+        }
+        for (std::size_t i = 0; i < items.size(); ++i) {
+          for (std::size_t j = 0; j < items.size(); ++j) {
+            if (!rest.loose[i] || i == j || rest.left_container[i]) continue;
+            EXPECT_LE(BoxPenetration(half[i], X_BaseBox[i], half[j], X_BaseBox[j]), 0.001)
+                << items[i].name << " and " << items[j].name;
+          }
+        }
+        const RestResult again = layout_->Resettle(bin, items, all[r]);
+        for (std::size_t i = 0; i < items.size(); ++i) {
+          EXPECT_EQ(again.items[i].X_BaseItem.matrix(), rest.items[i].X_BaseItem.matrix());
+        }
+      }
+    }
+    std::printf("%s: %d items lost their support, %d of them moved more than 5 mm\n",
+                mode == LayoutMode::kTidy ? "tidy" : "settled", loose, fell);
+    EXPECT_GT(loose, 0);
+  }
+}
+
+// An item let go over the tote falls straight down until it first touches something (the
+// drop height), lands on the items already there without entering them, and stays in the
+// tote.
+TEST_F(PhysicsLayoutTest, AReleasedItemFallsOntoThePile) {
+  const world::CellModel& cell = world_->cell();
+  const Eigen::AlignedBox3d& tote_T = cell.tote_inner_T();
+  const auto box = models_->Get("kleenex_tissue_box");
+  // Over the empty tote, its lowest point 0.25 m above the floor: it falls 0.25 m.
+  Eigen::Isometry3d X_TBox = Eigen::Isometry3d::Identity();
+  X_TBox.translation() = tote_T.center();
+  X_TBox.translation().z() = tote_T.min().z() + 0.25 + 0.5 * box->box_I.sizes().z();
+  const Eigen::Isometry3d X_BaseItem =
+      cell.config.X_BaseTote * X_TBox * Eigen::Translation3d(-box->box_I.center());
+  const RestResult empty = layout_->Release("tote", {{box->item->name, "tote", X_BaseItem}}, 0);
+  EXPECT_NEAR(empty.drop_height_m, 0.25, 0.0015);
+  EXPECT_EQ(empty.release_lift_m, 0.0);
+  EXPECT_TRUE(empty.at_rest);
+  EXPECT_NEAR((empty.items[0].X_BaseItem * box->box_I.center()).z(),
+              (cell.config.X_BaseTote * X_TBox.translation()).z() - 0.25, 0.002);
+
+  // Onto a settled pile of six items; then once more where its box overlaps one of them.
+  const std::vector<std::string> pile = {
+      "crayola_24_ct", "dove_beauty_bar",          "expo_dry_erase_board_eraser",
+      "jane_eyre_dvd", "laugh_out_loud_joke_book", "staples_index_cards"};
+  std::vector<PlacedItem> items = layout_->SettleIn("tote", pile, {}, 9).items;
+  double top_z = -1.0;
+  for (const PlacedItem& p : items) {
+    top_z = std::max(top_z, world::Bounds(models_->Get(p.name)->mesh, p.X_BaseItem).max().z());
+  }
+  for (const bool overlapping : {false, true}) {
+    SCOPED_TRACE(overlapping ? "overlapping" : "above");
+    std::vector<PlacedItem> with = items;
+    Eigen::Isometry3d X = X_BaseItem;
+    const double lowest_z = top_z + 0.1;
+    X.translation().z() += lowest_z - world::Bounds(box->mesh, X_BaseItem).min().z();
+    if (overlapping) {
+      // Its centre at the first item's centre.
+      X.translation() +=
+          with[0].X_BaseItem * models_->Get(with[0].name)->box_I.center() - X * box->box_I.center();
+    }
+    with.push_back({box->item->name, "tote", X});
+    const RestResult r = layout_->Release("tote", with, with.size() - 1);
+    EXPECT_TRUE(r.at_rest);
+    EXPECT_EQ(r.release_lift_m > 0.0, overlapping);
+    if (!overlapping) {
+      EXPECT_GE(r.drop_height_m, 0.1 - 0.002);
+      // It met the pile before the floor.
+      const double floor_z = (cell.config.X_BaseTote * tote_T.min()).z();
+      EXPECT_LT(r.drop_height_m, lowest_z - floor_z - 0.005);
+    }
+    std::vector<Eigen::Vector3d> half;
+    std::vector<Eigen::Isometry3d> X_BaseBox;
+    for (const PlacedItem& p : r.items) {
+      const auto model = models_->Get(p.name);
+      half.push_back(0.5 * model->box_I.sizes());
+      X_BaseBox.push_back(p.X_BaseItem * Eigen::Translation3d(model->box_I.center()));
+      EXPECT_EQ(world_->ClassifyContainer(*model, p.X_BaseItem), kTote) << p.name;
+    }
+    for (std::size_t i = 0; i + 1 < half.size(); ++i) {
+      EXPECT_LE(BoxPenetration(half.back(), X_BaseBox.back(), half[i], X_BaseBox[i]), 0.001)
+          << r.items[i].name;
+    }
+  }
+}
+
+TEST_F(PhysicsLayoutTest, ASettleFromPosesRefusesBadInput) {
+  const std::vector<PlacedItem> items = layout_->SettleIn("bin_A", {"crayola_24_ct"}, {}, 1).items;
+  std::vector<PlacedItem> nan = items;
+  nan[0].X_BaseItem.translation().z() = std::numeric_limits<double>::quiet_NaN();
+  try {
+    layout_->Resettle("bin_A", nan, items[0]);
+    FAIL() << "no throw";
+  } catch (const LayoutError& e) {
+    EXPECT_EQ(e.container(), "bin_A");
+    EXPECT_NE(std::string(e.what()).find("crayola_24_ct"), std::string::npos) << e.what();
+  }
+  std::vector<PlacedItem> unknown = items;
+  unknown[0].name = "golden_ball";
+  EXPECT_THROW(layout_->Resettle("bin_A", unknown, items[0]), apc::UnknownItemError);
+  EXPECT_THROW(layout_->Resettle("bin_A", items, unknown[0]), apc::UnknownItemError);
+  EXPECT_THROW(layout_->Resettle("bin_A", items, nan[0]), LayoutError);
+  EXPECT_THROW(layout_->Resettle("bin_Q", items, items[0]), LayoutError);
+  EXPECT_THROW(layout_->Release("bin_A", items, 1), std::out_of_range);
+  EXPECT_TRUE(layout_->Resettle("bin_A", {}, items[0]).items.empty());
+}
+
+// Releases go to the physics only where the whole box is over a container.
+TEST_F(PhysicsLayoutTest, ContainerUnderAReleasedBox) {
+  const world::CellModel& cell = world_->cell();
+  const Eigen::Vector3d half(0.05, 0.04, 0.03);
+  const Eigen::AlignedBox3d& tote_T = cell.tote_inner_T();
+  const auto at = [](const Eigen::Isometry3d& X_BaseFrame, const Eigen::Vector3d& p_Frame) {
+    return Eigen::Isometry3d(Eigen::Translation3d(X_BaseFrame * p_Frame));
+  };
+  const Eigen::Vector3d above_tote(tote_T.center().x(), tote_T.center().y(),
+                                   tote_T.max().z() + 0.3);
+  EXPECT_EQ(layout_->ContainerUnder(half, at(cell.config.X_BaseTote, above_tote)), "tote");
+  const Eigen::Vector3d on_rim(tote_T.max().x(), tote_T.center().y(), tote_T.max().z() + 0.1);
+  EXPECT_FALSE(layout_->ContainerUnder(half, at(cell.config.X_BaseTote, on_rim)));
+  EXPECT_EQ(layout_->ContainerUnder(
+                half, at(cell.config.X_BaseShelf, cell.bin("bin_E").inner_S.center())),
+            "bin_E");
+  EXPECT_FALSE(layout_->ContainerUnder(half, at(cell.config.X_BaseTable, {0, 0, 0.2})));
 }
 
 // A random dense task: every bin gets 5 to 10 items and the tote 6 to 12, drawn from the

@@ -2,12 +2,16 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <map>
 #include <memory>
 
 #include "libs/apc/bins.h"
 #include "libs/apc/task.h"
 #include "libs/world/mesh_utils.h"
+#include "services/simulator/core/physics_layout.h"
+#include "services/simulator/core/test/box_penetration.h"
 
 namespace picking::simulator {
 namespace {
@@ -218,6 +222,141 @@ TEST_F(SimWorldTest, ItemOnTopFallsWhenTheItemBelowIsPulledOut) {
   EXPECT_NEAR(fell.drop_height_m, box.sizes().z(), 3e-3);
   EXPECT_EQ(world_->item(book).container, "bin_E");
   EXPECT_NEAR(BoxOf(book).min().z(), box.min().z(), 0.02);  // back on the bin floor
+}
+
+// Puts item `id` on top of item `below`, centred over it, `gap_m` above its top.
+void StackOn(SimWorld* world, int id, int below, double gap_m = 0.0005) {
+  const auto bounds = [&](int i) {
+    return world::Bounds(world->model(i).mesh, world->item(i).X_BaseItem);
+  };
+  Eigen::Isometry3d X = world->item(id).X_BaseItem;
+  X.translation().x() += bounds(below).center().x() - bounds(id).center().x();
+  X.translation().y() += bounds(below).center().y() - bounds(id).center().y();
+  X.translation().z() += bounds(below).max().z() + gap_m - bounds(id).min().z();
+  world->SetItemPose(id, X);
+}
+
+// The robot takes the lowest item of a three-high stack: the cup seals on its front face and
+// pulls it out of the bin. The two items above settle by physics onto what is left: lower,
+// on the bin floor or on each other, apart, inside the bin, each with a kFell event giving
+// how far its centre fell; the item beside the stack does not move.
+TEST_F(SimWorldTest, PickingTheLowestItemOfAStackLetsTheItemsAboveSettle) {
+  const int book = world_->AddItem("i_am_a_bunny_book", "bin_E", 1);
+  const int dvd = world_->AddItem("jane_eyre_dvd", "bin_H", 1);
+  const int beside = world_->AddItem("dove_beauty_bar", "bin_E", 2);
+  StackOn(world_.get(), book, box_id_);
+  StackOn(world_.get(), dvd, book);
+  ASSERT_EQ(world_->ItemsIn("bin_E").size(), 4u);
+  const std::vector<ItemState> before = world_->items();
+  const Eigen::AlignedBox3d box = BoxOf(box_id_);
+
+  // The cup on the tissue box's front face, 3 cm above its bottom, pressing toward the shelf.
+  const Eigen::Vector3d front(box.min().x(), box.center().y(), box.min().z() + 0.03);
+  world_->SetTcpPose(CupAt(front - Eigen::Vector3d(0.05, 0, 0), Eigen::Vector3d::UnitX()));
+  ASSERT_EQ(world_->GuardedMove(0.2).contact_item_id, box_id_);
+  ASSERT_EQ(world_->SuctionOn().attached_item_id, box_id_);
+  // Out of the bin in 1 cm steps, as the arm would draw it.
+  for (int step = 0; step < 40; ++step) {
+    Eigen::Isometry3d X = world_->X_BaseTcp();
+    X.translation().x() -= 0.01;
+    world_->SetTcpPose(X);
+  }
+  EXPECT_EQ(world_->item(box_id_).container, kGripper);
+
+  std::map<int, double> fell;  // item id: drop height
+  for (const Event& e : world_->events()) {
+    if (e.kind == EventKind::kFell) fell[e.item_id] = e.drop_height_m;
+    EXPECT_NE(e.kind, EventKind::kOutside) << e.item_name;
+  }
+  EXPECT_EQ(fell.size(), 2u);
+  const world::BinGeometry& bin = cell_->bin("bin_E");
+  const Eigen::Isometry3d X_ShelfBase = cell_->config.X_BaseShelf.inverse();
+  const double floor_z = (cell_->config.X_BaseShelf * bin.inner_S.min()).z();
+  for (const int id : {book, dvd}) {
+    SCOPED_TRACE(world_->item(id).name);
+    const world::ItemModel& m = world_->model(id);
+    const ItemState& then =
+        *std::find_if(before.begin(), before.end(), [&](const ItemState& s) { return s.id == id; });
+    const double centre_fall = (then.X_BaseItem * m.box_I.center()).z() -
+                               (world_->item(id).X_BaseItem * m.box_I.center()).z();
+    EXPECT_GT(centre_fall, 0.05);  // the tissue box is about 10 cm tall
+    ASSERT_EQ(fell.count(id), 1u);
+    EXPECT_NEAR(fell[id], centre_fall, 1e-9);
+    EXPECT_EQ(world_->item(id).container, "bin_E");
+    // Inside the bin's free box, but for 1 cm.
+    const Eigen::AlignedBox3d b_S =
+        world::Bounds(m.mesh, X_ShelfBase * world_->item(id).X_BaseItem);
+    const Eigen::AlignedBox3d grown(bin.inner_S.min() - Eigen::Vector3d::Constant(0.01),
+                                    bin.inner_S.max() + Eigen::Vector3d::Constant(0.01));
+    EXPECT_TRUE(grown.contains(b_S)) << b_S.min().transpose() << " " << b_S.max().transpose();
+    EXPECT_LT(BoxOf(id).min().z(), floor_z + 0.05);  // down on the floor or on the book
+  }
+  // The item beside the stack did not move; nothing left in the bin interpenetrates.
+  const ItemState& beside_then = *std::find_if(before.begin(), before.end(),
+                                               [&](const ItemState& s) { return s.id == beside; });
+  EXPECT_EQ(world_->item(beside).X_BaseItem.matrix(), beside_then.X_BaseItem.matrix());
+  const std::vector<ItemState> left = world_->ItemsIn("bin_E");
+  ASSERT_EQ(left.size(), 3u);
+  for (std::size_t i = 0; i < left.size(); ++i) {
+    for (std::size_t j = i + 1; j < left.size(); ++j) {
+      const world::ItemModel& a = world_->model(left[i].id);
+      const world::ItemModel& b = world_->model(left[j].id);
+      EXPECT_LE(BoxPenetration(0.5 * a.box_I.sizes(),
+                               left[i].X_BaseItem * Eigen::Translation3d(a.box_I.center()),
+                               0.5 * b.box_I.sizes(),
+                               left[j].X_BaseItem * Eigen::Translation3d(b.box_I.center())),
+                0.001)
+          << left[i].name << " and " << left[j].name;
+    }
+  }
+  // They rest: each fallen item lies on the bin floor or touches an item left there.
+  for (const int id : {book, dvd}) {
+    const world::ItemModel& m = world_->model(id);
+    const Eigen::Isometry3d X_BaseBox =
+        world_->item(id).X_BaseItem * Eigen::Translation3d(m.box_I.center());
+    const double floor_max_z =
+        (cell_->config.X_BaseShelf * Eigen::Vector3d(0, 0, bin.floor_max_z_m)).z();
+    bool supported = BoxOf(id).min().z() < floor_max_z + 0.003;
+    for (const ItemState& s : left) {
+      const world::ItemModel& o = world_->model(s.id);
+      supported = supported ||
+                  (s.id != id &&
+                   BoxPenetration(0.5 * m.box_I.sizes(), X_BaseBox, 0.5 * o.box_I.sizes(),
+                                  s.X_BaseItem * Eigen::Translation3d(o.box_I.center())) > -0.002);
+    }
+    EXPECT_TRUE(supported) << world_->item(id).name;
+  }
+}
+
+// A tidy pile loses nothing to a pick beside it: only what the picked item held moves.
+TEST_F(SimWorldTest, APickMovesNothingItDidNotHold) {
+  const apc::Task task = apc::ReadTaskFile(
+      apc::DefaultDataDir() + "/apc2016/tasks/pick_layout_1.json", models_->catalogue());
+  world_->LoadTask(task, 11);
+  const std::vector<ItemState> bin = world_->ItemsIn("bin_H");
+  ASSERT_GT(bin.size(), 2u);
+  // The item with the largest footprint, from above.
+  const auto footprint = [&](const ItemState& s) {
+    const Eigen::Vector3d size = BoxOf(s.id).sizes();
+    return size.x() * size.y();
+  };
+  const ItemState target = *std::max_element(
+      bin.begin(), bin.end(),
+      [&](const ItemState& a, const ItemState& b) { return footprint(a) < footprint(b); });
+  CupAbove(target.id, 0.03);
+  world_->GuardedMove(0.1);
+  const SuctionResult seal = world_->SuctionOn();
+  ASSERT_EQ(seal.attached_item_id, target.id) << seal.reason << " " << target.name;
+  for (int step = 0; step < 30; ++step) {
+    Eigen::Isometry3d X = world_->X_BaseTcp();
+    X.translation() += Eigen::Vector3d(-0.01, 0.0, 0.003);
+    world_->SetTcpPose(X);
+  }
+  for (const Event& e : world_->events()) EXPECT_NE(e.kind, EventKind::kFell) << e.item_name;
+  for (const ItemState& s : bin) {
+    if (s.id == target.id) continue;
+    EXPECT_EQ(world_->item(s.id).X_BaseItem.matrix(), s.X_BaseItem.matrix()) << s.name;
+  }
 }
 
 TEST_F(SimWorldTest, BadRequestsThrowAndChangeNothing) {
