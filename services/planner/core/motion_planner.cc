@@ -1511,43 +1511,22 @@ double HalfFootprint(const Eigen::AlignedBox3d& box_I, const Eigen::Isometry3d& 
 
 }  // namespace
 
-PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadline) const {
-  const auto started = std::chrono::steady_clock::now();
-  ValidateStart(request.start_rad);
-  std::shared_ptr<const world::ItemModel> model;
-  try {
-    model = items_->Get(request.item);
-  } catch (const apc::UnknownItemError&) {
-    throw NotFoundError("unknown item '" + request.item.substr(0, 60) + "'");
-  }
-  if (!IsRigid(request.X_TcpItem)) throw std::invalid_argument("X_tcp_item must be rigid");
-  const GraspContainer container = Container(request.container);
-  const std::shared_ptr<const Head> head_ptr = HeadAt(request.head_angle_rad);  // throws
-  const Head& head = *head_ptr;
-  const bool straight = head_ptr == straight_head_;
-  const CarriedItem carried = MakeCarriedItem(request.item, model->box_I, request.X_TcpItem);
-  // The item's lowest point below the tcp when the tcp points straight down.
-  const Eigen::Isometry3d X_down = DownAt(Eigen::Vector3d::Zero());
-  double below_m = 0.0;
-  for (int i = 0; i < 8; ++i) {
-    const Eigen::Vector3d corner((i & 1) ? model->box_I.max().x() : model->box_I.min().x(),
-                                 (i & 2) ? model->box_I.max().y() : model->box_I.min().y(),
-                                 (i & 4) ? model->box_I.max().z() : model->box_I.min().z());
-    below_m = std::max(below_m, -(X_down * request.X_TcpItem * corner).z());
-  }
+std::vector<Eigen::Isometry3d> MotionPlanner::ReleasePoses(const GraspContainer& container,
+                                                           const world::ItemModel& model,
+                                                           const PlaceRequest& request,
+                                                           double below_m) const {
+  // Release over the tote (item 5 cm above the rim), on the table, or just inside a bin's
+  // opening.
+  std::vector<Eigen::Isometry3d> candidates;
   const Eigen::Vector3d centre = container.X_BaseContainer.translation();
   const double floor_z = centre.z() - 0.5 * container.inner_size_m.z();
   const double rim_z = centre.z() + 0.5 * container.inner_size_m.z();
-  PlacePlan plan;
-  std::vector<PlanFailure> failures;
-  // Release over the tote (item 5 cm above the rim), or just inside a bin's opening.
-  std::vector<Eigen::Isometry3d> candidates;
   if (container.kind == GraspContainerKind::kOpenTop) {
     // The item's spot first (items let go one over the other stand and stack up above the
     // rim), then the others in turn, should the arm not reach it.
     const Eigen::Vector3d x = container.X_BaseContainer.linear().col(0);
     const Eigen::Vector3d y = container.X_BaseContainer.linear().col(1);
-    const double half_footprint_m = HalfFootprint(model->box_I, request.X_TcpItem);
+    const double half_footprint_m = HalfFootprint(model.box_I, request.X_TcpItem);
     std::vector<Eigen::Vector2d> spots =
         ToteReleaseSpots(container.inner_size_m.head<2>(), half_footprint_m);
     // Over the tote an item is let go 5 cm above the rim; on the table it is set down (2 cm
@@ -1584,6 +1563,39 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
       }
     }
   }
+  return candidates;
+}
+
+PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadline) const {
+  const auto started = std::chrono::steady_clock::now();
+  ValidateStart(request.start_rad);
+  std::shared_ptr<const world::ItemModel> model;
+  try {
+    model = items_->Get(request.item);
+  } catch (const apc::UnknownItemError&) {
+    throw NotFoundError("unknown item '" + request.item.substr(0, 60) + "'");
+  }
+  if (!IsRigid(request.X_TcpItem)) throw std::invalid_argument("X_tcp_item must be rigid");
+  const GraspContainer container = Container(request.container);
+  const std::shared_ptr<const Head> head_ptr = HeadAt(request.head_angle_rad);  // throws
+  const Head& head = *head_ptr;
+  const bool straight = head_ptr == straight_head_;
+  const CarriedItem carried = MakeCarriedItem(request.item, model->box_I, request.X_TcpItem);
+  // The item's lowest point below the tcp when the tcp points straight down.
+  const Eigen::Isometry3d X_down = DownAt(Eigen::Vector3d::Zero());
+  double below_m = 0.0;
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d corner((i & 1) ? model->box_I.max().x() : model->box_I.min().x(),
+                                 (i & 2) ? model->box_I.max().y() : model->box_I.min().y(),
+                                 (i & 4) ? model->box_I.max().z() : model->box_I.min().z());
+    below_m = std::max(below_m, -(X_down * request.X_TcpItem * corner).z());
+  }
+  const double floor_z =
+      container.X_BaseContainer.translation().z() - 0.5 * container.inner_size_m.z();
+  PlacePlan plan;
+  std::vector<PlanFailure> failures;
+  const std::vector<Eigen::Isometry3d> candidates =
+      ReleasePoses(container, *model, request, below_m);
   // A long item may still reach into the bin it came from: draw it straight out first, so
   // that the arm's first turn does not swing it into the shelf.
   const DrawOut draw_out = DrawItemOut(request, carried, head, deadline);

@@ -319,6 +319,12 @@ class MotionPlanner final {
   // The shelf bin the carried item is in, or just before (within the exit clearance).
   std::optional<GraspContainer> BinHoldingItem(const Eigen::Isometry3d& X_BaseItem,
                                                const CarriedItem& carried) const;
+  /// Where the carried item may be let go in `container`, best first: over the tote's spots
+  /// (from the request's placed_before on), set down in the middle of the table, or inside a
+  /// bin's opening; `below_m`: the item's lowest point below the tcp pointing down.
+  std::vector<Eigen::Isometry3d> ReleasePoses(const GraspContainer& container,
+                                              const world::ItemModel& model,
+                                              const PlaceRequest& request, double below_m) const;
   DrawOut DrawItemOut(const PlaceRequest& request, const CarriedItem& carried, const Head& head,
                       Deadline deadline) const;
   // How far the item's box at X_BaseItem must still move out along the opening direction to
