@@ -327,6 +327,7 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           static_cast<std::uint32_t>(r.num_visible - r.num_occluded));
       response->set_supported_model_points(static_cast<std::uint32_t>(r.num_supported));
       response->set_conflicting_model_points(static_cast<std::uint32_t>(r.num_conflicts));
+      response->set_too_little_visible(r.too_little_visible);
       return grpc::Status::OK;
     });
   }

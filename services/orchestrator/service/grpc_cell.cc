@@ -554,7 +554,9 @@ double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,
   std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(*view.cloud_Base);
   dt::VerifyResponse response;
   ThrowIfFailed("detector", "Verify", options_.verify(params, chunks, &response));
-  if (static_cast<int>(response.visible_model_points()) < options_.min_visible_points_to_verify) {
+  // A view that shows too little of the held item cannot tell (-1), whatever its score.
+  if (static_cast<int>(response.visible_model_points()) < options_.min_visible_points_to_verify ||
+      response.too_little_visible()) {
     return -1.0;
   }
   return response.score();
