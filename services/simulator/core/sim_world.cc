@@ -400,8 +400,12 @@ std::string SimWorld::ClassifyContainer(const world::ItemModel& model,
     const Eigen::Vector3d c_S = cell_.config.X_BaseShelf.inverse() * c_Base;
     if (bin.inner_S.contains(c_S)) return bin.name;
   }
+  // An item resting in the tote may stand out above its rim (a roll on end, a pile): its
+  // centre over the tote's floor counts, up to 0.3 m above the rim.
   const Eigen::Vector3d c_T = cell_.config.X_BaseTote.inverse() * c_Base;
-  if (cell_.tote_inner_T().contains(c_T)) return kTote;
+  Eigen::AlignedBox3d tote = cell_.tote_inner_T();
+  tote.max().z() += 0.3;
+  if (tote.contains(c_T)) return kTote;
   const Eigen::Vector3d c_Table = cell_.config.X_BaseTable.inverse() * c_Base;
   const Eigen::Vector3d& size = cell_.config.table_size_m;
   if (std::abs(c_Table.x()) <= 0.5 * size.x() && std::abs(c_Table.y()) <= 0.5 * size.y() &&

@@ -193,6 +193,21 @@ TEST_F(SimWorldTest, NoSealOnARoundOrTiltedSurface) {
   EXPECT_NE(away.reason.find("touch"), std::string::npos) << away.reason;
 }
 
+// An item standing in the tote above its rim (a roll on end, the top of a pile) is in the
+// tote; beside the tote at the same height it is not.
+TEST_F(SimWorldTest, AnItemStandingOutAboveTheTotesRimIsInTheTote) {
+  const Eigen::AlignedBox3d inner_T = cell_->tote_inner_T();
+  Eigen::Isometry3d X_BaseItem =
+      cell_->config.X_BaseTote *
+      Eigen::Translation3d(inner_T.center().x(), inner_T.center().y(), inner_T.max().z() + 0.1);
+  X_BaseItem.translation() -= X_BaseItem.linear() * world_->model(box_id_).box_I.center();
+  world_->SetItemPose(box_id_, X_BaseItem);
+  EXPECT_EQ(world_->item(box_id_).container, kTote);
+  X_BaseItem.translation().y() += inner_T.sizes().y();  // beside it
+  world_->SetItemPose(box_id_, X_BaseItem);
+  EXPECT_NE(world_->item(box_id_).container, kTote);
+}
+
 TEST_F(SimWorldTest, ItemOnTopFallsWhenTheItemBelowIsPulledOut) {
   // A book lying on the tissue box.
   const int book = world_->AddItem("i_am_a_bunny_book", "bin_H", 1);
