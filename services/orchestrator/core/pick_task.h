@@ -117,7 +117,7 @@ struct PickTaskOptions {
   /// `table_identity_margin` of the detection score, or put back into the tote when the view
   /// cannot tell.
   enum class TableCheck { kNever, kInDoubt, kAlways };
-  TableCheck table_check = TableCheck::kInDoubt;
+  TableCheck table_check = TableCheck::kNever;
   std::string verify_pose = "verify";
   double table_identity_margin = 0.05;
 };

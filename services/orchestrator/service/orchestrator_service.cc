@@ -310,7 +310,7 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   options.pick.min_time_per_item_s =
       config.GetDouble("min_time_per_item_s", options.pick.min_time_per_item_s);
   options.pick.detect_ahead = config.GetBool("detect_ahead", options.pick.detect_ahead);
-  const std::string table = config.GetString("stow.table", "in_doubt");
+  const std::string table = config.GetString("stow.table", "never");
   using TableCheck = PickTaskOptions::TableCheck;
   if (table == "in_doubt") {
     options.pick.table_check = TableCheck::kInDoubt;

@@ -618,6 +618,7 @@ apc::Task TwoItemStow() {
 TEST_F(PickTaskTest, AStowItemInDoubtIsToldApartOnTheTableAndStowedAsWhatItIs) {
   const apc::Task stow = TwoItemStow();
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
+  options_.table_check = PickTaskOptions::TableCheck::kInDoubt;
   ScriptedCell cell;
   cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";  // the first detection
   cell.on_table_is = "kleenex_tissue_box";
@@ -646,6 +647,7 @@ TEST_F(PickTaskTest, AStowItemInDoubtIsToldApartOnTheTableAndStowedAsWhatItIs) {
 TEST_F(PickTaskTest, AStowItemTheTableCannotTellApartGoesBackIntoTheTote) {
   const apc::Task stow = TwoItemStow();
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
+  options_.table_check = PickTaskOptions::TableCheck::kInDoubt;
   ScriptedCell cell;
   cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";
   cell.on_table_is = "";  // both look alike there
@@ -685,6 +687,7 @@ TEST_F(PickTaskTest, AStowMaySetEveryItemDownOnTheTableFirst) {
 TEST_F(PickTaskTest, AResumedStowTellsApartTheItemItLeftOnTheTable) {
   const apc::Task stow = TwoItemStow();
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
+  options_.table_check = PickTaskOptions::TableCheck::kInDoubt;
   ScriptedCell cell;
   cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";
   cell.on_table_is = "kleenex_tissue_box";
