@@ -5,7 +5,6 @@
 #include <optional>
 #include <stdexcept>
 
-#include "services/detector/core/budget_clock.h"
 #include "services/detector/core/detect_in_region.h"
 
 namespace picking::detector_eval {
@@ -94,33 +93,12 @@ detector::SceneAgreement TruePoseAgreement(
                                     ppf.conflict_distance_rel * step);
 }
 
-std::vector<detector::Detection> CandidatesInBin(
-    const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
-    const std::string& item, std::size_t max_results, const BinDetectionOptions& options) {
-  // As the detector service's default: budgets by this thread's CPU time, so the figures do
-  // not depend on what else the machine runs.
-  const detector::BudgetClock clock = detector::BudgetClock::ThreadCpu(pthread_self());
-  const auto budget_start = clock.Now();
-  const detector::PreparedScene prepared = Prepare(scan, options);
-  detector::ItemQuery query;
-  query.item = item;
-  query.budget_scale = options.budget_scale;
-  query.budget_clock = clock;
-  query.min_score = 0.01;
-  query.max_results = max_results;
-  return detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared), query,
-                              budget_start)
-      .poses;
-}
-
 BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrary>& library,
                                const BinScan& scan, const std::string& item,
                                std::optional<detector::Method> method,
                                const BinDetectionOptions& options) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
-  const detector::BudgetClock clock = detector::BudgetClock::ThreadCpu(pthread_self());
-  const auto budget_start = clock.Now();
   BinDetectionResult result;
   const detector::PreparedScene prepared = Prepare(scan, options);
   result.points_in_region = prepared.finite_points;
@@ -129,11 +107,10 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   query.item = item;
   query.method = method;
   query.budget_scale = options.budget_scale;
-  query.budget_clock = clock;
   // As the detector service does: the pre-processing counts in the item's budget.
-  result.chain = detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared),
-                                      query, budget_start)
-                     .chain;
+  result.chain =
+      detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared), query, start)
+          .chain;
   result.total_s = std::chrono::duration<double>(Clock::now() - start).count();
   return result;
 }

@@ -66,13 +66,6 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
                                std::optional<detector::Method> method = std::nullopt,
                                const BinDetectionOptions& options = {});
 
-/// Up to `max_results` distinct candidate poses of the item's chain down to a score of 0.01,
-/// best first (detector::ItemQuery::max_results), for judging the score on wrong poses too.
-/// Throws as DetectInBin.
-std::vector<detector::Detection> CandidatesInBin(
-    const std::shared_ptr<const detector::ModelLibrary>& library, const BinScan& scan,
-    const std::string& item, std::size_t max_results, const BinDetectionOptions& options = {});
-
 /// The verification of the true pose `X_BaseItem` of `item` in the same pre-processed
 /// region (no refinement): what a perfect estimator would score. Throws as DetectInBin.
 detector::Detection ScoreTruePose(const std::shared_ptr<const detector::ModelLibrary>& library,

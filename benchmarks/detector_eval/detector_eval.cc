@@ -18,10 +18,6 @@
 //                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
 //                      [--box_faces=true|false] [--box_continuation=true|false]
 //                      [--hypotheses=N] [--reference_step=N] [--layout_mode=tidy|settled]
-//                      [--candidates=FILE]
-//
-// --candidates writes, per target, the evidence of the accepted pose, of up to five candidate
-// poses down to a score of 0.01 and of each true instance, judged, as CSV.
 //
 // --layout_mode=settled drops the items and lets them settle by physics (stacked, leaning,
 // standing on end: simulator::PhysicsLayout) instead of laying them side by side.
@@ -55,7 +51,6 @@
 #include <fstream>
 #include <iomanip>
 #include <iostream>
-#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -94,7 +89,6 @@ struct Args {
   double view_offset_m = 0.15;
   double side_height_m = 0.25;
   simulator::LayoutMode layout_mode = simulator::LayoutMode::kTidy;
-  std::string candidates;  // CSV of every candidate's evidence; empty: none
 };
 
 bool ParseBool(const std::string& key, const std::string& v) {
@@ -182,8 +176,6 @@ Args Parse(int argc, char** argv) {
       args.detection.estimators.ppf.match.reference_step = n;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
-    } else if (auto v = value("--candidates")) {
-      args.candidates = *v;
     } else if (auto v = value("--multi_sensor")) {
       args.detection.multi_sensor_verification = ParseBool("--multi_sensor", *v);
     } else if (auto v = value("--floor_band")) {
@@ -320,8 +312,7 @@ struct Evaluation {
   std::map<std::string, Tally> per_method_total;
   std::map<std::string, Tally> per_item;
   std::map<std::string, std::map<std::string, Tally>> per_item_method;
-  std::ostringstream rows;   // one markdown row per target
-  std::ofstream candidates;  // CSV, when asked for
+  std::ostringstream rows;  // one markdown row per target
   double scan_s = 0.0;
   int scans = 0;
 };
@@ -380,61 +371,6 @@ std::map<std::string, Outcome> JudgeEachMethod(
   return by_method;
 }
 
-const char* const kCandidateHeader =
-    "seed,layout,bin,item,kind,rank,correct,add_mm,score,visible,occluded,supported,conflicts,"
-    "unmeasured,outline_continued,outline_edge,too_little_visible,appearance\n";
-
-// The smallest ADD error of `pose` against the true instances of `item`, metres.
-double ClosestAdd(const detector::LoadedModel& model, const std::vector<TrueItem>& truth,
-                  const std::string& item, const Eigen::Isometry3d& pose) {
-  double best = std::numeric_limits<double>::infinity();
-  for (const TrueItem& t : truth) {
-    if (t.name != item) continue;
-    best = std::min(
-        best, PoseError(model.object->icp_cloud(), model.spec.symmetry, pose, t.X_BaseItem).add_m);
-  }
-  return best;
-}
-
-// One CSV row of a pose's evidence: the accepted one, a candidate or a true instance.
-void LogCandidate(std::ostream& out, const Args& args, const std::string& layout,
-                  const std::string& bin, const std::string& item, const char* kind, int rank,
-                  double add_m, double diameter_m, const detector::Detection& d) {
-  out << args.seed << "," << layout << "," << bin << "," << item << "," << kind << "," << rank
-      << "," << (add_m < 0.1 * diameter_m) << "," << 1e3 * add_m << "," << d.score << ","
-      << d.visible_points << "," << d.occluded_points << "," << d.supported_points << ","
-      << d.conflict_points << "," << d.unmeasured_points << "," << d.outline_continued << ","
-      << d.outline_edge << "," << d.too_little_visible << "," << d.appearance << "\n";
-}
-
-// The accepted pose, the candidates down to a minimal score and the true instances, with their
-// evidence, into the candidates' CSV.
-void LogTargetCandidates(const std::shared_ptr<const detector::ModelLibrary>& library,
-                         const BinScan& scan, const std::string& layout,
-                         const apc::WorkOrderEntry& entry, const BinDetectionResult& chain,
-                         const Args& args, std::ostream& out) {
-  const auto model = library->Get(entry.item);
-  const double diameter = model->object->diameter_m();
-  const std::string bin = entry.bin.substr(4);
-  if (chain.chain.detection) {
-    const detector::Detection& d = *chain.chain.detection;
-    LogCandidate(out, args, layout, bin, entry.item, "accepted", 0,
-                 ClosestAdd(*model, scan.items, entry.item, d.X_BaseItem), diameter, d);
-  }
-  const std::vector<detector::Detection> candidates =
-      CandidatesInBin(library, scan, entry.item, 5, args.detection);
-  for (std::size_t k = 0; k < candidates.size(); ++k) {
-    LogCandidate(out, args, layout, bin, entry.item, "candidate", static_cast<int>(k),
-                 ClosestAdd(*model, scan.items, entry.item, candidates[k].X_BaseItem), diameter,
-                 candidates[k]);
-  }
-  for (const TrueItem& t : scan.items) {
-    if (t.name != entry.item) continue;
-    LogCandidate(out, args, layout, bin, entry.item, "truth", 0, 0.0, diameter,
-                 ScoreTruePose(library, scan, entry.item, t.X_BaseItem, args.detection));
-  }
-}
-
 // What the detector makes of the item's true pose: its score and the scene's agreement.
 void PrintTruePoses(const std::shared_ptr<const detector::ModelLibrary>& library,
                     const BinScan& scan, const std::string& item, const Args& args) {
@@ -490,9 +426,6 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   std::cout << ", tried: " << chain.attempts;
   if (!chain.error.empty()) std::cout << ", error: " << chain.error;
   PrintTruePoses(library, scan, entry.item, args);
-  if (evaluation->candidates.is_open()) {
-    LogTargetCandidates(library, scan, layout, entry, chain_result, args, evaluation->candidates);
-  }
   for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);
   std::cout << std::endl;
 }
@@ -535,11 +468,6 @@ int Run(const Args& args) {
   std::optional<TemporaryFolder> fresh_cache;
   const auto library = MakeLibrary(args, data_dir, &fresh_cache);
   Evaluation evaluation;
-  if (!args.candidates.empty()) {
-    evaluation.candidates.open(args.candidates);
-    if (!evaluation.candidates) throw std::runtime_error("cannot write '" + args.candidates + "'");
-    evaluation.candidates << kCandidateHeader;
-  }
   evaluation.rows << "| layout | bin | item | items in bin | region points | chain | ppf | sift | "
                      "range_templates |\n|---|---|---|---|---|---|---|---|---|\n";
   for (const std::string& layout : args.layouts) {

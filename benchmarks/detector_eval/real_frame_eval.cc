@@ -15,12 +15,7 @@
 // - each method alone (PPF, range templates) with what it says when it finds nothing.
 //
 // Usage: real_frame_eval [--data=DIR] [--frames=1,2,...] [--region=objects|none]
-//                        [--markdown=FILE] [--cache_dir=DIR] [--candidates=FILE]
-//                        [--overlays=DIR]
-// --candidates writes every candidate's evidence and judgement as CSV (one row per candidate
-// pose, and one per target for its true pose), for studying what separates right from wrong;
-// --overlays writes per target a PNG of the depth image with the silhouettes of the true pose
-// (green) and the accepted pose (red).
+//                        [--markdown=FILE] [--cache_dir=DIR]
 // Exit status: 0 after a complete evaluation (the figures are reported, not asserted), 1 on
 // unreadable data or a failed detection call, 2 on bad arguments.
 
@@ -58,8 +53,6 @@ struct Args {
   bool region = true;
   std::string markdown;
   std::string cache_dir;
-  std::string candidates;
-  std::string overlays;
 };
 
 Args ParseArgs(int argc, char** argv) {
@@ -88,10 +81,6 @@ Args ParseArgs(int argc, char** argv) {
       args.markdown = *v;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
-    } else if (auto v = value("--candidates")) {
-      args.candidates = *v;
-    } else if (auto v = value("--overlays")) {
-      args.overlays = *v;
     } else {
       throw std::invalid_argument("unknown argument '" + arg + "'");
     }
@@ -258,66 +247,11 @@ std::string Percent(int n, int d) {
   return s.str();
 }
 
-// Where the per-candidate evidence and the overlays go (each optional).
-struct Outputs {
-  std::ofstream* candidates = nullptr;  // CSV, header written
-  std::string overlays;                 // folder, empty: none
-};
-
-const char* const kCandidateHeader =
-    "frame,object,kind,rank,correct,iou,add_mm,score,visible,occluded,supported,conflicts,"
-    "unmeasured,outline_continued,outline_edge,model_points,x,y,z\n";
-
-// One CSV row: a candidate (kind "candidate", its rank), the accepted pose ("accepted") or the
-// true pose ("truth"), with the verification's evidence at that pose.
-void LogCandidate(std::ostream& out, int frame, const std::string& object, const char* kind,
-                  int rank, const Judged& j, const detector::VerifyResult& v,
-                  const Eigen::Isometry3d& X_CameraObject) {
-  const Eigen::Vector3d t = X_CameraObject.translation();
-  out << frame << "," << object << "," << kind << "," << rank << "," << j.correct << "," << j.iou
-      << "," << 1e3 * j.add_m << "," << v.score << "," << v.num_visible << "," << v.num_occluded
-      << "," << v.num_supported << "," << v.num_conflicts << "," << v.num_unmeasured << ","
-      << v.num_outline_continued << "," << v.num_outline_edge << "," << v.num_model_points << ","
-      << t.x() << "," << t.y() << "," << t.z() << "\n";
-}
-
-// The depth image (grey, nearer brighter) with the true pose's silhouette outlined in green and
-// the accepted pose's in red.
-void WriteOverlay(const std::string& path, const geometry::PointCloud& cloud,
-                  const detector::LoadedModel& model, const camera::PinholeCamera& camera,
-                  const Eigen::Isometry3d& X_true, const detector::Detection* accepted) {
-  cv::Mat image(camera.height(), camera.width(), CV_8UC3, cv::Scalar(0, 0, 0));
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3f& p = cloud.points[i];
-    if (!p.allFinite() || cloud.width == 0) continue;
-    const int u = static_cast<int>(i % cloud.width), v = static_cast<int>(i / cloud.width);
-    if (u >= image.cols || v >= image.rows) continue;
-    const int grey = std::clamp(static_cast<int>(255.0 * (2.0 - p.z()) / 1.5), 30, 255);
-    image.at<cv::Vec3b>(v, u) = cv::Vec3b(grey, grey, grey);
-  }
-  const auto outline = [&](const Eigen::Isometry3d& X, const cv::Scalar& colour) {
-    const cv::Mat mask = Silhouette(model.object->icp_cloud(), X, camera, 0.004);
-    std::vector<std::vector<cv::Point>> contours;
-    cv::findContours(mask, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
-    cv::drawContours(image, contours, -1, colour, 1);
-  };
-  outline(X_true, cv::Scalar(0, 255, 0));
-  if (accepted != nullptr) outline(accepted->X_BaseItem, cv::Scalar(0, 0, 255));
-  if (!cv::imwrite(path, image)) throw std::runtime_error("cannot write '" + path + "'");
-}
-
-// The evidence in the table's row: the model's points facing the sensor, hidden behind other
-// surfaces, supported by the scan, and in space the sensor saw through.
-void PrintEvidence(std::ostream& rows, const detector::VerifyResult& v) {
-  rows << "visible " << v.num_visible << ", occluded " << v.num_occluded << ", supported "
-       << v.num_supported << ", conflicts " << v.num_conflicts << " of " << v.num_model_points;
-}
-
 // The chain's answer for one target (accepted pose, time) and its candidates down to a minimal
 // score for the ROC.
 void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library,
                     const detector::PreparedScene& scene, const TrueObject& truth, Tally* tally,
-                    std::ostream& rows, int frame, const Outputs& outputs) {
+                    std::ostream& rows, int frame) {
   const auto model = library->Get(truth.name);
   const Judge judge(*model, *scene.camera);
   detector::ItemQuery query;
@@ -332,45 +266,29 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   tally->total_s += seconds;
   tally->max_s = std::max(tally->max_s, seconds);
   ++tally->targets;
-  const detector::VerifyOptions& verify = scene.estimators.refine.verify;
-  const auto evidence = [&](const Eigen::Isometry3d& X) {
-    return detector::Verify(*context->Verification(), model->object->icp_cloud(), X, verify);
-  };
-  // The same measure at the true pose: a search that missed it, or a score that prefers
-  // the wrong one.
-  const detector::VerifyResult at_truth = evidence(truth.X_CameraObject);
-  detector::Detection at_truth_pose;
-  at_truth_pose.X_BaseItem = truth.X_CameraObject;
-  const Judged truth_judged = judge(at_truth_pose, truth.X_CameraObject);
-  if (outputs.candidates != nullptr) {
-    LogCandidate(*outputs.candidates, frame, truth.name, "truth", 0, truth_judged, at_truth,
-                 truth.X_CameraObject);
-  }
   rows << "| " << frame << " | " << truth.name << " | ";
   if (found.chain.detection) {
-    const detector::Detection& d = *found.chain.detection;
-    const Judged j = judge(d, truth.X_CameraObject);
-    const detector::VerifyResult v = evidence(d.X_BaseItem);
+    const Judged j = judge(*found.chain.detection, truth.X_CameraObject);
+    // The evidence under the score: the model's points facing the sensor, hidden behind other
+    // surfaces, supported by the scan, and in space the sensor saw through.
+    const detector::VerifyResult v = detector::Verify(
+        *context->Verification(), model->object->icp_cloud(), found.chain.detection->X_BaseItem);
+    // The same measure at the true pose: a search that missed it, or a score that prefers
+    // the wrong one.
+    const detector::VerifyResult at_truth = detector::Verify(
+        *context->Verification(), model->object->icp_cloud(), truth.X_CameraObject);
     ++tally->accepted;
     tally->correct_accepted += j.correct;
     tally->add_correct_accepted += j.add_correct;
     rows << (j.correct ? "ok" : "WRONG") << " " << std::fixed << std::setprecision(1)
          << 1e3 * j.add_m << " mm, IoU " << std::setprecision(2) << j.iou << ", score " << j.score
-         << " (" << d.method << "; ";
-    PrintEvidence(rows, v);
-    rows << "; true pose: score " << at_truth.score << ", ";
-    PrintEvidence(rows, at_truth);
-    rows << ")";
-    if (outputs.candidates != nullptr) {
-      LogCandidate(*outputs.candidates, frame, truth.name, "accepted", 0, j, v, d.X_BaseItem);
-    }
+         << " (" << found.chain.detection->method << "; visible " << v.num_visible << ", occluded "
+         << v.num_occluded << ", supported " << v.num_supported << ", conflicts " << v.num_conflicts
+         << " of " << v.num_model_points << "; true pose: score " << at_truth.score << ", visible "
+         << at_truth.num_visible << ", occluded " << at_truth.num_occluded << ", supported "
+         << at_truth.num_supported << ", conflicts " << at_truth.num_conflicts << ")";
   } else {
     rows << "none";
-  }
-  if (!outputs.overlays.empty()) {
-    WriteOverlay(outputs.overlays + "/" + std::to_string(frame) + "-" + truth.name + ".png",
-                 scene.cloud, *model, *scene.camera, truth.X_CameraObject,
-                 found.chain.detection ? &*found.chain.detection : nullptr);
   }
   rows << " | " << std::setprecision(2) << seconds << " s |";
   // Every candidate down to a minimal score, for the ROC.
@@ -382,11 +300,6 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   for (const detector::Detection& d : all.poses) {
     tally->candidates.push_back(judge(d, truth.X_CameraObject));
     right += tally->candidates.back().correct;
-    if (outputs.candidates != nullptr) {
-      LogCandidate(*outputs.candidates, frame, truth.name, "candidate",
-                   static_cast<int>(&d - all.poses.data()), tally->candidates.back(),
-                   evidence(d.X_BaseItem), d.X_BaseItem);
-    }
   }
   rows << " " << right << " of " << all.poses.size() << " |";
 }
@@ -478,16 +391,6 @@ int Run(const Args& args) {
   std::map<std::string, Tally> per_object;
   Tally total;
   std::ostringstream rows;
-  std::ofstream candidates;
-  Outputs outputs;
-  outputs.overlays = args.overlays;
-  if (!args.overlays.empty()) fs::create_directories(args.overlays);
-  if (!args.candidates.empty()) {
-    candidates.open(args.candidates);
-    if (!candidates) throw std::runtime_error("cannot write '" + args.candidates + "'");
-    candidates << kCandidateHeader;
-    outputs.candidates = &candidates;
-  }
   rows << "| frame | object | chain | s | candidates correct | ppf alone | range templates alone "
           "|\n|---|---|---|---|---|---|---|\n";
   for (const int index : args.frames) {
@@ -499,7 +402,7 @@ int Run(const Args& args) {
         detector::PrepareScene(DepthToCloud(frame), Eigen::Isometry3d::Identity(), options);
     for (const TrueObject& truth : frame.objects) {
       Tally& tally = per_object[truth.name];
-      EvaluateTarget(library, scene, truth, &tally, rows, index, outputs);
+      EvaluateTarget(library, scene, truth, &tally, rows, index);
       EvaluateMethods(library, scene, truth, &tally, rows);
       std::cout << "frame " << index << " " << truth.name << " done" << std::endl;
     }

@@ -262,8 +262,6 @@ const char* ToString(AttemptOutcome outcome) {
       return "unavailable";
     case AttemptOutcome::kNotStarted:
       return "not started";
-    case AttemptOutcome::kTooLittleVisible:
-      return "too little visible";
   }
   return "unknown";
 }
@@ -284,20 +282,6 @@ std::string BelowThresholdsReason(const Detection& best, const Thresholds& t) {
   std::string reason = why.str();
   if (reason.back() == ';') reason.pop_back();
   return reason;
-}
-
-// Why candidates that all rest on too little of the item are no pose: the most supported
-// one's evidence.
-std::string TooLittleVisibleReason(const std::vector<Detection>& candidates) {
-  const auto most = std::max_element(candidates.begin(), candidates.end(),
-                                     [](const Detection& a, const Detection& b) {
-                                       return a.supported_points < b.supported_points;
-                                     });
-  std::ostringstream why;
-  why << "not found, too little visible: the best-supported of " << candidates.size()
-      << " candidates rests on " << most->supported_points << " supported model points of "
-      << most->visible_points << " visible, too few to tell the item's pose";
-  return why.str();
 }
 
 // Runs one method's estimator and records how it ended.
@@ -341,13 +325,6 @@ ChainAttempt TryMethod(Estimator& estimator, Method method, const EstimatorInput
     return attempt;
   }
   attempt.best = candidates.front();
-  const bool all_thin = std::all_of(candidates.begin(), candidates.end(),
-                                    [](const Detection& d) { return d.too_little_visible; });
-  if (all_thin) {
-    attempt.outcome = AttemptOutcome::kTooLittleVisible;
-    attempt.reason = TooLittleVisibleReason(candidates);
-    return attempt;
-  }
   attempt.outcome = AttemptOutcome::kBelowThresholds;
   attempt.reason = BelowThresholdsReason(candidates.front(), thresholds);
   return attempt;

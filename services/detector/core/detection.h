@@ -45,9 +45,7 @@ struct Detection {
   std::string item;
   /// Pose of the item's model frame in the robot base frame (the scene cloud's frame).
   Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
-  /// Confidence in [0, 1]. Verified detections: the share of the surface the pose says the
-  /// sensor sees (hidden parts included) that the scan supports, scaled down when the scan
-  /// runs on past the pose's outline (VerifyResult::score).
+  /// Confidence in [0, 1] (for verified detections: the supported visible surface fraction).
   double score = 0.0;
   /// Name of the method that produced it (ToString(Method) for the built-in ones).
   std::string method;
@@ -65,14 +63,6 @@ struct Detection {
   std::size_t occluded_points = 0;
   std::size_t supported_points = 0;
   std::size_t conflict_points = 0;
-  /// Visible, unsupported, and where no sensor measured a depth (holes, cropped pixels).
-  std::size_t unmeasured_points = 0;
-  /// Probes just outside the pose's outline (reference sensor) where the scan runs on as the
-  /// model's surface would, and where it drops away behind (VerifyResult).
-  std::size_t outline_continued = 0;
-  std::size_t outline_edge = 0;
-  /// Too few supported points to tell (score 0): "not found, too little visible".
-  bool too_little_visible = false;
   DetectionTimings timings;
 };
 
@@ -205,9 +195,6 @@ enum class AttemptOutcome {
   kFailed,           ///< The estimator threw (reason: its message).
   kUnavailable,      ///< No estimator for the method in this detector.
   kNotStarted,       ///< The item's time budget was spent before its turn.
-  /// Candidates, but every one of them rests on too little of the item's surface to tell
-  /// (Detection::too_little_visible): not found, too little visible.
-  kTooLittleVisible,
 };
 const char* ToString(AttemptOutcome outcome);
 

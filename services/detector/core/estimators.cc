@@ -113,20 +113,12 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
   if (const VerificationScene* verification = context.Verification()) {
     VerifyOptions verify = options.verify;
     verify.symmetries = object.symmetries();
-    // A shape model (the catalogue's box, cylinder or sphere) approximates the item: its
-    // outline is not the item's, and the scan of the real item runs on past it (box models
-    // have their own test of a surface continued past their faces, BoxSurfaceContinuation).
-    if (model.spec.kind != ModelSourceKind::kScan) verify.min_outline_edge_fraction = 0.0;
     const VerifyResult v = Verify(*verification, object.icp_cloud(), d.X_BaseItem, verify);
     d.score = v.score;
     d.visible_points = v.num_visible;
     d.occluded_points = v.num_occluded;
     d.supported_points = v.num_supported;
     d.conflict_points = v.num_conflicts;
-    d.unmeasured_points = v.num_unmeasured;
-    d.outline_continued = v.num_outline_continued;
-    d.outline_edge = v.num_outline_edge;
-    d.too_little_visible = v.too_little_visible;
     if (model.spec.kind == ModelSourceKind::kShapeBox && options.box_continuation_weight > 0.0 &&
         d.score > 0.0) {
       const BoxExtent box = BoxExtentOf(object.icp_cloud());

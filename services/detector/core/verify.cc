@@ -174,17 +174,6 @@ void CheckVerifyInputs(const geometry::PointCloud& model, const VerifyOptions& o
   if (!(options.appearance_contradiction_scale >= 0.0 &&
         options.appearance_contradiction_scale <= 1.0))
     throw std::invalid_argument("Verify: appearance_contradiction_scale must be in [0, 1]");
-  if (!(options.occluded_weight >= 0.0 && options.occluded_weight <= 1.0))
-    throw std::invalid_argument("Verify: occluded_weight must be in [0, 1]");
-  if (options.min_supported_points < 0 ||
-      !(options.min_supported_fraction >= 0.0 && options.min_supported_fraction <= 1.0))
-    throw std::invalid_argument(
-        "Verify: min_supported_points must be >= 0 and min_supported_fraction in [0, 1]");
-  if (!(options.min_outline_edge_fraction >= 0.0 && options.min_outline_edge_fraction <= 1.0) ||
-      !(options.outline_probe_m > 0.0) || !(options.outline_tolerance_m > 0.0))
-    throw std::invalid_argument(
-        "Verify: min_outline_edge_fraction must be in [0, 1], the outline probe and tolerance "
-        "positive");
 }
 
 // The model points Verify scores: every stride-th point with a finite position and normal.
@@ -266,24 +255,18 @@ PixelBox ProjectFacingPoints(const PinholeCamera& cam, const Eigen::Isometry3f& 
 }
 
 // The model's own z-buffer in one sensor, over its footprint `box` only (row-major, metres,
-// +inf where no splat): each splat keeps the nearest depth, and `nearest` the index (into
-// sub) of the point that drew it.
+// +inf where no splat): each splat keeps the nearest depth.
 void SplatModelDepth(const std::vector<Projected>& front, const PixelBox& box,
-                     std::vector<float>* zbuf_out, std::vector<std::uint32_t>* nearest_out) {
+                     std::vector<float>* zbuf_out) {
   std::vector<float>& zbuf = *zbuf_out;
-  std::vector<std::uint32_t>& nearest = *nearest_out;
   const int u0 = box.u0, v0 = box.v0;
   const int zw = box.width(), zh = box.height();
   zbuf.assign(static_cast<std::size_t>(zw) * zh, std::numeric_limits<float>::infinity());
-  nearest.assign(zbuf.size(), 0);
   for (const Projected& pr : front) {
     for (int dv = -pr.r; dv <= pr.r; ++dv) {
       for (int du = -pr.r; du <= pr.r; ++du) {
-        const std::size_t at = static_cast<std::size_t>(pr.v + dv - v0) * zw + (pr.u + du - u0);
-        if (pr.z < zbuf[at]) {
-          zbuf[at] = pr.z;
-          nearest[at] = static_cast<std::uint32_t>(pr.index);
-        }
+        float& z = zbuf[static_cast<std::size_t>(pr.v + dv - v0) * zw + (pr.u + du - u0)];
+        z = std::min(z, pr.z);
       }
     }
   }
@@ -321,6 +304,29 @@ void MarkSensorVisibility(const VerificationScene& scene, std::size_t k,
   }
 }
 
+// Per point of `sub` (reference sensor frame), the kVisible... flags over all sensors
+// (X_ReferenceSensor: each sensor's pose in the reference sensor's frame). Back-face culling
+// and a splat z-buffer of the model itself give the points a sensor would see; what it
+// measured along their rays says whether they are hidden by other surfaces (in front of
+// them) or lie in free space (the sensor saw beyond them).
+std::vector<std::uint8_t> ClassifyVisibility(
+    const VerificationScene& scene, const std::vector<Eigen::Isometry3f>& X_ReferenceSensor,
+    const geometry::PointCloud& sub, double spacing, const VerifyOptions& options) {
+  const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
+  std::vector<std::uint8_t> state(sub.size(), 0);
+  std::vector<Projected> front;
+  std::vector<float> zbuf;
+  for (std::size_t k = 0; k < scene.sensors().size(); ++k) {
+    const PinholeCamera& cam = scene.sensors()[k].camera;
+    const Eigen::Isometry3f X_SensorReference = X_ReferenceSensor[k].inverse();
+    const PixelBox box = ProjectFacingPoints(cam, X_SensorReference, sub, spacing, &front);
+    if (front.empty()) continue;
+    SplatModelDepth(front, box, &zbuf);
+    MarkSensorVisibility(scene, k, front, box, zbuf, self_tolerance, options, &state);
+  }
+  return state;
+}
+
 // The scene points Verify matches against, reference sensor frame: the parts of the private
 // VerificationScene::Impl that only Verify (a friend) can name.
 struct SceneSurface {
@@ -329,125 +335,6 @@ struct SceneSurface {
   const std::vector<Eigen::Vector3f>& n_SensorPoints;  // empty without normals
   const std::vector<float>& intensities;               // empty without intensities
 };
-
-// The reference sensor's view of the model's outline: probes just outside the footprint
-// where the scene surface runs on at the depth the model's surface would continue to, and
-// where it drops away behind the outline.
-struct OutlineCount {
-  std::size_t continued = 0;
-  std::size_t edge = 0;
-};
-
-// Whether the scene at pixel (pu, pv) of the reference sensor, measured at depth `measured`,
-// carries on the model's surface of normal n_SensorModel: a scene point there (within the
-// outline tolerance) whose normal, where the scene has normals, is within
-// outline_normal_tolerance_rad of the model's (a scene without normals is not probed).
-bool ContinuesSurface(const SceneSurface& surface, const PinholeCamera& cam, int pu, int pv,
-                      float measured, const Eigen::Vector3f& n_SensorModel,
-                      const VerifyOptions& options) {
-  const Eigen::Vector3f p =
-      (cam.Unproject(Eigen::Vector2d(pu, pv)) * static_cast<double>(measured)).cast<float>();
-  const float tolerance = static_cast<float>(options.outline_tolerance_m);
-  const std::int32_t j = surface.tree.Nearest(p, nullptr, tolerance * tolerance);
-  if (j == KdTree::kNone) return false;
-  const Eigen::Vector3f& n = surface.n_SensorPoints[j];
-  if (!n.allFinite()) return true;
-  return std::abs(n.dot(n_SensorModel)) >=
-         static_cast<float>(std::cos(options.outline_normal_tolerance_rad));
-}
-
-// Probes the outline of the model's footprint in the reference sensor (its z-buffer `zbuf`
-// over `box`, +inf off the footprint). From each footprint pixel whose measured depth agrees
-// with the model's (the outline the scan shows) and that borders the outside, a probe lies
-// options.outline_probe_m beyond it; the model's surface extrapolated there (its slope over
-// the same distance inward) is compared with the measured depth. Pixels without a depth,
-// behind an occluder in front or back on the footprint say nothing.
-OutlineCount MeasureOutline(const VerificationScene& scene, const SceneSurface& surface,
-                            const geometry::PointCloud& sub, const PixelBox& box,
-                            const std::vector<float>& zbuf,
-                            const std::vector<std::uint32_t>& nearest,
-                            const VerifyOptions& options) {
-  const PinholeCamera& cam = scene.camera();
-  OutlineCount count;
-  const int zw = box.width(), zh = box.height();
-  const auto model_depth = [&](int u, int v) {
-    if (u < box.u0 || v < box.v0 || u > box.u1 || v > box.v1)
-      return std::numeric_limits<float>::infinity();
-    return zbuf[static_cast<std::size_t>(v - box.v0) * zw + (u - box.u0)];
-  };
-
-  const float tolerance = static_cast<float>(options.outline_tolerance_m);
-  const float margin = static_cast<float>(options.occlusion_margin_m);
-  const float probe_m = static_cast<float>(options.outline_probe_m);
-  constexpr int kDu[4] = {1, -1, 0, 0};
-  constexpr int kDv[4] = {0, 0, 1, -1};
-  for (int y = 0; y < zh; ++y) {
-    for (int x = 0; x < zw; ++x) {
-      const int u = box.u0 + x, v = box.v0 + y;
-      const float z = zbuf[static_cast<std::size_t>(y) * zw + x];
-      if (!std::isfinite(z)) continue;
-      const float measured_here = scene.DepthAt(u, v, 0);
-      if (!(std::abs(measured_here - z) <= tolerance)) continue;
-      const int reach = std::max(2, static_cast<int>(std::lround(cam.fx() * probe_m / z)));
-      for (int d = 0; d < 4; ++d) {
-        if (std::isfinite(model_depth(u + kDu[d], v + kDv[d]))) continue;  // not an outline side
-        const int pu = u + kDu[d] * reach, pv = v + kDv[d] * reach;
-        if (std::isfinite(model_depth(pu, pv))) continue;
-        const float measured = scene.DepthAt(pu, pv, 0);
-        if (!std::isfinite(measured)) continue;
-        const float inner = model_depth(u - kDu[d] * reach, v - kDv[d] * reach);
-        // The model's surface carried on past its outline at its own slope (capped: near a
-        // limb the slope runs away).
-        const float slope =
-            std::isfinite(inner) ? std::clamp(z - inner, -2.0f * probe_m, 2.0f * probe_m) : 0.0f;
-        const float expected = z + slope;
-        if (measured < expected - margin) continue;  // an occluder in front: says nothing
-        if (measured > expected + tolerance) {
-          ++count.edge;
-          continue;
-        }
-        const std::uint32_t i = nearest[static_cast<std::size_t>(y) * zw + x];
-        if (ContinuesSurface(surface, cam, pu, pv, measured, sub.normals[i], options)) {
-          ++count.continued;
-        } else {
-          ++count.edge;  // the surface there bends away: the model's end is the scan's
-        }
-      }
-    }
-  }
-  return count;
-}
-
-// Per point of `sub` (reference sensor frame), the kVisible... flags over all sensors
-// (X_ReferenceSensor: each sensor's pose in the reference sensor's frame). Back-face culling
-// and a splat z-buffer of the model itself give the points a sensor would see; what it
-// measured along their rays says whether they are hidden by other surfaces (in front of
-// them) or lie in free space (the sensor saw beyond them).
-std::vector<std::uint8_t> ClassifyVisibility(
-    const VerificationScene& scene, const std::vector<Eigen::Isometry3f>& X_ReferenceSensor,
-    const geometry::PointCloud& sub, double spacing, const VerifyOptions& options,
-    const SceneSurface& surface, OutlineCount* outline) {
-  const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
-  std::vector<std::uint8_t> state(sub.size(), 0);
-  std::vector<Projected> front;
-  std::vector<float> zbuf;
-  std::vector<std::uint32_t> nearest;
-  for (std::size_t k = 0; k < scene.sensors().size(); ++k) {
-    const PinholeCamera& cam = scene.sensors()[k].camera;
-    const Eigen::Isometry3f X_SensorReference = X_ReferenceSensor[k].inverse();
-    const PixelBox box = ProjectFacingPoints(cam, X_SensorReference, sub, spacing, &front);
-    if (front.empty()) continue;
-    SplatModelDepth(front, box, &zbuf, &nearest);
-    // Only a scene with normals can tell the model's surface carried on past its outline
-    // from one that bends away there (the item's own side at a grazing angle): without
-    // them the outline says nothing (too few probes: factor 1).
-    if (k == 0 && !surface.n_SensorPoints.empty()) {
-      *outline = MeasureOutline(scene, surface, sub, box, zbuf, nearest, options);
-    }
-    MarkSensorVisibility(scene, k, front, box, zbuf, self_tolerance, options, &state);
-  }
-  return state;
-}
 
 // The appearance samples of the supported model points: their matched scene points
 // (reference sensor frame) and those points' shading-compensated intensities.
@@ -509,49 +396,25 @@ double CountSupport(const geometry::PointCloud& sub, const std::vector<std::uint
       ++result.num_conflicts;
     } else if ((st & kHidden) && !(st & kClear)) {
       ++result.num_occluded;
-    } else if (!(st & (kHidden | kClear))) {
-      ++result.num_unmeasured;
     }
   }
   return sum_sq;
 }
 
-// The share of the probed outline where the scene drops away behind the model (1 without
-// enough probes to tell).
-double OutlineEdgeFraction(const VerifyResult& result, const VerifyOptions& options) {
-  const std::size_t probes = result.num_outline_continued + result.num_outline_edge;
-  if (probes < static_cast<std::size_t>(std::max(1, options.min_outline_probes))) return 1.0;
-  return static_cast<double>(result.num_outline_edge) / static_cast<double>(probes);
-}
-
-// The score from result's counts (VerifyResult::score), its coverage and outline factors,
-// the conflict fraction and whether too little of the item is supported to tell.
+// The score and conflict fraction from result's counts, when enough unoccluded points are
+// visible (else both stay 0).
 void ScoreSupport(const VerifyOptions& options, VerifyResult* verify_result) {
   VerifyResult& result = *verify_result;
-  const std::size_t unhidden = result.num_visible - result.num_occluded;
-  const double expected = static_cast<double>(unhidden) +
-                          options.occluded_weight * static_cast<double>(result.num_occluded);
-  result.outline_edge_fraction = OutlineEdgeFraction(result, options);
-  const double needed =
-      std::max(static_cast<double>(options.min_supported_points),
-               options.min_supported_fraction * static_cast<double>(result.num_model_points));
-  result.too_little_visible = static_cast<double>(result.num_supported) < needed;
-  if (unhidden < static_cast<std::size_t>(std::max(1, options.min_visible_points)) ||
-      result.too_little_visible) {
-    return;
+  const std::size_t considered = result.num_visible - result.num_occluded;
+  if (considered >= static_cast<std::size_t>(std::max(1, options.min_visible_points))) {
+    result.score =
+        std::clamp((static_cast<double>(result.num_supported) -
+                    options.conflict_weight * static_cast<double>(result.num_conflicts)) /
+                       static_cast<double>(considered),
+                   0.0, 1.0);
+    result.conflict_fraction =
+        static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
   }
-  result.conflict_fraction =
-      static_cast<double>(result.num_conflicts) / static_cast<double>(unhidden);
-  result.coverage =
-      std::clamp((static_cast<double>(result.num_supported) -
-                  options.conflict_weight * static_cast<double>(result.num_conflicts)) /
-                     std::max(1.0, expected),
-                 0.0, 1.0);
-  result.outline_factor =
-      options.min_outline_edge_fraction > 0.0
-          ? std::min(1.0, result.outline_edge_fraction / options.min_outline_edge_fraction)
-          : 1.0;
-  result.score = result.coverage * result.outline_factor;
 }
 
 // Whether a model point (index into p_ItemModel and sub) lies on a print edge: where the
@@ -682,16 +545,15 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
   const double spacing = std::max(MeanPointSpacing(sub), 1e-4);
 
   // Per sensor: which model points it would see, and whether they are hidden or in free space.
-  const SceneSurface surface{impl.tree, impl.p_SensorPoints, impl.n_SensorPoints, impl.intensities};
-  OutlineCount outline;
   const std::vector<std::uint8_t> state =
-      ClassifyVisibility(scene, impl.X_ReferenceSensor, sub, spacing, options, surface, &outline);
-  result.num_outline_continued = outline.continued;
-  result.num_outline_edge = outline.edge;
+      ClassifyVisibility(scene, impl.X_ReferenceSensor, sub, spacing, options);
   // Support of the visible points, with their appearance samples.
   const bool appearance = sub.has_intensities() && !impl.intensities.empty();
   MatchedSamples matched;
-  const double sum_sq = CountSupport(sub, state, surface, appearance, options, &matched, &result);
+  const double sum_sq = CountSupport(
+      sub, state,
+      SceneSurface{impl.tree, impl.p_SensorPoints, impl.n_SensorPoints, impl.intensities},
+      appearance, options, &matched, &result);
   ScoreSupport(options, &result);
   result.X_BaseItem_appearance = X_BaseItem;
   if (appearance) ScoreAppearance(scene, X_BaseItem, subsample, spacing, matched, options, &result);

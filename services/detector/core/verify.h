@@ -75,46 +75,10 @@ struct VerifyOptions {
   /// Each conflict cancels this many supported points in the score: a surface the sensor
   /// saw through is strong evidence against the pose.
   double conflict_weight = 1.0;
-  /// The outline probes lie this far outside the model's footprint, metres, at the model's
-  /// depth ...
-  double outline_probe_m = 0.008;
-  /// ... and find the surface continued when the measured depth is within this of the
-  /// model's surface extrapolated there, metres.
-  double outline_tolerance_m = 0.006;
-  /// ... and, where the scene has normals, a scene point there whose normal is within this
-  /// angle of the model's at the outline (radians): a surface that bends away there (the
-  /// item's own side seen by another sensor, a neighbour's corner) ends the model's surface.
-  double outline_normal_tolerance_rad = 0.35;
   /// Model points are subsampled (deterministic stride) to at most this many.
   int max_model_points = 4000;
   /// Fewer unoccluded visible points than this gives score 0.
   int min_visible_points = 20;
-  /// A visible model point hidden behind other surfaces counts this much (in [0, 1]) in the
-  /// surface the pose says the sensor should see: at 1 a hidden point weighs as an
-  /// unsupported one. The default leaves hidden points out: in a shelf bin a true pose is
-  /// often mostly hidden (in the simulated bins of seed 1, 9 of 36 targets have more than a
-  /// third of their visible surface hidden, 4 more than three quarters): at 1, a quarter of
-  /// the true poses there score below 0.5. At 1 the real frames' mug, tucked under the table
-  /// with 35-45 % of its visible surface hidden, scores below its true pose (0.51-0.60
-  /// against 0.62-0.66); at 0 it is told by its outline only where the table runs on past it.
-  double occluded_weight = 0.0;
-  /// Too little visible: fewer supported model points than min_supported_points, or than
-  /// min_supported_fraction of the (subsampled) model's points, is too thin evidence for a
-  /// pose of the item, whatever fraction of its visible surface they make (score 0,
-  /// VerifyResult::too_little_visible). A tenth of a box's surface is about a quarter of a
-  /// face seen from the front.
-  int min_supported_points = 30;
-  double min_supported_fraction = 0.03;
-  /// A real item's outline is where its surface ends: the scan there drops away to what is
-  /// behind (or runs under an occluder). A pose laid into a larger surface (a box's face on
-  /// a table or on a bigger box's face, the rest of it under that surface) has a scan that
-  /// runs on past its outline. The score is multiplied by min(1, edge fraction /
-  /// min_outline_edge_fraction) (0: off), the edge fraction being the share of the outline
-  /// probes (at least min_outline_probes, else taken as 1) where the scan drops away. An item
-  /// standing on a surface continues it along its foot only: on the real frames the true
-  /// poses show an edge on 26-59 % of their outline, poses laid into the table 2-25 %.
-  double min_outline_edge_fraction = 0.25;
-  int min_outline_probes = 20;
   /// Appearance: when the model has albedo (its `intensities`) and the scene intensities,
   /// the supported points' albedo (but where the sensor grazes the surface,
   /// AppearanceOptions::min_sample_cos) is correlated with the scene's shading-compensated
@@ -135,34 +99,15 @@ struct VerifyOptions {
 };
 
 struct VerifyResult {
-  /// coverage * outline_factor, in [0, 1]; 0 when too little is visible.
+  /// (supported - conflict_weight * conflicts) / (visible - occluded), clamped to [0, 1].
   double score = 0.0;
-  /// (supported - conflict_weight * conflicts) / (visible - occluded + occluded_weight *
-  /// occluded), clamped to [0, 1]: the share of the surface the pose says the sensor sees that
-  /// the scan supports.
-  double coverage = 0.0;
-  /// min(1, outline_edge_fraction / min_outline_edge_fraction).
-  double outline_factor = 0.0;
-  /// num_outline_edge / (num_outline_continued + num_outline_edge), 1 with too few probes.
-  double outline_edge_fraction = 1.0;
-  /// Fewer supported points than VerifyOptions::min_supported_points /
-  /// min_supported_fraction: too little of the item is seen to tell (score 0).
-  bool too_little_visible = false;
   std::size_t num_model_points = 0;  ///< After subsampling.
   /// Facing a sensor, in its image and not hidden by the model itself there.
   std::size_t num_visible = 0;
   /// Visible, but behind measured scene surface in every sensor that measured a depth there.
   std::size_t num_occluded = 0;
   std::size_t num_supported = 0;
-  std::size_t num_conflicts = 0;  ///< Visible points in free space a sensor measured.
-  /// Visible, unsupported, and no sensor measured a depth along their rays (a hole in the
-  /// scan, or pixels the region cut away).
-  std::size_t num_unmeasured = 0;
-  /// The outline of the model's footprint in the reference sensor, probed just outside where
-  /// the scan shows it: probes where the scene's surface runs on as the model's surface would
-  /// (the pose explains a patch of a larger surface), and where it drops away behind.
-  std::size_t num_outline_continued = 0;
-  std::size_t num_outline_edge = 0;
+  std::size_t num_conflicts = 0;   ///< Visible points in free space a sensor measured.
   double conflict_fraction = 0.0;  ///< num_conflicts / (num_visible - num_occluded).
   double inlier_rmse_m = 0.0;      ///< RMS distance of the supported points to the scene.
   /// Model albedo against scene intensity over the supported points (not defined without

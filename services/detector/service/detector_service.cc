@@ -176,8 +176,6 @@ pb::MethodAttempt::Outcome ToProto(AttemptOutcome outcome) {
       return pb::MethodAttempt::OUTCOME_UNAVAILABLE;
     case AttemptOutcome::kNotStarted:
       return pb::MethodAttempt::OUTCOME_NOT_STARTED;
-    case AttemptOutcome::kTooLittleVisible:
-      return pb::MethodAttempt::OUTCOME_TOO_LITTLE_VISIBLE;
   }
   return pb::MethodAttempt::OUTCOME_UNSPECIFIED;
 }
@@ -199,9 +197,6 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_occluded_points(static_cast<std::uint32_t>(d.occluded_points));
   out->set_supported_points(static_cast<std::uint32_t>(d.supported_points));
   out->set_conflict_points(static_cast<std::uint32_t>(d.conflict_points));
-  out->set_unmeasured_points(static_cast<std::uint32_t>(d.unmeasured_points));
-  out->set_outline_continued_probes(static_cast<std::uint32_t>(d.outline_continued));
-  out->set_outline_edge_probes(static_cast<std::uint32_t>(d.outline_edge));
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
@@ -315,8 +310,6 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
       // a contradicting print lowers the score.
       VerifyOptions options = RefineVerifyOptions().verify;
       options.symmetries = model->object->symmetries();
-      // As Detect scores it: a shape model's outline is not the item's.
-      if (model->spec.kind != ModelSourceKind::kScan) options.min_outline_edge_fraction = 0.0;
       const VerifyResult r =
           detector::Verify(scene, model->object->icp_cloud(), X_BaseItem, options);
       response->set_score(r.score);
@@ -327,7 +320,6 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           static_cast<std::uint32_t>(r.num_visible - r.num_occluded));
       response->set_supported_model_points(static_cast<std::uint32_t>(r.num_supported));
       response->set_conflicting_model_points(static_cast<std::uint32_t>(r.num_conflicts));
-      response->set_too_little_visible(r.too_little_visible);
       return grpc::Status::OK;
     });
   }

@@ -554,9 +554,7 @@ double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,
   std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(*view.cloud_Base);
   dt::VerifyResponse response;
   ThrowIfFailed("detector", "Verify", options_.verify(params, chunks, &response));
-  // A view that shows too little of the held item cannot tell (-1), whatever its score.
-  if (static_cast<int>(response.visible_model_points()) < options_.min_visible_points_to_verify ||
-      response.too_little_visible()) {
+  if (static_cast<int>(response.visible_model_points()) < options_.min_visible_points_to_verify) {
     return -1.0;
   }
   return response.score();

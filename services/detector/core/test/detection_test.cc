@@ -291,37 +291,6 @@ TEST(DetectionChainTest, TheBudgetCountsFromTheCallersStart) {
   EXPECT_EQ(ppf->budget_end, early.budget_end);
 }
 
-// Candidates that all rest on too few supported points are "not found, too little visible",
-// not a pose below the thresholds; one candidate with enough evidence makes it the latter.
-TEST(DetectionChainTest, TooLittleVisibleIsNotFound) {
-  Detection thin = MakeDetection(0.0, 1.0);
-  thin.too_little_visible = true;
-  thin.supported_points = 12;
-  thin.visible_points = 40;
-  Detection thinner = MakeDetection(0.0, 2.0);
-  thinner.too_little_visible = true;
-  thinner.supported_points = 5;
-  auto ppf = std::make_shared<FakeEstimator>(Method::kPpf, std::vector<Detection>{thinner, thin});
-  ObjectConfig c = Config(Method::kPpf, {}, 0.5);
-  geometry::PointCloud scene;
-  const ChainResult r = DetectionChain(DetectorConfig(c), {ppf})
-                            .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
-  EXPECT_FALSE(r.detection.has_value());
-  ASSERT_EQ(r.attempts.size(), 1u);
-  EXPECT_EQ(r.attempts[0].outcome, AttemptOutcome::kTooLittleVisible);
-  EXPECT_STREQ(ToString(AttemptOutcome::kTooLittleVisible), "too little visible");
-  EXPECT_NE(r.attempts[0].reason.find("too little visible"), std::string::npos);
-  EXPECT_NE(r.attempts[0].reason.find("12 supported model points of 40 visible"), std::string::npos)
-      << r.attempts[0].reason;
-
-  auto mixed = std::make_shared<FakeEstimator>(
-      Method::kPpf, std::vector<Detection>{MakeDetection(0.3, 1.0), thin});
-  const ChainResult m = DetectionChain(DetectorConfig(c), {mixed})
-                            .Run({"duck", &scene, Eigen::Isometry3d::Identity(), std::nullopt});
-  ASSERT_EQ(m.attempts.size(), 1u);
-  EXPECT_EQ(m.attempts[0].outcome, AttemptOutcome::kBelowThresholds);
-}
-
 TEST(BudgetClockTest, SteadyByDefaultFrozenOrTheCallersOwn) {
   const TimePoint before = std::chrono::steady_clock::now();
   EXPECT_GE(BudgetClock().Now(), before);

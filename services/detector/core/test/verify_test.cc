@@ -6,7 +6,6 @@
 #include <limits>
 #include <random>
 
-#include "services/detector/core/preprocess.h"
 #include "services/detector/core/templates.h"
 
 namespace picking::detector {
@@ -107,59 +106,6 @@ TEST_F(VerifyTest, AbsentObjectScoresNearZero) {
   const VerifyResult hidden = Verify(scene, model_, below);
   EXPECT_EQ(hidden.score, 0.0);
   EXPECT_GT(hidden.num_occluded, 0u);
-}
-
-// The box sunk into the floor with its top face flush with it: the face is supported
-// everywhere and the rest is hidden under the floor, but the floor runs on past the pose's
-// outline, where a real box's top ends in a drop to the floor.
-TEST_F(VerifyTest, PoseSunkIntoASurfaceScoresBelowTheTruePose) {
-  // The outline test reads the scene's normals (the scanner's, or estimated as here): without
-  // them a surface carried on is not told from the item's own side at a grazing angle.
-  const VerificationScene scene(EstimateNormals(scene_), X_BaseSensor_, camera_);
-  const VerifyResult truth = Verify(scene, model_, X_BaseItem_);
-  Eigen::Isometry3d sunk = X_BaseItem_;
-  sunk.translation().z() = -0.015;  // top face at z = 0
-  const VerifyResult r = Verify(scene, model_, sunk);
-  EXPECT_GT(r.num_supported, 100u);
-  EXPECT_GT(r.coverage, 0.8);  // what it shows, the floor supports
-  EXPECT_GT(truth.outline_edge_fraction, 0.3);
-  EXPECT_LT(r.outline_edge_fraction, 0.1);
-  EXPECT_LT(r.score, 0.5 * truth.score);
-  EXPECT_GT(truth.score, 0.8);
-
-  // Without the outline test, hidden points that count (occluded_weight 1) still put the
-  // tucked-away pose below the true one, which hides nothing.
-  VerifyOptions hidden_count;
-  hidden_count.min_outline_edge_fraction = 0.0;
-  hidden_count.occluded_weight = 1.0;
-  const VerifyResult weighed = Verify(scene, model_, sunk, hidden_count);
-  ASSERT_GT(weighed.num_occluded, 20u);
-  EXPECT_LT(weighed.score, Verify(scene, model_, X_BaseItem_, hidden_count).score - 0.1);
-}
-
-// Evidence too thin to tell: score 0 and too_little_visible, whatever share of the visible
-// surface the few supported points make.
-TEST_F(VerifyTest, TooLittleVisibleScoresZero) {
-  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
-  const VerifyResult truth = Verify(scene, model_, X_BaseItem_);
-  EXPECT_FALSE(truth.too_little_visible);
-  VerifyOptions strict;
-  strict.min_supported_points = static_cast<int>(truth.num_supported) + 1;
-  const VerifyResult thin = Verify(scene, model_, X_BaseItem_, strict);
-  EXPECT_TRUE(thin.too_little_visible);
-  EXPECT_EQ(thin.score, 0.0);
-  EXPECT_EQ(thin.num_supported, truth.num_supported);  // the evidence is still reported
-  // The same as a fraction of the model's points.
-  VerifyOptions by_fraction;
-  by_fraction.min_supported_fraction = (static_cast<double>(truth.num_supported) + 1.0) /
-                                       static_cast<double>(truth.num_model_points);
-  EXPECT_TRUE(Verify(scene, model_, X_BaseItem_, by_fraction).too_little_visible);
-  // Beside the image: nothing visible, nothing supported.
-  Eigen::Isometry3d outside = X_BaseItem_;
-  outside.translation().x() += 2.0;
-  const VerifyResult away = Verify(scene, model_, outside);
-  EXPECT_TRUE(away.too_little_visible);
-  EXPECT_EQ(away.score, 0.0);
 }
 
 TEST_F(VerifyTest, RejectsBadInput) {
