@@ -118,6 +118,56 @@ class TaskPickTest : public ::testing::Test {
     return reported;
   }
 
+  // Loads `task_json` into the simulator (seed 7); false when the simulator refuses it.
+  static bool LoadIntoSimulator(const std::string& task_json) {
+    auto stub = sim::SimulatorService::NewStub(simulator_->Channel());
+    grpc::ClientContext ctx;
+    sim::LoadLayoutRequest request;
+    request.set_task_json(task_json);
+    request.set_seed(7);
+    sim::LoadLayoutResponse loaded;
+    const grpc::Status status = stub->LoadLayout(&ctx, request, &loaded);
+    EXPECT_TRUE(status.ok()) << status.error_message();
+    return status.ok();
+  }
+
+  // Runs `task_json` as a stow task (300 s) through `orchestrator` to its end, printing its
+  // events; the finished task (empty, with a failure recorded, when a call fails).
+  static orch::GetTaskResponse RunStowToEnd(ServerProcess& orchestrator,
+                                            const std::string& task_json) {
+    auto stub = orch::OrchestratorService::NewStub(orchestrator.Channel());
+    orch::StartTaskResponse started;
+    {
+      grpc::ClientContext ctx;
+      orch::StartTaskRequest request;
+      request.set_task_json(task_json);
+      request.set_kind(orch::TASK_KIND_STOW);
+      request.set_time_limit_s(300.0);
+      const grpc::Status status = stub->StartTask(&ctx, request, &started);
+      EXPECT_TRUE(status.ok()) << status.error_message();
+      if (!status.ok()) return {};
+    }
+    {
+      grpc::ClientContext ctx;
+      orch::WatchTaskRequest request;
+      request.set_task_id(started.task_id());
+      auto reader = stub->WatchTask(&ctx, request);
+      orch::WatchTaskResponse response;
+      while (reader->Read(&response)) {
+        const orch::TaskEvent& event = response.event();
+        std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
+                    event.message().c_str());
+      }
+      EXPECT_TRUE(reader->Finish().ok());
+    }
+    orch::GetTaskResponse task;
+    grpc::ClientContext ctx;
+    orch::GetTaskRequest request;
+    request.set_task_id(started.task_id());
+    EXPECT_TRUE(stub->GetTask(&ctx, request, &task).ok());
+    return task;
+  }
+
   static std::string* dir_;
   static ServerProcess *simulator_, *robot_, *gripper_, *scanner_, *detector_, *planner_,
       *orchestrator_;
@@ -248,46 +298,8 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
 TEST_F(TaskPickTest, StowLayout1TheOutputFileMatchesTheSimulatorsTruth) {
   const std::string task_json =
       ReadText(std::string(PICKING_DATA_DIR) + "/apc2016/tasks/stow_layout_1.json");
-  {
-    auto sim_stub = sim::SimulatorService::NewStub(simulator_->Channel());
-    grpc::ClientContext ctx;
-    sim::LoadLayoutRequest request;
-    request.set_task_json(task_json);
-    request.set_seed(7);
-    sim::LoadLayoutResponse loaded;
-    ASSERT_TRUE(sim_stub->LoadLayout(&ctx, request, &loaded).ok());
-  }
-  auto stub = orch::OrchestratorService::NewStub(orchestrator_->Channel());
-  orch::StartTaskResponse started;
-  {
-    grpc::ClientContext ctx;
-    orch::StartTaskRequest request;
-    request.set_task_json(task_json);
-    request.set_kind(orch::TASK_KIND_STOW);
-    request.set_time_limit_s(300.0);
-    const grpc::Status status = stub->StartTask(&ctx, request, &started);
-    ASSERT_TRUE(status.ok()) << status.error_message();
-  }
-  {
-    grpc::ClientContext ctx;
-    orch::WatchTaskRequest request;
-    request.set_task_id(started.task_id());
-    auto reader = stub->WatchTask(&ctx, request);
-    orch::WatchTaskResponse response;
-    while (reader->Read(&response)) {
-      const orch::TaskEvent& event = response.event();
-      std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
-                  event.message().c_str());
-    }
-    ASSERT_TRUE(reader->Finish().ok());
-  }
-  orch::GetTaskResponse task;
-  {
-    grpc::ClientContext ctx;
-    orch::GetTaskRequest request;
-    request.set_task_id(started.task_id());
-    ASSERT_TRUE(stub->GetTask(&ctx, request, &task).ok());
-  }
+  ASSERT_TRUE(LoadIntoSimulator(task_json));
+  const orch::GetTaskResponse task = RunStowToEnd(*orchestrator_, task_json);
   ASSERT_EQ(task.state(), orch::TASK_STATE_SUCCEEDED) << task.error();
   EXPECT_EQ(task.kind(), orch::TASK_KIND_STOW);
   std::printf("stowed %u of %u, score %d\n", task.result().items_moved(), task.items_total(),
@@ -313,51 +325,14 @@ TEST_F(TaskPickTest, AStowOverTheTableSetsEachItemDownTellsItAndStowsIt) {
       "bin_A": ["dove_beauty_bar"], "bin_B": [], "bin_C": ["hanes_tube_socks"], "bin_D": [],
       "bin_E": [], "bin_F": [], "bin_G": [], "bin_H": [], "bin_I": [], "bin_J": [], "bin_K": [],
       "bin_L": []}, "tote_contents": ["kleenex_tissue_box", "folgers_classic_roast_coffee"]})";
-  {
-    auto sim_stub = sim::SimulatorService::NewStub(simulator_->Channel());
-    grpc::ClientContext ctx;
-    sim::LoadLayoutRequest request;
-    request.set_task_json(task_json);
-    request.set_seed(7);
-    sim::LoadLayoutResponse loaded;
-    ASSERT_TRUE(sim_stub->LoadLayout(&ctx, request, &loaded).ok());
-  }
+  ASSERT_TRUE(LoadIntoSimulator(task_json));
   ServerProcess over_table(
       ServerBinary("picking-orchestrator"),
       {"--tasks_dir=" + *dir_ + "/tasks_table", "--stow.table=always",
        "--scanner.address=" + scanner_->address(), "--detector.endpoints=" + detector_->address(),
        "--planner.address=" + planner_->address(), "--robot.address=" + robot_->address(),
        "--gripper.address=" + gripper_->address()});
-  auto stub = orch::OrchestratorService::NewStub(over_table.Channel());
-  orch::StartTaskResponse started;
-  {
-    grpc::ClientContext ctx;
-    orch::StartTaskRequest request;
-    request.set_task_json(task_json);
-    request.set_kind(orch::TASK_KIND_STOW);
-    request.set_time_limit_s(300.0);
-    ASSERT_TRUE(stub->StartTask(&ctx, request, &started).ok());
-  }
-  {
-    grpc::ClientContext ctx;
-    orch::WatchTaskRequest request;
-    request.set_task_id(started.task_id());
-    auto reader = stub->WatchTask(&ctx, request);
-    orch::WatchTaskResponse response;
-    while (reader->Read(&response)) {
-      const orch::TaskEvent& event = response.event();
-      std::printf("[%7.1f s] %-36s %s\n", event.time_s(), event.item().c_str(),
-                  event.message().c_str());
-    }
-    ASSERT_TRUE(reader->Finish().ok());
-  }
-  orch::GetTaskResponse task;
-  {
-    grpc::ClientContext ctx;
-    orch::GetTaskRequest request;
-    request.set_task_id(started.task_id());
-    ASSERT_TRUE(stub->GetTask(&ctx, request, &task).ok());
-  }
+  const orch::GetTaskResponse task = RunStowToEnd(over_table, task_json);
   ASSERT_EQ(task.state(), orch::TASK_STATE_SUCCEEDED) << task.error();
   std::printf("stowed over the table: %u of 2\n", task.result().items_moved());
   const sim::GetGroundTruthResponse truth = Truth();

@@ -237,6 +237,14 @@ class PickTaskTest : public ::testing::Test {
         cancel_);
     return runner.Run();
   }
+  // A stow of every tote item of `stow`, in the tote's order, journaled in dir_.
+  PickTaskResult RunStow(ScriptedCell& cell, const apc::Task& stow) {
+    Journal journal((dir_ / "journal.jsonl").string());
+    std::vector<Target> order;
+    for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
+    PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
+    return runner.Run();
+  }
   std::filesystem::path dir_;
   PickTaskOptions options_;
   std::atomic<bool> cancel_{false};
@@ -594,11 +602,7 @@ TEST_F(PickTaskTest, AStowTaskPutsEveryToteItemIntoTheBestBinThatCanBePlannedInt
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}, {"bin_C", 0.012}};
   ScriptedCell cell;
   cell.refused_destinations = {"bin_B"};  // the best by points, but no place plans there
-  Journal journal((dir_ / "journal.jsonl").string());
-  std::vector<Target> order;
-  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
-  PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
-  const PickTaskResult result = runner.Run();
+  const PickTaskResult result = RunStow(cell, stow);
   EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
   EXPECT_EQ(result.items_moved, 2);
   EXPECT_TRUE(result.final_contents.tote_contents.empty());
@@ -622,11 +626,7 @@ TEST_F(PickTaskTest, AStowItemInDoubtIsToldApartOnTheTableAndStowedAsWhatItIs) {
   ScriptedCell cell;
   cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";  // the first detection
   cell.on_table_is = "kleenex_tissue_box";
-  Journal journal((dir_ / "journal.jsonl").string());
-  std::vector<Target> order;
-  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
-  PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
-  const PickTaskResult result = runner.Run();
+  const PickTaskResult result = RunStow(cell, stow);
   EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
   // The item taken for the soap was the tissue box: stowed as such; the soap the next round.
   EXPECT_EQ(cell.destinations.front(), "table");
@@ -651,11 +651,7 @@ TEST_F(PickTaskTest, AStowItemTheTableCannotTellApartGoesBackIntoTheTote) {
   ScriptedCell cell;
   cell.scripts["dove_beauty_bar"].confused_with = "kleenex_tissue_box";
   cell.on_table_is = "";  // both look alike there
-  Journal journal((dir_ / "journal.jsonl").string());
-  std::vector<Target> order;
-  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
-  PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
-  const PickTaskResult result = runner.Run();
+  const PickTaskResult result = RunStow(cell, stow);
   ASSERT_GE(cell.destinations.size(), 2u);
   EXPECT_EQ(cell.destinations[0], "table");
   EXPECT_EQ(cell.destinations[1], "tote");  // back where it came from
@@ -670,11 +666,7 @@ TEST_F(PickTaskTest, AStowMaySetEveryItemDownOnTheTableFirst) {
   options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}};
   options_.table_check = PickTaskOptions::TableCheck::kAlways;
   ScriptedCell cell;
-  Journal journal((dir_ / "journal.jsonl").string());
-  std::vector<Target> order;
-  for (const std::string& item : stow.tote_contents) order.push_back({item, "tote", 0, 1.0});
-  PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
-  const PickTaskResult result = runner.Run();
+  const PickTaskResult result = RunStow(cell, stow);
   EXPECT_EQ(result.items_moved, 2);
   ASSERT_EQ(cell.destinations.size(), 4u);
   EXPECT_EQ(cell.destinations[0], "table");
