@@ -3,6 +3,7 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -26,8 +27,12 @@ struct RayScene::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   bool committed = false;
+  HitDistance distance = HitDistance::kSingle;
   std::vector<int> object_of_geometry;                // Embree geometry id -> object id
   std::vector<std::vector<Eigen::Vector3d>> normals;  // per geometry, per triangle
+  // HitDistance::kDouble only, per geometry: the placed vertices and the triangles.
+  std::vector<std::vector<Eigen::Vector3d>> vertices;
+  std::vector<std::vector<std::array<std::uint32_t, 3>>> triangles;
 
   // Nearest surface in (t_min, t_max] along origin + t * d (d unit) into *rh; false if none.
   bool Intersect(const Eigen::Vector3d& origin, const Eigen::Vector3d& d, double t_min,
@@ -51,9 +56,25 @@ struct RayScene::Impl {
     return rh->hit.geomID != RTC_INVALID_GEOMETRY_ID;
   }
 
+  // The distance to the plane of the hit triangle in double precision (Moller-Trumbore's);
+  // Embree's when the ray runs along the triangle's plane.
+  double DoubleDistance(const RTCRayHit& rh, const Eigen::Vector3d& origin,
+                        const Eigen::Vector3d& d) const {
+    const auto& v = vertices[rh.hit.geomID];
+    const auto& tri = triangles[rh.hit.geomID][rh.hit.primID];
+    const Eigen::Vector3d& a = v[tri[0]];
+    const Eigen::Vector3d e1 = v[tri[1]] - a;
+    const Eigen::Vector3d e2 = v[tri[2]] - a;
+    const Eigen::Vector3d p = d.cross(e2);
+    const double det = e1.dot(p);
+    if (std::abs(det) < 1e-15) return rh.ray.tfar;
+    const Eigen::Vector3d q = (origin - a).cross(e1);
+    return e2.dot(q) * (1.0 / det);
+  }
+
   RayHit Hit(const RTCRayHit& rh, const Eigen::Vector3d& origin, const Eigen::Vector3d& d) const {
     RayHit hit;
-    hit.distance_m = rh.ray.tfar;
+    hit.distance_m = distance == HitDistance::kDouble ? DoubleDistance(rh, origin, d) : rh.ray.tfar;
     hit.object_id = object_of_geometry[rh.hit.geomID];
     hit.triangle = rh.hit.primID;
     hit.p_BaseHit = origin + hit.distance_m * d;
@@ -62,7 +83,8 @@ struct RayScene::Impl {
   }
 };
 
-RayScene::RayScene() : impl_(std::make_unique<Impl>()) {
+RayScene::RayScene(HitDistance distance) : impl_(std::make_unique<Impl>()) {
+  impl_->distance = distance;
   impl_->device = rtcNewDevice("threads=1");
   if (impl_->device == nullptr) {
     throw std::runtime_error("RayScene: rtcNewDevice failed (error " +
@@ -108,9 +130,19 @@ void RayScene::Add(int object_id, const TriangleMesh& mesh, const Eigen::Isometr
   if (impl_->object_of_geometry.size() <= id) {
     impl_->object_of_geometry.resize(id + 1, -1);
     impl_->normals.resize(id + 1);
+    impl_->vertices.resize(id + 1);
+    impl_->triangles.resize(id + 1);
   }
   impl_->object_of_geometry[id] = object_id;
   impl_->normals[id] = std::move(normals);
+  if (impl_->distance == HitDistance::kDouble) {
+    std::vector<Eigen::Vector3d> vertices(mesh.vertices.size());
+    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+      vertices[i] = X_BaseObject * mesh.vertices[i].cast<double>();
+    }
+    impl_->vertices[id] = std::move(vertices);
+    impl_->triangles[id] = mesh.triangles;
+  }
 }
 
 void RayScene::Commit() {

@@ -22,14 +22,25 @@ struct RayHit {
   Eigen::Vector3d n_Base = Eigen::Vector3d::UnitZ();
 };
 
+/// How RayScene reports a hit's distance.
+enum class HitDistance {
+  /// Embree's: vertices, ray and distance in single precision (the simulator's world).
+  kSingle,
+  /// Embree finds the surface; the distance is then computed again in double precision on the
+  /// hit triangle (its vertices placed in double precision) from the double-precision ray, as
+  /// exact as the mesh's vertices (measurements: the shelf's bins and the tote's inner box).
+  kDouble,
+};
+
 /// Ray casting against a set of placed meshes with Embree (embree 3: one device and one
-/// static scene per RayScene; vertices and ray parameters in single precision). The one ray
-/// caster of the project: the simulator's world and the shelf bins' measurement
-/// (MeasureBins) use it. Build with Add() and Commit(); Cast() and CastAll() are const and
-/// thread safe after Commit(). Not copyable.
+/// static scene per RayScene; vertices and ray parameters in single precision, distances as
+/// `HitDistance` says). The one ray caster of the project: the simulator's world and the
+/// measurement of the shelf's bins and the tote's inner box (MeasureBins, MeasureToteInner)
+/// use it. Build with Add() and Commit(); Cast() and CastAll() are const and thread safe after
+/// Commit(). Not copyable.
 class RayScene final {
  public:
-  RayScene();
+  explicit RayScene(HitDistance distance = HitDistance::kSingle);
   ~RayScene();
   RayScene(const RayScene&) = delete;
   RayScene& operator=(const RayScene&) = delete;
@@ -50,7 +61,8 @@ class RayScene final {
 
   /// Every surface in (t_min, t_max] along the same ray as Cast, sorted by distance (strictly
   /// increasing: surfaces met at the same single-precision distance, e.g. the two triangles
-  /// of a shared edge or coincident faces, are one hit). Both faces count. Throws as Cast.
+  /// of a shared edge or coincident faces, are one hit; with HitDistance::kDouble the order is
+  /// Embree's, i.e. to single precision). Both faces count. Throws as Cast.
   std::vector<RayHit> CastAll(const Eigen::Vector3d& p_BaseOrigin,
                               const Eigen::Vector3d& direction_Base,
                               double t_max = std::numeric_limits<double>::infinity(),

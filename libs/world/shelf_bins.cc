@@ -1,23 +1,26 @@
 #include "libs/world/shelf_bins.h"
 
 #include <algorithm>
+#include <limits>
 #include <optional>
 #include <stdexcept>
 
-#include "libs/world/mesh_ray_caster.h"
 #include "libs/world/mesh_utils.h"
+#include "libs/world/ray_scene.h"
 
 namespace picking::world {
 namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
 
 struct Gap {
   double lo, hi;
 };
 
 // Free gaps along a ray crossing the whole mesh: intervals between consecutive hits.
-std::vector<Gap> FreeGaps(const MeshRayCaster& caster, const Eigen::Vector3d& origin,
+std::vector<Gap> FreeGaps(const RayScene& scene, const Eigen::Vector3d& origin,
                           const Eigen::Vector3d& dir, double min_len, double max_len) {
-  const auto hits = caster.CastAll(origin, dir);
+  const auto hits = scene.CastAll(origin, dir);
   std::vector<Gap> gaps;
   for (std::size_t i = 0; i + 1 < hits.size(); ++i) {
     const double len = hits[i + 1].distance_m - hits[i].distance_m;
@@ -50,7 +53,7 @@ struct Extreme {
 // Where the rays start: the probe's depth inside the shelf, slightly off the centre line so
 // rays do not run along the mesh edges of a symmetric mesh.
 struct Probe {
-  const MeshRayCaster& caster;
+  const RayScene& scene;
   Eigen::AlignedBox3d bounds;
   double x = 0.0, y = 0.0;
   double margin = 0.1;
@@ -61,7 +64,7 @@ struct Probe {
 std::vector<Gap> FindRows(const Probe& probe, const MeasureBinsOptions& options,
                           double up_origin_z) {
   const Eigen::Vector3d up_origin(probe.x, probe.y, up_origin_z);
-  std::vector<Gap> rows = FreeGaps(probe.caster, up_origin, Eigen::Vector3d::UnitZ(),
+  std::vector<Gap> rows = FreeGaps(probe.scene, up_origin, Eigen::Vector3d::UnitZ(),
                                    options.min_row_height_m, options.max_row_height_m);
   if (static_cast<int>(rows.size()) < options.rows) {
     throw std::runtime_error("MeasureBins: found " + std::to_string(rows.size()) +
@@ -79,8 +82,8 @@ double BackWallX(const Probe& probe, double y_mid, double z_mid, double half_w, 
   Extreme back;
   for (double fy : {-0.6, -0.3, 0.0, 0.3, 0.6}) {
     for (double fz : {-0.6, 0.0, 0.6}) {
-      const auto hit = probe.caster.Cast({probe.x, y_mid + fy * half_w, z_mid + fz * half_h},
-                                         -Eigen::Vector3d::UnitX());
+      const auto hit = probe.scene.Cast({probe.x, y_mid + fy * half_w, z_mid + fz * half_h},
+                                        -Eigen::Vector3d::UnitX(), kInf);
       if (hit) back.Max(probe.x - hit->distance_m);
     }
   }
@@ -92,7 +95,7 @@ double BackWallX(const Probe& probe, double y_mid, double z_mid, double half_w, 
 double OpeningX(const Probe& probe, double y_mid, double z_mid, double row_half,
                 const std::string& who) {
   const auto has_floor = [&](double x) {
-    return probe.caster.Cast({x, y_mid, z_mid}, -Eigen::Vector3d::UnitZ(), 0.0, row_half + 0.05)
+    return probe.scene.Cast({x, y_mid, z_mid}, -Eigen::Vector3d::UnitZ(), row_half + 0.05)
         .has_value();
   };
   double inside = probe.x;
@@ -118,7 +121,7 @@ void MeasureInside(const Probe& probe, const MeasureBinsOptions& options, double
   const double x1 = bin->opening_x_m - 0.002;
   const auto cast = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& dir,
                         double limit) -> std::optional<double> {
-    const auto hit = probe.caster.Cast(p, dir, 0.0, limit);
+    const auto hit = probe.scene.Cast(p, dir, limit);
     if (!hit) return std::nullopt;
     return hit->distance_m;
   };
@@ -162,8 +165,13 @@ std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
         "MeasureBins: rows, columns, depth_samples >= 2 and "
         "lateral_samples must be positive");
   }
-  const MeshRayCaster caster(shelf_S);
-  Probe probe{caster, Bounds(shelf_S)};
+  if (shelf_S.empty()) {
+    throw std::invalid_argument("MeasureBins: mesh '" + shelf_S.name + "' is empty");
+  }
+  RayScene scene(HitDistance::kDouble);
+  scene.Add(0, shelf_S, Eigen::Isometry3d::Identity());
+  scene.Commit();
+  Probe probe{scene, Bounds(shelf_S)};
   probe.x = probe.bounds.center().x() +
             options.probe_depth_fraction * (probe.bounds.max().x() - probe.bounds.center().x());
   probe.y = probe.bounds.center().y() + 0.0123 * probe.bounds.sizes().y();
@@ -176,7 +184,7 @@ std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
     // 2. Columns, from the left seen from the front (-y).
     const double side_origin_y = probe.bounds.min().y() - probe.margin;
     const std::vector<Gap> cols =
-        FreeGaps(caster, Eigen::Vector3d(probe.x, side_origin_y, z_mid), Eigen::Vector3d::UnitY(),
+        FreeGaps(scene, Eigen::Vector3d(probe.x, side_origin_y, z_mid), Eigen::Vector3d::UnitY(),
                  options.min_column_width_m, options.max_column_width_m);
     if (static_cast<int>(cols.size()) != options.columns) {
       throw std::runtime_error("MeasureBins: row " + std::to_string(r) + " has " +
@@ -207,9 +215,14 @@ std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
 Eigen::AlignedBox3d MeasureToteInner(const TriangleMesh& tote_T) {
   const Eigen::AlignedBox3d bounds_T = Bounds(tote_T);
   const Eigen::Vector3d mid_T = bounds_T.center();
-  const MeshRayCaster caster(tote_T);
+  if (tote_T.empty()) {
+    throw std::invalid_argument("MeasureToteInner: mesh '" + tote_T.name + "' is empty");
+  }
+  RayScene scene(HitDistance::kDouble);
+  scene.Add(0, tote_T, Eigen::Isometry3d::Identity());
+  scene.Commit();
   const auto distance = [&](const Eigen::Vector3d& direction) {
-    const auto hit = caster.Cast(mid_T, direction, 0.0, bounds_T.sizes().norm());
+    const auto hit = scene.Cast(mid_T, direction, bounds_T.sizes().norm());
     if (!hit) throw std::runtime_error("MeasureToteInner: the tote mesh has no wall or floor");
     return hit->distance_m;
   };

@@ -159,7 +159,7 @@ class FakeSimulator final : public sim::SimulatorService::Service {
       response->set_contact(true);
       response->set_distance_m(height / -axis.z());
       response->mutable_item()->set_name("crayola_64_ct");
-      response->set_surface("top");
+      response->set_surface(sim::CONTACT_SURFACE_ITEM);
       response->set_stiffness_n_per_m(2000.0);
     }
     return grpc::Status::OK;

@@ -299,6 +299,7 @@ TEST_F(SimulatorRpcTest, ProbeFindsTheShelfAndItemsAlongTheToolAxis) {
     ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
   }
   EXPECT_TRUE(probe.contact());
+  EXPECT_EQ(probe.surface(), sim::CONTACT_SURFACE_ITEM);
   EXPECT_EQ(probe.item().name(), "kleenex_tissue_box");
   EXPECT_GT(probe.distance_m(), 0.3);  // the box's front face, less than its half length away
   EXPECT_LT(probe.distance_m(), 0.5);
@@ -317,7 +318,7 @@ TEST_F(SimulatorRpcTest, ProbeFindsTheShelfAndItemsAlongTheToolAxis) {
     ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
   }
   EXPECT_TRUE(probe.contact());
-  EXPECT_EQ(probe.surface(), "shelf");
+  EXPECT_EQ(probe.surface(), sim::CONTACT_SURFACE_SHELF);
   EXPECT_TRUE(probe.item().name().empty());
   // From the cup 0.1 m above the bin centre to the floor half a bin height below.
   EXPECT_NEAR(probe.distance_m(), 0.1 + 0.5 * bin.size_m().z(), 0.02);
@@ -329,6 +330,7 @@ TEST_F(SimulatorRpcTest, ProbeFindsTheShelfAndItemsAlongTheToolAxis) {
     ASSERT_TRUE(stub_->ProbeContact(&ctx, req, &probe).ok());
   }
   EXPECT_FALSE(probe.contact());
+  EXPECT_EQ(probe.surface(), sim::CONTACT_SURFACE_UNSPECIFIED);
 }
 
 TEST_F(SimulatorRpcTest, SuctionInFreeAirDoesNotSeal) {

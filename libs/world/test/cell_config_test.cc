@@ -4,9 +4,10 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
 
-#include "libs/world/mesh_ray_caster.h"
 #include "libs/world/mesh_utils.h"
+#include "libs/world/ray_scene.h"
 
 namespace picking::world {
 namespace {
@@ -192,7 +193,10 @@ TEST(CellConfigTest, TheToteBoxIsMeasuredFromItsMesh) {
   EXPECT_TRUE(bounds_T.contains(box_T));
   EXPECT_NEAR(box_T.max().z(), bounds_T.max().z(), 1e-9);  // up to the rim
   EXPECT_GT(box_T.sizes().minCoeff(), 0.1);
-  const MeshRayCaster caster(cell.tote);
+  RayScene scene;
+  scene.Add(0, cell.tote, Eigen::Isometry3d::Identity());
+  scene.Commit();
+  constexpr double kInf = std::numeric_limits<double>::infinity();
   constexpr double kInset = 0.06;
   int rays = 0;
   for (int axis = 0; axis < 3; ++axis) {
@@ -207,7 +211,7 @@ TEST(CellConfigTest, TheToteBoxIsMeasuredFromItsMesh) {
           p_T[u] = box_T.min()[u] + kInset + (box_T.sizes()[u] - 2 * kInset) * i / 4.0;
           p_T[v] = box_T.min()[v] + kInset + (box_T.sizes()[v] - 2 * kInset) * j / 4.0;
           const double face = sign > 0 ? box_T.max()[axis] : box_T.min()[axis];
-          const auto hit = caster.Cast(p_T, direction);
+          const auto hit = scene.Cast(p_T, direction, kInf);
           ASSERT_TRUE(hit) << axis << " " << sign << " " << p_T.transpose();
           EXPECT_NEAR(hit->distance_m, std::abs(face - p_T[axis]), 1e-3)
               << "axis " << axis << " sign " << sign << " at " << p_T.transpose();
@@ -220,7 +224,7 @@ TEST(CellConfigTest, TheToteBoxIsMeasuredFromItsMesh) {
   for (int i = 0; i < 5; ++i) {
     Eigen::Vector3d p_T = box_T.center();
     p_T.x() = box_T.min().x() + kInset + (box_T.sizes().x() - 2 * kInset) * i / 4.0;
-    EXPECT_FALSE(caster.Cast(p_T, Eigen::Vector3d::UnitZ())) << p_T.transpose();
+    EXPECT_FALSE(scene.Cast(p_T, Eigen::Vector3d::UnitZ(), kInf)) << p_T.transpose();
   }
   // A tote mesh without a floor is refused.
   TriangleMesh open;

@@ -59,5 +59,35 @@ TEST(RaySceneTest, CastAllReturnsEverySurfaceAlongTheRayInOrder) {
   EXPECT_THROW(scene.CastAll({0, 0, 0}, {0, 0, 0}), std::invalid_argument);
 }
 
+TEST(RaySceneTest, DoubleHitDistancesAreAsExactAsTheVertices) {
+  // A face at x = 1 - 0.1f seen from x = 0.3 + 1e-9: single precision rounds the origin and
+  // the distance (about 1e-8 m off); kDouble recomputes it on the hit triangle.
+  const TriangleMesh box = MakeBox({0.2, 0.2, 0.2});
+  const Eigen::Isometry3d X_BaseBox(Eigen::Translation3d(1.0, 0.0, 0.0));
+  const Eigen::Vector3d origin(0.3 + 1e-9, 0.013, 0.021);
+  const double front = 1.0 + static_cast<double>(-0.1f) - origin.x();
+  const double back = 1.0 + static_cast<double>(0.1f) - origin.x();
+  RayScene exact(HitDistance::kDouble);
+  exact.Add(1, box, X_BaseBox);
+  exact.Commit();
+  const auto hit = exact.Cast(origin, {2, 0, 0}, 10.0);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->distance_m, front, 1e-15);
+  EXPECT_NEAR(hit->p_BaseHit.x(), origin.x() + front, 1e-15);
+  EXPECT_TRUE(hit->n_Base.isApprox(-Eigen::Vector3d::UnitX(), 1e-6));
+  const auto hits = exact.CastAll(origin, {1, 0, 0});
+  ASSERT_EQ(hits.size(), 2u);
+  EXPECT_NEAR(hits[0].distance_m, front, 1e-15);
+  EXPECT_NEAR(hits[1].distance_m, back, 1e-15);
+  EXPECT_FALSE(exact.Cast(origin, {1, 0, 0}, 0.5));
+  RayScene single;
+  single.Add(1, box, X_BaseBox);
+  single.Commit();
+  const auto rounded = single.Cast(origin, {1, 0, 0}, 10.0);
+  ASSERT_TRUE(rounded);
+  EXPECT_NEAR(rounded->distance_m, front, 1e-6);
+  EXPECT_NE(rounded->distance_m, front);
+}
+
 }  // namespace
 }  // namespace picking::world

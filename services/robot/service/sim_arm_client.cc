@@ -38,6 +38,23 @@ void Check(const grpc::Status& status, const std::string& address, const char* r
   throw std::runtime_error(message);
 }
 
+// What a contact touched, for messages: the item's name, else the static object's.
+std::string ContactName(const sim::ProbeContactResponse& response) {
+  if (!response.item().name().empty()) return response.item().name();
+  switch (response.surface()) {
+    case sim::CONTACT_SURFACE_SHELF:
+      return "shelf";
+    case sim::CONTACT_SURFACE_TOTE:
+      return "tote";
+    case sim::CONTACT_SURFACE_TABLE:
+      return "table";
+    case sim::CONTACT_SURFACE_ITEM:
+      return "an item";
+    default:
+      return "cell";
+  }
+}
+
 std::array<double, 6> ToArray(const JointVector& q) {
   std::array<double, 6> a{};
   for (int i = 0; i < 6; ++i) a[i] = q[i];
@@ -165,9 +182,7 @@ ContactProbe SimulatorArmClient::Probe(const Eigen::Isometry3d& X_BaseTool,
     }
     probe.distance_m = response.distance_m();
     probe.stiffness_n_per_m = response.stiffness_n_per_m();
-    const std::string item = response.item().name();
-    probe.what = !item.empty() ? item : (!response.surface().empty() ? response.surface() : "cell");
-    if (!item.empty() && !response.surface().empty()) probe.what += " (" + response.surface() + ")";
+    probe.what = ContactName(response);
   }
   return probe;
 }

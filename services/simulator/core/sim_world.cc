@@ -264,6 +264,10 @@ ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTcp,
                   : first->object_id == kShelfId ? "shelf"
                   : first->object_id == kToteId  ? "tote"
                                                  : "table";
+  result.surface = first->object_id > 0           ? ContactSurface::kItem
+                   : first->object_id == kShelfId ? ContactSurface::kShelf
+                   : first->object_id == kToteId  ? ContactSurface::kTote
+                                                  : ContactSurface::kTable;
   result.p_BaseContact = first->p_BaseHit;
   result.n_Base = first->n_Base;
   return result;

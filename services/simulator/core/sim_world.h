@@ -120,12 +120,22 @@ struct GuardedMoveResult {
   Eigen::Vector3d p_BaseContact = Eigen::Vector3d::Zero();  ///< First contact point.
 };
 
+/// What a probe touched.
+enum class ContactSurface {
+  kNone,  ///< No contact.
+  kItem,  ///< An item (ProbeResult::item_id).
+  kShelf,
+  kTote,
+  kTable,
+};
+
 /// Where the cup first touches along a straight motion (SimWorld::Probe).
 struct ProbeResult {
   bool contact = false;     ///< A surface lies within the probed distance.
   double distance_m = 0.0;  ///< Travel until the first lip or centre point touches.
-  int item_id = 0;          ///< Item touched (0: none or a static object).
-  std::string object;       ///< Item name, "shelf", "tote", "table", or empty.
+  ContactSurface surface = ContactSurface::kNone;  ///< What is touched.
+  int item_id = 0;                                 ///< Item touched (0: none or a static object).
+  std::string object;  ///< Item name, "shelf", "tote", "table", or empty.
   Eigen::Vector3d p_BaseContact = Eigen::Vector3d::Zero();  ///< First contact point.
   Eigen::Vector3d n_Base = Eigen::Vector3d::Zero();         ///< Surface normal there.
 };

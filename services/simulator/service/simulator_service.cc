@@ -170,6 +170,22 @@ pb::EventKind EventKindToProto(EventKind kind) {
   throw std::logic_error("unhandled simulator event kind");
 }
 
+pb::ContactSurface ContactSurfaceToProto(ContactSurface surface) {
+  switch (surface) {
+    case ContactSurface::kNone:
+      return pb::CONTACT_SURFACE_UNSPECIFIED;
+    case ContactSurface::kItem:
+      return pb::CONTACT_SURFACE_ITEM;
+    case ContactSurface::kShelf:
+      return pb::CONTACT_SURFACE_SHELF;
+    case ContactSurface::kTote:
+      return pb::CONTACT_SURFACE_TOTE;
+    case ContactSurface::kTable:
+      return pb::CONTACT_SURFACE_TABLE;
+  }
+  throw std::logic_error("unhandled simulator contact surface");
+}
+
 camera::PinholeCamera PinholeFromProto(const common::CameraIntrinsics& m,
                                        const std::string& field) {
   return pc::CameraFromProto(m, field, kMaxImageSide, kMaxImagePixels);
@@ -493,11 +509,10 @@ class SimulatorServiceImpl final : public pb::SimulatorService::Service {
       if (probe.contact) {
         response->set_distance_m(probe.distance_m);
         response->set_stiffness_n_per_m(world_->options().contact_stiffness_n_per_m);
+        response->set_surface(ContactSurfaceToProto(probe.surface));
         if (probe.item_id != 0) {
           const auto instances = Instances(world_->items());
           *response->mutable_item() = ItemRefOf(probe.object, instances.at(probe.item_id));
-        } else {
-          response->set_surface(probe.object);
         }
       }
       return grpc::Status::OK;

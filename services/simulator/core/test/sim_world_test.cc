@@ -97,6 +97,33 @@ TEST_F(SimWorldTest, GuardedMoveStopsAtTheForceThreshold) {
   EXPECT_NEAR(short_move.travelled_m, 0.03, 1e-12);
 }
 
+TEST_F(SimWorldTest, AProbeTellsWhatItTouches) {
+  const Eigen::Vector3d down = -Eigen::Vector3d::UnitZ();
+  const auto probe = [&](const Eigen::Vector3d& p_Base) {
+    return world_->Probe(CupAt(p_Base, down), down, 1.0);
+  };
+  const auto box = BoxOf(box_id_);
+  const ProbeResult item =
+      probe(Eigen::Vector3d(box.center().x(), box.center().y(), box.max().z() + 0.05));
+  EXPECT_TRUE(item.contact);
+  EXPECT_EQ(item.surface, ContactSurface::kItem);
+  EXPECT_EQ(item.item_id, box_id_);
+  const world::CellConfig& config = cell_->config;
+  const ProbeResult shelf = probe(config.X_BaseShelf * cell_->bin("bin_B").inner_S.center());
+  EXPECT_TRUE(shelf.contact);
+  EXPECT_EQ(shelf.surface, ContactSurface::kShelf);
+  EXPECT_EQ(shelf.item_id, 0);
+  const ProbeResult tote = probe(config.X_BaseTote * cell_->tote_inner_T().center());
+  EXPECT_EQ(tote.surface, ContactSurface::kTote);
+  const ProbeResult table = probe(config.X_BaseTable * Eigen::Vector3d(0.0, 0.0, 0.2));
+  EXPECT_EQ(table.surface, ContactSurface::kTable);
+  const ProbeResult none = world_->Probe(
+      CupAt(config.X_BaseTable * Eigen::Vector3d(0.0, 0.0, 0.2), Eigen::Vector3d::UnitZ()),
+      Eigen::Vector3d::UnitZ(), 0.1);
+  EXPECT_FALSE(none.contact);
+  EXPECT_EQ(none.surface, ContactSurface::kNone);
+}
+
 TEST_F(SimWorldTest, PickCarryAndDropIntoTheToteIsLogged) {
   CupAbove(box_id_);
   world_->GuardedMove(0.2);
