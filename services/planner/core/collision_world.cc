@@ -329,9 +329,23 @@ float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
   const auto& centres = posed.centres;
   const auto& first = posed.first;
   float slack = cap_m;
+  // Only the spheres of each body that come within reach of the other's enclosing sphere
+  // can come within reach of one of its spheres (each lies inside it): of the tube's 17
+  // and the forearm's 9, a few near the wrist.
+  std::array<int, PosedSpheres::kMaxCoarse> near_b;
+  int num_near_b = 0;
+  for (int j = first[b]; j < first[b + 1]; ++j) {
+    const float r =
+        posed.bound_radii_m[a] + trees[b]->coarse[j - first[b]].radius_m + 2.f * padding_m + cap_m;
+    if ((centres[j] - posed.bound_centres[a]).squaredNorm() < r * r) near_b[num_near_b++] = j;
+  }
+  thread_local std::vector<Eigen::Vector3f> leaves_b;  // b's leaves in base, reused
   for (int i = first[a]; i < first[a + 1]; ++i) {
     const Sphere& si = trees[a]->coarse[i - first[a]];
-    for (int j = first[b]; j < first[b + 1]; ++j) {
+    const float reach_b = si.radius_m + posed.bound_radii_m[b] + 2.f * padding_m + slack;
+    if ((centres[i] - posed.bound_centres[b]).squaredNorm() >= reach_b * reach_b) continue;
+    for (int n = 0; n < num_near_b; ++n) {
+      const int j = near_b[n];
       const Sphere& sj = trees[b]->coarse[j - first[b]];
       const float r = si.radius_m + sj.radius_m + 2.f * padding_m;
       const float reach = r + slack;
@@ -341,14 +355,18 @@ float FastChecker::SelfPairSlack(std::size_t pair, const JointVector& q_rad,
         slack = std::sqrt(d2) - r;
         continue;
       }
-      // The coarse spheres touch: compare their leaves.
+      // The coarse spheres touch: compare their leaves, b's posed once (a coarse sphere of a
+      // wrist or the shoulder holds 50-100 of them).
       const Leaves li = LeavesOf(*trees[a], si), lj = LeavesOf(*trees[b], sj);
+      const std::size_t num_y = static_cast<std::size_t>(lj.end - lj.begin);
+      if (leaves_b.size() < num_y) leaves_b.resize(num_y);
+      for (std::size_t k = 0; k < num_y; ++k) leaves_b[k] = Xf[b] * lj.begin[k].center_B;
       for (const Sphere* x = li.begin; x != li.end; ++x) {
         const Eigen::Vector3f cx = Xf[a] * x->center_B;
-        for (const Sphere* y = lj.begin; y != lj.end; ++y) {
-          const float ry = x->radius_m + y->radius_m + 2.f * padding_m;
+        for (std::size_t k = 0; k < num_y; ++k) {
+          const float ry = x->radius_m + lj.begin[k].radius_m + 2.f * padding_m;
           const float reach_y = ry + slack;
-          const float e2 = (cx - Xf[b] * y->center_B).squaredNorm();
+          const float e2 = (cx - leaves_b[k]).squaredNorm();
           if (e2 >= reach_y * reach_y) continue;
           slack = std::sqrt(e2) - ry;
           if (slack < 0.f) return slack;
@@ -397,8 +415,10 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
     }
   }
   const PosedSpheres posed(robot_, arm_bounds_, X, carried);
-  for (int b = 1; b < num_bodies; ++b) {
-    // The base (body 0) is fixed to the pedestal; it is only checked against the moving bodies.
+  // From the carried item and the gripper down the arm: the bodies that reach into a bin are
+  // the ones that hit, so a colliding state is found with fewer spheres read. The base (body
+  // 0) is fixed to the pedestal; it is only checked against the moving bodies.
+  for (int b = num_bodies - 1; b >= 1; --b) {
     const SphereTree& tree = *posed.trees[b];
     for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
       const Sphere& s = tree.coarse[i];

@@ -243,6 +243,14 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
   static_exact_ = straight->exact.get();
   straight_head_ = std::move(straight);
   heads_.emplace(straight_head_->angle_rad, straight_head_);
+  // The servo's steps (BendHead's angles), built now rather than by the first pick that
+  // needs one, so that no request pays for them.
+  if (gripper.head_length_m > 0.0 && gripper.max_head_angle_rad > 0.0) {
+    for (int k = 1; k * options_.head_angle_step_rad < gripper.max_head_angle_rad; ++k) {
+      HeadAt(k * options_.head_angle_step_rad);
+    }
+    HeadAt(gripper.max_head_angle_rad);
+  }
   std::vector<std::string> missing;
   std::vector<NamedPose> named = ComputeNamedPoses(*robot_, *cell_, *static_fast_, *static_exact_,
                                                    DefaultHomeJoints(), X_ToolCamera_, &missing);

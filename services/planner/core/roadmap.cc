@@ -120,20 +120,70 @@ std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
   return path;
 }
 
-std::vector<int> Roadmap::JoinNodes(const JointVector& q, const CarriedItem* carried,
-                                    int* edges_checked, std::string* first_block) const {
-  std::vector<int> joined;
-  for (int n : Nearest(q, 3 * options_.neighbours)) {
-    ++*edges_checked;
-    const MotionCheckResult check = checker_.CheckSegment(q, nodes_[n], carried);
-    if (check.free) {
-      joined.push_back(n);
-    } else if (first_block->empty()) {
-      *first_block = check.report.ToString() + " at " +
-                     std::to_string(static_cast<int>(100 * check.fraction_free)) + "% of the way";
-    }
+Roadmap::Joins Roadmap::NearestJoins(const JointVector& q) const {
+  Joins joins;
+  joins.q_rad = q;
+  joins.nodes = Nearest(q, 3 * options_.neighbours);
+  return joins;
+}
+
+bool Roadmap::JoinFree(Joins* joins, int node, const CarriedItem* carried, int* edges_checked,
+                       std::string* first_block) const {
+  if (std::find(joins->free.begin(), joins->free.end(), node) != joins->free.end()) return true;
+  ++*edges_checked;
+  const MotionCheckResult check = checker_.CheckSegment(joins->q_rad, nodes_[node], carried);
+  if (check.free) {
+    joins->free.push_back(node);
+    return true;
   }
-  return joined;
+  if (first_block->empty()) {
+    *first_block = check.report.ToString() + " at " +
+                   std::to_string(static_cast<int>(100 * check.fraction_free)) + "% of the way";
+  }
+  joins->nodes.erase(std::find(joins->nodes.begin(), joins->nodes.end(), node));
+  return false;
+}
+
+std::vector<JointVector> Roadmap::SearchLazily(Joins* start, Joins* goal,
+                                               const CarriedItem* carried,
+                                               std::chrono::steady_clock::time_point deadline,
+                                               int* edges_checked, std::string* why_not) const {
+  std::string first_block;
+  CarriedEdges carried_edges;
+  for (int round = 0; round < 1000; ++round) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      *why_not = "the call's deadline passed during the roadmap search";
+      return {};
+    }
+    if (start->nodes.empty() || goal->nodes.empty()) {
+      *why_not = std::string("no free straight motion joins the ") +
+                 (start->nodes.empty() ? "start" : "goal") +
+                 " to the roadmap (nearest: " + first_block + ")";
+      return {};
+    }
+    const std::vector<std::pair<int, int>> chain =
+        ShortestChain(start->q_rad, goal->q_rad, start->nodes, goal->nodes, carried, carried_edges);
+    if (chain.empty()) {
+      *why_not = "the roadmap has no free path between start and goal";
+      return {};
+    }
+    if (!JoinFree(start, chain.front().first, carried, edges_checked, &first_block) ||
+        !JoinFree(goal, chain.back().first, carried, edges_checked, &first_block)) {
+      continue;
+    }
+    bool blocked = false;
+    for (std::size_t i = 1; i < chain.size() && !blocked; ++i) {
+      blocked =
+          !EdgeFree(chain[i - 1].first, chain[i].second, edges_checked, carried, &carried_edges);
+    }
+    if (blocked) continue;
+    std::vector<JointVector> path = {start->q_rad};
+    for (const auto& [v, edge] : chain) path.push_back(nodes_[v]);
+    path.push_back(goal->q_rad);
+    return path;
+  }
+  *why_not = "the roadmap search gave up after 1000 rounds of blocked motions";
+  return {};
 }
 
 std::vector<std::pair<int, int>> Roadmap::ShortestChain(const JointVector& start_rad,
@@ -236,56 +286,28 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
     remember({start_rad, goal_rad});
     return finish({start_rad, goal_rad});
   }
-  // Join start and goal to their nearest nodes with free edges.
-  std::string first_block;
-  const std::vector<int> start_nodes =
-      JoinNodes(start_rad, carried, &result.edges_checked, &first_block);
-  const std::vector<int> goal_nodes =
-      JoinNodes(goal_rad, carried, &result.edges_checked, &first_block);
-  // Where the roadmap does not serve: two trees grown between start and goal.
-  auto by_trees = [&](const std::string& why) {
-    std::vector<JointVector> path =
-        ConnectTrees(start_rad, goal_rad, final_checker, carried, deadline);
-    if (path.empty()) {
-      result.reason = why + "; no path either by trees grown from start and goal (" +
-                      std::to_string(options_.tree_nodes) + " nodes)";
-      return result;
-    }
-    result.by_trees = true;
-    return finish(Shortcut(std::move(path), final_checker, carried));
-  };
-  if (start_nodes.empty() || goal_nodes.empty()) {
-    return by_trees(std::string("no free straight motion joins the ") +
-                    (start_nodes.empty() ? "start" : "goal") +
-                    " to the roadmap (nearest: " + first_block + ")");
-  }
-  // Lazy A*: search over edges not known to be blocked, check the path's edges, repeat.
-  CarriedEdges carried_edges;
-  for (int round = 0; round < 200; ++round) {
-    if (std::chrono::steady_clock::now() > deadline) {
-      result.reason = "the call's deadline passed during the roadmap search";
-      return result;
-    }
-    const std::vector<std::pair<int, int>> chain =
-        ShortestChain(start_rad, goal_rad, start_nodes, goal_nodes, carried, carried_edges);
-    if (chain.empty()) return by_trees("the roadmap has no free path between start and goal");
-    bool blocked = false;
-    for (std::size_t i = 1; i < chain.size(); ++i) {
-      if (!EdgeFree(chain[i - 1].first, chain[i].second, &result.edges_checked, carried,
-                    &carried_edges)) {
-        blocked = true;
-        break;
-      }
-    }
-    if (blocked) continue;
-    std::vector<JointVector> path = {start_rad};
-    for (const auto& [v, edge] : chain) path.push_back(nodes_[v]);
-    path.push_back(goal_rad);
+  // Through the roadmap, else two trees grown between start and goal.
+  Joins start = NearestJoins(start_rad), goal = NearestJoins(goal_rad);
+  std::string why_not;
+  std::vector<JointVector> path =
+      SearchLazily(&start, &goal, carried, deadline, &result.edges_checked, &why_not);
+  if (!path.empty()) {
     path = Shortcut(std::move(path), checker_, carried);
     remember(path);
     return finish(std::move(path));
   }
-  return by_trees("the roadmap search gave up after 200 rounds of blocked edges");
+  if (std::chrono::steady_clock::now() > deadline) {
+    result.reason = why_not;
+    return result;
+  }
+  path = ConnectTrees(start_rad, goal_rad, final_checker, carried, deadline);
+  if (path.empty()) {
+    result.reason = why_not + "; no path either by trees grown from start and goal (" +
+                    std::to_string(options_.tree_nodes) + " nodes)";
+    return result;
+  }
+  result.by_trees = true;
+  return finish(Shortcut(std::move(path), final_checker, carried));
 }
 
 std::vector<JointVector> Roadmap::ConnectTrees(

@@ -104,10 +104,24 @@ class Roadmap final {
                 CarriedEdges* carried_edges) const;
   std::vector<JointVector> Shortcut(std::vector<JointVector> path, const MotionChecker& checker,
                                     const CarriedItem* carried) const;
-  /// The nearest nodes a free straight motion from `q` reaches; the first blocked motion's
-  /// reason lands in `first_block` if it is empty.
-  std::vector<int> JoinNodes(const JointVector& q, const CarriedItem* carried, int* edges_checked,
-                             std::string* first_block) const;
+  /// The straight motions joining a query (start or goal) to its nearest nodes, checked only
+  /// once a chain uses them (most searches use one or two of them).
+  struct Joins {
+    JointVector q_rad;
+    std::vector<int> nodes;  ///< Not known to be blocked.
+    std::vector<int> free;   ///< Checked free.
+  };
+  Joins NearestJoins(const JointVector& q) const;
+  /// Whether the motion between `joins.q_rad` and `node` is free; a blocked one leaves
+  /// `joins.nodes`, its reason landing in `first_block` if that is empty.
+  bool JoinFree(Joins* joins, int node, const CarriedItem* carried, int* edges_checked,
+                std::string* first_block) const;
+  /// Lazy A* from start to goal: the shortest chain over joins and edges not known to be
+  /// blocked, its motions checked, again until one is free. The path (start, nodes, goal),
+  /// or empty with `why_not` set.
+  std::vector<JointVector> SearchLazily(Joins* start, Joins* goal, const CarriedItem* carried,
+                                        std::chrono::steady_clock::time_point deadline,
+                                        int* edges_checked, std::string* why_not) const;
   /// A* over the edges not known to be blocked: (node, index of the edge from the previous
   /// node) from a start node to a goal node; empty when none is reachable.
   std::vector<std::pair<int, int>> ShortestChain(const JointVector& start_rad,
