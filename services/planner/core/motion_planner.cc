@@ -1016,7 +1016,26 @@ std::vector<std::vector<Eigen::Vector3d>> MotionPlanner::LiftCandidates(
   return candidates;
 }
 
-MotionPlanner::LiftStart MotionPlanner::MakeLiftStart(const Eigen::Isometry3d& X_grasp,
+namespace {
+
+// How far the item's box at X_BaseItem reaches below the container's floor (0 if not): a
+// detected pose a few millimetres off puts an item resting on a bin's board or the table's
+// top partly inside it, which the item cannot be.
+double DepthBelowFloor(const GraspContainer& container, const Eigen::AlignedBox3d& box_Item,
+                       const Eigen::Isometry3d& X_BaseItem) {
+  const Eigen::Isometry3d X_ContainerItem = container.X_BaseContainer.inverse() * X_BaseItem;
+  double lowest_z = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 8; ++i) {
+    const auto corner = static_cast<Eigen::AlignedBox3d::CornerType>(i);
+    lowest_z = std::min(lowest_z, (X_ContainerItem * box_Item.corner(corner)).z());
+  }
+  return std::max(0.0, -0.5 * container.inner_size_m.z() - lowest_z);
+}
+
+}  // namespace
+
+MotionPlanner::LiftStart MotionPlanner::MakeLiftStart(const GraspContainer& container,
+                                                      const Eigen::Isometry3d& X_grasp,
                                                       const JointVector& q_grasp,
                                                       const CarriedItem& carried,
                                                       const RequestChecks& checks) const {
@@ -1025,7 +1044,9 @@ MotionPlanner::LiftStart MotionPlanner::MakeLiftStart(const Eigen::Isometry3d& X
   start.q_grasp = q_grasp;
   start.carried = &carried;
   const Eigen::Isometry3d X_BaseItem = X_grasp * carried.X_TcpItem;
-  start.skimming = RaisedOffSupport(carried, X_BaseItem, options_.lift_item_check_m);
+  start.skim_height_m =
+      options_.lift_item_check_m + DepthBelowFloor(container, carried.box_Item, X_BaseItem);
+  start.skimming = RaisedOffSupport(carried, X_BaseItem, start.skim_height_m);
   if (checks.contacts) start.touched = checks.contacts->Touching(X_BaseItem, carried.box_Item);
   return start;
 }
@@ -1067,7 +1088,7 @@ bool MotionPlanner::CheckLiftPath(const LiftStart& start,
       const Eigen::Isometry3d X_BaseItem = robot.X_BaseTcp(q) * carried.X_TcpItem;
       const bool low =
           X_BaseItem.translation().z() - (X_grasp * carried.X_TcpItem).translation().z() <
-          options_.lift_item_check_m;
+          start.skim_height_m;
       if (const CollisionReport r = checks.head->exact->Check(q, low ? &start.skimming : &carried);
           r.in_collision) {
         failure->body = BodyName(r.body);
@@ -1130,7 +1151,7 @@ bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspC
   const bool bent = checks.fast.robot().gripper().bent();
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
   const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
-  const LiftStart start = MakeLiftStart(X_grasp, q_grasp, carried, checks);
+  const LiftStart start = MakeLiftStart(container, X_grasp, q_grasp, carried, checks);
   bool first = true;
   std::string slide_reason;
   for (const auto& waypoints : LiftCandidates(container, release_Base)) {

@@ -45,7 +45,8 @@ struct MotionPlannerOptions {
   double guarded_overshoot_m = 0.04;
   /// The retreat's first straight lift, upward; the carried item is checked against the scene
   /// by the fast check from the lift's end on (it rests on its support before), exactly (its
-  /// box, FCL) from `lift_item_check_m` of lift on.
+  /// box, FCL) from `lift_item_check_m` of lift on, plus however far the detected pose puts
+  /// the box below the container's floor (the item rests on it, so it is not inside it).
   double lift_m = 0.05;
   double lift_item_check_m = 0.01;
   /// Where the straight lift meets something, the item is raised slide_height_m off its
@@ -369,10 +370,12 @@ class MotionPlanner final {
     JointVector q_grasp = JointVector::Zero();
     const CarriedItem* carried = nullptr;
     CarriedItem skimming;      // the item with its resting face drawn in (RaisedOffSupport)
+    double skim_height_m = 0;  // by this much, checked so until lifted by as much
     std::vector<int> touched;  // the scan voxels its box touches at the grasp
   };
-  LiftStart MakeLiftStart(const Eigen::Isometry3d& X_grasp, const JointVector& q_grasp,
-                          const CarriedItem& carried, const RequestChecks& checks) const;
+  LiftStart MakeLiftStart(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                          const JointVector& q_grasp, const CarriedItem& carried,
+                          const RequestChecks& checks) const;
   // One lift: IK at each waypoint, the arm's motion, the item's box against the cell and
   // against scan voxels it did not touch at the grasp. The joint path in `path_rad`.
   bool CheckLiftPath(const LiftStart& start, const std::vector<Eigen::Vector3d>& waypoints_Base,
