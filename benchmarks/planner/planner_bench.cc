@@ -288,8 +288,8 @@ void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer,
     std::printf("  no plan: %s (%.0f ms): %s\n", label.c_str(), Ms(t), e.what());
     if (args.all_failures) {
       for (std::size_t i = 1; i < e.failures().size(); ++i) {
-        std::printf("      also: [%s / %s] %s\n", e.failures()[i].stage.c_str(),
-                    e.failures()[i].kind.c_str(), e.failures()[i].message.c_str());
+        std::printf("      also: [%s / %s] %s\n", FailureStageName(e.failures()[i].stage),
+                    FailureKindName(e.failures()[i].kind), e.failures()[i].message.c_str());
       }
     }
   }

@@ -78,8 +78,29 @@ std::array<Eigen::Isometry3d, kNumJoints + 1> Ur10Kinematics::DhFrames(
 }
 
 Eigen::Isometry3d Ur10Kinematics::ForwardKinematics(const JointVector& q_rad) const {
-  Eigen::Isometry3d X = Joint(model_.dh(), 0, q_rad[0]);
-  for (int i = 1; i < kNumJoints; ++i) X = X * Joint(model_.dh(), i, q_rad[i]);
+  // Joint(i) = Rz(theta_i) * Tz(d_i) Tx(a_i) Rx(alpha_i): the turn rotates the frame's x and y
+  // columns, and alpha of +-pi/2 or 0 swaps and negates columns, so a joint costs a few
+  // multiplications instead of a matrix product (the planner calls this for every sample).
+  const DhParameters& dh = model_.dh();
+  const double d[kNumJoints] = {dh.d1, 0.0, 0.0, dh.d4, dh.d5, dh.d6};
+  const double a[kNumJoints] = {0.0, dh.a2, dh.a3, 0.0, 0.0, 0.0};
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  for (int i = 0; i < kNumJoints; ++i) {
+    const double c = std::cos(q_rad[i]);
+    const double s = std::sin(q_rad[i]);
+    const Eigen::Vector3d x = c * R.col(0) + s * R.col(1);  // Rz(theta)
+    const Eigen::Vector3d y = c * R.col(1) - s * R.col(0);
+    const Eigen::Vector3d z = R.col(2);
+    p += d[i] * z + a[i] * x;  // Tz(d) Tx(a)
+    // Rx(alpha): y' = cos(alpha) y + sin(alpha) z, z' = -sin(alpha) y + cos(alpha) z.
+    R.col(0) = x;
+    R.col(1) = kCosAlpha[i] * y + kSinAlpha[i] * z;
+    R.col(2) = kCosAlpha[i] * z - kSinAlpha[i] * y;
+  }
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = R;
+  X.translation() = p;
   return X;
 }
 

@@ -54,6 +54,32 @@ void AppendThinned(const cm::JointTrajectory& t, int max_points,
   }
 }
 
+// The planner's name of a failure's stage in its messages; null for one not known here.
+const char* StageName(pl::PlanFailureStage stage) {
+  switch (stage) {
+    case pl::PLAN_FAILURE_STAGE_START:
+      return "start";
+    case pl::PLAN_FAILURE_STAGE_GRASPS:
+      return "grasps";
+    case pl::PLAN_FAILURE_STAGE_PRE_GRASP:
+      return "pre-grasp";
+    case pl::PLAN_FAILURE_STAGE_DESCEND:
+      return "descend";
+    case pl::PLAN_FAILURE_STAGE_RETREAT:
+      return "retreat";
+    case pl::PLAN_FAILURE_STAGE_APPROACH:
+      return "approach";
+    case pl::PLAN_FAILURE_STAGE_PLACE:
+      return "place";
+    case pl::PLAN_FAILURE_STAGE_JOINT_MOTION:
+      return "joint motion";
+    case pl::PLAN_FAILURE_STAGE_SEARCH:
+      return "search";
+    default:
+      return nullptr;
+  }
+}
+
 // The planner's typed failure from the status details, else the status message.
 std::string PlanFailureMessage(const grpc::Status& status) {
   google::rpc::Status details;
@@ -61,7 +87,8 @@ std::string PlanFailureMessage(const grpc::Status& status) {
     for (const auto& any : details.details()) {
       pl::PlanFailure failure;
       if (any.UnpackTo(&failure) && !failure.message().empty()) {
-        return failure.stage() + ": " + failure.message();
+        const char* stage = StageName(failure.stage());
+        return stage ? std::string(stage) + ": " + failure.message() : failure.message();
       }
     }
   }

@@ -58,11 +58,32 @@ bool IsRigid(const Eigen::Isometry3d& X) {
          std::abs(R.determinant() - 1.0) < 1e-6;
 }
 
-PlanFailure FromSearch(const std::string& stage, const std::string& grasp,
+// The plan failure's kind for a cartesian search's.
+FailureKind FailureKindOf(CartesianFailureKind kind) {
+  switch (kind) {
+    case CartesianFailureKind::kNone:
+      return FailureKind::kUnspecified;
+    case CartesianFailureKind::kStartInCollision:
+      return FailureKind::kStartInCollision;
+    case CartesianFailureKind::kIkUnreachable:
+      return FailureKind::kIkUnreachable;
+    case CartesianFailureKind::kJointJump:
+      return FailureKind::kJointJump;
+    case CartesianFailureKind::kCollision:
+      return FailureKind::kCollision;
+    case CartesianFailureKind::kBudget:
+      return FailureKind::kNodeBudgetSpent;
+    case CartesianFailureKind::kDeadline:
+      return FailureKind::kDeadline;
+  }
+  return FailureKind::kUnspecified;
+}
+
+PlanFailure FromSearch(FailureStage stage, const std::string& grasp,
                        const CartesianSearchResult& search) {
   PlanFailure f;
   f.stage = stage;
-  f.kind = CartesianFailureName(search.failure);
+  f.kind = FailureKindOf(search.failure);
   f.grasp = grasp;
   f.node = search.failed_node;
   f.fraction_achieved = search.fraction_achieved;
@@ -70,8 +91,31 @@ PlanFailure FromSearch(const std::string& stage, const std::string& grasp,
     f.body = BodyName(search.collision.body);
     f.obstacle = search.collision.obstacle;
   }
-  f.message = stage + " for grasp '" + grasp + "': " + search.Describe();
+  f.message =
+      std::string(FailureStageName(stage)) + " for grasp '" + grasp + "': " + search.Describe();
   return f;
+}
+
+// How far a pick's attempt got by the stage it failed at: the more advanced, the higher.
+int StageRank(FailureStage stage) {
+  switch (stage) {
+    case FailureStage::kPreGrasp:
+      return 1;
+    case FailureStage::kDescend:
+      return 2;
+    case FailureStage::kRetreat:
+      return 3;
+    case FailureStage::kApproach:
+      return 4;
+    case FailureStage::kUnspecified:
+    case FailureStage::kStart:
+    case FailureStage::kGrasps:
+    case FailureStage::kSearch:
+    case FailureStage::kPlace:
+    case FailureStage::kJointMotion:
+      return 0;
+  }
+  return 0;
 }
 
 // `first` followed by `second`, which starts where `first` ends.
@@ -455,8 +499,7 @@ MotionCheckResult CheckTimedMotion(const MotionChecker& checker, const CarriedIt
 Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_rad,
                                           double speed_fraction, const MotionChecker& checker,
                                           const ExactChecker& exact, const CarriedItem* carried,
-                                          const std::string& stage,
-                                          PathChecked path_checked) const {
+                                          FailureStage stage, PathChecked path_checked) const {
   if (!(speed_fraction > 0.0 && speed_fraction <= 1.0)) {
     throw std::invalid_argument("speed_fraction must be in (0, 1]");
   }
@@ -475,12 +518,11 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
                .norm() /
            kStepRad;
   };
-  auto fail = [&](const std::string& kind, const std::string& message,
-                  const CollisionReport* report) {
+  auto fail = [&](FailureKind kind, const std::string& message, const CollisionReport* report) {
     PlanFailure f;
     f.stage = stage;
     f.kind = kind;
-    f.message = stage + ": " + message;
+    f.message = std::string(FailureStageName(stage)) + ": " + message;
     if (report && report->in_collision) {
       f.body = BodyName(report->body);
       f.obstacle = report->obstacle;
@@ -498,14 +540,14 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
     // the robot's limit between them, slow the whole motion down (speeds by k,
     // accelerations by k^2 keep the path and its timing law's shape) until it holds.
     for (int round = 0; round < 4; ++round) {
+      if (timed.samples.empty()) break;
       double v_max = 0.0;
+      Eigen::Vector3d p_last = robot.X_BaseTcp(timed.samples.front().q_rad).translation();
       for (std::size_t i = 1; i < timed.samples.size(); ++i) {
+        const Eigen::Vector3d p = robot.X_BaseTcp(timed.samples[i].q_rad).translation();
         const double dt = timed.samples[i].time_s - timed.samples[i - 1].time_s;
-        if (dt <= 0.0) continue;
-        const double d = (robot.X_BaseTcp(timed.samples[i].q_rad).translation() -
-                          robot.X_BaseTcp(timed.samples[i - 1].q_rad).translation())
-                             .norm();
-        v_max = std::max(v_max, d / dt);
+        if (dt > 0.0) v_max = std::max(v_max, (p - p_last).norm() / dt);
+        p_last = p;
       }
       if (v_max <= options_.max_tcp_speed_m_s) break;
       const double k = 0.95 * options_.max_tcp_speed_m_s / v_max;
@@ -513,7 +555,7 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
       timing.max_acceleration_rad_s2 *= k * k;
       timed = TimeParametrizeTimeOptimal(path_rad, timing);
     }
-    if (!timed.ok) fail("timing", timed.reason, nullptr);
+    if (!timed.ok) fail(FailureKind::kTiming, timed.reason, nullptr);
     std::vector<JointVector> samples;
     samples.reserve(timed.samples.size());
     for (const auto& s : timed.samples) samples.push_back(s.q_rad);
@@ -521,13 +563,14 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
         checker, carried, path_rad, timed.samples, samples, path_checked == PathChecked::kSegments);
     if (!check.free) {
       if (deviation > 0.0) continue;
-      fail("collision", "the timed motion collides: " + check.report.ToString(), &check.report);
+      fail(FailureKind::kCollision, "the timed motion collides: " + check.report.ToString(),
+           &check.report);
     }
     for (std::size_t i = 0; i < samples.size(); ++i) {
       if (i % options_.exact_sample_stride != 0 && i + 1 != samples.size()) continue;
       const CollisionReport report = exact.Check(samples[i], carried);
       if (report.in_collision) {
-        fail("collision",
+        fail(FailureKind::kCollision,
              "exact validation found a collision at t = " +
                  std::to_string(timed.samples[i].time_s) + " s: " + report.ToString(),
              &report);
@@ -536,15 +579,15 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
     for (const JointVector& q : path_rad) {
       const CollisionReport report = exact.Check(q, carried);
       if (report.in_collision) {
-        fail("collision", "exact validation found a collision at a path node: " + report.ToString(),
-             &report);
+        fail(FailureKind::kCollision,
+             "exact validation found a collision at a path node: " + report.ToString(), &report);
       }
     }
     Trajectory trajectory;
     trajectory.samples = timed.samples;
     return trajectory;
   }
-  fail("collision", "no collision-free timing", nullptr);
+  fail(FailureKind::kCollision, "no collision-free timing", nullptr);
   return {};
 }
 
@@ -573,8 +616,8 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   CheckDeadline(deadline, "the joint motion");
   if (!path.ok) {
     PlanFailure f;
-    f.stage = "joint motion";
-    f.kind = "no path";
+    f.stage = FailureStage::kJointMotion;
+    f.kind = FailureKind::kNoPath;
     f.message = "no collision-free joint motion: " + path.reason;
     throw PlanFailedError({f});
   }
@@ -582,7 +625,7 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   plan.path_rad = path.path_rad;
   plan.cached = path.cached;
   plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *head.motion, *head.exact,
-                                    nullptr, "joint motion");
+                                    nullptr, FailureStage::kJointMotion);
   plan.planning_time_s = Seconds(started);
   return plan;
 }
@@ -595,8 +638,9 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
                                                  const FastChecker& checker,
                                                  const CarriedItem* carried,
                                                  std::string* reason) const {
+  // Each arm pose once, as its whole-turn variant nearest the seed (the others collide alike).
   ur10::IkOptions ik_options;
-  ik_options.include_2pi_variants = true;
+  ik_options.seed_rad = seed;
   ur10::IkResult ik = robot_->kinematics().Solve(
       X_BaseTcp * checker.robot().gripper().X_ToolTcp.inverse(), ik_options);
   if (ik.empty()) {
@@ -611,9 +655,8 @@ std::optional<JointVector> MotionPlanner::FreeIk(const Eigen::Isometry3d& X_Base
   for (const auto& s : ik.solutions) {
     if (TriedAlready(tried, s.q_rad)) continue;
     tried.push_back(s.q_rad);
-    const CollisionReport report = checker.Check(s.q_rad, carried);
-    if (!report.in_collision) return s.q_rad;
-    if (!first.in_collision) first = report;
+    if (checker.IsFree(s.q_rad, carried)) return s.q_rad;
+    if (!first.in_collision) first = checker.Check(s.q_rad, carried);
   }
   *reason = "every IK solution collides (nearest: " + first.ToString() + ")";
   return std::nullopt;
@@ -834,8 +877,8 @@ bool MotionPlanner::TubeReaches(const GraspContainer& container, const GraspCand
   options.head_angle_rad = gripper.head_angle_rad;
   const TubeReachResult reach = CheckTubeReach(container, grasp, options);
   if (reach.reaches) return true;
-  failure->stage = "descend";
-  failure->kind = "tube blocked";
+  failure->stage = FailureStage::kDescend;
+  failure->kind = FailureKind::kTubeBlocked;
   failure->grasp = grasp.surface;
   failure->body = BodyName(kBodyTool);
   failure->obstacle = "shelf";
@@ -856,12 +899,14 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   // and the guarded move free.
   const ur10::Ur10Kinematics& kinematics = robot_->kinematics();
   const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
+  // Each arm pose once, as its whole-turn variant nearest the seed (the others have the same
+  // collisions and branch).
   ur10::IkOptions ik_options;
-  ik_options.include_2pi_variants = true;
+  ik_options.seed_rad = seed;
   ur10::IkResult ik = kinematics.Solve(X_pre * X_TcpTool, ik_options);
   if (ik.empty()) {
-    failure->stage = "pre-grasp";
-    failure->kind = "ik unreachable";
+    failure->stage = FailureStage::kPreGrasp;
+    failure->kind = FailureKind::kIkUnreachable;
     failure->message = "no IK solution: " + ik.reason;
     return std::nullopt;
   }
@@ -876,9 +921,9 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   for (const auto& s : ik.solutions) {
     if (TriedAlready(tried, s.q_rad)) continue;
     tried.push_back(s.q_rad);
-    const CollisionReport at_pre = fast.Check(s.q_rad);
-    if (at_pre.in_collision) {
-      if (!first_hit.in_collision) first_hit = at_pre;
+    // IsFree stops at the first hit; Check, which says what hits what, only for the message.
+    if (!fast.IsFree(s.q_rad)) {
+      if (!first_hit.in_collision) first_hit = fast.Check(s.q_rad);
       continue;
     }
     any_free_pre = true;
@@ -890,16 +935,17 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
       const auto q = kinematics.NearestSolution(*X * X_TcpTool, s.q_rad, branch, &reason);
       if (!q) {
         if (first_reason.empty()) {
-          failure->kind = "ik unreachable";
+          failure->kind = FailureKind::kIkUnreachable;
           first_reason = std::string(what) + " has no IK solution on branch " + branch.ToString() +
                          " of the free pre-grasp";
         }
         ok = false;
         break;
       }
-      if (const CollisionReport r = fast.Check(q->q_rad); r.in_collision) {
+      if (!fast.IsFree(q->q_rad)) {
         if (first_reason.empty()) {
-          failure->kind = "collision";
+          const CollisionReport r = fast.Check(q->q_rad);
+          failure->kind = FailureKind::kCollision;
           failure->body = BodyName(r.body);
           failure->obstacle = r.obstacle;
           first_reason = std::string(what) + " itself collides on branch " + branch.ToString() +
@@ -912,14 +958,14 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
     if (ok) return s.q_rad;
   }
   if (!any_free_pre) {
-    failure->stage = "pre-grasp";
-    failure->kind = "collision";
+    failure->stage = FailureStage::kPreGrasp;
+    failure->kind = FailureKind::kCollision;
     failure->body = BodyName(first_hit.body);
     failure->obstacle = first_hit.obstacle;
     failure->message = "every IK solution collides (nearest: " + first_hit.ToString() + ")";
     return std::nullopt;
   }
-  failure->stage = "descend";
+  failure->stage = FailureStage::kDescend;
   failure->message =
       first_reason + " (checked before the search; no free pre-grasp branch holds it)";
   return std::nullopt;
@@ -1173,11 +1219,11 @@ bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspC
         paths->retreat = retreat.path_rad;
         return true;
       }
-      attempt = FromSearch("retreat", grasp.surface, retreat);
+      attempt = FromSearch(FailureStage::kRetreat, grasp.surface, retreat);
       why = attempt.message;
     } else {
-      attempt.stage = "retreat";
-      attempt.kind = "collision";
+      attempt.stage = FailureStage::kRetreat;
+      attempt.kind = FailureKind::kCollision;
       attempt.grasp = grasp.surface;
       why = "retreat for grasp '" + grasp.surface + "': " + why;
     }
@@ -1216,17 +1262,18 @@ double MotionPlanner::GuardedOvershoot(const Eigen::Isometry3d& X_grasp,
 void MotionPlanner::TimePickPaths(const PickPaths& paths, double speed_fraction,
                                   const CarriedItem& carried, const MotionChecker& motion,
                                   const ExactChecker& exact, PickPlan* plan) const {
-  plan->approach =
-      TimeAndValidate(paths.approach, speed_fraction, motion, exact, nullptr, "approach");
+  plan->approach = TimeAndValidate(paths.approach, speed_fraction, motion, exact, nullptr,
+                                   FailureStage::kApproach);
   // The descent and the retreat are the cartesian search's, every segment checked.
-  plan->descend = TimeAndValidate(paths.descend, speed_fraction, motion, exact, nullptr, "descend",
-                                  PathChecked::kSegments);
+  plan->descend = TimeAndValidate(paths.descend, speed_fraction, motion, exact, nullptr,
+                                  FailureStage::kDescend, PathChecked::kSegments);
   // The lift is checked here without the item: LiftOff checked the item's box along it
   // exactly; the fast check takes the item from the lift's end on.
   const Trajectory lift = TimeAndValidate(paths.lift, speed_fraction, motion, exact, nullptr,
-                                          "retreat", PathChecked::kSegments);
-  plan->retreat = Joined(lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact,
-                                               &carried, "retreat", PathChecked::kSegments));
+                                          FailureStage::kRetreat, PathChecked::kSegments);
+  plan->retreat =
+      Joined(lift, TimeAndValidate(paths.retreat, speed_fraction, motion, exact, &carried,
+                                   FailureStage::kRetreat, PathChecked::kSegments));
 }
 
 namespace {
@@ -1256,11 +1303,12 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
     Y.translation() += d;
     return Y;
   };
-  auto fail = [&](const std::string& stage, const std::string& kind, const std::string& message) {
+  auto fail = [&](FailureStage stage, FailureKind kind, const std::string& message) {
     failure->stage = stage;
     failure->kind = kind;
     failure->grasp = grasp.surface;
-    failure->message = stage + " for grasp '" + grasp.surface + "': " + message;
+    failure->message =
+        std::string(FailureStageName(stage)) + " for grasp '" + grasp.surface + "': " + message;
     return false;
   };
   std::string reason;
@@ -1273,7 +1321,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
       PreGraspPose(container, grasp, hover_m, bent, &reason);
   if (!pre) {
     failure->before_search = true;
-    return fail("pre-grasp", "ik unreachable", reason);
+    return fail(FailureStage::kPreGrasp, FailureKind::kIkUnreachable, reason);
   }
   const Eigen::Isometry3d& X_pre = *pre;
   const Eigen::Isometry3d X_descend_end = translated(X_grasp, -a * hover_m);
@@ -1296,7 +1344,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   plan->nodes_expanded += descend.nodes_expanded;
   Lap(times, "descend", &lap_start);
   if (!descend.ok) {
-    *failure = FromSearch("descend", grasp.surface, descend);
+    *failure = FromSearch(FailureStage::kDescend, grasp.surface, descend);
     return false;
   }
   // The guarded move and the lift: straight along the approach, the arm checked (the cup
@@ -1305,12 +1353,15 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   const Eigen::Isometry3d X_TcpTool = fast.robot().gripper().X_ToolTcp.inverse();
   const auto ik_grasp =
       robot_->kinematics().NearestSolution(X_grasp * X_TcpTool, descend.path_rad.back(), branch);
-  if (!ik_grasp) return fail("descend", "ik unreachable", "the grasp pose has no IK solution");
+  if (!ik_grasp)
+    return fail(FailureStage::kDescend, FailureKind::kIkUnreachable,
+                "the grasp pose has no IK solution");
   const JointVector* q_grasp = &ik_grasp->q_rad;
   if (const MotionCheckResult m = motion.CheckSegment(descend.path_rad.back(), *q_grasp); !m.free) {
     failure->body = BodyName(m.report.body);
     failure->obstacle = m.report.obstacle;
-    return fail("descend", "collision", "the guarded move collides: " + m.report.ToString());
+    return fail(FailureStage::kDescend, FailureKind::kCollision,
+                "the guarded move collides: " + m.report.ToString());
   }
   // The carried item hangs where it was detected relative to the cup.
   const CarriedItem carried =
@@ -1323,7 +1374,7 @@ bool MotionPlanner::TryGrasp(const PickRequest& request, const GraspCandidate& g
   // Approach: a joint motion from the start to the pre-grasp configuration.
   const JointPathResult approach = roadmap_->Plan(request.start_rad, *q_pre, &motion, deadline);
   Lap(times, "approach", &lap_start);
-  if (!approach.ok) return fail("approach", "no path", approach.reason);
+  if (!approach.ok) return fail(FailureStage::kApproach, FailureKind::kNoPath, approach.reason);
   CheckDeadline(deadline, "the pick's trajectories");
 
   plan->grasp = grasp;
@@ -1355,8 +1406,8 @@ const MotionPlanner::RequestChecks* MotionPlanner::ChecksForGrasp(
   // The head turns at the start, before the approach.
   if (const CollisionReport r = slot->fast.Check(request.start_rad); r.in_collision) {
     *refused = PlanFailure();
-    refused->stage = "start";
-    refused->kind = "collision";
+    refused->stage = FailureStage::kStart;
+    refused->kind = FailureKind::kCollision;
     refused->grasp = listed.surface;
     refused->body = BodyName(r.body);
     refused->obstacle = r.obstacle;
@@ -1408,8 +1459,8 @@ PlanFailure MotionPlanner::SearchBudgetSpent(const PickRequest& request,
                                              const GraspCandidate& grasp,
                                              int grasps_searched) const {
   PlanFailure f;
-  f.stage = "search";
-  f.kind = "search budget spent";
+  f.stage = FailureStage::kSearch;
+  f.kind = FailureKind::kSearchBudgetSpent;
   f.grasp = grasp.surface;
   char budget[32];
   std::snprintf(budget, sizeof(budget), "%.2f s", options_.search_time_budget_s);
@@ -1451,8 +1502,8 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
   Lap(&plan.stage_times_s, "grasps", &lap_start);
   if (grasps.empty()) {
     PlanFailure f;
-    f.stage = "grasps";
-    f.kind = "no grasp";
+    f.stage = FailureStage::kGrasps;
+    f.kind = FailureKind::kNoGrasp;
     f.message =
         "no grasp for '" + request.item + "' in " + request.container + ": " + grasps.reason;
     throw PlanFailedError({f});
@@ -1499,15 +1550,7 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
     }
   }
   // The most advanced attempt first.
-  auto rank = [](const PlanFailure& f) {
-    static const char* kOrder[] = {"grasps",  "pre-grasp", "descend",
-                                   "retreat", "approach",  "validation"};
-    int r = 0;
-    for (int i = 0; i < 6; ++i) {
-      if (f.stage == kOrder[i]) r = i;
-    }
-    return r + f.fraction_achieved;
-  };
+  auto rank = [](const PlanFailure& f) { return StageRank(f.stage) + f.fraction_achieved; };
   std::stable_sort(failures.begin(), failures.end(),
                    [&](const auto& x, const auto& y) { return rank(x) > rank(y); });
   throw PlanFailedError(std::move(failures));
@@ -1634,7 +1677,7 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
     std::string reason;
     const auto q_release = FreeIk(X_release, start_rad, *head.fast, &carried, &reason);
     if (!q_release) {
-      failures.push_back({"place", "ik unreachable", "", -1, 0.0, "", "",
+      failures.push_back({FailureStage::kPlace, FailureKind::kIkUnreachable, "", -1, 0.0, "", "",
                           "release pose over " + request.container + ": " + reason});
       continue;
     }
@@ -1642,14 +1685,14 @@ PlacePlan MotionPlanner::PlanPlace(const PlaceRequest& request, Deadline deadlin
     const JointPathResult path = roadmap_->Plan(
         start_rad, *q_release, straight ? nullptr : head.motion.get(), deadline, &carried);
     if (!path.ok) {
-      failures.push_back({"place", "no path", "", -1, 0.0, "", "",
+      failures.push_back({FailureStage::kPlace, FailureKind::kNoPath, "", -1, 0.0, "", "",
                           "no free motion to the release pose carrying the item: " + path.reason});
       continue;
     }
     std::vector<JointVector> joints = draw_out.path_rad;
     joints.insert(joints.end(), path.path_rad.begin() + 1, path.path_rad.end());
     plan.trajectory = TimeAndValidate(joints, request.speed_fraction, *head.motion, *head.exact,
-                                      &carried, "place");
+                                      &carried, FailureStage::kPlace);
     plan.X_BaseTcp_release = X_release;
     plan.drop_height_m = X_release.translation().z() - below_m - floor_z;
     plan.planning_time_s = Seconds(started);

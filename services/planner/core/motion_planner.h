@@ -17,6 +17,7 @@
 #include "services/planner/core/collision_world.h"
 #include "services/planner/core/grasp_reach.h"
 #include "services/planner/core/grasps.h"
+#include "services/planner/core/plan_failure.h"
 #include "services/planner/core/roadmap.h"
 #include "services/planner/core/scene.h"
 #include "services/planner/core/time_optimal.h"
@@ -123,11 +124,8 @@ struct Trajectory {
 
 /// Where and why a plan failed, typed for the caller.
 struct PlanFailure {
-  std::string stage;  ///< "start", "grasps", "pre-grasp", "descend", "retreat", "approach",
-                      ///< "place", "validation".
-  std::string kind;   ///< "collision", "ik unreachable", "joint jump", "node budget spent",
-                      ///< "deadline", "no grasp", "no path", "tube blocked" (the straight
-                      ///< tube at the grasp crosses the container's wall: CheckTubeReach).
+  FailureStage stage = FailureStage::kUnspecified;  ///< Where (plan_failure.h).
+  FailureKind kind = FailureKind::kUnspecified;     ///< Why.
   std::string grasp;  ///< The grasp's surface, when one was being tried.
   int node = -1;      ///< Search node where it stopped.
   double fraction_achieved = 0.0;
@@ -286,7 +284,7 @@ class MotionPlanner final {
   /// checked), then FCL at nodes and samples. Throws PlanFailedError.
   Trajectory TimeAndValidate(const std::vector<JointVector>& path_rad, double speed_fraction,
                              const MotionChecker& checker, const ExactChecker& exact,
-                             const CarriedItem* carried, const std::string& stage,
+                             const CarriedItem* carried, FailureStage stage,
                              PathChecked path_checked = PathChecked::kNo) const;
 
  private:

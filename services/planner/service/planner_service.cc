@@ -66,6 +66,62 @@ void ToProto(const GraspCandidate& g, pb::Grasp* out) {
   out->set_clearance_m(g.clearance_m);
 }
 
+pb::PlanFailureStage ToProto(FailureStage stage) {
+  switch (stage) {
+    case FailureStage::kUnspecified:
+      return pb::PLAN_FAILURE_STAGE_UNSPECIFIED;
+    case FailureStage::kStart:
+      return pb::PLAN_FAILURE_STAGE_START;
+    case FailureStage::kGrasps:
+      return pb::PLAN_FAILURE_STAGE_GRASPS;
+    case FailureStage::kPreGrasp:
+      return pb::PLAN_FAILURE_STAGE_PRE_GRASP;
+    case FailureStage::kDescend:
+      return pb::PLAN_FAILURE_STAGE_DESCEND;
+    case FailureStage::kRetreat:
+      return pb::PLAN_FAILURE_STAGE_RETREAT;
+    case FailureStage::kApproach:
+      return pb::PLAN_FAILURE_STAGE_APPROACH;
+    case FailureStage::kPlace:
+      return pb::PLAN_FAILURE_STAGE_PLACE;
+    case FailureStage::kJointMotion:
+      return pb::PLAN_FAILURE_STAGE_JOINT_MOTION;
+    case FailureStage::kSearch:
+      return pb::PLAN_FAILURE_STAGE_SEARCH;
+  }
+  return pb::PLAN_FAILURE_STAGE_UNSPECIFIED;
+}
+
+pb::PlanFailureKind ToProto(FailureKind kind) {
+  switch (kind) {
+    case FailureKind::kUnspecified:
+      return pb::PLAN_FAILURE_KIND_UNSPECIFIED;
+    case FailureKind::kCollision:
+      return pb::PLAN_FAILURE_KIND_COLLISION;
+    case FailureKind::kIkUnreachable:
+      return pb::PLAN_FAILURE_KIND_IK_UNREACHABLE;
+    case FailureKind::kJointJump:
+      return pb::PLAN_FAILURE_KIND_JOINT_JUMP;
+    case FailureKind::kNodeBudgetSpent:
+      return pb::PLAN_FAILURE_KIND_NODE_BUDGET_SPENT;
+    case FailureKind::kDeadline:
+      return pb::PLAN_FAILURE_KIND_DEADLINE;
+    case FailureKind::kNoGrasp:
+      return pb::PLAN_FAILURE_KIND_NO_GRASP;
+    case FailureKind::kNoPath:
+      return pb::PLAN_FAILURE_KIND_NO_PATH;
+    case FailureKind::kTiming:
+      return pb::PLAN_FAILURE_KIND_TIMING;
+    case FailureKind::kTubeBlocked:
+      return pb::PLAN_FAILURE_KIND_TUBE_BLOCKED;
+    case FailureKind::kSearchBudgetSpent:
+      return pb::PLAN_FAILURE_KIND_SEARCH_BUDGET_SPENT;
+    case FailureKind::kStartInCollision:
+      return pb::PLAN_FAILURE_KIND_START_IN_COLLISION;
+  }
+  return pb::PLAN_FAILURE_KIND_UNSPECIFIED;
+}
+
 // ABORTED with one PlanFailure per attempt in the rich error details, the most advanced
 // first, as many as fit: the details travel in the trailing metadata, which clients cap (8 KiB
 // by default, base64 taking a third more).
@@ -81,8 +137,8 @@ grpc::Status Aborted(const PlanFailedError& error) {
       break;
     }
     pb::PlanFailure message;
-    message.set_stage(f.stage);
-    message.set_kind(f.kind);
+    message.set_stage(ToProto(f.stage));
+    message.set_kind(ToProto(f.kind));
     message.set_grasp(f.grasp);
     message.set_node(f.node);
     message.set_fraction_achieved(f.fraction_achieved);

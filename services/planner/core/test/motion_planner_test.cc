@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <random>
+#include <set>
+#include <string>
 
 #include "libs/errors/errors.h"
 
@@ -277,7 +279,7 @@ TEST_F(MotionPlannerTest, ATopFaceDeepInABinTakesTheHeadBent) {
     ADD_FAILURE() << "the straight tube reached a top face 20 cm deep";
   } catch (const PlanFailedError& e) {
     bool blocked = false;
-    for (const auto& f : e.failures()) blocked |= f.kind == "tube blocked";
+    for (const auto& f : e.failures()) blocked |= f.kind == FailureKind::kTubeBlocked;
     EXPECT_TRUE(blocked) << e.what();
   }
 
@@ -526,13 +528,32 @@ TEST_F(MotionPlannerTest, AnItemBehindAWallHasATypedFailure) {
   } catch (const PlanFailedError& error) {
     ASSERT_FALSE(error.failures().empty());
     for (const PlanFailure& f : error.failures()) {
-      EXPECT_FALSE(f.stage.empty());
-      EXPECT_FALSE(f.kind.empty());
+      EXPECT_NE(f.stage, FailureStage::kUnspecified) << f.message;
+      EXPECT_NE(f.kind, FailureKind::kUnspecified) << f.message;
       EXPECT_FALSE(f.message.empty());
       // Refused before any search (the tube test, the goal poses): no search node.
       EXPECT_EQ(f.node, -1) << f.message;
     }
   }
+}
+
+TEST(PlanFailureNames, EveryStageAndKindHasItsOwnName) {
+  std::set<std::string> stages, kinds;
+  for (int i = 0; i <= static_cast<int>(FailureStage::kSearch); ++i) {
+    stages.insert(FailureStageName(static_cast<FailureStage>(i)));
+  }
+  for (int i = 0; i <= static_cast<int>(FailureKind::kStartInCollision); ++i) {
+    kinds.insert(FailureKindName(static_cast<FailureKind>(i)));
+  }
+  EXPECT_EQ(stages.size(), static_cast<std::size_t>(FailureStage::kSearch) + 1);
+  EXPECT_EQ(kinds.size(), static_cast<std::size_t>(FailureKind::kStartInCollision) + 1);
+  EXPECT_EQ(stages.count("unknown") + kinds.count("unknown"), 0u);
+  // The words the messages have always used.
+  EXPECT_STREQ(FailureStageName(FailureStage::kPreGrasp), "pre-grasp");
+  EXPECT_STREQ(FailureStageName(FailureStage::kJointMotion), "joint motion");
+  EXPECT_STREQ(FailureKindName(FailureKind::kIkUnreachable), "ik unreachable");
+  EXPECT_STREQ(FailureKindName(FailureKind::kNodeBudgetSpent), "node budget spent");
+  EXPECT_STREQ(FailureKindName(FailureKind::kSearchBudgetSpent), "search budget spent");
 }
 
 TEST_F(MotionPlannerTest, ASpentSearchBudgetIsATypedRefusalNotATimeout) {
@@ -554,7 +575,8 @@ TEST_F(MotionPlannerTest, ASpentSearchBudgetIsATypedRefusalNotATimeout) {
     FAIL() << "planned with no search budget";
   } catch (const PlanFailedError& error) {
     bool spent = false;
-    for (const PlanFailure& f : error.failures()) spent |= f.kind == "search budget spent";
+    for (const PlanFailure& f : error.failures())
+      spent |= f.kind == FailureKind::kSearchBudgetSpent;
     EXPECT_TRUE(spent) << error.what();
   }
   // The default budget plans the same pick.
