@@ -24,6 +24,8 @@
 #   --bin DIR         use the servers already built in DIR (nothing is installed or built)
 #   --detector-budget-scale X  the detector's --time_budget_scale (default 1; more time
 #                     for each detection on a loaded machine)
+#   --orchestrator-flag F  pass F to picking-orchestrator (e.g. --pick.table=in_doubt;
+#                     repeatable)
 #   --viewer-port N   serve the live view of the task on this port (default: a free one;
 #                     run.sh prints the page's address)
 #   --client CMD      run CMD (a shell command) instead of `picking run TASK`, with {address}
@@ -44,6 +46,7 @@ install=1
 bin=""
 budget_scale=1
 client=""
+orch_flags=()
 viewer_port=""
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -59,6 +62,7 @@ while [[ $# -gt 0 ]]; do
     --detector-budget-scale) budget_scale=$2; shift 2 ;;
     --client) client=$2; shift 2 ;;
     --viewer-port) viewer_port=$2; shift 2 ;;
+    --orchestrator-flag) orch_flags+=("$2"); shift 2 ;;
     -h|--help) awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
@@ -161,7 +165,7 @@ viewer_url=http://127.0.0.1:$viewer_port/
 start orch orchestrator picking-orchestrator --tasks_dir="$out/tasks" \
   --scanner.address="$scanner" --detector.endpoints="$detector_list" \
   --planner.address="$planner" --robot.address="$robot" --gripper.address="$gripper" \
-  --viewer.url="$viewer_url"
+  --viewer.url="$viewer_url" "${orch_flags[@]}"
 start viewer_grpc viewer picking-viewer --http_listen="127.0.0.1:$viewer_port" \
   --orchestrator.address="$orch" --robot.address="$robot"
 echo

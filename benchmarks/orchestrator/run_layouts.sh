@@ -5,7 +5,8 @@
 # output file matches the truth everywhere, the score (beside the perfect score), the task
 # clock (robot time) and the wall time.
 #
-#   benchmarks/orchestrator/run_layouts.sh [--detectors N] [--bin DIR] [layouts...]
+#   benchmarks/orchestrator/run_layouts.sh [--detectors N] [--bin DIR]
+#       [--orchestrator-flag F]... [layouts...]
 #
 # Layouts default to 1 2 3. --bin DIR runs the servers already built in DIR (run.sh's --bin):
 # copy build/bin there first to go on editing and building while the layouts run.
@@ -17,7 +18,8 @@ layouts=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --detectors) detectors=$2; shift 2 ;;
-    --bin) bin_args=(--bin "$(cd "$2" && pwd)"); shift 2 ;;
+    --bin) bin_args+=(--bin "$(cd "$2" && pwd)"); shift 2 ;;
+    --orchestrator-flag) bin_args+=(--orchestrator-flag "$2"); shift 2 ;;
     *) layouts+=("$1"); shift ;;
   esac
 done

@@ -31,6 +31,8 @@ int main(int argc, char** argv) {
       "stow.table=never|in_doubt|always  which stowed items are set down on the table and",
       "                        told apart there first (in_doubt: those another tote item's",
       "                        detection fills as well; default never)",
+      "pick.table=never|in_doubt  whether a pick target in doubt with another item of its",
+      "                        bin is taken anyway and told apart on the table (default never)",
       "shutdown_wait_s=S       how long SIGTERM waits for a task's current step (default 3)",
       "viewer.url=URL          the viewer's page (picking-viewer): the report links each",
       "                        item to its view there (default: no links)",

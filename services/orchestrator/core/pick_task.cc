@@ -550,14 +550,14 @@ bool PickTaskRunner::FinishDetect(Target& target, TargetReport& report, PendingD
           ResolveAgainstOthers(target.item, &found, catalogue_, options_.confusion_overlap,
                                options_.confusion_margin, &rivals);
       !other.empty()) {
-    if (!(task_.kind == apc::TaskKind::kStow &&
-          options_.table_check != PickTaskOptions::TableCheck::kNever) ||
-        rivals.empty()) {
+    const PickTaskOptions::TableCheck table =
+        task_.kind == apc::TaskKind::kStow ? options_.table_check : options_.pick_table_check;
+    if (table == PickTaskOptions::TableCheck::kNever || rivals.empty()) {
       target.last_failure = "not taken: " + other;
       Emit(&target, Step::kDetect, false, target.last_failure);
       return false;
     }
-    // Whichever it is, it is one of the tote's items: the table will tell.
+    // Whichever it is, it is one of the container's items: the table will tell.
     rivals_ = rivals;
     Emit(&target, Step::kDetect, true, other + "; taken to the table to be told apart");
   }
@@ -860,13 +860,16 @@ PickTaskRunner::Attempt PickTaskRunner::IdentifyAndStow(
   }
   Target* who = identity.empty() ? nullptr : TargetFor(identity, target.bin);
   if (!who) {
-    // Not told apart: back where it came from, which the contents still say.
+    // Not told apart, or an item that is no target (a pick's other item of the bin): back
+    // where it came from, which the contents still say.
     const PlaceOutcome back = WithRetries(
         "place", [&] { return cell_.MoveToPlace(as, target.bin, plan, PlacedIn(target.bin)); });
     AddTime(report, "place", back.robot_s);
     cell_.VacuumOff();
     if (!back.ok) return left_on_table("no way back to the " + target.bin + ": " + back.message);
-    target.last_failure = "on the table: " + why + "; back in the " + target.bin;
+    target.last_failure =
+        "on the table: " + (identity.empty() ? why : "it is " + identity + ", not a target") +
+        "; back in the " + target.bin;
     journal_.Append("failed", Key(target, "table"), clock_s_, {{"reason", target.last_failure}});
     return Attempt::kFailed;
   }

@@ -118,6 +118,11 @@ struct PickTaskOptions {
   /// cannot tell.
   enum class TableCheck { kNever, kInDoubt, kAlways };
   TableCheck table_check = TableCheck::kNever;
+  /// Pick: a target in doubt is taken anyway and set down on the table to be told apart
+  /// as for a stow (kInDoubt; kAlways counts as kInDoubt): into the tote if it is the
+  /// target, back into its bin if it is the other item (the target then tried again later),
+  /// back into its bin too if the view cannot tell. kNever: an item in doubt is not taken.
+  TableCheck pick_table_check = TableCheck::kNever;
   std::string verify_pose = "verify";
   double table_identity_margin = 0.05;
 };
@@ -207,8 +212,8 @@ class PickTaskRunner final {
   /// Vacuum on, the retreat, the look back and the place, once the cup is on the item.
   Attempt HoldAndPlace(Target& target, TargetReport& report, const PlannedPick& plan,
                        const TouchOutcome& touched);
-  /// Stow, an item in doubt (rivals_): set down on the table, identified there and stowed
-  /// as what it is (or put back into the tote).
+  /// An item in doubt (rivals_), or every stowed item: set down on the table, identified
+  /// there and placed as what it is (or put back where it came from).
   Attempt SetDownAndIdentify(Target& target, TargetReport& report, const PlannedPick& plan);
   /// The item on the table, seen from the verification pose, picked up again and stowed as
   /// the candidate it shows (the first of `candidates` is the one it was taken for).
@@ -275,7 +280,7 @@ class PickTaskRunner final {
   std::string table_key_;    ///< ... of an attempt whose item lies on the table at resume.
   std::vector<std::string> table_candidates_;  ///< What that item may be.
   std::optional<Ahead> ahead_;
-  /// This attempt's target in doubt (stow, table_check): the items its place may hold
+  /// This attempt's target in doubt (table_check, pick_table_check): the items its place may hold
   /// instead, empty when it is not in doubt.
   std::vector<std::string> rivals_;
   std::vector<TargetReport>* reports_ = nullptr;  ///< Run()'s, one per order_ entry.

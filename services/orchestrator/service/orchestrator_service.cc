@@ -287,6 +287,18 @@ VerifyFn PoolVerifier(std::shared_ptr<DetectorPool> pool) {
       };
 }
 
+// Setting `key`: which items are set down on the table and told apart there first.
+PickTaskOptions::TableCheck TableCheckSetting(const runtime::Config& config,
+                                              const std::string& key) {
+  using TableCheck = PickTaskOptions::TableCheck;
+  const std::string table = config.GetString(key, "never");
+  if (table == "in_doubt") return TableCheck::kInDoubt;
+  if (table == "always") return TableCheck::kAlways;
+  if (table == "never") return TableCheck::kNever;
+  throw std::invalid_argument("setting '" + key + "' must be in_doubt, always or never, got '" +
+                              table.substr(0, 40) + "'");
+}
+
 }  // namespace
 
 runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
@@ -310,18 +322,8 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   options.pick.min_time_per_item_s =
       config.GetDouble("min_time_per_item_s", options.pick.min_time_per_item_s);
   options.pick.detect_ahead = config.GetBool("detect_ahead", options.pick.detect_ahead);
-  const std::string table = config.GetString("stow.table", "never");
-  using TableCheck = PickTaskOptions::TableCheck;
-  if (table == "in_doubt") {
-    options.pick.table_check = TableCheck::kInDoubt;
-  } else if (table == "always") {
-    options.pick.table_check = TableCheck::kAlways;
-  } else if (table == "never") {
-    options.pick.table_check = TableCheck::kNever;
-  } else {
-    throw std::invalid_argument("setting 'stow.table' must be in_doubt, always or never, got '" +
-                                table.substr(0, 40) + "'");
-  }
+  options.pick.table_check = TableCheckSetting(config, "stow.table");
+  options.pick.pick_table_check = TableCheckSetting(config, "pick.table");
   if (options.pick.time_limit_s <= 0.0 || options.pick.max_attempts < 1) {
     throw std::invalid_argument("time_limit_s must be > 0 and max_attempts >= 1");
   }

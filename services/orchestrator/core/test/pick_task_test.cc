@@ -611,6 +611,45 @@ TEST_F(PickTaskTest, AStowTaskPutsEveryToteItemIntoTheBestBinThatCanBePlannedInt
   EXPECT_GT(result.score.total, 0);
 }
 
+TEST_F(PickTaskTest, APickTargetInDoubtIsToldApartOnTheTableAndPickedFromThere) {
+  options_.pick_table_check = PickTaskOptions::TableCheck::kInDoubt;
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
+  cell.on_table_is = "kleenex_tissue_box";
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  // Taken at once, set down, told apart and picked from the table into the tote.
+  ASSERT_GE(cell.destinations.size(), 2u);
+  EXPECT_EQ(cell.destinations[0], "table");
+  EXPECT_EQ(cell.destinations[1], "tote");
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "look at the table"), 1);
+  EXPECT_EQ(result.items_moved, 3);
+  EXPECT_EQ(result.targets[0].attempts, 1);
+  const auto& bin_a = result.final_contents.bin_contents.at("bin_A");
+  EXPECT_EQ(bin_a, std::vector<std::string>{"dove_beauty_bar"});
+}
+
+TEST_F(PickTaskTest, APickTargetInDoubtThatIsTheOtherItemGoesBackIntoItsBin) {
+  options_.pick_table_check = PickTaskOptions::TableCheck::kInDoubt;
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
+  cell.on_table_is = "dove_beauty_bar";
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
+  // The soap went back into bin_A; the tissue box, told apart the next time, was picked.
+  ASSERT_GE(cell.destinations.size(), 3u);
+  EXPECT_EQ(cell.destinations[0], "table");
+  EXPECT_EQ(cell.destinations[1], "bin_A");
+  EXPECT_EQ(result.targets[0].attempts, 2);
+  EXPECT_TRUE(result.targets[0].picked);
+  EXPECT_EQ(result.items_moved, 3);
+  const auto& bin_a = result.final_contents.bin_contents.at("bin_A");
+  EXPECT_EQ(bin_a, std::vector<std::string>{"dove_beauty_bar"});
+  EXPECT_EQ(std::count(result.final_contents.tote_contents.begin(),
+                       result.final_contents.tote_contents.end(), "dove_beauty_bar"),
+            0);
+}
+
 apc::Task TwoItemStow() {
   return apc::ParseTask(R"({"bin_contents": {"bin_A": ["kleenex_tissue_box"],
       "bin_B": [], "bin_C": [], "bin_D": [], "bin_E": [], "bin_F": [], "bin_G": [], "bin_H": [],
