@@ -736,9 +736,17 @@ PickTaskRunner::Attempt PickTaskRunner::SetDownAndIdentify(Target& target, Targe
   candidates.insert(candidates.end(), rivals_.begin(), rivals_.end());
   Emit(&target, Step::kPlace, true, "setting it down on the table: " + Joined(candidates, " or "));
   journal_.Append("begin", Key(target, "table"), clock_s_, {{"candidates", candidates}});
+  // The cup may hold any of them: the motion is planned for the one that reaches furthest
+  // (its box at the pose the target was found at), not only for the target it was taken for.
+  std::string carried_as = target.item;
+  for (const std::string& candidate : candidates) {
+    if (catalogue_.at(candidate).long_side_m > catalogue_.at(carried_as).long_side_m) {
+      carried_as = candidate;
+    }
+  }
   const auto start = Clock::now();
   const PlaceOutcome placed =
-      WithRetries("place", [&] { return cell_.MoveToPlace(target.item, kTableLocation, plan, 0); });
+      WithRetries("place", [&] { return cell_.MoveToPlace(carried_as, kTableLocation, plan, 0); });
   AddTime(report, "place", placed.ok ? placed.robot_s : Seconds(start));
   if (!placed.ok) {
     if (placed.item_lost) {
