@@ -15,26 +15,35 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kTwoPi = 2.0 * kPi;
 
-// Standard DH link transform Rz(theta) Tz(d) Tx(a) Rx(alpha), with cos/sin(alpha) exact.
-Eigen::Isometry3d DhTransform(double theta, double d, double a, double c_alpha, double s_alpha) {
-  const double ct = std::cos(theta);
-  const double st = std::sin(theta);
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.matrix() << ct, -st * c_alpha, st * s_alpha, a * ct,  //
-      st, ct * c_alpha, -ct * s_alpha, a * st,            //
-      0.0, s_alpha, c_alpha, d,                           //
-      0.0, 0.0, 0.0, 1.0;
-  return T;
-}
-
 // alpha = [pi/2, 0, 0, pi/2, -pi/2, 0] of the UR.
 constexpr double kCosAlpha[kNumJoints] = {0.0, 1.0, 1.0, 0.0, 0.0, 1.0};
 constexpr double kSinAlpha[kNumJoints] = {1.0, 0.0, 0.0, 1.0, -1.0, 0.0};
 
-Eigen::Isometry3d Joint(const DhParameters& dh, int i, double theta) {
+// X = X * (joint i's standard DH transform Rz(theta) Tz(d) Tx(a) Rx(alpha)): the turn rotates
+// the frame's x and y columns, and alpha of +-pi/2 or 0 swaps and negates columns, so a joint
+// costs a few multiplications instead of a matrix product (the planner's forward kinematics
+// run for every state and sample).
+void ApplyJoint(const DhParameters& dh, int i, double theta, Eigen::Isometry3d* X) {
   const double d[kNumJoints] = {dh.d1, 0.0, 0.0, dh.d4, dh.d5, dh.d6};
   const double a[kNumJoints] = {0.0, dh.a2, dh.a3, 0.0, 0.0, 0.0};
-  return DhTransform(theta, d[i], a[i], kCosAlpha[i], kSinAlpha[i]);
+  const double c = std::cos(theta);
+  const double s = std::sin(theta);
+  auto R = X->linear();
+  const Eigen::Vector3d x = c * R.col(0) + s * R.col(1);  // Rz(theta)
+  const Eigen::Vector3d y = c * R.col(1) - s * R.col(0);
+  const Eigen::Vector3d z = R.col(2);
+  X->translation() += d[i] * z + a[i] * x;  // Tz(d) Tx(a)
+  // Rx(alpha): y' = cos(alpha) y + sin(alpha) z, z' = -sin(alpha) y + cos(alpha) z.
+  R.col(0) = x;
+  R.col(1) = kCosAlpha[i] * y + kSinAlpha[i] * z;
+  R.col(2) = kCosAlpha[i] * z - kSinAlpha[i] * y;
+}
+
+// Joint i's DH transform alone.
+Eigen::Isometry3d Joint(const DhParameters& dh, int i, double theta) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  ApplyJoint(dh, i, theta, &X);
+  return X;
 }
 
 // Orders joint vectors by (max |difference|, sum of squared differences) to `seed`.
@@ -73,34 +82,16 @@ std::array<Eigen::Isometry3d, kNumJoints + 1> Ur10Kinematics::DhFrames(
     const JointVector& q_rad) const {
   std::array<Eigen::Isometry3d, kNumJoints + 1> X;
   X[0] = Eigen::Isometry3d::Identity();
-  for (int i = 0; i < kNumJoints; ++i) X[i + 1] = X[i] * Joint(model_.dh(), i, q_rad[i]);
+  for (int i = 0; i < kNumJoints; ++i) {
+    X[i + 1] = X[i];
+    ApplyJoint(model_.dh(), i, q_rad[i], &X[i + 1]);
+  }
   return X;
 }
 
 Eigen::Isometry3d Ur10Kinematics::ForwardKinematics(const JointVector& q_rad) const {
-  // Joint(i) = Rz(theta_i) * Tz(d_i) Tx(a_i) Rx(alpha_i): the turn rotates the frame's x and y
-  // columns, and alpha of +-pi/2 or 0 swaps and negates columns, so a joint costs a few
-  // multiplications instead of a matrix product (the planner calls this for every sample).
-  const DhParameters& dh = model_.dh();
-  const double d[kNumJoints] = {dh.d1, 0.0, 0.0, dh.d4, dh.d5, dh.d6};
-  const double a[kNumJoints] = {0.0, dh.a2, dh.a3, 0.0, 0.0, 0.0};
-  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d p = Eigen::Vector3d::Zero();
-  for (int i = 0; i < kNumJoints; ++i) {
-    const double c = std::cos(q_rad[i]);
-    const double s = std::sin(q_rad[i]);
-    const Eigen::Vector3d x = c * R.col(0) + s * R.col(1);  // Rz(theta)
-    const Eigen::Vector3d y = c * R.col(1) - s * R.col(0);
-    const Eigen::Vector3d z = R.col(2);
-    p += d[i] * z + a[i] * x;  // Tz(d) Tx(a)
-    // Rx(alpha): y' = cos(alpha) y + sin(alpha) z, z' = -sin(alpha) y + cos(alpha) z.
-    R.col(0) = x;
-    R.col(1) = kCosAlpha[i] * y + kSinAlpha[i] * z;
-    R.col(2) = kCosAlpha[i] * z - kSinAlpha[i] * y;
-  }
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-  X.linear() = R;
-  X.translation() = p;
+  for (int i = 0; i < kNumJoints; ++i) ApplyJoint(model_.dh(), i, q_rad[i], &X);
   return X;
 }
 

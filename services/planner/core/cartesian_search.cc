@@ -70,30 +70,10 @@ Lattice MakeLattice(const Eigen::Isometry3d& X_start, const Eigen::Isometry3d& X
 
 }  // namespace
 
-const char* CartesianFailureName(CartesianFailureKind kind) {
-  switch (kind) {
-    case CartesianFailureKind::kNone:
-      return "none";
-    case CartesianFailureKind::kStartInCollision:
-      return "start in collision";
-    case CartesianFailureKind::kIkUnreachable:
-      return "ik unreachable";
-    case CartesianFailureKind::kJointJump:
-      return "joint jump";
-    case CartesianFailureKind::kCollision:
-      return "collision";
-    case CartesianFailureKind::kBudget:
-      return "node budget spent";
-    case CartesianFailureKind::kDeadline:
-      return "deadline";
-  }
-  return "unknown";
-}
-
 std::string CartesianSearchResult::Describe() const {
   if (ok) return "reached the goal";
   std::ostringstream out;
-  out << CartesianFailureName(failure) << " at node " << failed_node << " ("
+  out << FailureKindName(failure) << " at node " << failed_node << " ("
       << static_cast<int>(std::round(100.0 * fraction_achieved)) << "% of the way)";
   if (!detail.empty()) out << ": " << detail;
   return out.str();
@@ -138,8 +118,8 @@ class Search {
     }
     result_.fraction_achieved = double(nodes_[best_].i) / lattice_.n;
     if (goal < 0) {
-      if (open_.empty() && result_.failure == CartesianFailureKind::kNone) {
-        result_.failure = CartesianFailureKind::kBudget;
+      if (open_.empty() && result_.failure == FailureKind::kUnspecified) {
+        result_.failure = FailureKind::kNodeBudgetSpent;
         result_.detail = "no free node left within the lattice";
       }
       return result_;
@@ -152,15 +132,15 @@ class Search {
 
   bool OutOfBudgetOrTime() {
     if (result_.nodes_evaluated >= options_.node_budget) {
-      if (result_.failure == CartesianFailureKind::kNone) {
-        result_.failure = CartesianFailureKind::kBudget;
+      if (result_.failure == FailureKind::kUnspecified) {
+        result_.failure = FailureKind::kNodeBudgetSpent;
       }
       result_.detail += (result_.detail.empty() ? "" : "; ") + std::string("node budget of ") +
                         std::to_string(options_.node_budget) + " spent";
       return true;
     }
     if (std::chrono::steady_clock::now() > options_.deadline) {
-      result_.failure = CartesianFailureKind::kDeadline;
+      result_.failure = FailureKind::kDeadline;
       result_.detail =
           "the call's deadline passed after " + std::to_string(result_.nodes_evaluated) + " nodes";
       return true;
@@ -214,22 +194,21 @@ class Search {
         kinematics_.NearestSolution(lattice_.Pose(node) * X_TcpTool_, parent.q, branch_, &reason);
     if (!ik) {
       return Fail(
-          node, index, CartesianFailureKind::kIkUnreachable,
+          node, index, FailureKind::kIkUnreachable,
           "no IK solution on branch " + branch_.ToString() + (reason.empty() ? "" : ": " + reason),
           nullptr);
     }
     const JointVector dq = (ik->q_rad - parent.q).cwiseAbs();
     int joint = 0;
     if (dq.maxCoeff(&joint) > options_.max_joint_step_rad) {
-      return Fail(node, index, CartesianFailureKind::kJointJump,
+      return Fail(node, index, FailureKind::kJointJump,
                   std::string(ur10::kJointNames[joint]) + " would jump " +
                       std::to_string(dq[joint]) + " rad",
                   nullptr);
     }
     const MotionCheckResult motion = checker_.CheckSegment(parent.q, ik->q_rad, carried_);
     if (!motion.free) {
-      return Fail(node, index, CartesianFailureKind::kCollision, motion.report.ToString(),
-                  &motion.report);
+      return Fail(node, index, FailureKind::kCollision, motion.report.ToString(), &motion.report);
     }
     node.q = ik->q_rad;
     node.evaluated = true;
@@ -237,7 +216,7 @@ class Search {
     return true;
   }
 
-  bool Fail(const Node& node, int index, CartesianFailureKind kind, std::string detail,
+  bool Fail(const Node& node, int index, FailureKind kind, std::string detail,
             const CollisionReport* report) {
     if (node.i >= best_failure_i_) {
       best_failure_i_ = node.i;
@@ -257,7 +236,7 @@ class Search {
     std::reverse(result_.path_rad.begin(), result_.path_rad.end());
     std::reverse(result_.X_BaseTcp.begin(), result_.X_BaseTcp.end());
     result_.ok = true;
-    result_.failure = CartesianFailureKind::kNone;
+    result_.failure = FailureKind::kUnspecified;
     result_.detail.clear();
     result_.fraction_achieved = 1.0;
     return result_;
@@ -288,7 +267,7 @@ CartesianSearchResult SearchCartesianPath(const MotionChecker& checker,
   const CollisionReport start_report = checker.checker().Check(q_start_rad, carried);
   if (start_report.in_collision) {
     CartesianSearchResult result;
-    result.failure = CartesianFailureKind::kStartInCollision;
+    result.failure = FailureKind::kStartInCollision;
     result.failed_node = 0;
     result.collision = start_report;
     result.detail = start_report.ToString();

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "services/planner/core/motion_check.h"
+#include "services/planner/core/plan_failure.h"
 
 namespace picking::planner {
 
@@ -28,18 +29,6 @@ struct CartesianSearchOptions {
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
 };
 
-/// Why a cartesian search ended without reaching its goal.
-enum class CartesianFailureKind {
-  kNone,
-  kStartInCollision,  ///< The start configuration collides.
-  kIkUnreachable,     ///< The best node's next pose toward the goal has no IK solution.
-  kJointJump,         ///< ... its IK solution on the start's branch jumps joints.
-  kCollision,         ///< ... the move toward it collides.
-  kBudget,            ///< The node budget ran out.
-  kDeadline,          ///< The call's deadline passed.
-};
-const char* CartesianFailureName(CartesianFailureKind kind);
-
 /// The outcome of a search, with what stopped it when it failed.
 struct CartesianSearchResult {
   bool ok = false;
@@ -49,7 +38,10 @@ struct CartesianSearchResult {
   int nodes_evaluated = 0;
   /// Fraction of the straight distance to the goal covered by the best node reached.
   double fraction_achieved = 0.0;
-  CartesianFailureKind failure = CartesianFailureKind::kNone;
+  /// Why it ended without reaching the goal (kUnspecified when it reached it): kStartInCollision,
+  /// kIkUnreachable (the best node's next pose toward the goal), kJointJump (its IK solution
+  /// on the start's branch), kCollision (the move toward it), kNodeBudgetSpent, kDeadline.
+  FailureKind failure = FailureKind::kUnspecified;
   /// Index (evaluation order) of the node whose move failed, and what happened there: the
   /// joint that jumped, the IK reason, or which body hit what.
   int failed_node = -1;

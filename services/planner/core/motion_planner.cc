@@ -58,32 +58,11 @@ bool IsRigid(const Eigen::Isometry3d& X) {
          std::abs(R.determinant() - 1.0) < 1e-6;
 }
 
-// The plan failure's kind for a cartesian search's.
-FailureKind FailureKindOf(CartesianFailureKind kind) {
-  switch (kind) {
-    case CartesianFailureKind::kNone:
-      return FailureKind::kUnspecified;
-    case CartesianFailureKind::kStartInCollision:
-      return FailureKind::kStartInCollision;
-    case CartesianFailureKind::kIkUnreachable:
-      return FailureKind::kIkUnreachable;
-    case CartesianFailureKind::kJointJump:
-      return FailureKind::kJointJump;
-    case CartesianFailureKind::kCollision:
-      return FailureKind::kCollision;
-    case CartesianFailureKind::kBudget:
-      return FailureKind::kNodeBudgetSpent;
-    case CartesianFailureKind::kDeadline:
-      return FailureKind::kDeadline;
-  }
-  return FailureKind::kUnspecified;
-}
-
 PlanFailure FromSearch(FailureStage stage, const std::string& grasp,
                        const CartesianSearchResult& search) {
   PlanFailure f;
   f.stage = stage;
-  f.kind = FailureKindOf(search.failure);
+  f.kind = search.failure;
   f.grasp = grasp;
   f.node = search.failed_node;
   f.fraction_achieved = search.fraction_achieved;

@@ -245,6 +245,14 @@ class PickTaskTest : public ::testing::Test {
     PickTaskRunner runner(stow, order, Catalogue(), options_, cell, journal, nullptr, cancel_);
     return runner.Run();
   }
+  // The task with the table for targets in doubt: bin_A's tissue box is first found where
+  // the soap is as well, and the table shows it to be `on_table_is`.
+  PickTaskResult RunInDoubtPick(ScriptedCell& cell, const std::string& on_table_is) {
+    options_.pick_table_check = PickTaskOptions::TableCheck::kInDoubt;
+    cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
+    cell.on_table_is = on_table_is;
+    return Run(cell);
+  }
   std::filesystem::path dir_;
   PickTaskOptions options_;
   std::atomic<bool> cancel_{false};
@@ -612,11 +620,8 @@ TEST_F(PickTaskTest, AStowTaskPutsEveryToteItemIntoTheBestBinThatCanBePlannedInt
 }
 
 TEST_F(PickTaskTest, APickTargetInDoubtIsToldApartOnTheTableAndPickedFromThere) {
-  options_.pick_table_check = PickTaskOptions::TableCheck::kInDoubt;
   ScriptedCell cell;
-  cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
-  cell.on_table_is = "kleenex_tissue_box";
-  const PickTaskResult result = Run(cell);
+  const PickTaskResult result = RunInDoubtPick(cell, "kleenex_tissue_box");
   EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
   // Taken at once, set down, told apart and picked from the table into the tote.
   ASSERT_GE(cell.destinations.size(), 2u);
@@ -630,11 +635,8 @@ TEST_F(PickTaskTest, APickTargetInDoubtIsToldApartOnTheTableAndPickedFromThere) 
 }
 
 TEST_F(PickTaskTest, APickTargetInDoubtThatIsTheOtherItemGoesBackIntoItsBin) {
-  options_.pick_table_check = PickTaskOptions::TableCheck::kInDoubt;
   ScriptedCell cell;
-  cell.scripts["kleenex_tissue_box"].confused_with = "dove_beauty_bar";
-  cell.on_table_is = "dove_beauty_bar";
-  const PickTaskResult result = Run(cell);
+  const PickTaskResult result = RunInDoubtPick(cell, "dove_beauty_bar");
   EXPECT_EQ(result.state, TaskState::kSucceeded) << result.error;
   // The soap went back into bin_A; the tissue box, told apart the next time, was picked.
   ASSERT_GE(cell.destinations.size(), 3u);

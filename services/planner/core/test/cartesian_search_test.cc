@@ -99,7 +99,7 @@ TEST_F(CartesianSearchTest, GoesAroundAnObstacleOnTheLine) {
   const CartesianSearchResult blocked =
       SearchCartesianPath(motion, q0, Ahead(X0, 0.4), nullptr, straight);
   EXPECT_FALSE(blocked.ok);
-  EXPECT_EQ(blocked.failure, CartesianFailureKind::kCollision) << blocked.Describe();
+  EXPECT_EQ(blocked.failure, FailureKind::kCollision) << blocked.Describe();
   EXPECT_GT(blocked.fraction_achieved, 0.2);
   EXPECT_LT(blocked.fraction_achieved, 0.8);
   EXPECT_EQ(blocked.collision.obstacle, "scan");
@@ -123,14 +123,14 @@ TEST_F(CartesianSearchTest, UnreachableAndCollidingStartsAreTyped) {
   X_far.translation() = Eigen::Vector3d(-2.5, 0.0, 0.3);
   const CartesianSearchResult far = SearchCartesianPath(motion, q0, X_far, nullptr, options);
   EXPECT_FALSE(far.ok);
-  EXPECT_NE(far.failure, CartesianFailureKind::kNone);
+  EXPECT_NE(far.failure, FailureKind::kUnspecified);
   EXPECT_LT(far.fraction_achieved, 1.0);
   EXPECT_FALSE(far.Describe().empty());
 
   JointVector down;
   down << 0.0, 1.5707963, 0.0, 0.0, 0.0, 0.0;
   const CartesianSearchResult start = SearchCartesianPath(motion, down, X0, nullptr, options);
-  EXPECT_EQ(start.failure, CartesianFailureKind::kStartInCollision);
+  EXPECT_EQ(start.failure, FailureKind::kStartInCollision);
   EXPECT_FALSE(start.collision.obstacle.empty());
 }
 
@@ -142,7 +142,7 @@ TEST_F(CartesianSearchTest, StopsAtTheDeadline) {
   options.deadline = std::chrono::steady_clock::now();
   const CartesianSearchResult result =
       SearchCartesianPath(motion, q0, Ahead(X0, 0.3), nullptr, options);
-  EXPECT_EQ(result.failure, CartesianFailureKind::kDeadline);
+  EXPECT_EQ(result.failure, FailureKind::kDeadline);
 }
 
 }  // namespace
