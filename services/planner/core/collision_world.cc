@@ -215,6 +215,7 @@ FastChecker::FastChecker(const RobotGeometry& robot, const StaticCell& cell,
       floor_z_m_(static_cast<float>(cell.floor_z_m())),
       pedestal_Base_(cell.pedestal_Base().cast<float>()) {
   for (int b = 0; b < kNumArmBodies; ++b) arm_bounds_[b] = EnclosingSphereOf(robot.spheres(b));
+  if (scan_) scan_bit_ = 1u << (num_obstacles() - 1);
 }
 
 bool FastChecker::IsFree(const JointVector& q_rad, const CarriedItem* carried,
@@ -252,22 +253,31 @@ Leaves LeavesOf(const SphereTree& tree, const Sphere& s) {
 
 FastChecker::PosedSpheres::PosedSpheres(const RobotGeometry& robot,
                                         const std::array<Sphere, kNumArmBodies>& arm_bounds,
-                                        const BodyPoses& X, const CarriedItem* carried) {
+                                        const BodyPoses& X, const CarriedItem* carried,
+                                        bool pose_centres) {
   num_bodies = carried ? kNumBodies : kNumArmBodies;
   int n = 0;
   for (int b = 0; b < num_bodies; ++b) {
     first[b] = n;
     trees[b] = b == kBodyItem ? &carried->spheres_Item : &robot.spheres(b);
     Xf[b] = X[b].cast<float>();
-    for (const Sphere& s : trees[b]->coarse) {
-      if (n == kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
-      centres[n++] = Xf[b] * s.center_B;
-    }
+    n += static_cast<int>(trees[b]->coarse.size());
+    if (n > kMaxCoarse) throw std::logic_error("FastChecker: too many spheres");
     const Sphere& bound = b == kBodyItem ? carried->bound_Item : arm_bounds[b];
     bound_centres[b] = Xf[b] * bound.center_B;
     bound_radii_m[b] = bound.radius_m;
   }
   first[num_bodies] = n;
+  if (pose_centres) {
+    for (int b = 0; b < num_bodies; ++b) PoseCentres(b);
+  }
+}
+
+void FastChecker::PosedSpheres::PoseCentres(int b) {
+  const auto& coarse = trees[b]->coarse;
+  for (std::size_t i = 0; i < coarse.size(); ++i) {
+    centres[first[b] + i] = Xf[b] * coarse[i].center_B;
+  }
 }
 
 int FastChecker::num_obstacles() const {
@@ -275,11 +285,14 @@ int FastChecker::num_obstacles() const {
 }
 
 float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask,
-                          int* which) const {
+                          int* which, DeferredContacts* deferred, std::uint32_t* touching,
+                          float touch_below_m) const {
   float worst = std::numeric_limits<float>::infinity();
   *which = -1;
+  if (touching) *touching = 0;
   auto consider = [&](int obstacle, float d) {
     if (d < worst) worst = d, *which = obstacle;
+    if (touching && d < touch_below_m) *touching |= 1u << obstacle;
   };
   if (mask & (1u << kObstacleFloor)) {
     consider(kObstacleFloor, c.z() - floor_z_m_ - r);
@@ -287,6 +300,8 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
   if ((mask & (1u << kObstaclePedestal)) && !pedestal_Base_.isEmpty()) {
     consider(kObstaclePedestal, BoxDistance(pedestal_Base_, c) - r);
   }
+  // A check that defers contacts only asks whether there is a hit: the first will do.
+  if (deferred && worst < 0.f) return worst;
   const auto& grids = cell_.grids();
   for (std::size_t g = 0; g < grids.size(); ++g) {
     const int obstacle = kObstacleFirstMesh + static_cast<int>(g);
@@ -298,9 +313,17 @@ float FastChecker::Margin(const Eigen::Vector3f& c, float r, bool exact, std::ui
     if (exact && d < r) {
       const DistanceGrid::Bounds near = grids[g].grid.NearBounds(c);
       d = std::max(d, near.lower_m);
-      if (d < r && near.upper_m >= r) d = cell_.SurfaceDistance(g, c, r);
+      if (d < r && near.upper_m >= r) {
+        if (deferred && deferred->size < DeferredContacts::kCapacity) {
+          deferred->contacts[deferred->size++] = {c, r, static_cast<int>(g)};
+          d = r;
+        } else {
+          d = cell_.SurfaceDistance(g, c, r);
+        }
+      }
     }
     consider(obstacle, d - r);
+    if (deferred && worst < 0.f) return worst;
   }
   const int scan_obstacle = kObstacleFirstMesh + static_cast<int>(grids.size());
   if (scan_ && (mask & (1u << scan_obstacle)))
@@ -414,28 +437,37 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       slack = inside;
     }
   }
-  const PosedSpheres posed(robot_, arm_bounds_, X, carried);
+  // Each body's spheres are posed when it is reached: a state that collides at the gripper
+  // or the item needs the arm's not at all.
+  PosedSpheres posed(robot_, arm_bounds_, X, carried, /*pose_centres=*/false);
+  // IsFree only asks whether anything is hit: the triangles wait until nothing else is.
+  DeferredContacts deferred;
+  DeferredContacts* const defer = kMode == RunMode::kIsFree ? &deferred : nullptr;
   // From the carried item and the gripper down the arm: the bodies that reach into a bin are
   // the ones that hit, so a colliding state is found with fewer spheres read. The base (body
   // 0) is fixed to the pedestal; it is only checked against the moving bodies.
   for (int b = num_bodies - 1; b >= 1; --b) {
     const SphereTree& tree = *posed.trees[b];
+    posed.PoseCentres(b);
     for (std::size_t i = 0; i < tree.coarse.size(); ++i) {
       const Sphere& s = tree.coarse[i];
       const Eigen::Vector3f& c = posed.centres[posed.first[b] + i];
       if (QuickMargin(c, s.radius_m + padding_m) >= slack) continue;
       int which = 0;
-      const float m = Margin(c, s.radius_m + padding_m, false, all_obstacles, &which);
+      std::uint32_t touching = 0;
+      const float m = Margin(c, s.radius_m + padding_m, false, all_obstacles, &which, nullptr,
+                             &touching, slack);
       if (m >= slack) continue;
       if (m >= 0.f) {
         slack = m;
         continue;
       }
+      // The leaves are measured only against the obstacles their coarse sphere may touch.
       const Leaves leaves = LeavesOf(tree, s);
       for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
         const Eigen::Vector3f leaf_c = posed.Xf[b] * leaf->center_B;
-        if (QuickMargin(leaf_c, leaf->radius_m + padding_m) >= slack) continue;
-        const float ml = Margin(leaf_c, leaf->radius_m + padding_m, true, all_obstacles, &which);
+        if (QuickMargin(leaf_c, leaf->radius_m + padding_m, touching) >= slack) continue;
+        const float ml = Margin(leaf_c, leaf->radius_m + padding_m, true, touching, &which, defer);
         if (ml >= 0.f) {
           slack = std::min(slack, ml);
           continue;
@@ -446,6 +478,7 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
       }
     }
   }
+  posed.PoseCentres(0);
   const auto& pairs = robot_.self_pairs();
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     if (pairs[p].second >= num_bodies) continue;
@@ -457,6 +490,11 @@ float FastChecker::Run(const JointVector& q_rad, const CarriedItem* carried, flo
     }
     hit(pairs[p].first, 0, BodyName(pairs[p].second), d);
     if constexpr (!kExplain) return slack;
+  }
+  for (int k = 0; k < deferred.size; ++k) {
+    const auto& contact = deferred.contacts[k];
+    const float m = cell_.SurfaceDistance(contact.grid, contact.c, contact.r) - contact.r;
+    if (m < 0.f) return m;
   }
   return slack;
 }

@@ -182,15 +182,43 @@ class FastChecker final {
     const float d = cell_.blocks().Clearance(c);
     return (scan_ ? std::min(d, scan_->blocks.Clearance(c)) : d) - r;
   }
+  /// QuickMargin over the obstacles in `mask` only: the static cell's blocks are read if a
+  /// static obstacle is in it, the scan's if the scan is.
+  float QuickMargin(const Eigen::Vector3f& c, float r, std::uint32_t mask) const {
+    float d = std::numeric_limits<float>::infinity();
+    if (mask & ~scan_bit_) d = cell_.blocks().Clearance(c);
+    if (mask & scan_bit_) d = std::min(d, scan_->blocks.Clearance(c));
+    return d - r;
+  }
+  /// Sphere-mesh contacts that only the mesh's triangles can decide (the grid's bounds
+  /// straddle the radius), kept for the end of an IsFree check: most colliding states hold a
+  /// contact the bounds prove, and then no triangle is measured.
+  struct DeferredContacts {
+    static constexpr int kCapacity = 32;
+    struct Contact {
+      Eigen::Vector3f c;
+      float r;
+      int grid;
+    };
+    std::array<Contact, kCapacity> contacts;
+    int size = 0;
+  };
   /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
-  /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell.
-  float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which) const;
+  /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell,
+  /// or with `deferred` (while it has room) keep that grid's contact there and count it as
+  /// margin 0 for now. `touching`, if given, receives the obstacles of `mask` whose margin
+  /// is below `touch_below_m` (the others cannot lower a check's slack or hit).
+  float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which,
+               DeferredContacts* deferred = nullptr, std::uint32_t* touching = nullptr,
+               float touch_below_m = 0.f) const;
   /// The bodies at one state: their poses in float, their sphere trees and their coarse
-  /// spheres' centres in base, body b's from `first[b]` on.
+  /// spheres' centres in base, body b's from `first[b]` on (posed by the constructor, or
+  /// with `pose_centres` false only once PoseCentres(b) is called).
   struct PosedSpheres {
     static constexpr int kMaxCoarse = 256;
     PosedSpheres(const RobotGeometry& robot, const std::array<Sphere, kNumArmBodies>& arm_bounds,
-                 const BodyPoses& X, const CarriedItem* carried);
+                 const BodyPoses& X, const CarriedItem* carried, bool pose_centres = true);
+    void PoseCentres(int b);
     int num_bodies = 0;
     std::array<Eigen::Isometry3f, kNumBodies> Xf;
     std::array<const SphereTree*, kNumBodies> trees{};
@@ -214,6 +242,7 @@ class FastChecker final {
   // The floor and pedestal in float, as the spheres are (read on every sphere).
   float floor_z_m_ = 0.f;
   Eigen::AlignedBox3f pedestal_Base_;
+  std::uint32_t scan_bit_ = 0;  // the scan's obstacle bit, 0 without a scan
 };
 
 /// The exact check that validates every returned trajectory: FCL on the link meshes, the

@@ -54,6 +54,25 @@ Sphere EnclosingSphere(const std::vector<SmallTriangle>& triangles,
   return s;
 }
 
+// Orders spheres farthest first (each next one the farthest from those before it): a check
+// that stops at the first hit then meets an obstacle that enters a block from any side
+// after a few of its spheres, not after every sphere of the block's far side.
+void SpreadOut(std::vector<Sphere>::iterator begin, std::vector<Sphere>::iterator end) {
+  if (begin == end) return;
+  std::vector<float> nearest_sq(static_cast<std::size_t>(end - begin),
+                                std::numeric_limits<float>::infinity());
+  for (auto placed = begin; placed + 1 != end; ++placed) {
+    auto farthest = placed + 1;
+    for (auto it = placed + 1; it != end; ++it) {
+      float& d = nearest_sq[it - begin];
+      d = std::min(d, (it->center_B - placed->center_B).squaredNorm());
+      if (d > nearest_sq[farthest - begin]) farthest = it;
+    }
+    std::iter_swap(placed + 1, farthest);
+    std::swap(nearest_sq[placed + 1 - begin], nearest_sq[farthest - begin]);
+  }
+}
+
 // A coarse sphere for the cluster and, when its triangles spread over several cubes of
 // fine_cell_m, one child per cube.
 void AddSphere(const std::vector<SmallTriangle>& triangles, const std::vector<std::size_t>& cluster,
@@ -215,6 +234,7 @@ CarriedItem MakeCarriedItem(const std::string& name, const Eigen::AlignedBox3d& 
         }
         coarse.num_children = static_cast<std::uint32_t>(tree.fine.size()) - coarse.first_child;
         if (coarse.num_children == 0) continue;
+        SpreadOut(tree.fine.begin() + coarse.first_child, tree.fine.end());
         coarse.center_B = block.center();
         for (std::uint32_t c = 0; c < coarse.num_children; ++c) {
           const Sphere& child = tree.fine[coarse.first_child + c];
