@@ -314,6 +314,13 @@ double StopEverywhereDuration(const std::vector<JointVector>& corners, const Lim
 // The acceleration limit curve: the largest x at which some u keeps every joint within its
 // acceleration limit (pairwise condition of Kunz & Stilman, eq. 19).
 double AccelerationLimitX(const JointVector& dq, const JointVector& ddq, const Limits& limits) {
+  // Per joint once: its curvature ratio ddq/dq and its acceleration reach a/|dq|.
+  std::array<double, kNumJoints> ratio{}, reach{};
+  for (int i = 0; i < kNumJoints; ++i) {
+    if (dq[i] == 0.0) continue;
+    ratio[i] = ddq[i] / dq[i];
+    reach[i] = limits.a[i] / std::abs(dq[i]);
+  }
   double x = kInf;
   for (int i = 0; i < kNumJoints; ++i) {
     if (dq[i] == 0.0) {
@@ -322,10 +329,8 @@ double AccelerationLimitX(const JointVector& dq, const JointVector& ddq, const L
     }
     for (int j = i + 1; j < kNumJoints; ++j) {
       if (dq[j] == 0.0) continue;
-      const double a_ij = std::abs(ddq[i] / dq[i] - ddq[j] / dq[j]);
-      if (a_ij > 0.0) {
-        x = std::min(x, (limits.a[i] / std::abs(dq[i]) + limits.a[j] / std::abs(dq[j])) / a_ij);
-      }
+      const double a_ij = std::abs(ratio[i] - ratio[j]);
+      if (a_ij > 0.0) x = std::min(x, (reach[i] + reach[j]) / a_ij);
     }
   }
   return x;
