@@ -157,6 +157,10 @@ class CellPort {
   /// Puts a held item back where it was grasped (the retreat backwards), releases it and
   /// leaves the container again: the way out when no place can be planned.
   virtual StepOutcome PutBack(const PlannedPick& pick) = 0;
+  /// Back along the last MoveToPlace's motion to where it started (the retreat's end), the
+  /// item still held: the way back when the look back, finished while the arm carried the
+  /// item on, finds the wrong item on the cup.
+  virtual StepOutcome ReturnFromPlace() = 0;
   /// How well `item`, hanging from the cup as grasped, is supported by `view` (the detector's
   /// Verify score in [0, 1]); -1 when the view shows too little of it to tell.
   virtual double VerifyHeld(const std::string& item, const PlannedPick& pick,

@@ -651,20 +651,15 @@ PickTaskRunner::Attempt PickTaskRunner::HoldAndPlace(Target& target, TargetRepor
                            options_.table_check == PickTaskOptions::TableCheck::kAlways)) {
     return SetDownAndIdentify(target, report, plan);
   }
-  const std::string wrong = options_.verify_after_lift ? LookBack(target, report, plan) : "";
-  if (!wrong.empty()) {
-    const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
-    AddTime(report, "verify", back.robot_s);
-    target.last_failure = "verification: " + wrong + " (put back)";
-    journal_.Append("failed", Key(target, "grasp"), clock_s_, {{"reason", target.last_failure}});
-    return back.ok ? Attempt::kFailed : Attempt::kLostCarried;
-  }
-  return PlaceHeld(target, report, plan, Destinations(target));
+  PendingLookBack look_back;
+  if (options_.verify_after_lift) look_back = StartLookBack(target, report, plan);
+  return PlaceHeld(target, report, plan, Destinations(target), &look_back);
 }
 
 PickTaskRunner::Attempt PickTaskRunner::PlaceHeld(Target& target, TargetReport& report,
                                                   const PlannedPick& plan,
-                                                  const std::vector<std::string>& destinations) {
+                                                  const std::vector<std::string>& destinations,
+                                                  PendingLookBack* look_back) {
   journal_.Append("begin", Key(target, "place"), clock_s_);
   PlaceOutcome placed{false, "no bin has room for it", 0.0, 0.0};
   std::string to;
@@ -685,6 +680,17 @@ PickTaskRunner::Attempt PickTaskRunner::PlaceHeld(Target& target, TargetReport& 
       journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
       return Attempt::kLostCarried;
     }
+  }
+  // Judged before the release (and before a put-back, which it would not change).
+  const std::string wrong = FinishLookBack(target, report, look_back);
+  if (placed.ok && !wrong.empty()) {
+    // The wrong item over the destination: carried back the way it came and put back.
+    const StepOutcome returned = WithRetries("return", [&] { return cell_.ReturnFromPlace(); });
+    const StepOutcome back = WithRetries("put back", [&] { return cell_.PutBack(plan); });
+    AddTime(report, "verify", returned.robot_s + back.robot_s);
+    target.last_failure = "verification: " + wrong + " (put back)";
+    journal_.Append("failed", Key(target, "place"), clock_s_, {{"reason", target.last_failure}});
+    return returned.ok && back.ok ? Attempt::kFailed : Attempt::kLostCarried;
   }
   if (!placed.ok) {
     // No way to the tote with this item on the cup: it goes back where it was, not on the
@@ -939,41 +945,61 @@ std::string PickTaskRunner::EarlyContact(const PlannedPick& plan,
 // looks into the container from the end of the retreat. If the target is still where it was
 // found, or the held item does not look like it, the cup holds something else. A look back
 // that fails (nothing decodable in view, a service refusing) cannot tell: the vacuum decides.
-std::string PickTaskRunner::LookBack(Target& target, TargetReport& report,
-                                     const PlannedPick& plan) {
+// Only the capture holds the arm: the detectors judge the view while it carries the item on.
+PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, TargetReport& report,
+                                                              const PlannedPick& plan) {
   Emit(&target, Step::kVerify, true, "looking back into " + target.bin);
   const auto start = Clock::now();
-  std::string wrong;
+  PendingLookBack pending;
   try {
     const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
     clock_s_ += view.capture_s;  // the arm holds still for the capture
-    // The two questions go to the detectors at once (another replica where there is one).
-    auto verify =
-        std::async(std::launch::async, [&] { return cell_.VerifyHeld(target.item, plan, view); });
-    const Detection seen =
-        WithRetries("detect", [&] { return cell_.Detect(target.bin, target.item, {view}); });
-    double score = -1.0;
-    try {
-      score = verify.get();
-    } catch (const CellError& e) {
-      if (!e.retryable()) throw;
-      score = WithRetries("verify", [&] { return cell_.VerifyHeld(target.item, plan, view); });
-    }
-    if (seen.found &&
-        (seen.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm() <
-            options_.verify_same_pose_m) {
-      wrong = "the target is still where it was found; the cup holds another item";
-    } else if (score >= 0.0 && score < options_.verify_min_score) {
-      wrong = "the held item does not look like " + target.item + " (verify score " +
-              std::to_string(score) + ")";
-    }
-    Emit(&target, Step::kVerify, wrong.empty(),
-         wrong.empty() ? "the held item may be the target" : wrong);
+    const Eigen::Vector3d p_found = report.X_BaseItem_detected.translation();
+    // Copies only: the judgement runs on while the caller moves on. Its two questions go to
+    // the detectors at once (another replica where there is one).
+    pending.verdict = std::async(
+        std::launch::async,
+        [this, bin = target.bin, item = target.item, plan, view, p_found]() -> LookBackVerdict {
+          try {
+            auto verify =
+                std::async(std::launch::async, [&] { return cell_.VerifyHeld(item, plan, view); });
+            const Detection seen = cell_.Detect(bin, item, {view}, {});
+            const double score = verify.get();
+            if (seen.found &&
+                (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
+              return {"the target is still where it was found; the cup holds another item", ""};
+            }
+            if (score >= 0.0 && score < options_.verify_min_score) {
+              return {"the held item does not look like " + item + " (verify score " +
+                          std::to_string(score) + ")",
+                      ""};
+            }
+            return {};
+          } catch (const CellError& e) {
+            return {"", e.what()};
+          }
+        });
   } catch (const CellError& e) {
     Emit(&target, Step::kVerify, true, std::string("look back inconclusive: ") + e.what());
   }
   AddTime(report, "verify", Seconds(start));
-  return wrong;
+  return pending;
+}
+
+std::string PickTaskRunner::FinishLookBack(Target& target, TargetReport& report,
+                                           PendingLookBack* look_back) {
+  if (!look_back || !look_back->verdict.valid()) return "";
+  // What the arm waits for: the part of the judgement its motion did not cover.
+  const auto start = Clock::now();
+  const LookBackVerdict verdict = look_back->verdict.get();
+  AddTime(report, "verify", Seconds(start));
+  if (!verdict.inconclusive.empty()) {
+    Emit(&target, Step::kVerify, true, "look back inconclusive: " + verdict.inconclusive);
+    return "";
+  }
+  Emit(&target, Step::kVerify, verdict.wrong.empty(),
+       verdict.wrong.empty() ? "the held item may be the target" : verdict.wrong);
+  return verdict.wrong;
 }
 
 PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report,

@@ -229,13 +229,26 @@ class PickTaskRunner final {
                             const Detection& found, const ScanView& view, PlannedPick* plan);
   /// The held item released into the first of `to` a place can be planned into (the
   /// attempt's journal keys are `target`'s; the contents and the score move `target.item`).
+  /// A look back under way (StartLookBack) is judged once the arm is over the destination,
+  /// before the release.
+  struct PendingLookBack;
   Attempt PlaceHeld(Target& target, TargetReport& report, const PlannedPick& plan,
-                    const std::vector<std::string>& to);
+                    const std::vector<std::string>& to, PendingLookBack* look_back = nullptr);
   /// The target of this task that `item` in `container` stands for (not yet done), or null.
   Target* TargetFor(const std::string& item, const std::string& container);
-  /// The look back after the lift: "" when the held item may be the target (or the view
-  /// cannot tell), else why it is not.
-  std::string LookBack(Target& target, TargetReport& report, const PlannedPick& plan);
+  /// The look back after the lift, in two halves so that the detectors judge the view while
+  /// the arm carries the item on: the view taken (the arm holds still for it) and its
+  /// judgement started; then waited for, "" when the held item may be the target (or the
+  /// view cannot tell), else why it is not.
+  struct LookBackVerdict {
+    std::string wrong;         // why the held item is not the target, "" if it may be
+    std::string inconclusive;  // why the view could not tell, "" if it could
+  };
+  struct PendingLookBack {
+    std::future<LookBackVerdict> verdict;  // not valid: no look back under way
+  };
+  PendingLookBack StartLookBack(Target& target, TargetReport& report, const PlannedPick& plan);
+  std::string FinishLookBack(Target& target, TargetReport& report, PendingLookBack* look_back);
   // Why the touch met something other than the target's surface ("" when it may be it).
   std::string EarlyContact(const PlannedPick& plan, const TouchOutcome& touched) const;
   void ResumeFromJournal();

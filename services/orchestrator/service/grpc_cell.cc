@@ -595,6 +595,13 @@ StepOutcome GrpcCell::PutBack(const PlannedPick& pick) {
   return {true, "", back_s + Execute(stored.response.retreat())};
 }
 
+StepOutcome GrpcCell::ReturnFromPlace() {
+  if (last_place_.points().empty()) {
+    throw CellError("orchestrator", false, "no place motion to return along");
+  }
+  return {true, "", Execute(Reversed(last_place_))};
+}
+
 PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& container,
                                    const PlannedPick& pick, int placed_before) {
   const rb::GetStateResponse state = RobotState();
@@ -623,6 +630,7 @@ PlaceOutcome GrpcCell::MoveToPlace(const std::string& item, const std::string& c
   }
   ThrowIfFailed("planner", "PlanPlace", status);
   try {
+    last_place_ = response.trajectory();
     return {true, "", response.drop_height_m(), Execute(response.trajectory())};
   } catch (const MotionRefused& e) {
     return {false, e.what(), 0.0, 0.0};  // still held where it was: put back or elsewhere

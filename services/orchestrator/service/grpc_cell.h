@@ -79,6 +79,7 @@ class GrpcCell final : public CellPort {
                            const PlannedPick& pick, int placed_before) override;
   void VacuumOff() override;
   StepOutcome PutBack(const PlannedPick& pick) override;
+  StepOutcome ReturnFromPlace() override;
   double VerifyHeld(const std::string& item, const PlannedPick& pick,
                     const ScanView& view) override;
 
@@ -109,6 +110,7 @@ class GrpcCell final : public CellPort {
   std::unique_ptr<gripper::v1::GripperService::Stub> gripper_;
   std::map<std::string, std::vector<std::string>> scan_poses_;
   std::map<int, StoredPick> picks_;
+  common::v1::JointTrajectory last_place_;  // the last MoveToPlace's motion, as executed
   int next_handle_ = 0;
   std::optional<double> head_angle_rad_;  // unknown until read or set
 };

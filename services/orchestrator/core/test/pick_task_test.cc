@@ -194,6 +194,11 @@ class ScriptedCell final : public CellPort {
     held = false;
     return {true, "", 6.0};
   }
+  StepOutcome ReturnFromPlace() override {
+    std::lock_guard<std::mutex> lock(mu);
+    calls.push_back("return from the place");
+    return {true, "", 4.0};
+  }
   void VacuumOff() override {
     std::lock_guard<std::mutex> lock(mu);
     if (held) placed.push_back(current);
@@ -748,6 +753,10 @@ TEST_F(PickTaskTest, TheLookBackCatchesTheWrongItemOnTheCupAndPutsItBack) {
   const PickTaskResult result = Run(cell);
   EXPECT_EQ(result.items_moved, 3);
   EXPECT_EQ(cell.put_back, std::vector<std::string>{"rawlings_baseball"});
+  // The look back is judged while the arm carries the item on: the wrong item came back from
+  // over the tote, unreleased, and went back into its bin.
+  EXPECT_EQ(std::count(cell.calls.begin(), cell.calls.end(), "return from the place"), 1);
+  EXPECT_EQ(cell.destinations.size(), 4u);
   EXPECT_EQ(result.targets[1].attempts, 2);
   const auto& tote = result.final_contents.tote_contents;
   EXPECT_EQ(std::count(tote.begin(), tote.end(), "rawlings_baseball"), 1);
