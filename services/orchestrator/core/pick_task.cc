@@ -1019,10 +1019,11 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
     if (!ScanViews(target, report, views)) return Attempt::kFailed;
     detection = StartDetect(target, views);
   }
-  if (!FinishDetect(target, report, detection, views)) return Attempt::kFailed;
-  // Not sooner: scans (the projector's patterns decoded, the simulator's rendering) and a
-  // detection share the cores, and a detection is searched within a time budget.
+  // The next target's views are taken while this detection runs, so that the arm waits for
+  // neither: the detector judges its search budget by its own CPU time, so the scans' work on
+  // the same cores costs the detection wall time, not search.
   if (next) ScanAhead(target, *next, *next_report);
+  if (!FinishDetect(target, report, detection, views)) return Attempt::kFailed;
   Emit(&target, Step::kPlan, true, "planning the pick");
   const auto start = Clock::now();
   const PlannedPick plan = WithRetries("plan", [&] {

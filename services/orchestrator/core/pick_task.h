@@ -104,7 +104,7 @@ struct PickTaskOptions {
   bool detect_others = true;
   double confusion_overlap = 0.3;
   double confusion_margin = 0.05;
-  /// Once a target is detected, the arm takes the next target's views (when it lies in
+  /// While a target is detected, the arm takes the next target's views (when it lies in
   /// another container, which the pick cannot disturb) and that detection runs while the arm
   /// picks the first. The arm waits only for what detection takes beyond the robot time of
   /// the motions it overlaps.

@@ -340,7 +340,7 @@ std::size_t IndexOf(const std::vector<std::string>& calls, const std::string& ca
   return it == calls.end() ? calls.size() : static_cast<std::size_t>(it - calls.begin());
 }
 
-TEST_F(PickTaskTest, TheNextBinIsScannedAfterATargetIsDetectedAndDetectedWhileItIsPicked) {
+TEST_F(PickTaskTest, TheNextBinIsScannedWhileATargetIsDetectedAndDetectedWhileItIsPicked) {
   ScriptedCell cell;
   const PickTaskResult result = Run(cell);
   EXPECT_EQ(result.items_moved, 3);
@@ -348,10 +348,15 @@ TEST_F(PickTaskTest, TheNextBinIsScannedAfterATargetIsDetectedAndDetectedWhileIt
   EXPECT_EQ(std::count_if(cell.calls.begin(), cell.calls.end(),
                           [](const std::string& c) { return c.rfind("move scan/", 0) == 0; }),
             9);
-  // bin_B's views are taken after bin_A's detection and before bin_A's pick is planned (its
-  // detection then runs beside that pick: when it starts is the thread's affair).
+  // bin_B's views are taken right after bin_A's, while bin_A's detection runs, and before
+  // bin_A's pick is planned (bin_B's detection then runs beside that pick: when each
+  // detection starts is its thread's affair).
   const auto& c = cell.calls;
-  EXPECT_LT(IndexOf(c, "detect kleenex_tissue_box"), IndexOf(c, "move scan/bin_B/0"));
+  const auto next_move =
+      std::find_if(c.begin() + IndexOf(c, "move scan/bin_A/2") + 1, c.end(),
+                   [](const std::string& call) { return call.rfind("move ", 0) == 0; });
+  ASSERT_NE(next_move, c.end());
+  EXPECT_EQ(*next_move, "move scan/bin_B/0");
   EXPECT_LT(IndexOf(c, "move scan/bin_B/2"), IndexOf(c, "plan kleenex_tissue_box"));
   EXPECT_LT(IndexOf(c, "move scan/bin_B/2"), IndexOf(c, "plan kleenex_tissue_box"));
   EXPECT_LT(IndexOf(c, "plan kleenex_tissue_box"), IndexOf(c, "plan rawlings_baseball"));
