@@ -1171,25 +1171,38 @@ DepthErrors CompareWithTruth(const ScannedCloud& cloud, int view, const Rigid& X
   return e;
 }
 
+// Points with a true depth whose depth is more than 5 mm off.
+std::size_t GrossCount(const DepthErrors& e) {
+  return static_cast<std::size_t>(std::count_if(e.abs_error_m.begin(), e.abs_error_m.end(),
+                                                [](double x) { return x > 0.005; }));
+}
+
+// ... as a percentage of the points with a true depth.
+double GrossPercent(const DepthErrors& e) {
+  return 100.0 * static_cast<double>(GrossCount(e)) /
+         static_cast<double>(std::max<std::size_t>(1, e.abs_error_m.size()));
+}
+
+// The fraction of the pixels whose true surface lies in the bin that the scan measured.
+double BinCoverage(const DepthErrors& e) {
+  return static_cast<double>(e.bin_scanned) /
+         static_cast<double>(std::max<std::size_t>(1, e.bin_pixels));
+}
+
 std::string Describe(const DepthErrors& e, int pixels) {
   std::ostringstream s;
   s.precision(3);
-  const auto gross = static_cast<std::size_t>(std::count_if(
-      e.abs_error_m.begin(), e.abs_error_m.end(), [](double x) { return x > 0.005; }));
   s << e.points << " points (" << 100.0 * e.points / pixels
     << " % of pixels), |depth error| median " << Percentile(e.abs_error_m, 0.5) * 1e3 << " mm, p90 "
     << Percentile(e.abs_error_m, 0.9) * 1e3 << " mm, p99 " << Percentile(e.abs_error_m, 0.99) * 1e3
-    << " mm, " << 100.0 * gross / std::max<std::size_t>(1, e.abs_error_m.size()) << " % over 5 mm, "
-    << e.without_truth << " where the camera sees nothing; bin surface coverage "
-    << 100.0 * e.bin_scanned / std::max<std::size_t>(1, e.bin_pixels) << " % of " << e.bin_pixels
-    << " pixels";
+    << " mm, " << GrossPercent(e) << " % over 5 mm, " << e.without_truth
+    << " where the camera sees nothing; bin surface coverage " << 100.0 * BinCoverage(e) << " % of "
+    << e.bin_pixels << " pixels";
   return s.str();
 }
 
 double GrossFraction(const DepthErrors& e) {
-  const auto gross =
-      std::count_if(e.abs_error_m.begin(), e.abs_error_m.end(), [](double x) { return x > 0.005; });
-  return static_cast<double>(gross + static_cast<std::ptrdiff_t>(e.without_truth)) /
+  return static_cast<double>(GrossCount(e) + e.without_truth) /
          static_cast<double>(std::max<std::size_t>(1, e.points));
 }
 
@@ -1231,12 +1244,6 @@ TEST_F(ScannerWithSimulatorTest, OneViewAtOneMetreMatchesTheTrueDepthInTheCamera
   EXPECT_GT(static_cast<double>(e.bin_scanned) / e.bin_pixels, 0.65);
 }
 
-// The fraction of the pixels whose true surface lies in the bin that the scan measured.
-double BinCoverage(const DepthErrors& e) {
-  return static_cast<double>(e.bin_scanned) /
-         static_cast<double>(std::max<std::size_t>(1, e.bin_pixels));
-}
-
 // A figure of the scanner tables in benchmarks/RESULTS.md: two or three significant digits
 // (0.085, 0.40, 1.26, 72.9).
 std::string TableFigure(double x) {
@@ -1249,14 +1256,10 @@ std::string TableFigure(double x) {
 // over 5 mm (of the points with a true depth, as Describe counts them) | bin surface
 // coverage |.
 std::string TableRow(const std::string& label, const DepthErrors& e) {
-  const auto gross =
-      std::count_if(e.abs_error_m.begin(), e.abs_error_m.end(), [](double x) { return x > 0.005; });
   return "| " + label + " | " + TableFigure(Percentile(e.abs_error_m, 0.5) * 1e3) + " / " +
          TableFigure(Percentile(e.abs_error_m, 0.9) * 1e3) + " / " +
          TableFigure(Percentile(e.abs_error_m, 0.99) * 1e3) + " mm | " +
-         TableFigure(100.0 * static_cast<double>(gross) /
-                     static_cast<double>(std::max<std::size_t>(1, e.abs_error_m.size()))) +
-         " % | " + TableFigure(100.0 * BinCoverage(e)) + " % |";
+         TableFigure(GrossPercent(e)) + " % | " + TableFigure(100.0 * BinCoverage(e)) + " % |";
 }
 
 // One view scanned through `stub` with the flange at X_BaseTool and `decode`, in the camera

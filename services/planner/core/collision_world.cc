@@ -515,11 +515,13 @@ Proximity FastChecker::Near(const JointVector& q_rad, const BodyPoses& X,
       // each obstacle on its own: the coarse sphere clear of it, or else every leaf.
       if (QuickMargin(c, s.radius_m) >= 0.f) continue;
       int which = 0;
-      if (Margin(c, s.radius_m, false, all_obstacles, &which) >= 0.f) continue;
+      std::uint32_t touching = 0;
+      if (Margin(c, s.radius_m, false, all_obstacles, &which, nullptr, &touching) >= 0.f) {
+        continue;
+      }
       for (int o = 0; o < num; ++o) {
         const std::uint32_t bit = 1u << o;
-        if (near.near_obstacles[b] & bit) continue;
-        if (Margin(c, s.radius_m, false, bit, &which) >= 0.f) continue;
+        if (!(touching & bit) || (near.near_obstacles[b] & bit)) continue;
         const Leaves leaves = LeavesOf(tree, s);
         for (const Sphere* leaf = leaves.begin; leaf != leaves.end; ++leaf) {
           if (Margin(posed.Xf[b] * leaf->center_B, leaf->radius_m, true, bit, &which) < 0.f) {

@@ -178,10 +178,7 @@ class FastChecker final {
   /// A quick lower bound of the smallest margin of sphere (c, r) over every obstacle: the
   /// static grids read by block (BlockBound), so that the spheres well clear of everything
   /// are let go after reads that stay in the cache.
-  float QuickMargin(const Eigen::Vector3f& c, float r) const {
-    const float d = cell_.blocks().Clearance(c);
-    return (scan_ ? std::min(d, scan_->blocks.Clearance(c)) : d) - r;
-  }
+  float QuickMargin(const Eigen::Vector3f& c, float r) const { return QuickMargin(c, r, ~0u); }
   /// QuickMargin over the obstacles in `mask` only: the static cell's blocks are read if a
   /// static obstacle is in it, the scan's if the scan is.
   float QuickMargin(const Eigen::Vector3f& c, float r, std::uint32_t mask) const {
@@ -206,7 +203,8 @@ class FastChecker final {
   /// Smallest margin (clearance minus radius) of sphere (c, r) over the obstacles in
   /// `mask`, its obstacle in `which`; `exact`: measure triangles where a grid cannot tell,
   /// or with `deferred` (while it has room) keep that grid's contact there and count it as
-  /// margin 0 for now. `touching`, if given, receives the obstacles of `mask` whose margin
+  /// margin 0 for now; such a call only asks whether there is a hit, and returns at the first
+  /// obstacle that proves one. `touching`, if given, receives the obstacles of `mask` whose margin
   /// is below `touch_below_m` (the others cannot lower a check's slack or hit).
   float Margin(const Eigen::Vector3f& c, float r, bool exact, std::uint32_t mask, int* which,
                DeferredContacts* deferred = nullptr, std::uint32_t* touching = nullptr,
