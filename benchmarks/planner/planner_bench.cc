@@ -11,8 +11,10 @@
 // figures and the infeasible refusal only); `--checks-only` gives the state checks only;
 // `--layouts=1,2` plans those layouts only;
 // `--all-failures` lists every grasp's failure of a target without a plan, not just the
-// most advanced one. pick_layout_3 is held out: the planner is developed on layouts 1 and 2
-// and the figures are given per layout.
+// most advanced one; `--reach-oracle` says for each target without a plan how many grasp
+// poses on its faces are free at all (FreeGraspPoses: 0 means no plan could end there).
+// pick_layout_3 is held out: the planner is developed on layouts 1 and 2 and the figures are given
+// per layout.
 #include <octomap/OcTree.h>
 
 #include <algorithm>
@@ -181,6 +183,7 @@ struct BenchArgs {
   bool picks_only = false;
   bool checks_only = false;
   bool all_failures = false;
+  bool reach_oracle = false;
   std::vector<int> layouts = {1, 2, 3};
   /// The gripper's head on a servo joint (0: the cell's gripper as described).
   double head_length_m = -1.0;
@@ -250,6 +253,75 @@ void PlaceAfter(const Setup& s, const PickPlan& plan, const CarriedItem& carried
   }
 }
 
+// Whether the arm can stand at the item at all: grasp poses on every face of the item's box
+// that does not face down or into the bin (a 5 x 5 grid inset by the cup's radius), the cup
+// along the face's normal or tilted by up to the grasps' 12 degrees, the head at 0..90
+// degrees in 10-degree steps, the bent tube rolled about the approach in 30-degree steps,
+// every IK solution, each checked by the fast check against the cell and the scan. A target
+// none of whose poses is free has no grasp any plan could end at (a necessary condition:
+// the motions in and out are not looked at). Returns the free poses found (0 = none).
+int FreeGraspPoses(const Setup& s, const PlanningScene& scene, const std::string& bin,
+                   const std::string& item, const Eigen::Isometry3d& X_BaseItem) {
+  const GraspContainer container = ShelfBinContainer(s.cell, bin);
+  const Eigen::Vector3d& o = container.opening_direction_Base;
+  const Eigen::AlignedBox3d& box = s.items->Get(item)->box_I;
+  const RobotGeometry& robot = s.planner->robot();
+  const double cup_radius_m = robot.gripper().tube_radius_m;
+  constexpr double kMaxTiltRad = 12.0 * M_PI / 180.0;
+  std::vector<std::unique_ptr<RobotGeometry>> heads;
+  std::vector<std::unique_ptr<FastChecker>> checkers;
+  for (int deg = 0; deg <= 90; deg += 10) {
+    heads.push_back(std::make_unique<RobotGeometry>(
+        robot.WithGripper(robot.gripper().AtHeadAngle(deg * M_PI / 180.0))));
+    checkers.push_back(
+        std::make_unique<FastChecker>(*heads.back(), s.planner->cell(), scene.obstacles.get()));
+  }
+  int free = 0;
+  for (int face = 0; face < 6; ++face) {
+    const int axis = face / 2;
+    const double sign = face % 2 ? 1.0 : -1.0;
+    const Eigen::Vector3d n_Base = X_BaseItem.linear() * (sign * Eigen::Vector3d::Unit(axis));
+    if (n_Base.z() < -0.2 || n_Base.dot(o) < -0.2) continue;  // facing down or into the bin
+    const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+    if (std::min(box.sizes()[u], box.sizes()[v]) < 2.0 * cup_radius_m) continue;  // cup too big
+    for (int i = 0; i < 25; ++i) {
+      Eigen::Vector3d p_Item = box.center();
+      p_Item[axis] = sign > 0 ? box.max()[axis] : box.min()[axis];
+      const double half_u = std::max(0.0, box.sizes()[u] / 2 - cup_radius_m);
+      const double half_v = std::max(0.0, box.sizes()[v] / 2 - cup_radius_m);
+      p_Item[u] += half_u * ((i % 5) / 2.0 - 1.0);
+      p_Item[v] += half_v * ((i / 5) / 2.0 - 1.0);
+      const Eigen::Vector3d p_Base = X_BaseItem * p_Item;
+      for (int tilt = 0; tilt < 5; ++tilt) {
+        Eigen::Vector3d a = -n_Base;
+        if (tilt > 0) {
+          const Eigen::Vector3d t_axis =
+              n_Base.unitOrthogonal().cross(n_Base) * (tilt % 2 ? 1.0 : -1.0);
+          const Eigen::Vector3d axis_Base = tilt <= 2 ? t_axis : n_Base.cross(t_axis);
+          a = Eigen::AngleAxisd(kMaxTiltRad, axis_Base.normalized()) * a;
+        }
+        for (std::size_t h = 0; h < heads.size(); ++h) {
+          for (int roll = 0; roll < (h == 0 ? 1 : 12); ++roll) {
+            Eigen::Matrix3d R;
+            R.col(2) = a;
+            R.col(1) = Eigen::AngleAxisd(roll * M_PI / 6.0, a) * a.unitOrthogonal();
+            R.col(0) = R.col(1).cross(R.col(2));
+            Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+            X_BaseTcp.linear() = R;
+            X_BaseTcp.translation() = p_Base;
+            const Eigen::Isometry3d X_BaseTool =
+                X_BaseTcp * heads[h]->gripper().X_ToolTcp.inverse();
+            for (const auto& solution : s.kinematics->Solve(X_BaseTool).solutions) {
+              if (checkers[h]->IsFree(solution.q_rad)) ++free;
+            }
+          }
+        }
+      }
+    }
+  }
+  return free;
+}
+
 // One target: its bin scanned, the pick planned, validated and carried on to the tote.
 void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer, int layout,
              const std::string& bin, const std::string& item, const Eigen::Isometry3d& X_BaseItem,
@@ -286,6 +358,10 @@ void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer,
   } catch (const PlanFailedError& e) {
     f->refusals.push_back(Ms(t));
     std::printf("  no plan: %s (%.0f ms): %s\n", label.c_str(), Ms(t), e.what());
+    if (args.reach_oracle) {
+      std::printf("      free grasp poses at all: %d\n",
+                  FreeGraspPoses(s, scene, bin, item, X_BaseItem));
+    }
     if (args.all_failures) {
       for (std::size_t i = 1; i < e.failures().size(); ++i) {
         std::printf("      also: [%s / %s] %s\n", FailureStageName(e.failures()[i].stage),
@@ -418,6 +494,8 @@ int main(int argc, char** argv) {
       args.checks_only = true;
     } else if (arg == "--all-failures") {
       args.all_failures = true;
+    } else if (arg == "--reach-oracle") {
+      args.reach_oracle = true;
     } else if (arg.rfind("--head-length-m=", 0) == 0) {
       args.head_length_m = std::stod(arg.substr(16));
     } else if (arg.rfind("--tube-length-m=", 0) == 0) {

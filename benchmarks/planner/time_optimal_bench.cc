@@ -140,6 +140,26 @@ void BM_TimeOptimalLawOnly(benchmark::State& state) {
 }
 BENCHMARK(BM_TimeOptimalLawOnly)->Unit(benchmark::kMicrosecond);
 
+// The floor under path:2's sampling: a vector of as many samples as its trajectories hold
+// (412 s at 125 Hz), filled with one sample's values and nothing computed; what allocating
+// and writing the output costs on this machine.
+void BM_WriteSamplesOnly(benchmark::State& state) {
+  const std::size_t n = static_cast<std::size_t>(412.4 / 0.008) + 2;
+  picking::planner::TrajectorySample sample;
+  sample.q_rad.setConstant(0.5);
+  for (auto _ : state) {
+    std::vector<picking::planner::TrajectorySample> samples;
+    samples.reserve(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      sample.time_s = 0.008 * static_cast<double>(k);
+      samples.push_back(sample);
+    }
+    benchmark::DoNotOptimize(samples.data());
+    benchmark::ClobberMemory();
+  }
+}
+BENCHMARK(BM_WriteSamplesOnly)->Unit(benchmark::kMicrosecond);
+
 void BM_RobotRestToRest(benchmark::State& state) {
   const auto& paths = Paths(static_cast<int>(state.range(0)));
   picking::robot::TimeParametrizationOptions options;

@@ -33,8 +33,9 @@ constexpr double kCollinearTolerance = 1e-11;
 // A blend of a smaller radius, rad, becomes a stop at its corner (a near reversal).
 constexpr double kMinBlendRadiusRad = 1e-4;
 // A phase-plane step (and the velocity-curve scan) on a blend covers at most this fraction of
-// its radius, which keeps the in-step margins near 1e-4 of the limits.
-constexpr double kBlendStepPerRadius = 0.02;
+// its radius, which keeps the in-step margins near 2e-4 of the limits (trajectories 0.06 %
+// longer than at half the step on the benchmark's random walks, and the law 20 % faster).
+constexpr double kBlendStepPerRadius = 0.04;
 // Blends are planned this far (relative) inside the limits: a reserve for rounding in the
 // in-step bounds.
 constexpr double kBlendSlack = 1e-6;
@@ -1086,19 +1087,29 @@ std::vector<TimedInterval> Timing(const Path& path,
   return timed;
 }
 
-TrajectorySample Evaluate(const TimedInterval& ti, double time_s) {
+// The sample at time_s within `ti`, appended to `samples`: built in place from its values
+// (no default values written first) and, on an arc, with one sine and cosine; the sampling
+// of a long trajectory is bound by writing its samples.
+void AppendSample(const TimedInterval& ti, double time_s, std::vector<TrajectorySample>* samples) {
   const double tau = std::clamp(time_s - ti.t0, 0.0, ti.t1 - ti.t0);
   const Interval& iv = ti.iv;
+  const Segment& seg = *ti.seg;
   const double s = std::clamp(iv.s0 + ti.sd0 * tau + 0.5 * iv.u * tau * tau, iv.s0, iv.s1);
   const double sd = std::max(0.0, ti.sd0 + iv.u * tau);
-  TrajectorySample sample;
-  sample.time_s = time_s;
-  sample.q_rad = Position(*ti.seg, s);
-  JointVector dq, ddq;
-  Tangents(*ti.seg, s, &dq, &ddq);
-  sample.qd_rad_s = dq * sd;
-  sample.qdd_rad_s2 = dq * iv.u + ddq * (sd * sd);
-  return sample;
+  if (!seg.is_arc) {
+    samples->push_back({time_s, seg.p0 + s * seg.d0, seg.d0 * sd, seg.d0 * iv.u});
+    return;
+  }
+  const double theta = s / seg.radius;
+  const double c = std::cos(theta);
+  const double sn = std::sin(theta);
+  // 1 - cos(theta) without cancellation for small angles (huge radii, shallow corners).
+  const double one_minus_c = c > 0.0 ? sn * sn / (1.0 + c) : 1.0 - c;
+  const JointVector dq = c * seg.d0 + sn * seg.n;
+  const JointVector ddq = (c * seg.n - sn * seg.d0) / seg.radius;
+  samples->push_back({time_s,
+                      seg.p0 + (seg.radius * sn) * seg.d0 + (seg.radius * one_minus_c) * seg.n,
+                      dq * sd, dq * iv.u + ddq * (sd * sd)});
 }
 
 std::vector<TrajectorySample> Sample(const std::vector<TimedInterval>& timed, double period_s,
@@ -1118,12 +1129,11 @@ std::vector<TrajectorySample> Sample(const std::vector<TimedInterval>& timed, do
     const double t = k * period_s;
     if (k > 0 && t > duration - kEndSampleMinGap * period_s) break;
     while (i + 1 < timed.size() && t >= timed[i].t1) ++i;
-    samples.push_back(Evaluate(timed[i], t));
+    AppendSample(timed[i], t, &samples);
   }
-  TrajectorySample last = Evaluate(timed.back(), duration);
-  last.q_rad = q_end;
-  last.qd_rad_s.setZero();
-  samples.push_back(last);
+  AppendSample(timed.back(), duration, &samples);
+  samples.back().q_rad = q_end;
+  samples.back().qd_rad_s.setZero();
   return samples;
 }
 
