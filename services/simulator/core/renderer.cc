@@ -47,6 +47,7 @@ struct ObjectData {
   std::vector<Eigen::Vector3f> vertices_object;
   std::vector<std::array<std::uint32_t, 3>> triangles;
   std::vector<float> vertex_albedo;
+  std::vector<std::array<std::uint8_t, 3>> vertex_colors;
   float albedo = 0.0f;
   Eigen::Isometry3d X_BaseObject = Eigen::Isometry3d::Identity();
   unsigned geom_id = RTC_INVALID_GEOMETRY_ID;
@@ -56,6 +57,16 @@ struct ObjectData {
     const auto& tri = triangles[prim];
     return (1.0f - u - v) * vertex_albedo[tri[0]] + u * vertex_albedo[tri[1]] +
            v * vertex_albedo[tri[2]];
+  }
+  // RGB reflectance in [0, 1]: the vertex colours interpolated, or grey at the albedo.
+  Eigen::Vector3f ColourAt(unsigned prim, float u, float v) const {
+    if (vertex_colors.empty()) return Eigen::Vector3f::Constant(AlbedoAt(prim, u, v));
+    const auto& tri = triangles[prim];
+    auto colour = [&](int k) -> Eigen::Vector3f {
+      const auto& c = vertex_colors[tri[k]];
+      return Eigen::Vector3f(c[0], c[1], c[2]) / 255.0f;
+    };
+    return (1.0f - u - v) * colour(0) + u * colour(1) + v * colour(2);
   }
 };
 
@@ -97,10 +108,16 @@ ObjectData CheckedCopy(std::size_t index, const SceneObject& object) {
   if (!(mesh->albedo >= 0.0f && mesh->albedo <= 1.0f)) {
     throw std::invalid_argument(label + ": albedo is not in [0, 1]");
   }
+  if (!mesh->vertex_colors.empty() && mesh->vertex_colors.size() != nv) {
+    throw std::invalid_argument(label + ": vertex_colors has " +
+                                std::to_string(mesh->vertex_colors.size()) + " entries for " +
+                                std::to_string(nv) + " vertices");
+  }
   ObjectData data;
   data.vertices_object = mesh->vertices;
   data.triangles = mesh->triangles;
   data.vertex_albedo = mesh->vertex_albedo;
+  data.vertex_colors = mesh->vertex_colors;
   data.albedo = mesh->albedo;
   data.X_BaseObject = object.X_BaseObject;
   return data;
@@ -542,7 +559,8 @@ void CheckPrepareArguments(const ScanPose& pose, const GeometryOptions& options,
 
 // Sizes g for the pose's camera and projector (reusing its buffers) and marks every pixel
 // as seeing no surface: NaN geometry, no object, zero albedo and gain.
-void ResetScanGeometry(const ScanPose& pose, ScanGeometry* geometry) {
+void ResetScanGeometry(const ScanPose& pose, const GeometryOptions& options,
+                       ScanGeometry* geometry) {
   ScanGeometry& g = *geometry;
   g.width = pose.camera.width();
   g.height = pose.camera.height();
@@ -554,6 +572,11 @@ void ResetScanGeometry(const ScanPose& pose, ScanGeometry* geometry) {
   g.normals_camera.assign(n, Eigen::Vector3f::Constant(kNaN));
   g.object_index.assign(n, -1);
   g.albedo.assign(n, 0.0f);
+  if (options.colour) {
+    g.colour.assign(n, Eigen::Vector3f::Zero());
+  } else {
+    g.colour.clear();
+  }
   g.illumination.assign(n, Illumination::kNoSurface);
   g.projector_uv.assign(n, Eigen::Vector2f::Constant(kNaN));
   g.gain.assign(n, 0.0f);
@@ -632,6 +655,10 @@ void RecordHitsAndAimShadowRays(const PacketScene& context, std::size_t i0, int 
     g.normals_camera[i] = (R_BC.transpose() * n_B[k]).cast<float>();
     g.object_index[i] = object_index;
     g.albedo[i] = albedo;
+    if (context.options.colour) {
+      g.colour[i] = context.objects[object_index].ColourAt(packet.hit.primID[k], packet.hit.u[k],
+                                                           packet.hit.v[k]);
+    }
 
     const std::optional<Eigen::Vector2d> projected = pose.projector.Project(X_PB * p_BX[k]);
     if (!projected || !pose.projector.Contains(*projected)) {
@@ -924,7 +951,7 @@ void StructuredLightRenderer::Prepare(const ScanPose& pose, const GeometryOption
   const auto rays = impl_->Rays(pose.camera, threads);
 
   ScanGeometry& g = *geometry;
-  ResetScanGeometry(pose, &g);
+  ResetScanGeometry(pose, options, &g);
 
   const Impl& impl = *impl_;
   const PacketScene context{pose,

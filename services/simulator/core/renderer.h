@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -64,6 +65,9 @@ struct GeometryOptions {
   double shadow_epsilon_m = 1e-4;
   /// Worker threads; 0 = std::thread::hardware_concurrency(). Default 0.
   int num_threads = 0;
+  /// Also fill ScanGeometry::colour (the meshes' vertex colours; grey at the albedo without
+  /// them). Default off: the structured-light camera is monochrome.
+  bool colour = false;
 };
 
 /// Per-camera-pixel result of the pattern-independent ray casting, row-major with
@@ -84,6 +88,9 @@ struct ScanGeometry {
   std::vector<std::int32_t> object_index;
   /// Interpolated albedo of the surface in [0, 1] (0: no surface).
   std::vector<float> albedo;
+  /// RGB reflectance of the surface in [0, 1] (0: no surface) with GeometryOptions::colour,
+  /// else empty.
+  std::vector<Eigen::Vector3f> colour;
   /// How the projector reaches the pixel's surface point.
   std::vector<Illumination> illumination;
   /// Distorted projector pixel coordinates of the surface point (NaN unless kLit).
