@@ -107,10 +107,12 @@ BinDetectionResult DetectInBin(const std::shared_ptr<const detector::ModelLibrar
   query.item = item;
   query.method = method;
   query.budget_scale = options.budget_scale;
+  query.max_results = options.max_results;
   // As the detector service does: the pre-processing counts in the item's budget.
-  result.chain =
-      detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared), query, start)
-          .chain;
+  detector::ItemDetections found =
+      detector::DetectItem(library, prepared, detector::MakeSceneContext(prepared), query, start);
+  result.chain = std::move(found.chain);
+  result.poses = std::move(found.poses);
   result.total_s = std::chrono::duration<double>(Clock::now() - start).count();
   return result;
 }

@@ -33,6 +33,8 @@ struct BinDetectionOptions {
   bool multi_sensor_verification = true;
   /// The estimators' options (PPF per-segment hypotheses, sphere fits, ...).
   detector::EstimatorOptions estimators;
+  /// Distinct poses kept in BinDetectionResult::poses (ItemQuery::max_results, >= 1).
+  std::size_t max_results = 1;
 };
 
 /// One scan of the bin made of several views (the paper scans each bin from three angles), as
@@ -50,6 +52,9 @@ BinScan MergeViews(const std::vector<BinScan>& views);
 /// One full detection call and what it saw.
 struct BinDetectionResult {
   detector::ChainResult chain;
+  /// The accepted pose, then the accepting method's other candidates above its thresholds
+  /// (up to BinDetectionOptions::max_results, detector::ItemDetections::poses).
+  std::vector<detector::Detection> poses;
   std::size_t points_in_region = 0;  ///< Finite points after crop and wall removal.
   bool intrinsics_fitted = false;    ///< The camera was recovered from the organised cloud.
   double total_s = 0.0;              ///< Wall-clock time of the whole call.

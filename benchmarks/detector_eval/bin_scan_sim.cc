@@ -12,6 +12,7 @@
 #include "services/scanner/core/patterns.h"
 #include "services/scanner/core/scan_pipeline.h"
 #include "services/simulator/core/renderer.h"
+#include "services/simulator/core/rgbd_sensor.h"
 #include "services/simulator/core/sim_world.h"
 
 namespace picking::detector_eval {
@@ -78,6 +79,29 @@ void SimulatedBinScanner::RemoveItems(const std::string& bin, const std::string&
   }
 }
 
+namespace {
+
+// One frame of the commodity RGB-D camera from the scan's camera pose: its organised cloud
+// (holes NaN) moved into the base frame, with the colour image.
+void ScanWithRgbdCamera(const simulator::StructuredLightRenderer& renderer,
+                        const BinScanOptions& options, BinScan* scan) {
+  simulator::RgbdSensorOptions rgbd;
+  rgbd.seed = options.seed;
+  const simulator::RgbdFrame frame =
+      simulator::RenderRgbd(renderer, simulator::XtionDepthCamera(), scan->X_BaseCamera, rgbd);
+  geometry::PointCloud cloud = simulator::ToOrganisedCloud(frame);
+  const Eigen::Isometry3f X = scan->X_BaseCamera.cast<float>();
+  for (auto& p : cloud.points) {
+    if (p.allFinite()) p = X * p;
+  }
+  cloud.frame_id = "base";
+  scan->valid_fraction = static_cast<double>(frame.valid()) / static_cast<double>(frame.size());
+  scan->cloud = std::move(cloud);
+  scan->camera = frame.camera;
+}
+
+}  // namespace
+
 BinScan SimulatedBinScanner::Scan(const std::string& bin, const BinScanOptions& options) {
   const simulator::SimWorld& world = *impl_->world;
   const world::BinGeometry& geometry = world.cell().bin(bin);  // Throws for unknown bins.
@@ -108,7 +132,6 @@ BinScan SimulatedBinScanner::Scan(const std::string& bin, const BinScanOptions& 
   X_ShelfCamera.translation() = p_ShelfCamera;
   scan.X_BaseCamera = X_BaseShelf * X_ShelfCamera;
 
-  // Render the 42 captures.
   const auto render_start = Clock::now();
   const std::vector<simulator::SceneObject> all = world.SceneMeshes();
   std::vector<simulator::SceneObject> objects;
@@ -118,6 +141,13 @@ BinScan SimulatedBinScanner::Scan(const std::string& bin, const BinScanOptions& 
     objects.push_back(all[i]);
   }
   const simulator::StructuredLightRenderer renderer(objects);
+  if (options.sensor == BinSensor::kRgbd) {
+    ScanWithRgbdCamera(renderer, options, &scan);
+    scan.render_s = SecondsSince(render_start);
+    return scan;
+  }
+
+  // Render the 42 captures.
   const scanner::ScanCalibration& calibration = impl_->pipeline->calibration();
   const simulator::ScanPose pose{calibration.camera, scan.X_BaseCamera, calibration.projector,
                                  scan.X_BaseCamera * impl_->X_CameraProjector};

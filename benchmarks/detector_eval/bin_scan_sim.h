@@ -23,8 +23,15 @@ struct TrueItem {
   Eigen::Isometry3d X_BaseItem = Eigen::Isometry3d::Identity();
 };
 
+/// What scans the bin.
+enum class BinSensor {
+  kStructuredLight,  ///< The cell's Gray-code scanner (data/scanner/sim_sensor), 42 captures.
+  kRgbd,             ///< A commodity RGB-D camera (simulator::RenderRgbd, Xtion-like).
+};
+
 /// Options of SimulatedBinScanner::Scan.
 struct BinScanOptions {
+  BinSensor sensor = BinSensor::kStructuredLight;
   /// Camera distance in front of the bin's opening plane (along the shelf's x), metres.
   double standoff_m = 0.55;
   /// Camera height above the middle of the bin's opening, metres.
@@ -47,7 +54,8 @@ struct BinScanOptions {
 struct BinScan {
   std::string bin;  ///< "bin_A".."bin_L".
   /// Organised cloud (one point per camera pixel, NaN where nothing was decoded) in the robot
-  /// base frame, with normals and intensities (0-1).
+  /// base frame, with normals and intensities (0-1) from the structured-light scanner, with
+  /// colours and without normals from the RGB-D camera.
   geometry::PointCloud cloud;
   Eigen::Isometry3d X_BaseCamera = Eigen::Isometry3d::Identity();
   /// The camera's intrinsics (what the scanner triangulated with).

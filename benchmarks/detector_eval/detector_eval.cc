@@ -17,8 +17,19 @@
 //                      [--patch_contrast=true|false] [--min_print=F]
 //                      [--search_step_m=F] [--search_levels=N] [--cache_dir=DIR]
 //                      [--box_faces=true|false] [--box_continuation=true|false]
+//                      [--box_polish_contradicted=true|false]
 //                      [--hypotheses=N] [--reference_step=N] [--layout_mode=tidy|settled]
+//                      [--only=LAYOUT:BIN,...] [--candidates=N]
+//                      [--sensor=structured_light|rgbd]
 //
+// --sensor=rgbd scans each view with a simulated commodity RGB-D camera (Xtion-like:
+// simulator::RenderRgbd, holes, noise growing with the square of the distance, a colour image
+// under room light) instead of the cell's structured-light scanner.
+//
+// --only=2:H,3:G runs those targets only (layout 2 bin H, layout 3 bin G): one bin in seconds
+// instead of the whole set, for looking into a failure. --candidates=N also prints up to N
+// distinct poses the accepting method found above its thresholds, each with its error against
+// the truth and its evidence (what ranked a wrong pose first).
 // --layout_mode=settled drops the items and lets them settle by physics (stacked, leaning,
 // standing on end: simulator::PhysicsLayout) instead of laying them side by side.
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
@@ -26,7 +37,9 @@
 // the sphere fit of ball models (detector::PpfSearchOptions) for comparisons; --box_faces
 // the box models' face poses on the scene's planar patches (PpfSearchOptions::fit_boxes) and
 // --box_continuation the penalty of box poses the scene's surface runs on past
-// (RefineVerifyOptions::box_continuation_weight). --views=3 scans
+// (RefineVerifyOptions::box_continuation_weight); --box_polish_contradicted=false polishes
+// only the best box candidate and its best quarter-turn, not also the best shape fit the
+// print contradicts (PpfSearchOptions::box_polish_contradicted). --views=3 scans
 // each bin from three camera positions, the middle one and view_offset_m to either side (all
 // aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
 // front items, the middle view 0.1 m),
@@ -80,7 +93,10 @@ std::vector<std::string> Split(const std::string& s) {
 struct Args {
   std::vector<std::string> layouts = {"1", "2", "3"};
   std::vector<std::string> bins;  // Empty: every bin of the work order.
+  // --only: "layout:bin_X" targets; empty: every target the other filters leave.
+  std::vector<std::string> only;
   std::uint32_t seed = 1;
+  BinSensor sensor = BinSensor::kStructuredLight;
   bool per_method = true;
   std::string markdown;
   BinDetectionOptions detection;
@@ -97,6 +113,81 @@ bool ParseBool(const std::string& key, const std::string& v) {
   throw std::invalid_argument(key + " must be true or false, got '" + v + "'");
 }
 
+// The detector's search and verification settings among the arguments: true when `a` is one
+// of them (set in `detection`).
+bool ParseDetectionFlag(const std::string& a, BinDetectionOptions* detection) {
+  const auto value = [&](const std::string& key) -> std::optional<std::string> {
+    if (a.rfind(key + "=", 0) == 0) return a.substr(key.size() + 1);
+    return std::nullopt;
+  };
+  if (auto v = value("--budget_scale")) {
+    detection->budget_scale = std::stod(*v);
+    if (!(detection->budget_scale > 0.0)) {
+      throw std::invalid_argument("--budget_scale must be positive");
+    }
+  } else if (auto v = value("--ppf_segments")) {
+    detection->estimators.ppf_search.per_segment_hypotheses = ParseBool("--ppf_segments", *v);
+  } else if (auto v = value("--appearance")) {
+    // false: the chain neither ranks by nor penalises the printed texture's appearance;
+    // rank: it ranks candidates by it but does not penalise a contradiction.
+    auto& refine = detection->estimators.refine;
+    auto& ppf = detection->estimators.ppf;
+    if (*v == "rank") {
+      refine.verify.appearance_contradiction_scale = 1.0;
+      ppf.min_appearance_correlation = -1.0f;
+    } else if (!ParseBool("--appearance", *v)) {
+      refine.verify.appearance_contradiction_scale = 1.0;
+      refine.appearance_rank_weight = 0.0;
+      ppf.min_appearance_correlation = -1.0f;
+      ppf.appearance_weight = 0.0f;
+    }
+  } else if (auto v = value("--search_step_m")) {
+    detection->estimators.ppf.appearance_search.start_step_m = std::stod(*v);
+  } else if (auto v = value("--search_levels")) {
+    detection->estimators.ppf.appearance_search.levels = std::stoi(*v);
+  } else if (auto v = value("--min_print")) {
+    // Verification: a print correlating below this contradicts the pose (halves its score).
+    detection->estimators.refine.verify.min_appearance_correlation = std::stod(*v);
+  } else if (auto v = value("--patch_contrast")) {
+    const bool on = ParseBool("--patch_contrast", *v);
+    detection->estimators.ppf.appearance.patch_contrast = on;
+    detection->estimators.refine.verify.appearance.patch_contrast = on;
+  } else if (auto v = value("--appearance_search")) {
+    if (!ParseBool("--appearance_search", *v)) {
+      detection->estimators.ppf.appearance_search.levels = 0;
+    }
+  } else if (auto v = value("--hypotheses")) {
+    // PPF's vote clusters kept and refined (PpfMatchOptions::max_hypotheses and
+    // PpfDetectorOptions::hypotheses_to_verify together).
+    const int n = std::stoi(*v);
+    if (n < 1) throw std::invalid_argument("--hypotheses must be >= 1");
+    detection->estimators.ppf.match.max_hypotheses = n;
+    detection->estimators.ppf.hypotheses_to_verify = n;
+  } else if (auto v = value("--reference_step")) {
+    const int n = std::stoi(*v);
+    if (n < 1) throw std::invalid_argument("--reference_step must be >= 1");
+    detection->estimators.ppf.match.reference_step = n;
+  } else if (auto v = value("--multi_sensor")) {
+    detection->multi_sensor_verification = ParseBool("--multi_sensor", *v);
+  } else if (auto v = value("--floor_band")) {
+    // false: the wall margin spares the bin's bottom face; only the measured floor goes.
+    if (!ParseBool("--floor_band", *v)) detection->wall_faces &= ~detector::kFaceMinZ;
+  } else if (auto v = value("--sphere_fit")) {
+    detection->estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
+  } else if (auto v = value("--box_faces")) {
+    detection->estimators.ppf_search.fit_boxes = ParseBool("--box_faces", *v);
+  } else if (auto v = value("--box_polish_contradicted")) {
+    detection->estimators.ppf_search.box_polish_contradicted =
+        ParseBool("--box_polish_contradicted", *v);
+  } else if (auto v = value("--box_continuation")) {
+    detection->estimators.refine.box_continuation_weight =
+        ParseBool("--box_continuation", *v) ? 1.0 : 0.0;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 Args Parse(int argc, char** argv) {
   Args args;
   for (int i = 1; i < argc; ++i) {
@@ -109,6 +200,23 @@ Args Parse(int argc, char** argv) {
       args.layouts = Split(*v);
     } else if (auto v = value("--bins")) {
       for (const std::string& b : Split(*v)) args.bins.push_back("bin_" + b);
+    } else if (auto v = value("--only")) {
+      for (const std::string& target : Split(*v)) {
+        const auto colon = target.find(':');
+        if (colon == std::string::npos || colon == 0 || colon + 1 == target.size()) {
+          throw std::invalid_argument("--only takes LAYOUT:BIN pairs, got '" + target + "'");
+        }
+        args.only.push_back(target.substr(0, colon) + ":bin_" + target.substr(colon + 1));
+      }
+    } else if (auto v = value("--candidates")) {
+      const int n = std::stoi(*v);
+      if (n < 1) throw std::invalid_argument("--candidates must be >= 1");
+      args.detection.max_results = static_cast<std::size_t>(n);
+    } else if (auto v = value("--sensor")) {
+      if (*v != "structured_light" && *v != "rgbd") {
+        throw std::invalid_argument("--sensor is structured_light or rgbd, got '" + *v + "'");
+      }
+      args.sensor = *v == "rgbd" ? BinSensor::kRgbd : BinSensor::kStructuredLight;
     } else if (auto v = value("--seed")) {
       args.seed = static_cast<std::uint32_t>(std::stoul(*v));
     } else if (auto v = value("--per_method")) {
@@ -127,67 +235,10 @@ Args Parse(int argc, char** argv) {
       if (!(std::abs(args.side_height_m) < 0.5)) {
         throw std::invalid_argument("--side_height_m must be within 0.5 m of the bin's middle");
       }
-    } else if (auto v = value("--budget_scale")) {
-      args.detection.budget_scale = std::stod(*v);
-      if (!(args.detection.budget_scale > 0.0)) {
-        throw std::invalid_argument("--budget_scale must be positive");
-      }
-    } else if (auto v = value("--ppf_segments")) {
-      args.detection.estimators.ppf_search.per_segment_hypotheses = ParseBool("--ppf_segments", *v);
-    } else if (auto v = value("--appearance")) {
-      // false: the chain neither ranks by nor penalises the printed texture's appearance;
-      // rank: it ranks candidates by it but does not penalise a contradiction.
-      auto& refine = args.detection.estimators.refine;
-      auto& ppf = args.detection.estimators.ppf;
-      if (*v == "rank") {
-        refine.verify.appearance_contradiction_scale = 1.0;
-        ppf.min_appearance_correlation = -1.0f;
-      } else if (!ParseBool("--appearance", *v)) {
-        refine.verify.appearance_contradiction_scale = 1.0;
-        refine.appearance_rank_weight = 0.0;
-        ppf.min_appearance_correlation = -1.0f;
-        ppf.appearance_weight = 0.0f;
-      }
-    } else if (auto v = value("--search_step_m")) {
-      args.detection.estimators.ppf.appearance_search.start_step_m = std::stod(*v);
-    } else if (auto v = value("--search_levels")) {
-      args.detection.estimators.ppf.appearance_search.levels = std::stoi(*v);
-    } else if (auto v = value("--min_print")) {
-      // Verification: a print correlating below this contradicts the pose (halves its score).
-      args.detection.estimators.refine.verify.min_appearance_correlation = std::stod(*v);
-    } else if (auto v = value("--patch_contrast")) {
-      const bool on = ParseBool("--patch_contrast", *v);
-      args.detection.estimators.ppf.appearance.patch_contrast = on;
-      args.detection.estimators.refine.verify.appearance.patch_contrast = on;
-    } else if (auto v = value("--appearance_search")) {
-      if (!ParseBool("--appearance_search", *v)) {
-        args.detection.estimators.ppf.appearance_search.levels = 0;
-      }
-    } else if (auto v = value("--hypotheses")) {
-      // PPF's vote clusters kept and refined (PpfMatchOptions::max_hypotheses and
-      // PpfDetectorOptions::hypotheses_to_verify together).
-      const int n = std::stoi(*v);
-      if (n < 1) throw std::invalid_argument("--hypotheses must be >= 1");
-      args.detection.estimators.ppf.match.max_hypotheses = n;
-      args.detection.estimators.ppf.hypotheses_to_verify = n;
-    } else if (auto v = value("--reference_step")) {
-      const int n = std::stoi(*v);
-      if (n < 1) throw std::invalid_argument("--reference_step must be >= 1");
-      args.detection.estimators.ppf.match.reference_step = n;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
-    } else if (auto v = value("--multi_sensor")) {
-      args.detection.multi_sensor_verification = ParseBool("--multi_sensor", *v);
-    } else if (auto v = value("--floor_band")) {
-      // false: the wall margin spares the bin's bottom face; only the measured floor goes.
-      if (!ParseBool("--floor_band", *v)) args.detection.wall_faces &= ~detector::kFaceMinZ;
-    } else if (auto v = value("--sphere_fit")) {
-      args.detection.estimators.ppf_search.fit_spheres = ParseBool("--sphere_fit", *v);
-    } else if (auto v = value("--box_faces")) {
-      args.detection.estimators.ppf_search.fit_boxes = ParseBool("--box_faces", *v);
-    } else if (auto v = value("--box_continuation")) {
-      args.detection.estimators.refine.box_continuation_weight =
-          ParseBool("--box_continuation", *v) ? 1.0 : 0.0;
+    } else if (ParseDetectionFlag(a, &args.detection)) {
+      continue;
     } else {
       throw std::invalid_argument("unknown argument '" + a +
                                   "' (see the header of detector_eval.cc)");
@@ -207,10 +258,21 @@ struct Outcome {
   std::string method;  // Accepting method.
   double score = 0.0;
   double appearance = std::numeric_limits<double>::quiet_NaN();
+  // The accepted pose's evidence (Detection's visible / occluded / supported / conflict
+  // model points), for telling thin evidence from a well-seen wrong pose.
+  std::string evidence;
   std::string error;
   std::string
       attempts;  // Methods tried and their durations, e.g. "ppf 0.41s range_templates 0.6s".
 };
+
+// "visible V occluded O supported S conflicts C" of a verified detection.
+std::string Evidence(const detector::Detection& d) {
+  std::ostringstream s;
+  s << "visible " << d.visible_points << " occluded " << d.occluded_points << " supported "
+    << d.supported_points << " conflicts " << d.conflict_points;
+  return s.str();
+}
 
 Outcome Judge(const BinDetectionResult& r, const detector::LoadedModel& model,
               const std::vector<TrueItem>& truth, const std::string& item) {
@@ -229,6 +291,7 @@ Outcome Judge(const BinDetectionResult& r, const detector::LoadedModel& model,
   o.method = r.chain.detection->method;
   o.score = r.chain.detection->score;
   o.appearance = r.chain.detection->appearance;
+  o.evidence = Evidence(*r.chain.detection);
   o.add_m = std::numeric_limits<double>::infinity();
   for (const TrueItem& t : truth) {
     if (t.name != item) continue;
@@ -249,12 +312,38 @@ struct Tally {
   int wrong = 0;  // Accepted but wrong pose.
   double total_s = 0.0;
   double max_s = 0.0;
+  std::vector<std::pair<double, bool>> accepted;  // (score, correct) of each accepted pose
   void Add(const Outcome& o) {
     ++runs;
     correct += o.correct ? 1 : 0;
     wrong += o.detected && !o.correct ? 1 : 0;
     total_s += o.total_s;
     max_s = std::max(max_s, o.total_s);
+    if (o.detected) accepted.emplace_back(o.score, o.correct);
+  }
+  // Of the accepted poses, the fraction that are right.
+  std::string Precision() const {
+    std::ostringstream s;
+    s << correct << "/" << accepted.size();
+    return s.str();
+  }
+  // Area under the ROC curve of the accepted poses' scores: the chance that a right pose
+  // scores above a wrong one (ties count half); "-" without both kinds.
+  std::string RocArea() const {
+    double above = 0.0;
+    int pairs = 0;
+    for (const auto& [right_score, right] : accepted) {
+      if (!right) continue;
+      for (const auto& [wrong_score, also_right] : accepted) {
+        if (also_right) continue;
+        above += right_score > wrong_score ? 1.0 : right_score == wrong_score ? 0.5 : 0.0;
+        ++pairs;
+      }
+    }
+    if (pairs == 0) return "-";
+    std::ostringstream s;
+    s << std::fixed << std::setprecision(2) << above / pairs;
+    return s.str();
   }
   std::string Rate() const {
     std::ostringstream s;
@@ -335,10 +424,12 @@ std::shared_ptr<const detector::ModelLibrary> MakeLibrary(
 
 // The bin seen from the front and, with three views, from either side, merged.
 BinScan ScanBin(SimulatedBinScanner& scanner, const std::string& bin, const Args& args) {
-  std::vector<BinScan> views = {scanner.Scan(bin, BinScanOptions{})};
+  BinScanOptions front;
+  front.sensor = args.sensor;
+  std::vector<BinScan> views = {scanner.Scan(bin, front)};
   if (args.views == 3) {
     for (double offset : {-args.view_offset_m, args.view_offset_m}) {
-      BinScanOptions side;
+      BinScanOptions side = front;
       side.lateral_offset_m = offset;
       side.height_above_centre_m = args.side_height_m;
       views.push_back(scanner.Scan(bin, side));
@@ -382,9 +473,37 @@ void PrintTruePoses(const std::shared_ptr<const detector::ModelLibrary>& library
         TruePoseAgreement(library, scan, item, t.X_BaseItem, args.detection);
     std::cout << "; true pose at " << t.X_BaseItem.translation().transpose() << " x "
               << t.X_BaseItem.linear().col(0).transpose() << " score " << truth.score << " fitness "
-              << truth.fitness << " print " << truth.appearance << " ppf support "
-              << agreement.support << " conflicts " << agreement.conflict_fraction << " visible "
-              << agreement.visible_points << " occluded " << agreement.occluded_points;
+              << truth.fitness << " print " << truth.appearance << " (" << Evidence(truth)
+              << ") ppf support " << agreement.support << " conflicts "
+              << agreement.conflict_fraction << " visible " << agreement.visible_points
+              << " occluded " << agreement.occluded_points;
+  }
+}
+
+// The poses the accepting method found, each judged against the truth.
+void PrintCandidates(const BinDetectionResult& r, const detector::LoadedModel& model,
+                     const std::vector<TrueItem>& truth, const std::string& item) {
+  for (std::size_t k = 0; k < r.poses.size(); ++k) {
+    BinDetectionResult one;
+    one.chain.detection = r.poses[k];
+    const Outcome o = Judge(one, model, truth, item);
+    std::cout << "\n    candidate " << k << ": " << (o.correct ? "ok" : "WRONG") << " "
+              << std::setprecision(1) << std::fixed << o.add_m * 1000 << "mm score "
+              << std::setprecision(3) << o.score << " print " << o.appearance << " (" << o.evidence
+              << ")" << std::defaultfloat;
+    // Where it lies in the frame of the nearest true instance: a slide along a box's side
+    // shows as one large coordinate.
+    double nearest_m = std::numeric_limits<double>::infinity();
+    Eigen::Vector3d p_TrueFound = Eigen::Vector3d::Zero();
+    for (const TrueItem& t : truth) {
+      if (t.name != item) continue;
+      const Eigen::Vector3d p = t.X_BaseItem.inverse() * r.poses[k].X_BaseItem.translation();
+      if (p.norm() < nearest_m) {
+        nearest_m = p.norm();
+        p_TrueFound = p;
+      }
+    }
+    std::cout << " at " << p_TrueFound.transpose() << " in the true item's frame";
   }
 }
 
@@ -418,7 +537,8 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
                    << (args.per_method ? Cell(by_method["range_templates"]) : "-") << " |\n";
   std::cout << "layout " << layout << " " << entry.bin << " " << entry.item << ": " << Cell(chain)
             << (chain.detected ? " by " + chain.method : "") << " score " << std::setprecision(3)
-            << chain.score << " print " << chain.appearance << ", rot "
+            << chain.score << " print " << chain.appearance
+            << (chain.detected ? " (" + chain.evidence + ")" : "") << ", rot "
             << chain.rotation_rad * 180.0 / M_PI << " deg, " << scan.items.size() << " items, "
             << chain_result.points_in_region << " region points, intrinsics "
             << (chain_result.intrinsics_fitted ? "fitted" : "NOT fitted") << ", scan "
@@ -426,6 +546,7 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   std::cout << ", tried: " << chain.attempts;
   if (!chain.error.empty()) std::cout << ", error: " << chain.error;
   PrintTruePoses(library, scan, entry.item, args);
+  if (args.detection.max_results > 1) PrintCandidates(chain_result, *model, scan.items, entry.item);
   for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);
   std::cout << std::endl;
 }
@@ -435,8 +556,10 @@ std::string Summary(const Evaluation& evaluation, const Args& args) {
   const Tally& chain_total = evaluation.chain_total;
   std::ostringstream summary;
   summary << "\nChain (configured order): " << chain_total.Rate() << " correct, "
-          << chain_total.wrong << " wrong poses accepted, mean " << chain_total.MeanTime()
-          << " s, max " << std::setprecision(3) << chain_total.max_s << " s per call\n";
+          << chain_total.wrong << " wrong poses accepted (precision " << chain_total.Precision()
+          << ", ROC area of the accepted poses' scores " << chain_total.RocArea() << "), mean "
+          << chain_total.MeanTime() << " s, max " << std::setprecision(3) << chain_total.max_s
+          << " s per call\n";
   summary << "\n| method | correct | wrong accepted | mean s per call | max s "
              "|\n|---|---|---|---|---|\n";
   summary << "| chain | " << chain_total.Rate() << " | " << chain_total.wrong << " | "
@@ -471,12 +594,20 @@ int Run(const Args& args) {
   evaluation.rows << "| layout | bin | item | items in bin | region points | chain | ppf | sift | "
                      "range_templates |\n|---|---|---|---|---|---|---|---|---|\n";
   for (const std::string& layout : args.layouts) {
+    const bool has_target = std::any_of(args.only.begin(), args.only.end(), [&](const auto& t) {
+      return t.rfind(layout + ":", 0) == 0;
+    });
+    if (!args.only.empty() && !has_target) continue;  // Not laid out: --only leaves no bin.
     const apc::Task task =
         scanner.ReadTask(data_dir + "/apc2016/tasks/pick_layout_" + layout + ".json");
     scanner.LoadTask(task, args.seed, args.layout_mode);
     for (const apc::WorkOrderEntry& entry : task.work_order) {
       if (!args.bins.empty() &&
           std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {
+        continue;
+      }
+      if (!args.only.empty() && std::find(args.only.begin(), args.only.end(),
+                                          layout + ":" + entry.bin) == args.only.end()) {
         continue;
       }
       EvaluateTarget(library, scanner, layout, entry, args, &evaluation);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -53,6 +54,29 @@ void CheckInput(const EstimatorInput& input, const SceneContext& context, const 
     throw std::invalid_argument(std::string(who) +
                                 ": the input scene is not the scene of the estimator's context");
   }
+}
+
+std::optional<std::size_t> ContradictedShapeFit(const std::vector<Detection>& candidates,
+                                                const RefineVerifyOptions& options) {
+  const double scale = options.verify.appearance_contradiction_scale;
+  if (!(scale > 0.0 && scale < 1.0)) return std::nullopt;
+  std::optional<std::size_t> found;
+  double best_shape = 0.0;     // unscaled score of the best contradicted candidate
+  double best_unscaled = 0.0;  // score of the best candidate the print does not contradict
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    const Detection& d = candidates[i];
+    // NaN (no print evidence) is no contradiction, as in Verify.
+    const bool contradicted =
+        std::isfinite(d.appearance) && d.appearance < options.verify.min_appearance_correlation;
+    if (!contradicted) {
+      best_unscaled = std::max(best_unscaled, d.score);
+    } else if (d.score / scale > best_shape) {
+      best_shape = d.score / scale;
+      found = i;
+    }
+  }
+  if (!found || !(best_shape > best_unscaled)) return std::nullopt;
+  return found;
 }
 
 // An estimator's candidates, best first, each with the estimator's whole time since `start`.

@@ -216,6 +216,13 @@ struct PpfSearchOptions {
   /// edges and the free space beside it, which the score weighs, place it.
   double box_polish_step_m = 0.008;
   int box_polish_levels = 3;
+  /// Also polish the candidate whose shape fits best among those whose print contradicts
+  /// them, when its score before the contradiction's scaling beats every other candidate
+  /// (estimator_stages::ContradictedShapeFit): ICP slides a box along its face, and a pose
+  /// slid along the right item's face fits the shape but shows its print shifted, which halves
+  /// its score. The polish weighs the print (the verification score), so it slides the pose
+  /// back to where the print agrees, or leaves it contradicted.
+  bool box_polish_contradicted = true;
 };
 
 /// PPF voting, pose clustering and ICP (ppf_detector.h), then verification. Candidates are

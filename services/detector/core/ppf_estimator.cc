@@ -16,6 +16,7 @@ namespace picking::detector {
 using estimator_stages::BoxExtentOf;
 using estimator_stages::CheckInput;
 using estimator_stages::Clock;
+using estimator_stages::ContradictedShapeFit;
 using estimator_stages::Finish;
 using estimator_stages::SecondsSince;
 
@@ -246,6 +247,15 @@ void PpfEstimator::RefineBoxCandidates(const LoadedModel& model, const Estimator
   const auto best_turned = std::max_element(turned_begin, out.end(), by_score);
   std::vector<Detection> starts = {*best};
   if (best_turned != out.end() && best_turned != best) starts.push_back(*best_turned);
+  // And the best shape fit among the poses the print contradicts, when it fits better than
+  // any other: a box slid along the right item's face, which the polish may slide back.
+  if (search_.box_polish_contradicted) {
+    const std::optional<std::size_t> contradicted = ContradictedShapeFit(out, refine_);
+    if (contradicted && out.begin() + static_cast<std::ptrdiff_t>(*contradicted) != best &&
+        out.begin() + static_cast<std::ptrdiff_t>(*contradicted) != best_turned) {
+      starts.push_back(out[*contradicted]);
+    }
+  }
   for (std::size_t i = 0; i < starts.size(); ++i) {
     Clock::time_point deadline = Clock::time_point::max();
     if (input.budget_end != Clock::time_point::max()) {
