@@ -178,6 +178,32 @@ ServerProcess *TaskPickTest::simulator_ = nullptr, *TaskPickTest::robot_ = nullp
               *TaskPickTest::detector_ = nullptr, *TaskPickTest::planner_ = nullptr,
               *TaskPickTest::orchestrator_ = nullptr;
 
+// The moves that take `initial` to `final` (bins and tote): per item, each place it left
+// paired with a place it arrived at (an item moved aside into another bin is one of them).
+std::vector<apc::Event> MovesBetween(const apc::Task& initial, const apc::Task& final) {
+  std::map<std::string, std::map<std::string, int>> change;  // item -> place -> final - initial
+  auto count = [&](const apc::Task& task, int sign) {
+    for (const auto& [bin, items] : task.bin_contents) {
+      for (const std::string& item : items) change[item][bin] += sign;
+    }
+    for (const std::string& item : task.tote_contents) change[item]["tote"] += sign;
+  };
+  count(initial, -1);
+  count(final, +1);
+  std::vector<apc::Event> moves;
+  for (const auto& [item, places] : change) {
+    std::vector<std::string> from, to;
+    for (const auto& [place, n] : places) {
+      for (int k = 0; k < -n; ++k) from.push_back(place);
+      for (int k = 0; k < n; ++k) to.push_back(place);
+    }
+    for (std::size_t k = 0; k < std::min(from.size(), to.size()); ++k) {
+      moves.push_back(apc::MoveEvent(item, from[k], to[k]));
+    }
+  }
+  return moves;
+}
+
 // Loads pick_layout_1 into the simulator (seed 7); returns the task file's text.
 std::string LoadLayout1(ServerProcess& simulator) {
   const std::string task_json =
@@ -257,14 +283,7 @@ TEST_F(TaskPickTest, PickLayout1EndToEndTheOutputFileMatchesTheSimulatorsTruth) 
   // The score the orchestrator reports is the rules' score of what is really in the tote.
   apc::ScoringInput input;
   input.initial = apc::ParseTask(task_json, catalogue, "task");
-  for (const std::string& item : true_contents.tote_contents) {
-    for (const auto& [bin, items] : input.initial.bin_contents) {
-      if (std::count(items.begin(), items.end(), item) > 0) {
-        input.events.push_back(apc::MoveEvent(item, bin, "tote"));
-        break;
-      }
-    }
-  }
+  input.events = MovesBetween(input.initial, true_contents);
   input.reported = reported;
   input.true_final = true_contents;
   for (auto& [bin, items] : input.true_final.bin_contents) std::sort(items.begin(), items.end());

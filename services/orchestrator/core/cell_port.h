@@ -91,6 +91,10 @@ struct PlannedPick {
   double contact_distance_m = 0.0;
   /// Unit direction of the guarded move, base frame (zero: unknown).
   Eigen::Vector3d guarded_direction_Base = Eigen::Vector3d::Zero();
+  /// Without a plan: what stops it is the scan (another item: over the target, beside it,
+  /// in the gripper's way), or no grasp has room behind it. Moving another item aside may
+  /// make the pick possible.
+  bool others_in_the_way = false;
 };
 
 struct TouchOutcome {

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <set>
 #include <thread>
 
 namespace picking::orchestrator {
@@ -72,7 +73,9 @@ PickTaskRunner::PickTaskRunner(apc::Task task, std::vector<Target> order,
       cancel_(cancel) {}
 
 std::string PickTaskRunner::Key(const Target& target, const std::string& action) const {
-  const std::string kind = task_.kind == apc::TaskKind::kStow ? "stow/" : "pick/";
+  const std::string kind = target.making_room                   ? "room/"
+                           : task_.kind == apc::TaskKind::kStow ? "stow/"
+                                                                : "pick/";
   const std::string copy = target.copy == 0 ? "" : "#" + std::to_string(target.copy);
   return kind + target.bin + "/" + target.item + copy + "/" + std::to_string(target.attempts) +
          "/" + action;
@@ -298,7 +301,33 @@ int PickTaskRunner::PlacedIn(const std::string& container) const {
   return placed;
 }
 
+std::vector<std::string> PickTaskRunner::RoomBins(const std::string& item,
+                                                  const std::string& from) const {
+  std::vector<std::string> bins;
+  for (const std::string& bin : StowBins(item, task_, contents_, catalogue_, options_.bin_volume_m3,
+                                         options_.max_bin_fill)) {
+    const bool target_left = std::any_of(order_.begin(), order_.end(), [&](const Target& t) {
+      return t.bin == bin && !t.done && !t.given_up;
+    });
+    if (bin != from && !target_left) bins.push_back(bin);
+  }
+  // Roomiest first (StowBins puts a stow's points first, which mean nothing here).
+  auto free_m3 = [&](const std::string& bin) {
+    double used = 0.0;
+    const auto held = contents_.bin_contents.find(bin);
+    if (held != contents_.bin_contents.end()) {
+      for (const std::string& other : held->second) used += catalogue_.at(other).volume_cm3;
+    }
+    return options_.bin_volume_m3.at(bin) - 1e-6 * used;
+  };
+  std::stable_sort(bins.begin(), bins.end(), [&](const std::string& a, const std::string& b) {
+    return free_m3(a) > free_m3(b);
+  });
+  return bins;
+}
+
 std::vector<std::string> PickTaskRunner::Destinations(const Target& target) const {
+  if (target.making_room) return RoomBins(target.item, target.bin);
   if (task_.kind != apc::TaskKind::kStow) return {apc::kToteLocation};
   return StowBins(target.item, task_, contents_, catalogue_, options_.bin_volume_m3,
                   options_.max_bin_fill);
@@ -377,7 +406,7 @@ void PickTaskRunner::RecordPlaced(const Target& target, const std::string& to,
   }
   events_.push_back(apc::MoveEvent(target.item, target.bin, to));
   if (drop_height_m > 0.0) events_.push_back(apc::DropEvent(target.item, drop_height_m));
-  ++done_;
+  if (!target.making_room) ++done_;
 }
 
 void PickTaskRunner::RecordLost(Target& target, const std::string& reason) {
@@ -403,6 +432,7 @@ void PickTaskRunner::ResumeFromJournal() {
     if (!r.key.empty()) actions[{r.type, r.key}] = &r;
   }
   auto has = [&](const char* type, const std::string& key) { return actions.count({type, key}); };
+  ResumeRoomMoves(records, has);
   for (Target& target : order_) {
     for (int attempt = 1; attempt <= options_.max_attempts + 1; ++attempt) {
       target.attempts = attempt;
@@ -436,6 +466,57 @@ void PickTaskRunner::ResumeFromJournal() {
   }
 }
 
+namespace {
+
+// The item moved aside that a "room/<bin>/<item>/<n>/<action>" journal key names: the key
+// without its action, and the mover (nullopt for another key).
+std::optional<std::pair<std::string, Target>> RoomMoveOf(const std::string& key) {
+  if (key.rfind("room/", 0) != 0) return std::nullopt;
+  std::vector<std::string> parts;
+  std::size_t from = 0;
+  for (std::size_t at = key.find('/'); at != std::string::npos; at = key.find('/', from)) {
+    parts.push_back(key.substr(from, at - from));
+    from = at + 1;
+  }
+  parts.push_back(key.substr(from));
+  if (parts.size() != 5) return std::nullopt;
+  Target mover{parts[2], parts[1], 0, 0.0};
+  if (const std::size_t hash = mover.item.find('#'); hash != std::string::npos) {
+    mover.copy = std::stoi(mover.item.substr(hash + 1));
+    mover.item.resize(hash);
+  }
+  mover.making_room = true;
+  mover.attempts = std::stoi(parts[3]);
+  return std::make_pair(key.substr(0, key.size() - parts[4].size()), mover);
+}
+
+}  // namespace
+
+// Items moved aside before the restart are where they went (or lost); one still on the cup
+// is finished by FinishCarriedItem. Their numbering continues.
+template <typename Has>
+void PickTaskRunner::ResumeRoomMoves(const std::vector<JournalRecord>& records, const Has& has) {
+  std::set<std::string> seen;
+  for (const JournalRecord& r : records) {
+    const auto move = RoomMoveOf(r.key);
+    if (!move || !seen.insert(move->first).second) continue;
+    Target mover = move->second;
+    room_moves_ = std::max(room_moves_, mover.attempts);
+    const std::string place = Key(mover, "place");
+    for (const JournalRecord& q : records) {
+      if (q.key != place) continue;
+      if (q.type == "done") {
+        RecordPlaced(mover, q.data.value("to", std::string()), q.data.value("drop_height_m", 0.0));
+      }
+      if (q.type == "lost") RecordLost(mover, q.data.value("reason", std::string("let go")));
+    }
+    const bool ended = has("done", place) || has("lost", place) || has("failed", place);
+    if (!ended && has("begin", Key(mover, "grasp")) && !has("failed", Key(mover, "grasp"))) {
+      carried_room_ = mover;
+    }
+  }
+}
+
 // At resume an item of an interrupted stow attempt may lie on the table: it is told apart
 // and stowed (or put back) as that attempt would have.
 void PickTaskRunner::FinishItemOnTable() {
@@ -453,31 +534,42 @@ void PickTaskRunner::FinishItemOnTable() {
 // At resume the gripper may still hold the item of an interrupted attempt: carry it on to the
 // tote if the vacuum still holds it, else it fell back (the attempt counts as failed).
 void PickTaskRunner::FinishCarriedItem() {
+  if (carried_room_) {
+    Target mover = *carried_room_;
+    carried_room_.reset();
+    FinishCarried(mover);
+  }
   if (carried_key_.empty()) return;
   for (Target& target : order_) {
-    if (target.done || Key(target, "") != carried_key_) continue;
-    const SealReading seal = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
-    if (!seal.attached) {
-      journal_.Append("failed", Key(target, "grasp"), clock_s_,
-                      {{"reason", "not held after the restart"}});
+    if (!target.done && Key(target, "") == carried_key_) {
+      FinishCarried(target);
       return;
     }
-    journal_.Append("begin", Key(target, "place"), clock_s_);
-    for (const std::string& to : Destinations(target)) {
-      const PlaceOutcome placed = WithRetries(
-          "place", [&] { return cell_.MoveToPlace(target.item, to, {}, PlacedIn(to)); });
-      clock_s_ += placed.robot_s;
-      if (!placed.ok) continue;
-      cell_.VacuumOff();
-      journal_.Append("done", Key(target, "place"), clock_s_,
-                      {{"drop_height_m", placed.drop_height_m}, {"to", to}});
-      target.done = true;
-      RecordPlaced(target, to, placed.drop_height_m);
-      Emit(&target, Step::kPlace, true, "placed in " + to + " after the restart", to);
-      return;
-    }
-    cell_.VacuumOff();  // nowhere to go: let go where the arm is; the item counts as lost
   }
+}
+
+void PickTaskRunner::FinishCarried(Target& target) {
+  const SealReading seal = WithRetries("gripper", [&] { return cell_.ReadSeal(); });
+  if (!seal.attached) {
+    journal_.Append("failed", Key(target, "grasp"), clock_s_,
+                    {{"reason", "not held after the restart"}});
+    return;
+  }
+  journal_.Append("begin", Key(target, "place"), clock_s_);
+  for (const std::string& to : Destinations(target)) {
+    const PlaceOutcome placed =
+        WithRetries("place", [&] { return cell_.MoveToPlace(target.item, to, {}, PlacedIn(to)); });
+    clock_s_ += placed.robot_s;
+    if (!placed.ok) continue;
+    cell_.VacuumOff();
+    journal_.Append("done", Key(target, "place"), clock_s_,
+                    {{"drop_height_m", placed.drop_height_m}, {"to", to}});
+    target.done = true;
+    RecordPlaced(target, to, placed.drop_height_m);
+    Emit(&target, Step::kPlace, true, "placed in " + to + " after the restart", to);
+    return;
+  }
+  cell_.VacuumOff();  // nowhere to go: let go where the arm is; the item counts as lost
 }
 
 bool PickTaskRunner::ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views) {
@@ -1004,6 +1096,28 @@ std::string PickTaskRunner::FinishLookBack(Target& target, TargetReport& report,
 
 PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& report,
                                                   Target* next, TargetReport* next_report) {
+  InTheWay in_the_way;
+  Attempt attempt = AttemptTarget(target, report, next, next_report, &in_the_way);
+  // Another item in the way: moved aside, and the target tried again at once (the bin has
+  // changed; the views are taken again).
+  while (attempt == Attempt::kFailed && !in_the_way.items.empty() && options_.make_room &&
+         task_.kind == apc::TaskKind::kPick && target.room_moves < options_.max_room_moves &&
+         !cancel_.load() && TimeLeft() >= 2.0 * options_.min_time_per_item_s) {
+    const std::string failure = target.last_failure;
+    if (!MakeRoom(target, report, in_the_way)) {
+      target.last_failure = failure;
+      break;
+    }
+    ++target.room_moves;
+    in_the_way = {};
+    attempt = AttemptTarget(target, report, nullptr, nullptr, &in_the_way, /*again=*/true);
+  }
+  return attempt;
+}
+
+PickTaskRunner::Attempt PickTaskRunner::AttemptTarget(Target& target, TargetReport& report,
+                                                      Target* next, TargetReport* next_report,
+                                                      InTheWay* in_the_way, bool again) {
   ++target.attempts;
   report.attempts = target.attempts;
   rivals_.clear();
@@ -1015,7 +1129,9 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
     detection = std::move(ahead_->detection);
     ahead_.reset();
   } else {
-    ahead_.reset();  // views of another target, not taken up: its own attempt scans again
+    // Views of another target not taken up: its own attempt scans again; but views taken
+    // ahead for the next target stay while this one is tried again after making room.
+    if (!again) ahead_.reset();
     if (!ScanViews(target, report, views)) return Attempt::kFailed;
     detection = StartDetect(target, views);
   }
@@ -1032,6 +1148,10 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
   AddTime(report, "plan", Seconds(start));
   if (!plan.ok) {
     target.last_failure = "no plan: " + plan.message;
+    if (plan.others_in_the_way) {
+      in_the_way->items = NearestOthers(report);
+      in_the_way->views = views;
+    }
     return Attempt::kFailed;
   }
   report.grasp = plan.grasp;
@@ -1040,6 +1160,82 @@ PickTaskRunner::Attempt PickTaskRunner::TryTarget(Target& target, TargetReport& 
   scene.head_angle_rad = plan.head_angle_rad;
   Emit(&target, Step::kPlan, true, "planned grasp '" + plan.grasp + "'", "", std::move(scene));
   return GraspAndPlace(target, report, plan, views);
+}
+
+namespace {
+
+// The best pose `item` was found at in the target's last detection, or null.
+const PoseHypothesis* BestPoseOf(const TargetReport& report, const std::string& item) {
+  for (const auto& [name, pose] : report.poses_found) {
+    if (name == item) return &pose;  // best first per item
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+std::vector<std::string> PickTaskRunner::NearestOthers(const TargetReport& report) const {
+  // The other items found, nearest to where the target was found first: the one over it or
+  // beside it is most likely what the planner met. One found in the target's own place is
+  // left: the place holds one of the two, and it may be the target.
+  auto size = [&](const std::string& name) {
+    const apc::Item& it = catalogue_.at(name);
+    return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
+  };
+  std::vector<std::pair<double, std::string>> by_distance;
+  for (const auto& [item, pose] : report.poses_found) {
+    if (item == report.item || BestPoseOf(report, item) != &pose) continue;
+    if (BoxOverlapFraction(pose.X_BaseItem, size(item), report.X_BaseItem_detected,
+                           size(report.item)) > options_.room_max_overlap) {
+      continue;
+    }
+    by_distance.emplace_back(
+        (pose.X_BaseItem.translation() - report.X_BaseItem_detected.translation()).norm(), item);
+  }
+  std::sort(by_distance.begin(), by_distance.end());
+  std::vector<std::string> items;
+  for (const auto& [distance, item] : by_distance) items.push_back(item);
+  return items;
+}
+
+bool PickTaskRunner::MakeRoom(Target& target, TargetReport& report, const InTheWay& in_the_way) {
+  for (const std::string& item : in_the_way.items) {
+    const PoseHypothesis* pose = BestPoseOf(report, item);
+    // A target itself is taken in its own turn; an item nowhere to go stays.
+    if (pose == nullptr || TargetFor(item, target.bin) != nullptr) continue;
+    if (RoomBins(item, target.bin).empty()) continue;
+    Target mover{item, target.bin, 0, 0.0};
+    mover.making_room = true;
+    mover.attempts = ++room_moves_;
+    Emit(&target, Step::kPlan, true, "making room: planning to move " + item + " aside");
+    journal_.Append("begin", Key(mover, "scan"), clock_s_, {{"for", target.item}});
+    TargetReport moved;  // its steps' times go to the target's report as "room"
+    moved.item = item;
+    moved.bin = target.bin;
+    moved.X_BaseItem_detected = pose->X_BaseItem;
+    const auto start = Clock::now();
+    const PlannedPick plan = WithRetries("plan", [&] {
+      return cell_.PlanPick(target.bin, item, pose->X_BaseItem, in_the_way.views);
+    });
+    AddTime(moved, "plan", Seconds(start));
+    Attempt attempt = Attempt::kFailed;
+    if (plan.ok) attempt = GraspAndPlace(mover, moved, plan, in_the_way.views);
+    double seconds = 0.0;
+    for (const auto& [step, s] : moved.step_times_s) seconds += s;
+    report.step_times_s.emplace_back("room", seconds);
+    if (attempt == Attempt::kPicked) {
+      Emit(&target, Step::kPlace, true, "made room: " + item + " moved to " + moved.placed_in);
+      return true;
+    }
+    const std::string why = plan.ok ? mover.last_failure : "no plan: " + plan.message;
+    if (attempt == Attempt::kLostCarried) {
+      journal_.Append("lost", Key(mover, "place"), clock_s_, {{"reason", why}});
+      RecordLost(mover, why);
+    }
+    Emit(&target, Step::kNone, false, "could not move " + item + " aside: " + why);
+    return false;  // one try per failure: the time is the target's
+  }
+  return false;
 }
 
 PickTaskResult PickTaskRunner::Run() {

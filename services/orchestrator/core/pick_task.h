@@ -125,6 +125,18 @@ struct PickTaskOptions {
   TableCheck pick_table_check = TableCheck::kNever;
   std::string verify_pose = "verify";
   double table_identity_margin = 0.05;
+  /// Pick: a target the planner cannot take because another item of its bin is in the way
+  /// (over or beside it: PlannedPick::others_in_the_way) has that item moved into another
+  /// bin first, and is tried again at once: up to `max_room_moves` items per target. The
+  /// item moved is the one found nearest the target, among those whose box shares at most
+  /// `room_max_overlap` of the smaller box with the target's as found (one found in the
+  /// target's place may be the target itself); only into bins where no target is left (they
+  /// cannot bury one), with room for it (max_bin_fill). The look back checks that the cup
+  /// holds it. The output file reports it where it went (the rules do not count moves
+  /// between bins against a task).
+  bool make_room = true;
+  int max_room_moves = 1;
+  double room_max_overlap = 0.05;
 };
 
 /// What happened to one target.
@@ -189,8 +201,28 @@ class PickTaskRunner final {
     std::vector<ScanView> views;
     PendingDetection detection;
   };
-  /// One attempt at `target`; `next` (may be null) is the target to take views of ahead.
+  /// Why an attempt failed when another item of the bin stands in the target's way: the
+  /// items that may be moved aside, best first, and the views they were found in.
+  struct InTheWay {
+    std::vector<std::string> items;
+    std::vector<ScanView> views;
+  };
+  /// One attempt at `target` (and, when others stand in its way, room made and another
+  /// attempt); `next` (may be null) is the target to take views of ahead.
   Attempt TryTarget(Target& target, TargetReport& report, Target* next, TargetReport* next_report);
+  /// One attempt: scan (or the views taken ahead), detect, plan, grasp, place. On failure,
+  /// `in_the_way` names the items that stood in the way, if that is why. `again`: the same
+  /// target right after making room (views taken ahead for the next one are kept).
+  Attempt AttemptTarget(Target& target, TargetReport& report, Target* next,
+                        TargetReport* next_report, InTheWay* in_the_way, bool again = false);
+  /// Moves the first of `in_the_way.items` that can be planned for and placed into a bin
+  /// without targets left (RoomBins); true once one is there. Its time counts to `report`.
+  bool MakeRoom(Target& target, TargetReport& report, const InTheWay& in_the_way);
+  /// The other items of the target's last detection, nearest to the target first.
+  std::vector<std::string> NearestOthers(const TargetReport& report) const;
+  /// The bins an item moved aside from `from` may go to, roomiest first: none holding a target
+  /// not yet done.
+  std::vector<std::string> RoomBins(const std::string& item, const std::string& from) const;
   /// The views of the target's container, one per scan pose; false (with the reason in
   /// target.last_failure) when the arm cannot reach one.
   bool ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views);
@@ -252,7 +284,11 @@ class PickTaskRunner final {
   // Why the touch met something other than the target's surface ("" when it may be it).
   std::string EarlyContact(const PlannedPick& plan, const TouchOutcome& touched) const;
   void ResumeFromJournal();
+  template <typename Has>
+  void ResumeRoomMoves(const std::vector<JournalRecord>& records, const Has& has);
   void FinishCarriedItem();
+  /// At resume: `target`'s item, if the cup still holds it, carried on to its destination.
+  void FinishCarried(Target& target);
   void FinishItemOnTable();
   void RecordPlaced(const Target& target, const std::string& to, double drop_height_m);
   /// A carried item let go on the way (the arm stopped, the seal gave, a put-back failed):
@@ -292,6 +328,9 @@ class PickTaskRunner final {
   std::string carried_key_;  ///< Journal key prefix of an attempt holding an item at resume.
   std::string table_key_;    ///< ... of an attempt whose item lies on the table at resume.
   std::vector<std::string> table_candidates_;  ///< What that item may be.
+  int room_moves_ = 0;  ///< Items moved aside so far (numbers their journal keys).
+  /// An item being moved aside that the cup may still hold at resume.
+  std::optional<Target> carried_room_;
   std::optional<Ahead> ahead_;
   /// This attempt's target in doubt (table_check, pick_table_check): the items its place may hold
   /// instead, empty when it is not in doubt.

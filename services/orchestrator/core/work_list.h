@@ -44,6 +44,10 @@ struct Target {
   bool done = false;
   bool given_up = false;
   std::string last_failure;  ///< Why the last attempt failed.
+  /// Not a target: another item of a target's bin, moved into another bin to make room for
+  /// the target (PickTaskOptions::make_room). Its journal keys are "room/...".
+  bool making_room = false;
+  int room_moves = 0;  ///< Items moved aside for this target so far.
 };
 
 /// The targets in the order to attempt them: a pick task's work order, or every item of a

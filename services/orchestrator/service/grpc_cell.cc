@@ -81,6 +81,23 @@ const char* StageName(pl::PlanFailureStage stage) {
 }
 
 // The planner's typed failure from the status details, else the status message.
+// Whether the planner's first (most advanced) failure is another item's doing: the scan is
+// what it hits, or no grasp has room behind it (the rest of the scan over it).
+bool OthersInTheWay(const grpc::Status& status) {
+  google::rpc::Status details;
+  if (status.error_details().empty() || !details.ParseFromString(status.error_details())) {
+    return false;
+  }
+  for (const auto& any : details.details()) {
+    pl::PlanFailure failure;
+    if (!any.UnpackTo(&failure)) continue;
+    return failure.obstacle() == "scan" ||
+           (failure.kind() == pl::PLAN_FAILURE_KIND_NO_GRASP &&
+            failure.message().find("free behind") != std::string::npos);
+  }
+  return false;
+}
+
 std::string PlanFailureMessage(const grpc::Status& status) {
   google::rpc::Status details;
   if (!status.error_details().empty() && details.ParseFromString(status.error_details())) {
@@ -412,6 +429,7 @@ PlannedPick GrpcCell::PlanPick(const std::string& container, const std::string& 
   PlannedPick out;
   if (status.error_code() == grpc::StatusCode::ABORTED) {
     out.message = PlanFailureMessage(status);
+    out.others_in_the_way = OthersInTheWay(status);
     return out;
   }
   ThrowIfFailed("planner", "PlanPick", status);

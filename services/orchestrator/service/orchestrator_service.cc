@@ -324,8 +324,14 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   options.pick.detect_ahead = config.GetBool("detect_ahead", options.pick.detect_ahead);
   options.pick.table_check = TableCheckSetting(config, "stow.table");
   options.pick.pick_table_check = TableCheckSetting(config, "pick.table");
+  options.pick.make_room = config.GetBool("pick.make_room", options.pick.make_room);
+  options.pick.max_room_moves =
+      static_cast<int>(config.GetInt("pick.max_room_moves", options.pick.max_room_moves));
   if (options.pick.time_limit_s <= 0.0 || options.pick.max_attempts < 1) {
     throw std::invalid_argument("time_limit_s must be > 0 and max_attempts >= 1");
+  }
+  if (options.pick.max_room_moves < 0 || options.pick.max_room_moves > 12) {
+    throw std::invalid_argument("setting 'pick.max_room_moves': must be in [0, 12]");
   }
   GrpcCellOptions cell;
   const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));

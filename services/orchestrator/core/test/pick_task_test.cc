@@ -35,6 +35,10 @@ struct Script {
   bool replan_other_grasp = false;  // a second plan of the pick grasps another surface
   bool touch_refused = false;       // the robot refuses the guarded move
   std::string confused_with;        // the first detection finds this item at the same place
+  std::string found_beside;         // every detection finds this item beside it:
+  double beside_m = 0.3;            // ... this far along y,
+  double beside_score = 0.9;        // ... with this score
+  bool in_the_way_once = false;     // the first plan fails: another item in the way
 };
 
 class ScriptedCell final : public CellPort {
@@ -66,10 +70,15 @@ class ScriptedCell final : public CellPort {
   }
   std::vector<std::string> calls;  // "move <pose>", "detect <item>", "plan <item>", in order
   std::set<std::string> crash_at;  // a move to one of these poses fails the task (once)
+  std::map<std::string, int> crash_at_visit;  // ... at the n-th move to the pose
+  std::map<std::string, int> visits;
   StepOutcome MoveToNamed(const std::string& pose) override {
     std::lock_guard<std::mutex> lock(mu);
     calls.push_back("move " + pose);
     if (crash_at.erase(pose)) throw CellError("robot", false, "the orchestrator's host died");
+    if (crash_at_visit.count(pose) && ++visits[pose] == crash_at_visit[pose]) {
+      throw CellError("robot", false, "the orchestrator's host died");
+    }
     return {true, "", 2.0};
   }
   ScanView Scan() override {
@@ -98,6 +107,13 @@ class ScriptedCell final : public CellPort {
     if (!scripts[item].confused_with.empty()) {  // the other item found where this one is
       d.others.push_back({scripts[item].confused_with, {{Eigen::Isometry3d::Identity(), 0.95}}});
       scripts[item].confused_with.clear();  // the next attempt tells them apart
+    }
+    const std::string& beside = scripts[item].found_beside;
+    if (!beside.empty() && std::count(others.begin(), others.end(), beside)) {
+      const Script& script = scripts[item];
+      d.others.push_back({beside,
+                          {{Eigen::Isometry3d(Eigen::Translation3d(0.0, script.beside_m, 0.0)),
+                            script.beside_score}}});
     }
     if (views.size() == 1) {  // the look back after the lift
       d.found = held && scripts[item].wrong_item_held;
@@ -134,6 +150,12 @@ class ScriptedCell final : public CellPort {
     PlannedPick p;
     p.ok = scripts[item].plannable;
     p.message = p.ok ? "" : "descend: gripper hits shelf";
+    if (scripts[item].in_the_way_once) {
+      scripts[item].in_the_way_once = false;
+      p.ok = false;
+      p.others_in_the_way = true;
+      p.message = "retreat: lifting the item: its box meets the scan";
+    }
     p.grasp = scripts[item].replan_other_grasp && !planned_at[item].empty() ? "+z face" : "+x face";
     planned_at[item].push_back(X_BaseItem);
     p.handle = ++plans;
@@ -840,6 +862,106 @@ TEST_F(PickTaskTest, AResumeWithTheItemStillOnTheCupCarriesItToTheTote) {
   EXPECT_EQ(cell.vacuum_ons["kleenex_tissue_box"], 0);  // not grasped again
   EXPECT_EQ(result.items_moved, 3);
   EXPECT_GE(result.duration_s, 22.0);
+}
+
+// bin_D (no target) has room; the soap is found 30 cm beside the tissue box.
+TEST_F(PickTaskTest, AnItemThePlannerMeetsIsMovedAsideAndTheTargetPickedAtOnce) {
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}, {"bin_D", 0.012}};
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].found_beside = "dove_beauty_bar";
+  cell.scripts["kleenex_tissue_box"].in_the_way_once = true;
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  // The soap went into bin_D (not bin_B: its target was still there), then the target was
+  // scanned again and picked in the same turn.
+  EXPECT_EQ(cell.destinations.front(), "bin_D");
+  EXPECT_EQ(cell.placed.front(), "dove_beauty_bar");
+  EXPECT_EQ(cell.touches["kleenex_tissue_box"], 1);
+  EXPECT_TRUE(result.targets[0].picked);
+  EXPECT_EQ(result.targets[0].attempts, 2);
+  EXPECT_EQ(result.items_moved, 3);  // the soap is not a target
+  EXPECT_TRUE(result.final_contents.bin_contents.at("bin_A").empty());
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_D"),
+            std::vector<std::string>{"dove_beauty_bar"});
+  // Planned for where the detection found it.
+  ASSERT_EQ(cell.planned_at["dove_beauty_bar"].size(), 1u);
+  EXPECT_TRUE(cell.planned_at["dove_beauty_bar"][0].isApprox(
+      Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.3, 0.0))));
+  bool room = false;
+  for (const auto& [step, seconds] : result.targets[0].step_times_s) room |= step == "room";
+  EXPECT_TRUE(room);
+  bool said = false;
+  for (const TaskEvent& e : events) said |= e.message.find("made room") != std::string::npos;
+  EXPECT_TRUE(said);
+  // No points lost: moving an item between bins is no penalty when it is reported there.
+  for (const auto& line : result.score.lines) EXPECT_GE(line.points, 0) << line.reason;
+}
+
+TEST_F(PickTaskTest, AnItemFoundInTheTargetsOwnPlaceIsNotMovedAside) {
+  // It may be the target itself: moved into another bin, the target would be lost to the
+  // task (and the output file wrong).
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_D", 0.012}};
+  ScriptedCell cell;
+  Script& box = cell.scripts["kleenex_tissue_box"];
+  box.found_beside = "dove_beauty_bar";
+  box.beside_m = 0.0;      // in the target's place,
+  box.beside_score = 0.5;  // too poorly for the target to be in doubt
+  box.in_the_way_once = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_TRUE(cell.planned_at["dove_beauty_bar"].empty());
+  EXPECT_EQ(result.targets[0].attempts, 2);  // its second attempt in the second round
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_A"),
+            std::vector<std::string>{"dove_beauty_bar"});
+}
+
+TEST_F(PickTaskTest, NothingIsMovedAsideWhereNoBinWithoutATargetHasRoom) {
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_B", 0.012}, {"bin_C", 0.012}};
+  ScriptedCell cell;
+  cell.scripts["kleenex_tissue_box"].found_beside = "dove_beauty_bar";
+  cell.scripts["kleenex_tissue_box"].in_the_way_once = true;
+  const PickTaskResult result = Run(cell);
+  EXPECT_TRUE(cell.planned_at["dove_beauty_bar"].empty());
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_A").size(), 1u);  // the soap stays
+  EXPECT_TRUE(result.targets[0].picked);  // at its second attempt, after the others
+  EXPECT_EQ(result.targets[0].attempts, 2);
+}
+
+TEST_F(PickTaskTest, AnItemMovedAsideBeforeARestartStaysWhereItWentAndIsNotMovedAgain) {
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_D", 0.012}};
+  ScriptedCell first;
+  first.scripts["kleenex_tissue_box"].found_beside = "dove_beauty_bar";
+  first.scripts["kleenex_tissue_box"].in_the_way_once = true;
+  first.crash_at_visit["scan/bin_A/0"] = 2;  // the host dies as the target is scanned again
+  EXPECT_EQ(Run(first).state, TaskState::kFailed);
+  EXPECT_EQ(first.placed, std::vector<std::string>{"dove_beauty_bar"});
+  options_.max_attempts = 3;  // the attempt the crash cut short counts as one
+  ScriptedCell second;
+  const PickTaskResult result = Run(second);
+  EXPECT_TRUE(second.planned_at["dove_beauty_bar"].empty());  // not moved twice
+  // The resumed run knows the soap is in bin_D: bin_A's detection no longer looks for it.
+  EXPECT_TRUE(second.others_asked["kleenex_tissue_box"].empty());
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_D"),
+            std::vector<std::string>{"dove_beauty_bar"});
+  EXPECT_EQ(result.items_moved, 3);
+}
+
+TEST_F(PickTaskTest, AResumeWithAnItemBeingMovedAsideOnTheCupCarriesItOn) {
+  options_.bin_volume_m3 = {{"bin_A", 0.012}, {"bin_D", 0.012}};
+  {
+    Journal journal((dir_ / "journal.jsonl").string());
+    journal.Append("begin", "pick/bin_A/kleenex_tissue_box/1/scan", 1.0);
+    journal.Append("begin", "room/bin_A/dove_beauty_bar/1/scan", 10.0);
+    journal.Append("begin", "room/bin_A/dove_beauty_bar/1/grasp", 20.0);
+    journal.Append("done", "room/bin_A/dove_beauty_bar/1/grasp", 22.0);
+  }
+  ScriptedCell cell;
+  cell.held = true, cell.current = "dove_beauty_bar";  // still sealed after the crash
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(cell.destinations.front(), "bin_D");
+  EXPECT_EQ(cell.placed.front(), "dove_beauty_bar");
+  EXPECT_EQ(result.final_contents.bin_contents.at("bin_D"),
+            std::vector<std::string>{"dove_beauty_bar"});
+  EXPECT_EQ(result.items_moved, 3);
 }
 
 }  // namespace
