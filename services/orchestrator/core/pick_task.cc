@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -1052,24 +1053,35 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
     pending.verdict = std::async(
         std::launch::async,
         [this, bin = target.bin, item = target.item, plan, view, p_found]() -> LookBackVerdict {
+          // The two questions are judged apart: a view that shows nothing of the bin (the
+          // held item fills the wrist camera's view from the retreat's end) cannot say where
+          // the target is, but may still show what the cup holds.
+          auto verify = std::async(std::launch::async, [&]() -> std::optional<double> {
+            try {
+              return cell_.VerifyHeld(item, plan, view);
+            } catch (const CellError&) {
+              return std::nullopt;
+            }
+          });
+          std::string detect_error;
+          Detection seen;
           try {
-            auto verify =
-                std::async(std::launch::async, [&] { return cell_.VerifyHeld(item, plan, view); });
-            const Detection seen = cell_.Detect(bin, item, {view}, {});
-            const double score = verify.get();
-            if (seen.found &&
-                (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
-              return {"the target is still where it was found; the cup holds another item", ""};
-            }
-            if (score >= 0.0 && score < options_.verify_min_score) {
-              return {"the held item does not look like " + item + " (verify score " +
-                          std::to_string(score) + ")",
-                      ""};
-            }
-            return {};
+            seen = cell_.Detect(bin, item, {view}, {});
           } catch (const CellError& e) {
-            return {"", e.what()};
+            detect_error = e.what();
           }
+          const std::optional<double> score = verify.get();
+          if (detect_error.empty() && seen.found &&
+              (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
+            return {"the target is still where it was found; the cup holds another item", ""};
+          }
+          if (score && *score >= 0.0 && *score < options_.verify_min_score) {
+            return {"the held item does not look like " + item + " (verify score " +
+                        std::to_string(*score) + ")",
+                    ""};
+          }
+          if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
+          return {};
         });
   } catch (const CellError& e) {
     Emit(&target, Step::kVerify, true, std::string("look back inconclusive: ") + e.what());

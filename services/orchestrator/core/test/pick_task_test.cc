@@ -51,6 +51,7 @@ class ScriptedCell final : public CellPort {
   std::vector<int> placed_before_each;    // ... and how many items it held from this task
   std::set<std::string> refused_destinations;  // no place can be planned there
   bool held_looks_wrong = false;               // Verify of the held item scores low (once)
+  bool look_back_sees_no_bin = false;  // the look back's Detect refuses its view (no bin in it)
   std::map<std::string, int> vacuum_ons;
   std::map<std::string, int> touches;
   std::map<std::string, std::vector<std::string>> others_asked;  // per target, last Detect
@@ -114,6 +115,9 @@ class ScriptedCell final : public CellPort {
       d.others.push_back({beside,
                           {{Eigen::Isometry3d(Eigen::Translation3d(0.0, script.beside_m, 0.0)),
                             script.beside_score}}});
+    }
+    if (views.size() == 1 && look_back_sees_no_bin) {
+      throw CellError("detector", false, "point cloud has no finite point");
     }
     if (views.size() == 1) {  // the look back after the lift
       d.found = held && scripts[item].wrong_item_held;
@@ -787,6 +791,26 @@ TEST_F(PickTaskTest, TheLookBackCatchesTheWrongItemOnTheCupAndPutsItBack) {
   EXPECT_EQ(result.targets[1].attempts, 2);
   const auto& tote = result.final_contents.tote_contents;
   EXPECT_EQ(std::count(tote.begin(), tote.end(), "rawlings_baseball"), 1);
+}
+
+TEST_F(PickTaskTest, AHeldItemIsJudgedByItsLooksWhenTheLookBackShowsNothingOfTheBin) {
+  ScriptedCell cell;
+  cell.look_back_sees_no_bin = true;
+  cell.held_looks_wrong = true;
+  const PickTaskResult wrong = Run(cell);
+  EXPECT_EQ(wrong.items_moved, 0);
+  EXPECT_NE(wrong.targets[0].failure.find("does not look like"), std::string::npos);
+  // A held item the view cannot show either (Verify: -1) is placed on the vacuum's reading,
+  // and the look back says it could not judge.
+  std::filesystem::remove_all(dir_);
+  std::filesystem::create_directories(dir_);
+  ScriptedCell blind;
+  blind.look_back_sees_no_bin = true;
+  std::vector<TaskEvent> events;
+  EXPECT_EQ(Run(blind, &events).items_moved, 3);
+  bool said = false;
+  for (const TaskEvent& e : events) said |= e.message.find("inconclusive") != std::string::npos;
+  EXPECT_TRUE(said);
 }
 
 TEST_F(PickTaskTest, AHeldItemThatDoesNotLookLikeTheTargetIsPutBack) {
