@@ -9,6 +9,7 @@
 #include "libs/world/cell_config.h"
 #include "libs/world/item_models.h"
 #include "services/scanner/core/calibration_io.h"
+#include "services/scanner/core/merge.h"
 #include "services/scanner/core/patterns.h"
 #include "services/scanner/core/scan_pipeline.h"
 #include "services/simulator/core/renderer.h"
@@ -90,11 +91,7 @@ void ScanWithRgbdCamera(const simulator::StructuredLightRenderer& renderer,
   const simulator::RgbdFrame frame =
       simulator::RenderRgbd(renderer, simulator::XtionDepthCamera(), scan->X_BaseCamera, rgbd);
   geometry::PointCloud cloud = simulator::ToOrganisedCloud(frame);
-  const Eigen::Isometry3f X = scan->X_BaseCamera.cast<float>();
-  for (auto& p : cloud.points) {
-    if (p.allFinite()) p = X * p;
-  }
-  cloud.frame_id = "base";
+  scanner::TransformCloud(scan->X_BaseCamera, "base", &cloud);
   scan->valid_fraction = static_cast<double>(frame.valid()) / static_cast<double>(frame.size());
   scan->cloud = std::move(cloud);
   scan->camera = frame.camera;
@@ -184,14 +181,7 @@ BinScan SimulatedBinScanner::Scan(const std::string& bin, const BinScanOptions& 
   scan_options.frame = scanner::ScanFrame::kCamera;
   geometry::PointCloud cloud =
       impl_->pipeline->ProcessView(images, scan_options, &scan.valid_fraction);
-  const Eigen::Isometry3f X = scan.X_BaseCamera.cast<float>();
-  for (auto& p : cloud.points) {
-    if (p.allFinite()) p = X * p;
-  }
-  for (auto& n : cloud.normals) {
-    if (n.allFinite()) n = X.linear() * n;
-  }
-  cloud.frame_id = "base";
+  scanner::TransformCloud(scan.X_BaseCamera, "base", &cloud);
   scan.cloud = std::move(cloud);
   scan.process_s = SecondsSince(process_start);
   scan.camera = calibration.camera;

@@ -82,6 +82,27 @@ std::string PickTaskRunner::Key(const Target& target, const std::string& action)
          "/" + action;
 }
 
+namespace {
+
+// Catalogue volume of what `contents` holds in `bin`, m^3.
+double HeldVolumeM3(const apc::Task& contents, const std::string& bin,
+                    const apc::Catalogue& catalogue) {
+  double held_m3 = 0.0;
+  const auto held = contents.bin_contents.find(bin);
+  if (held != contents.bin_contents.end()) {
+    for (const std::string& item : held->second) held_m3 += catalogue.at(item).volume_cm3 * 1e-6;
+  }
+  return held_m3;
+}
+
+// The catalogue's box of `item`: long, middle and short side, metres.
+Eigen::Vector3d CatalogueBoxM(const apc::Catalogue& catalogue, const std::string& item) {
+  const apc::Item& it = catalogue.at(item);
+  return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
+}
+
+}  // namespace
+
 std::vector<std::string> StowBins(const std::string& item, const apc::Task& initial,
                                   const apc::Task& contents, const apc::Catalogue& catalogue,
                                   const std::map<std::string, double>& bin_volume_m3,
@@ -94,12 +115,7 @@ std::vector<std::string> StowBins(const std::string& item, const apc::Task& init
   std::vector<Candidate> candidates;
   const double item_m3 = catalogue.at(item).volume_cm3 * 1e-6;
   for (const auto& [bin, volume_m3] : bin_volume_m3) {
-    double used_m3 = item_m3;
-    const auto held = contents.bin_contents.find(bin);
-    if (held != contents.bin_contents.end()) {
-      for (const std::string& other : held->second)
-        used_m3 += catalogue.at(other).volume_cm3 * 1e-6;
-    }
+    const double used_m3 = item_m3 + HeldVolumeM3(contents, bin, catalogue);
     if (used_m3 > max_fill * volume_m3) continue;
     const auto at_start = initial.bin_contents.find(bin);
     const std::size_t n = at_start == initial.bin_contents.end() ? 0 : at_start->second.size();
@@ -231,10 +247,7 @@ double BoxOverlapFraction(const Eigen::Isometry3d& X_BaseA, const Eigen::Vector3
 std::string ResolveAgainstOthers(const std::string& item, Detection* found,
                                  const apc::Catalogue& catalogue, double min_overlap, double margin,
                                  std::vector<std::string>* rivals) {
-  auto size = [&](const std::string& name) {
-    const apc::Item& it = catalogue.at(name);
-    return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
-  };
+  auto size = [&](const std::string& name) { return CatalogueBoxM(catalogue, name); };
   const Eigen::Vector3d size_item = size(item);
   // Why `pose` of the target is doubtful, or ""; the items that fill its place into `who`.
   auto doubt = [&](const PoseHypothesis& pose, std::vector<std::string>* who) -> std::string {
@@ -304,26 +317,22 @@ int PickTaskRunner::PlacedIn(const std::string& container) const {
 
 std::vector<std::string> PickTaskRunner::RoomBins(const std::string& item,
                                                   const std::string& from) const {
-  std::vector<std::string> bins;
+  // (free volume, bin), roomiest first: StowBins puts a stow's points first, which mean
+  // nothing here.
+  std::vector<std::pair<double, std::string>> by_room;
   for (const std::string& bin : StowBins(item, task_, contents_, catalogue_, options_.bin_volume_m3,
                                          options_.max_bin_fill)) {
     const bool target_left = std::any_of(order_.begin(), order_.end(), [&](const Target& t) {
       return t.bin == bin && !t.done && !t.given_up;
     });
-    if (bin != from && !target_left) bins.push_back(bin);
+    if (bin == from || target_left) continue;
+    by_room.emplace_back(options_.bin_volume_m3.at(bin) - HeldVolumeM3(contents_, bin, catalogue_),
+                         bin);
   }
-  // Roomiest first (StowBins puts a stow's points first, which mean nothing here).
-  auto free_m3 = [&](const std::string& bin) {
-    double used = 0.0;
-    const auto held = contents_.bin_contents.find(bin);
-    if (held != contents_.bin_contents.end()) {
-      for (const std::string& other : held->second) used += catalogue_.at(other).volume_cm3;
-    }
-    return options_.bin_volume_m3.at(bin) - 1e-6 * used;
-  };
-  std::stable_sort(bins.begin(), bins.end(), [&](const std::string& a, const std::string& b) {
-    return free_m3(a) > free_m3(b);
-  });
+  std::stable_sort(by_room.begin(), by_room.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<std::string> bins;
+  for (const auto& [free_m3, bin] : by_room) bins.push_back(bin);
   return bins;
 }
 
@@ -425,7 +434,7 @@ void PickTaskRunner::RecordLost(Target& target, const std::string& reason) {
 // attempt that grasped but never placed may still hold its item (FinishCarriedItem).
 void PickTaskRunner::ResumeFromJournal() {
   // The journal read once, its action records by (type, key).
-  std::map<std::pair<std::string, std::string>, const JournalRecord*> actions;
+  JournalActions actions;
   const std::vector<JournalRecord> records = journal_.Records();
   for (const JournalRecord& r : records) {
     clock_s_ = std::max(clock_s_, r.time_s);
@@ -433,7 +442,7 @@ void PickTaskRunner::ResumeFromJournal() {
     if (!r.key.empty()) actions[{r.type, r.key}] = &r;
   }
   auto has = [&](const char* type, const std::string& key) { return actions.count({type, key}); };
-  ResumeRoomMoves(records, has);
+  ResumeRoomMoves(records, actions);
   for (Target& target : order_) {
     for (int attempt = 1; attempt <= options_.max_attempts + 1; ++attempt) {
       target.attempts = attempt;
@@ -495,8 +504,13 @@ std::optional<std::pair<std::string, Target>> RoomMoveOf(const std::string& key)
 
 // Items moved aside before the restart are where they went (or lost); one still on the cup
 // is finished by FinishCarriedItem. Their numbering continues.
-template <typename Has>
-void PickTaskRunner::ResumeRoomMoves(const std::vector<JournalRecord>& records, const Has& has) {
+void PickTaskRunner::ResumeRoomMoves(const std::vector<JournalRecord>& records,
+                                     const JournalActions& actions) {
+  auto find = [&](const char* type, const std::string& key) -> const JournalRecord* {
+    const auto it = actions.find({type, key});
+    return it == actions.end() ? nullptr : it->second;
+  };
+  // In the journal's order: an item moved twice ends where the second move took it.
   std::set<std::string> seen;
   for (const JournalRecord& r : records) {
     const auto move = RoomMoveOf(r.key);
@@ -504,15 +518,15 @@ void PickTaskRunner::ResumeRoomMoves(const std::vector<JournalRecord>& records, 
     Target mover = move->second;
     room_moves_ = std::max(room_moves_, mover.attempts);
     const std::string place = Key(mover, "place");
-    for (const JournalRecord& q : records) {
-      if (q.key != place) continue;
-      if (q.type == "done") {
-        RecordPlaced(mover, q.data.value("to", std::string()), q.data.value("drop_height_m", 0.0));
-      }
-      if (q.type == "lost") RecordLost(mover, q.data.value("reason", std::string("let go")));
+    if (const JournalRecord* done = find("done", place)) {
+      RecordPlaced(mover, done->data.value("to", std::string()),
+                   done->data.value("drop_height_m", 0.0));
     }
-    const bool ended = has("done", place) || has("lost", place) || has("failed", place);
-    if (!ended && has("begin", Key(mover, "grasp")) && !has("failed", Key(mover, "grasp"))) {
+    if (const JournalRecord* lost = find("lost", place)) {
+      RecordLost(mover, lost->data.value("reason", std::string("let go")));
+    }
+    const bool ended = find("done", place) || find("lost", place) || find("failed", place);
+    if (!ended && find("begin", Key(mover, "grasp")) && !find("failed", Key(mover, "grasp"))) {
       carried_room_ = mover;
     }
   }
@@ -1190,10 +1204,7 @@ std::vector<std::string> PickTaskRunner::NearestOthers(const TargetReport& repor
   // The other items found, nearest to where the target was found first: the one over it or
   // beside it is most likely what the planner met. One found in the target's own place is
   // left: the place holds one of the two, and it may be the target.
-  auto size = [&](const std::string& name) {
-    const apc::Item& it = catalogue_.at(name);
-    return Eigen::Vector3d(it.long_side_m, it.middle_side_m, it.short_side_m);
-  };
+  auto size = [&](const std::string& name) { return CatalogueBoxM(catalogue_, name); };
   std::vector<std::pair<double, std::string>> by_distance;
   for (const auto& [item, pose] : report.poses_found) {
     if (item == report.item || BestPoseOf(report, item) != &pose) continue;

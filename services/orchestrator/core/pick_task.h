@@ -284,8 +284,9 @@ class PickTaskRunner final {
   // Why the touch met something other than the target's surface ("" when it may be it).
   std::string EarlyContact(const PlannedPick& plan, const TouchOutcome& touched) const;
   void ResumeFromJournal();
-  template <typename Has>
-  void ResumeRoomMoves(const std::vector<JournalRecord>& records, const Has& has);
+  /// The journal's action records by (type, key).
+  using JournalActions = std::map<std::pair<std::string, std::string>, const JournalRecord*>;
+  void ResumeRoomMoves(const std::vector<JournalRecord>& records, const JournalActions& actions);
   void FinishCarriedItem();
   /// At resume: `target`'s item, if the cup still holds it, carried on to its destination.
   void FinishCarried(Target& target);

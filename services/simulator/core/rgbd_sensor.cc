@@ -13,12 +13,6 @@ namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr double kPi = 3.14159265358979323846;
 
-bool IsRigid(const Eigen::Isometry3d& X) {
-  return X.matrix().allFinite() &&
-         (X.linear() * X.linear().transpose() - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
-         X.linear().determinant() > 0.0;
-}
-
 // The infrared projector: a pinhole wide enough to light everything the depth camera sees
 // from `baseline_m` beside it.
 ScanPose SensorPose(const camera::PinholeCamera& camera, const Eigen::Isometry3d& X_BaseCamera,
@@ -40,14 +34,15 @@ double ViewAngle(const ScanGeometry& g, std::size_t i) {
   return std::acos(std::clamp(c, -1.0, 1.0));
 }
 
-// Whether the sensor measures pixel i at all: the pattern reaches it, comes back strongly
-// enough, is seen at a usable angle and lies within the range.
-bool Measurable(const ScanGeometry& g, std::size_t i, const RgbdSensorOptions& options) {
+// Whether the sensor measures pixel i, seen at `view_angle_rad`, at all: the pattern reaches
+// it, comes back strongly enough, is seen at a usable angle and lies within the range.
+bool Measurable(const ScanGeometry& g, std::size_t i, double view_angle_rad,
+                const RgbdSensorOptions& options) {
   if (g.illumination[i] != Illumination::kLit) return false;  // shadowed, facing away, outside
   if (g.gain[i] < options.min_ir_signal) return false;        // dark, grazing or far
   const double z = g.depth_m[i];
   if (!(z >= options.min_depth_m && z <= options.max_depth_m)) return false;
-  return ViewAngle(g, i) <= options.max_view_angle_deg * kPi / 180.0;
+  return view_angle_rad <= options.max_view_angle_deg * kPi / 180.0;
 }
 
 // Pixels within edge_width_px of a depth discontinuity of the scene (a neighbour farther
@@ -177,10 +172,7 @@ camera::PinholeCamera XtionDepthCamera() {
 RgbdFrame RenderRgbd(const StructuredLightRenderer& renderer, const camera::PinholeCamera& camera,
                      const Eigen::Isometry3d& X_BaseCamera, const RgbdSensorOptions& options,
                      std::uint64_t frame_index) {
-  options.Validate();
-  if (!IsRigid(X_BaseCamera)) {
-    throw std::invalid_argument("RenderRgbd: X_BaseCamera is not a finite rigid transform");
-  }
+  options.Validate();  // (Prepare below refuses a pose that is not a finite rigid one.)
   GeometryOptions geometry_options;
   geometry_options.reference_distance_m = options.reference_distance_m;
   geometry_options.num_threads = options.num_threads;
@@ -200,9 +192,12 @@ RgbdFrame RenderRgbd(const StructuredLightRenderer& renderer, const camera::Pinh
     std::mt19937_64 colour_rng = RowStream(options, frame_index, row, 1);
     for (int column = 0; column < g.width; ++column) {
       const std::size_t i = std::size_t(row) * g.width + column;
-      if (Measurable(g, i, options) && !edge[i]) {
-        frame.depth_m[i] =
-            NoisyDepth(g.depth_m[i], ViewAngle(g, i), camera.fx(), options, depth_rng);
+      if (!edge[i]) {
+        const double view_angle_rad = ViewAngle(g, i);
+        if (Measurable(g, i, view_angle_rad, options)) {
+          frame.depth_m[i] =
+              NoisyDepth(g.depth_m[i], view_angle_rad, camera.fx(), options, depth_rng);
+        }
       }
       if (g.object_index[i] < 0) continue;  // nothing there: black
       const double lambert = std::max(0.0f, g.normals_camera[i].dot(up_Camera));

@@ -38,6 +38,15 @@ Eigen::Isometry3d CameraLookingAlongX() {
   return X;
 }
 
+// One frame of a 20 cm square (a box's front) 0.8 m ahead of a wall 1.2 m ahead.
+RgbdFrame BoxBeforeAWall() {
+  const world::TriangleMesh wall = Square(3.0);
+  const world::TriangleMesh box_front = Square(0.1);
+  const StructuredLightRenderer renderer(
+      {{&wall, Facing(0.0, 0.0, 1.2)}, {&box_front, Facing(0.0, 0.0, 0.8)}});
+  return RenderRgbd(renderer, XtionDepthCamera(), Eigen::Isometry3d::Identity(), {});
+}
+
 // Standard deviation of the measured depth against `z_true` over the valid pixels.
 double DepthSpread(const RgbdFrame& frame, double z_true) {
   double sum_sq = 0.0;
@@ -72,12 +81,7 @@ TEST(RgbdSensorTest, DepthNoiseGrowsWithTheSquareOfTheDistance) {
 TEST(RgbdSensorTest, ANearBoxCastsTheProjectorsShadowOnTheWallBehindIt) {
   // The projector stands 7.5 cm to the camera's right (+x): the wall left of the box is
   // hidden from it, 0.075 * (1.2 - 0.8) / 0.8 = 3.75 cm, about 18 pixels at 1.2 m.
-  const world::TriangleMesh wall = Square(3.0);
-  const world::TriangleMesh box_front = Square(0.1);
-  const StructuredLightRenderer renderer(
-      {{&wall, Facing(0.0, 0.0, 1.2)}, {&box_front, Facing(0.0, 0.0, 0.8)}});
-  const RgbdFrame frame =
-      RenderRgbd(renderer, XtionDepthCamera(), Eigen::Isometry3d::Identity(), {});
+  const RgbdFrame frame = BoxBeforeAWall();
   const int w = frame.camera.width();
   const int row = frame.camera.height() / 2;
   // The box's edges in the middle row: 570.3 * 0.1 / 0.8 = 71 pixels from the centre.
@@ -162,12 +166,7 @@ TEST(RgbdSensorTest, FramesAreRepeatableAndTheNoiseChangesFromFrameToFrame) {
 }
 
 TEST(RgbdSensorTest, TheOrganisedCloudHoldsThePixelsRaysAtTheirDepths) {
-  const world::TriangleMesh wall = Square(3.0);
-  const world::TriangleMesh box_front = Square(0.1);
-  const StructuredLightRenderer renderer(
-      {{&wall, Facing(0.0, 0.0, 1.2)}, {&box_front, Facing(0.0, 0.0, 0.8)}});
-  const RgbdFrame frame =
-      RenderRgbd(renderer, XtionDepthCamera(), Eigen::Isometry3d::Identity(), {});
+  const RgbdFrame frame = BoxBeforeAWall();
   const geometry::PointCloud cloud = ToOrganisedCloud(frame);
   ASSERT_EQ(cloud.width, 640u);
   ASSERT_EQ(cloud.height, 480u);
