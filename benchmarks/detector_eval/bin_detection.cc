@@ -46,6 +46,17 @@ BinScan MergeViews(const std::vector<BinScan>& views) {
   return merged;
 }
 
+BinScan ScanViews(SimulatedBinScanner& scanner, const std::string& bin,
+                  const BinScanOptions& options, const std::vector<world::BinScanView>& views) {
+  std::vector<BinScan> scans;
+  for (const world::BinScanView& view : views) {
+    BinScanOptions one = options;
+    one.view = view;
+    scans.push_back(scanner.Scan(bin, one));
+  }
+  return scans.size() == 1 ? std::move(scans.front()) : MergeViews(scans);
+}
+
 namespace {
 
 // The detector service's preparation of a Detect request with the bin as region.

@@ -49,6 +49,12 @@ struct BinDetectionOptions {
 /// with the same channels.
 BinScan MergeViews(const std::vector<BinScan>& views);
 
+/// `bin` scanned from each of `views` (in order; by default the cell's three,
+/// world::CellBinScanViews) with `options`' sensor and noise, merged (MergeViews).
+BinScan ScanViews(SimulatedBinScanner& scanner, const std::string& bin,
+                  const BinScanOptions& options = {},
+                  const std::vector<world::BinScanView>& views = world::CellBinScanViews());
+
 /// One full detection call and what it saw.
 struct BinDetectionResult {
   detector::ChainResult chain;

@@ -112,15 +112,10 @@ BinScan SimulatedBinScanner::Scan(const std::string& bin, const BinScanOptions& 
     if (impl_->hidden_ids.count(s.id) == 0) scan.items.push_back({s.name, s.X_BaseItem});
   }
 
-  // The camera in front of the opening, above the bin's middle (or beside it by
-  // lateral_offset_m), looking at the floor's
-  // middle (shelf frame: x out of the opening, z up).
-  const Eigen::Vector3d c = geometry.inner_S.center();
-  const Eigen::Vector3d p_ShelfTarget(c.x(), c.y(),
-                                      geometry.inner_S.min().z() + options.aim_above_floor_m);
-  const Eigen::Vector3d p_ShelfCamera(geometry.opening_x_m + options.standoff_m,
-                                      c.y() + options.lateral_offset_m,
-                                      c.z() + options.height_above_centre_m);
+  // The camera in front of the opening, looking at the floor's middle (shelf frame: x out of
+  // the opening, z up).
+  const Eigen::Vector3d p_ShelfTarget = world::BinScanTarget_S(geometry, options.view);
+  const Eigen::Vector3d p_ShelfCamera = world::BinScanEye_S(geometry, options.view);
   const Eigen::Vector3d z_S = (p_ShelfTarget - p_ShelfCamera).normalized();
   const Eigen::Vector3d x_S = Eigen::Vector3d::UnitZ().cross(z_S).normalized() * -1.0;
   const Eigen::Vector3d y_S = z_S.cross(x_S);

@@ -10,6 +10,7 @@
 #include "libs/apc/task.h"
 #include "libs/camera/pinhole_camera.h"
 #include "libs/geometry/point_cloud.h"
+#include "libs/world/shelf_bins.h"
 #include "services/detector/core/preprocess.h"
 #include "services/simulator/core/layout.h"
 
@@ -32,16 +33,8 @@ enum class BinSensor {
 /// Options of SimulatedBinScanner::Scan.
 struct BinScanOptions {
   BinSensor sensor = BinSensor::kStructuredLight;
-  /// Camera distance in front of the bin's opening plane (along the shelf's x), metres.
-  double standoff_m = 0.55;
-  /// Camera height above the middle of the bin's opening, metres.
-  double height_above_centre_m = 0.1;
-  /// Camera offset sideways from the bin's middle (along the shelf's y: positive to the
-  /// left seen from the robot), metres; it still looks at the same point. The paper scans a
-  /// bin from three such positions.
-  double lateral_offset_m = 0.0;
-  /// The camera looks at the middle of the bin floor, this far above the floor, metres.
-  double aim_above_floor_m = 0.03;
+  /// Where the camera stands and what it looks at (by default the cell's middle view).
+  world::BinScanView view;
   /// Noise seed of the rendered captures.
   std::uint64_t seed = 1;
   /// Camera read noise (Gaussian sigma, grey levels); shot noise is added on top.

@@ -40,9 +40,10 @@
 // (RefineVerifyOptions::box_continuation_weight); --box_polish_contradicted=false polishes
 // only the best box candidate and its best quarter-turn, not also the best shape fit the
 // print contradicts (PpfSearchOptions::box_polish_contradicted). --views=3 scans
-// each bin from three camera positions, the middle one and view_offset_m to either side (all
-// aimed at the bin floor's middle; side_height_m above the bin's middle where they see over the
-// front items, the middle view 0.1 m),
+// each bin from the cell's three camera positions (world::CellBinScanViews, the planner's
+// scan poses: the middle one and view_offset_m to either side, all aimed at the bin floor's
+// middle; side_height_m above the bin's middle where they see over the front items, the
+// middle view 0.1 m),
 // and detects in the views stacked as the scanner stacks them (MergeViews), through the
 // detector service's own workflow with the views' poses (DetectParams.X_frame_sensor,
 // detector::SceneOptions::view_poses): each view's print compensated and screened
@@ -102,8 +103,9 @@ struct Args {
   BinDetectionOptions detection;
   int views = 1;
   std::string cache_dir;  // empty: a fresh temporary folder
-  double view_offset_m = 0.15;
-  double side_height_m = 0.25;
+  // The views of --views=3 (the first alone with --views=1); --view_offset_m and
+  // --side_height_m move the side ones.
+  std::vector<world::BinScanView> bin_views = world::CellBinScanViews();
   simulator::LayoutMode layout_mode = simulator::LayoutMode::kTidy;
 };
 
@@ -229,12 +231,14 @@ Args Parse(int argc, char** argv) {
     } else if (auto v = value("--layout_mode")) {
       args.layout_mode = simulator::LayoutModeFromString(*v);
     } else if (auto v = value("--view_offset_m")) {
-      args.view_offset_m = std::stod(*v);
+      args.bin_views[1].lateral_offset_m = -std::stod(*v);
+      args.bin_views[2].lateral_offset_m = std::stod(*v);
     } else if (auto v = value("--side_height_m")) {
-      args.side_height_m = std::stod(*v);
-      if (!(std::abs(args.side_height_m) < 0.5)) {
+      const double height_m = std::stod(*v);
+      if (!(std::abs(height_m) < 0.5)) {
         throw std::invalid_argument("--side_height_m must be within 0.5 m of the bin's middle");
       }
+      args.bin_views[1].height_above_centre_m = args.bin_views[2].height_above_centre_m = height_m;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
     } else if (ParseDetectionFlag(a, &args.detection)) {
@@ -422,20 +426,13 @@ std::shared_ptr<const detector::ModelLibrary> MakeLibrary(
       library_options);
 }
 
-// The bin seen from the front and, with three views, from either side, merged.
+// The bin seen from the cell's middle view and, with three views, from either side, merged.
 BinScan ScanBin(SimulatedBinScanner& scanner, const std::string& bin, const Args& args) {
-  BinScanOptions front;
-  front.sensor = args.sensor;
-  std::vector<BinScan> views = {scanner.Scan(bin, front)};
-  if (args.views == 3) {
-    for (double offset : {-args.view_offset_m, args.view_offset_m}) {
-      BinScanOptions side = front;
-      side.lateral_offset_m = offset;
-      side.height_above_centre_m = args.side_height_m;
-      views.push_back(scanner.Scan(bin, side));
-    }
-  }
-  return views.size() == 1 ? std::move(views.front()) : MergeViews(views);
+  BinScanOptions options;
+  options.sensor = args.sensor;
+  const std::vector<world::BinScanView> views(args.bin_views.begin(),
+                                              args.bin_views.begin() + args.views);
+  return ScanViews(scanner, bin, options, views);
 }
 
 // Each method alone on the same scan (not applicable where the item has no model for it).

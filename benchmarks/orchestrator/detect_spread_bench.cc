@@ -116,18 +116,6 @@ DetectCall RequestFor(const detector_eval::BinScan& scan, const std::string& tar
   return call;
 }
 
-detector_eval::BinScan ScanThreeViews(detector_eval::SimulatedBinScanner& scanner,
-                                      const std::string& bin) {
-  std::vector<detector_eval::BinScan> views = {scanner.Scan(bin, {})};
-  for (double offset : {-0.15, 0.15}) {
-    detector_eval::BinScanOptions side;
-    side.lateral_offset_m = offset;
-    side.height_above_centre_m = 0.25;
-    views.push_back(scanner.Scan(bin, side));
-  }
-  return detector_eval::MergeViews(views);
-}
-
 std::unique_ptr<DetectorPool> MakePool(const std::vector<const testing::ServerProcess*>& servers) {
   DetectorPoolOptions options;
   for (const auto* s : servers) options.endpoints.push_back(s->address());
@@ -194,7 +182,7 @@ int Run(const Args& args) {
         std::find(args.bins.begin(), args.bins.end(), entry.bin) == args.bins.end()) {
       continue;
     }
-    const DetectCall call = RequestFor(ScanThreeViews(scanner, entry.bin), entry.item);
+    const DetectCall call = RequestFor(detector_eval::ScanViews(scanner, entry.bin), entry.item);
     if (runs == 0) one->Detect(call);  // warm up: connections, models paged in
     auto start = Clock::now();
     const DetectOutcome alone = one->Detect(call);

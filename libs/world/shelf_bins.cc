@@ -234,4 +234,25 @@ Eigen::AlignedBox3d MeasureToteInner(const TriangleMesh& tote_T) {
   return Eigen::AlignedBox3d(lo, hi);
 }
 
+std::vector<BinScanView> CellBinScanViews() {
+  BinScanView middle;
+  BinScanView right = middle;
+  right.lateral_offset_m = -0.15;
+  right.height_above_centre_m = 0.25;
+  BinScanView left = right;
+  left.lateral_offset_m = 0.15;
+  return {middle, right, left};
+}
+
+Eigen::Vector3d BinScanEye_S(const BinGeometry& bin, const BinScanView& view) {
+  const Eigen::Vector3d c = bin.inner_S.center();
+  return {bin.opening_x_m + view.standoff_m, c.y() + view.lateral_offset_m,
+          c.z() + view.height_above_centre_m};
+}
+
+Eigen::Vector3d BinScanTarget_S(const BinGeometry& bin, const BinScanView& view) {
+  const Eigen::Vector3d c = bin.inner_S.center();
+  return {c.x(), c.y(), bin.inner_S.min().z() + view.aim_above_floor_m};
+}
+
 }  // namespace picking::world

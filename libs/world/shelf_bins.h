@@ -67,4 +67,31 @@ std::vector<BinGeometry> MeasureBins(const TriangleMesh& shelf_S,
 /// wall or floor.
 Eigen::AlignedBox3d MeasureToteInner(const TriangleMesh& tote_T);
 
+/// Where a camera scans a shelf bin from: a point in front of the bin's opening, looking at
+/// the middle of the bin's floor.
+struct BinScanView {
+  /// Sideways from the bin's middle (along the shelf's y), metres.
+  double lateral_offset_m = 0.0;
+  /// Above the middle of the bin's opening, metres.
+  double height_above_centre_m = 0.10;
+  /// In front of the bin's opening plane (along the shelf's x), metres: about the
+  /// structured-light scanner's working distance.
+  double standoff_m = 0.55;
+  /// The point looked at is this far above the middle of the bin's floor, metres.
+  double aim_above_floor_m = 0.03;
+};
+
+/// The cell's three scan views of a bin, in capture order: the middle one, then one to either
+/// side. The side views are higher, so that they see over the items at the front into the back
+/// of the bin, and far enough apart that each sees past the sides of the front items (the joke
+/// book lying behind the command hooks in pick_layout_1's bin E shows 1,667 of its model's
+/// points to these views, 628 to three views at the middle one's height 0.1 m to either side).
+std::vector<BinScanView> CellBinScanViews();
+
+/// The camera's position for `view` of `bin`, in the shelf frame.
+Eigen::Vector3d BinScanEye_S(const BinGeometry& bin, const BinScanView& view);
+
+/// The point `view` of `bin` looks at, in the shelf frame.
+Eigen::Vector3d BinScanTarget_S(const BinGeometry& bin, const BinScanView& view);
+
 }  // namespace picking::world

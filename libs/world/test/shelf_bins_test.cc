@@ -126,5 +126,26 @@ TEST(ShelfBinsTest, KivaPodHasTwelvePlausibleBinsInOrder) {
   EXPECT_GT(bins[9].height_m(), bins[6].height_m() + 0.02);
 }
 
+TEST(ShelfBinsTest, TheScanViewsLookIntoTheBinFromInFrontTheSideViewsFromAbove) {
+  BinGeometry bin;
+  bin.inner_S =
+      Eigen::AlignedBox3d(Eigen::Vector3d(0.0, -0.15, 1.0), Eigen::Vector3d(0.43, 0.15, 1.25));
+  bin.opening_x_m = 0.43;
+  const std::vector<BinScanView> views = CellBinScanViews();
+  ASSERT_EQ(views.size(), 3u);
+  const Eigen::Vector3d p_Target = BinScanTarget_S(bin, views[0]);
+  EXPECT_TRUE(p_Target.isApprox(Eigen::Vector3d(0.215, 0.0, 1.03)));
+  const Eigen::Vector3d p_Middle = BinScanEye_S(bin, views[0]);
+  EXPECT_GT(p_Middle.x(), bin.opening_x_m + 0.4);
+  EXPECT_NEAR(p_Middle.y(), 0.0, 1e-12);
+  for (int k : {1, 2}) {
+    const Eigen::Vector3d p_Side = BinScanEye_S(bin, views[k]);
+    EXPECT_GT(p_Side.z(), p_Middle.z() + 0.1) << k;  // sees over the items at the front
+    EXPECT_GT(std::abs(p_Side.y()), 0.1) << k;
+    EXPECT_TRUE(BinScanTarget_S(bin, views[k]).isApprox(p_Target)) << k;
+  }
+  EXPECT_LT(BinScanEye_S(bin, views[1]).y() * BinScanEye_S(bin, views[2]).y(), 0.0);
+}
+
 }  // namespace
 }  // namespace picking::world

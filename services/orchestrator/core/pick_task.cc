@@ -589,12 +589,16 @@ void PickTaskRunner::FinishCarried(Target& target) {
 
 bool PickTaskRunner::ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views) {
   Emit(&target, Step::kScan, true, "scanning " + target.bin);
+  std::string unreached;  // the first view the arm could not reach, and why
   for (const std::string& pose : cell_.ScanPoses(target.bin)) {
     const StepOutcome moved = WithRetries("move", [&] { return cell_.MoveToNamed(pose); });
     AddTime(report, "scan", moved.robot_s);
     if (!moved.ok) {
-      target.last_failure = "cannot reach scan pose " + pose + ": " + moved.message;
-      return false;
+      // The other views still show the bin: detection works on what they see.
+      if (unreached.empty()) unreached = "cannot reach scan pose " + pose + ": " + moved.message;
+      Emit(&target, Step::kScan, false,
+           "view skipped: cannot reach " + pose + ": " + moved.message);
+      continue;
     }
     const auto start = Clock::now();
     views.push_back(WithRetries("scan", [&] { return cell_.Scan(); }));
@@ -606,7 +610,10 @@ bool PickTaskRunner::ScanViews(Target& target, TargetReport& report, std::vector
     Emit(&target, Step::kScan, true,
          "captured view " + std::to_string(views.size()) + " (" + pose + ")", "", std::move(scene));
   }
-  return true;
+  if (views.empty()) {
+    target.last_failure = unreached.empty() ? "no scan pose for " + target.bin : unreached;
+  }
+  return !views.empty();
 }
 
 PickTaskRunner::PendingDetection PickTaskRunner::StartDetect(const Target& target,

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "libs/errors/errors.h"
+#include "libs/world/shelf_bins.h"
 
 namespace picking::planner {
 namespace {
@@ -146,12 +147,11 @@ JointVector DefaultHomeJoints() {
 // ---------------------------------------------------------------------------------------
 // Named poses
 
-std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const StaticCell& cell,
-                                         const FastChecker& checker, const ExactChecker& exact,
-                                         const JointVector& home_rad,
-                                         const Eigen::Isometry3d& X_ToolCamera,
-                                         std::vector<std::string>* missing) {
-  std::vector<NamedPose> poses;
+std::vector<NamedPoseChoices> ComputeNamedPoses(
+    const RobotGeometry& robot, const StaticCell& cell, const FastChecker& checker,
+    const ExactChecker& exact, const JointVector& home_rad, const Eigen::Isometry3d& X_ToolCamera,
+    std::vector<std::string>* missing, std::size_t max_choices) {
+  std::vector<NamedPoseChoices> poses;
   const ur10::Ur10Kinematics& kinematics = robot.kinematics();
   // Named poses are where motions start and end: they keep a margin from everything (and
   // the arm from itself), so that the continuous check of a motion leaving them, which grows
@@ -161,12 +161,12 @@ std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const Stati
     return checker.IsFree(q, nullptr, kNamedPoseMargin_m) && !exact.Check(q).in_collision;
   };
   if (free(home_rad)) {
-    poses.push_back({"home", home_rad});
+    poses.push_back({"home", {home_rad}});
   } else if (missing) {
     missing->push_back("home (" + checker.Check(home_rad).ToString() + ")");
   }
-  // The solution nearest to home (every branch, every 2 pi variant) that is free.
-  auto solve = [&](const Eigen::Isometry3d& X_BaseTool) -> std::optional<JointVector> {
+  // The free solutions (every branch, every 2 pi variant), nearest to home first.
+  auto solve = [&](const Eigen::Isometry3d& X_BaseTool, std::vector<JointVector>* out) {
     ur10::IkOptions ik_options;
     ik_options.include_2pi_variants = true;
     ur10::IkResult ik = kinematics.Solve(X_BaseTool, ik_options);
@@ -174,19 +174,19 @@ std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const Stati
       return (a.q_rad - home_rad).cwiseAbs().sum() < (b.q_rad - home_rad).cwiseAbs().sum();
     });
     for (const auto& s : ik.solutions) {
-      if (free(s.q_rad)) return s.q_rad;
+      if (out->size() >= max_choices) return;
+      if (free(s.q_rad)) out->push_back(s.q_rad);
     }
-    return std::nullopt;
   };
-  // The first of the candidate poses (in order of preference) that has one.
+  // The candidate poses' solutions, in order of preference.
   auto add_first = [&](const std::string& name, const std::vector<Eigen::Isometry3d>& candidates) {
-    for (const Eigen::Isometry3d& X_BaseTool : candidates) {
-      if (const auto q = solve(X_BaseTool)) {
-        poses.push_back({name, *q});
-        return;
-      }
+    NamedPoseChoices pose{name, {}};
+    for (const Eigen::Isometry3d& X_BaseTool : candidates) solve(X_BaseTool, &pose.q_rad);
+    if (!pose.q_rad.empty()) {
+      poses.push_back(std::move(pose));
+    } else if (missing) {
+      missing->push_back(name);
     }
-    if (missing) missing->push_back(name);
   };
   auto add = [&](const std::string& name, const Eigen::Isometry3d& X_BaseTool) {
     add_first(name, {X_BaseTool});
@@ -195,20 +195,20 @@ std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const Stati
   const Eigen::Isometry3d& X_BaseShelf = cell.cell().config.X_BaseShelf;
   const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
   for (const world::BinGeometry& bin : cell.cell().bins) {
-    const Eigen::Vector3d c = bin.inner_S.center();
-    const Eigen::Vector3d p_ShelfTarget(c.x(), c.y(), bin.inner_S.min().z() + 0.03);
-    const double lateral[3] = {0.0, -0.10, 0.10};
-    for (int k = 0; k < 3; ++k) {
-      // The scanner's working distance is about 0.55 m; where the arm cannot hold the camera
-      // there (the wrist would pass the base axis for the middle column), a little closer or
-      // higher.
+    const std::vector<world::BinScanView> views = world::CellBinScanViews();
+    for (std::size_t k = 0; k < views.size(); ++k) {
+      // Where the arm cannot hold the camera at the view's point (the wrist would pass the
+      // base axis for the middle column), a little lower or higher, closer or farther.
       std::vector<Eigen::Isometry3d> candidates;
-      for (const double standoff : {0.55, 0.50, 0.45, 0.60}) {
-        for (const double height : {0.10, 0.18, 0.03}) {
-          const Eigen::Vector3d p_ShelfCamera(bin.opening_x_m + standoff, c.y() + lateral[k],
-                                              c.z() + height);
-          candidates.push_back(
-              LookAt(X_BaseShelf * p_ShelfCamera, X_BaseShelf * p_ShelfTarget, up) * X_CameraTool);
+      for (const double standoff : {0.0, -0.05, -0.10, 0.05}) {
+        for (const double raise : {0.0, -0.08, 0.08, -0.15, -0.22}) {
+          world::BinScanView view = views[k];
+          view.standoff_m += standoff;
+          view.height_above_centre_m += raise;
+          if (view.height_above_centre_m < 0.0) continue;
+          candidates.push_back(LookAt(X_BaseShelf * world::BinScanEye_S(bin, view),
+                                      X_BaseShelf * world::BinScanTarget_S(bin, view), up) *
+                               X_CameraTool);
         }
       }
       add_first("scan/" + bin.name + "/" + std::to_string(k), candidates);
@@ -232,6 +232,42 @@ std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const Stati
       LookAt(table_top + Eigen::Vector3d(0, 0, 0.60), table_top, Eigen::Vector3d::UnitX()) *
           X_CameraTool);
   return poses;
+}
+
+std::vector<NamedPose> ChooseReachablePoses(const std::vector<NamedPoseChoices>& choices,
+                                            const MotionChecker& checker,
+                                            const RoadmapOptions& options,
+                                            std::vector<std::string>* unreachable) {
+  std::vector<std::size_t> pick(choices.size(), 0);
+  auto chosen = [&] {
+    std::vector<NamedPose> out;
+    for (std::size_t i = 0; i < choices.size(); ++i) {
+      out.push_back({choices[i].name, choices[i].q_rad[pick[i]]});
+    }
+    return out;
+  };
+  std::vector<bool> settled(choices.size(), false);
+  if (!choices.empty()) settled[0] = true;  // the start of every check
+  // Each round checks the unsettled poses against a roadmap over the current choices and
+  // moves each that fails to its next choice; a pose with no choice left settles on its first.
+  for (bool changed = true; changed;) {
+    changed = false;
+    const Roadmap roadmap(checker, chosen(), options);
+    for (std::size_t i = 1; i < choices.size(); ++i) {
+      if (settled[i]) continue;
+      if (roadmap.Plan(choices[0].q_rad[pick[0]], choices[i].q_rad[pick[i]]).ok) {
+        settled[i] = true;
+      } else if (pick[i] + 1 < choices[i].q_rad.size()) {
+        ++pick[i];
+        changed = true;
+      } else {
+        pick[i] = 0;
+        settled[i] = true;
+        if (unreachable) unreachable->push_back(choices[i].name);
+      }
+    }
+  }
+  return chosen();
 }
 
 // ---------------------------------------------------------------------------------------
@@ -275,14 +311,17 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
     HeadAt(gripper.max_head_angle_rad);
   }
   std::vector<std::string> missing;
-  std::vector<NamedPose> named = ComputeNamedPoses(*robot_, *cell_, *static_fast_, *static_exact_,
-                                                   DefaultHomeJoints(), X_ToolCamera_, &missing);
+  const std::vector<NamedPoseChoices> choices = ComputeNamedPoses(
+      *robot_, *cell_, *static_fast_, *static_exact_, DefaultHomeJoints(), X_ToolCamera_, &missing);
   if (!missing.empty()) {
     std::string list;
     for (const auto& m : missing) list += (list.empty() ? "" : ", ") + m;
     throw std::runtime_error("no collision-free IK solution for the named poses: " + list);
   }
-  roadmap_ = std::make_unique<Roadmap>(*static_motion_, std::move(named), options_.roadmap);
+  roadmap_ = std::make_unique<Roadmap>(
+      *static_motion_,
+      ChooseReachablePoses(choices, *static_motion_, options_.roadmap, &unreachable_poses_),
+      options_.roadmap);
 }
 
 MotionPlanner::~MotionPlanner() = default;

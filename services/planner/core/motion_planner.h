@@ -243,6 +243,9 @@ class MotionPlanner final {
   const RobotGeometry& robot() const { return *robot_; }
   const StaticCell& cell() const { return *cell_; }
   const std::vector<NamedPose>& named_poses() const { return roadmap_->named(); }
+  /// Named poses the roadmap joins to "home" by none of their configurations
+  /// (ChooseReachablePoses): motions to them fail.
+  const std::vector<std::string>& unreachable_named_poses() const { return unreachable_poses_; }
   const MotionPlannerOptions& options() const { return options_; }
 
   /// A scene from a scan (x, y, z floats in base) of `container`, with `item` at X_BaseItem
@@ -435,20 +438,33 @@ class MotionPlanner final {
   std::shared_ptr<const GraspTable> grasps_;
   std::shared_ptr<world::ItemModelLibrary> items_;
   Eigen::Isometry3d X_ToolCamera_;
+  std::vector<std::string> unreachable_poses_;
   mutable std::mutex hull_mutex_;
   mutable std::map<std::string, ConvexHull> hulls_Item_;
 };
 
-/// The named poses of the cell: "home", "scan/<bin>/<k>" (three views per bin: the camera in
-/// front of the opening, centred and 10 cm to each side, looking at the floor's middle),
-/// "scan/tote/<k>" (two views from above), "above_tote", "table", "verify" (the camera above
-/// the table). Each from IK, the solution nearest to `home` that is collision-free. Poses
-/// with no such solution are left out and named in `missing`.
-std::vector<NamedPose> ComputeNamedPoses(const RobotGeometry& robot, const StaticCell& cell,
-                                         const FastChecker& checker, const ExactChecker& exact,
-                                         const JointVector& home_rad,
-                                         const Eigen::Isometry3d& X_ToolCamera,
-                                         std::vector<std::string>* missing);
+/// The named poses of the cell: "home", "scan/<bin>/<k>" (three views per bin,
+/// world::CellBinScanViews: the camera in front of the opening looking at the floor's
+/// middle), "scan/tote/<k>" (two views from above), "above_tote", "table", "verify" (the camera
+/// above the table). Each from IK: the collision-free solutions, nearest to `home` first, of
+/// the pose and then of its fall-backs (a scan view a little lower, higher, closer or
+/// farther), at most `max_choices`. Poses with no such solution are left out and named in
+/// `missing`.
+std::vector<NamedPoseChoices> ComputeNamedPoses(
+    const RobotGeometry& robot, const StaticCell& cell, const FastChecker& checker,
+    const ExactChecker& exact, const JointVector& home_rad, const Eigen::Isometry3d& X_ToolCamera,
+    std::vector<std::string>* missing, std::size_t max_choices = 8);
+
+/// One configuration per named pose that the roadmap joins to the first pose ("home"): a
+/// configuration can be free and still sit in a pocket of the joint space that no motion
+/// reaches (an arm stretched up into a top bin's view, its wrist turned the far way round).
+/// Each pose takes its first choice that a Roadmap over the chosen poses plans to from the
+/// first; one with no such choice keeps its first (motions to it then fail with the
+/// roadmap's reason) and is named in `unreachable`.
+std::vector<NamedPose> ChooseReachablePoses(const std::vector<NamedPoseChoices>& choices,
+                                            const MotionChecker& checker,
+                                            const RoadmapOptions& options,
+                                            std::vector<std::string>* unreachable);
 
 /// The UR10 facing the shelf, elbow up, the tool pointing at the shelf: the default home.
 JointVector DefaultHomeJoints();

@@ -16,6 +16,13 @@ struct NamedPose {
   JointVector q_rad = JointVector::Zero();
 };
 
+/// The configurations that could serve as one named pose, most preferred first (each
+/// collision-free: the IK solutions of the pose and of its fall-back poses).
+struct NamedPoseChoices {
+  std::string name;
+  std::vector<JointVector> q_rad;
+};
+
 /// Options of Roadmap.
 struct RoadmapOptions {
   /// Random configurations added to the named poses, drawn within the joint-space box around

@@ -1,5 +1,7 @@
 #include "services/planner/service/planner_service.h"
 
+#include "libs/runtime/log.h"
+
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -546,6 +548,9 @@ runtime::ServiceSet BuildPlannerServices(const runtime::Config& config) {
   }
   auto planner = std::make_shared<const MotionPlanner>(kinematics, cell, gripper, X_ToolCamera,
                                                        grasps, items, options);
+  for (const std::string& name : planner->unreachable_named_poses()) {
+    runtime::LogWarning("named pose unreachable: no motion from home reaches it", {{"pose", name}});
+  }
   runtime::ServiceSet set;
   set.Add(std::make_shared<PlannerServiceImpl>(std::move(planner), settings),
           pb::PlannerService::service_full_name());

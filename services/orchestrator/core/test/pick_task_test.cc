@@ -73,9 +73,11 @@ class ScriptedCell final : public CellPort {
   std::set<std::string> crash_at;  // a move to one of these poses fails the task (once)
   std::map<std::string, int> crash_at_visit;  // ... at the n-th move to the pose
   std::map<std::string, int> visits;
+  std::set<std::string> unreachable;  // the planner finds no motion to these poses
   StepOutcome MoveToNamed(const std::string& pose) override {
     std::lock_guard<std::mutex> lock(mu);
     calls.push_back("move " + pose);
+    if (unreachable.count(pose)) return {false, "no collision-free joint motion", 0.0};
     if (crash_at.erase(pose)) throw CellError("robot", false, "the orchestrator's host died");
     if (crash_at_visit.count(pose) && ++visits[pose] == crash_at_visit[pose]) {
       throw CellError("robot", false, "the orchestrator's host died");
@@ -311,6 +313,31 @@ TEST_F(PickTaskTest, PicksEveryTargetAndScoresTheRules) {
   for (std::size_t i = 1; i < events.size(); ++i) {
     EXPECT_EQ(events[i].sequence, events[i - 1].sequence + 1);
   }
+}
+
+TEST_F(PickTaskTest, AScanViewTheArmCannotReachIsSkippedAndTheOthersServe) {
+  ScriptedCell cell;
+  cell.unreachable = {"scan/bin_A/2"};
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.items_moved, 3) << result.error;
+  bool said = false;
+  for (const TaskEvent& e : events) {
+    said |= !e.ok && e.message.find("view skipped: cannot reach scan/bin_A/2") != std::string::npos;
+  }
+  EXPECT_TRUE(said);
+  // With no view reachable, the target fails with the reason.
+  std::filesystem::remove_all(dir_);
+  std::filesystem::create_directories(dir_);
+  ScriptedCell blocked;
+  blocked.unreachable = {"scan/bin_A/0", "scan/bin_A/1", "scan/bin_A/2"};
+  const PickTaskResult none = Run(blocked);
+  EXPECT_EQ(none.items_moved, 2);  // the baseball and the socks; the tissue box is in bin_A
+  bool reason = false;
+  for (const auto& t : none.targets) {
+    reason |= t.failure.find("cannot reach scan pose scan/bin_A/0") != std::string::npos;
+  }
+  EXPECT_TRUE(reason);
 }
 
 TEST_F(PickTaskTest, EventsCarryWhatAViewerDrawsAndTheJournalKeepsIt) {

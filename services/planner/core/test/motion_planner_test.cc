@@ -128,6 +128,17 @@ TEST_F(MotionPlannerTest, EveryNamedPoseExistsAndIsFree) {
   for (const auto& p : poses) EXPECT_TRUE(fast.IsFree(p.q_rad)) << p.name;
 }
 
+// A free configuration can sit in a pocket no motion reaches (the top middle bin's high side
+// view, first solved with the wrist turned the far way round): each named pose is one the
+// roadmap joins to home.
+TEST_F(MotionPlannerTest, EveryNamedPoseIsReachedFromHome) {
+  EXPECT_TRUE(planner_->unreachable_named_poses().empty());
+  for (const auto& p : planner_->named_poses()) {
+    SCOPED_TRACE(p.name);
+    EXPECT_NO_THROW(planner_->PlanJointMotion(Named("home").q_rad, p.q_rad, 1.0, Far()));
+  }
+}
+
 TEST_F(MotionPlannerTest, JointMotionsBetweenNamedPosesAreTimedAndFree) {
   const auto& model = planner_->robot().kinematics().model();
   for (const char* goal : {"scan/bin_A/0", "scan/bin_L/2", "above_tote", "table", "verify"}) {
