@@ -3,12 +3,15 @@
 #include <Eigen/Geometry>
 
 #include <array>
+#include <future>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
+#include "services/orchestrator/core/held_surface.h"
 
 namespace picking::orchestrator {
 
@@ -47,6 +50,9 @@ struct StepOutcome {
 struct ScanView {
   std::shared_ptr<const geometry::PointCloud> cloud_Base;
   Eigen::Isometry3d X_BaseCamera = Eigen::Isometry3d::Identity();
+  /// The suction cup's pose at the capture (a held item hangs from it there, wherever the
+  /// arm has moved since).
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
   double capture_s = 0.0;  ///< Robot time the capture held the arm still.
 };
 
@@ -133,6 +139,15 @@ class CellPort {
   virtual StepOutcome MoveToNamed(const std::string& name) = 0;
   /// Captures one view at the current pose.
   virtual ScanView Scan() = 0;
+  /// Captures one view at the current pose and returns once the capture is over, while the
+  /// scanner still decodes it: the arm may move on. The future gives the view, or throws
+  /// CellError for a scan that fails after its capture; a failure before it throws here. By
+  /// default the whole scan, then a ready future.
+  virtual std::shared_future<ScanView> StartScan() {
+    std::promise<ScanView> done;
+    done.set_value(Scan());
+    return done.get_future().share();
+  }
   /// Finds `item` in `container` from the views (merged by the detector), and in the same
   /// call the poses of each of `others` (other items of the container); with others, a few
   /// poses of the target too.
@@ -169,6 +184,15 @@ class CellPort {
   /// Verify score in [0, 1]); -1 when the view shows too little of it to tell.
   virtual double VerifyHeld(const std::string& item, const PlannedPick& pick,
                             const ScanView& view) = 0;
+  /// What `view` (the look back out of `container`) shows of the space only the held item
+  /// fills, against the box of `item` hanging from the cup as grasped (MeasureHeldSurface);
+  /// nullopt where that cannot be told (by default).
+  virtual std::optional<HeldSurface> MeasureHeld(const std::string& container,
+                                                 const std::string& item, const PlannedPick& pick,
+                                                 const ScanView& view) {
+    (void)container, (void)item, (void)pick, (void)view;
+    return std::nullopt;
+  }
 };
 
 }  // namespace picking::orchestrator

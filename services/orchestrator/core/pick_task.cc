@@ -589,29 +589,50 @@ void PickTaskRunner::FinishCarried(Target& target) {
 
 bool PickTaskRunner::ScanViews(Target& target, TargetReport& report, std::vector<ScanView>& views) {
   Emit(&target, Step::kScan, true, "scanning " + target.bin);
-  std::string unreached;  // the first view the arm could not reach, and why
+  std::string missing;  // the first view missing, and why
+  // Each view's capture holds the arm; its decoding runs on while the arm moves to the next.
+  struct Pending {
+    std::string pose;
+    std::shared_future<ScanView> view;
+    double held_s;  // the arm's wait for the capture
+  };
+  std::vector<Pending> pending;
   for (const std::string& pose : cell_.ScanPoses(target.bin)) {
     const StepOutcome moved = WithRetries("move", [&] { return cell_.MoveToNamed(pose); });
     AddTime(report, "scan", moved.robot_s);
     if (!moved.ok) {
       // The other views still show the bin: detection works on what they see.
-      if (unreached.empty()) unreached = "cannot reach scan pose " + pose + ": " + moved.message;
+      if (missing.empty()) missing = "cannot reach scan pose " + pose + ": " + moved.message;
       Emit(&target, Step::kScan, false,
            "view skipped: cannot reach " + pose + ": " + moved.message);
       continue;
     }
     const auto start = Clock::now();
-    views.push_back(WithRetries("scan", [&] { return cell_.Scan(); }));
-    AddTime(report, "scan", std::max(views.back().capture_s, Seconds(start)));
+    std::shared_future<ScanView> view = WithRetries("scan", [&] { return cell_.StartScan(); });
+    pending.push_back({pose, std::move(view), Seconds(start)});
+    AddTime(report, "scan", pending.back().held_s);
+  }
+  for (Pending& p : pending) {
+    const auto start = Clock::now();
+    try {
+      views.push_back(p.view.get());
+    } catch (const CellError& e) {
+      if (missing.empty()) missing = "scan at " + p.pose + " failed: " + e.what();
+      Emit(&target, Step::kScan, false, "view lost: " + p.pose + ": " + e.what());
+      continue;
+    }
+    // What the arm waited for the decoding, and the capture's robot time beyond the wait.
+    AddTime(report, "scan", Seconds(start) + std::max(0.0, views.back().capture_s - p.held_s));
     EventScene scene;
     if (views.back().cloud_Base) {
       scene.scan_Base = ThinPoints(*views.back().cloud_Base, kViewerScanPoints);
     }
     Emit(&target, Step::kScan, true,
-         "captured view " + std::to_string(views.size()) + " (" + pose + ")", "", std::move(scene));
+         "captured view " + std::to_string(views.size()) + " (" + p.pose + ")", "",
+         std::move(scene));
   }
   if (views.empty()) {
-    target.last_failure = unreached.empty() ? "no scan pose for " + target.bin : unreached;
+    target.last_failure = missing.empty() ? "no scan pose for " + target.bin : missing;
   }
   return !views.empty();
 }
@@ -1063,17 +1084,37 @@ std::string PickTaskRunner::EarlyContact(const PlannedPick& plan,
 PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, TargetReport& report,
                                                               const PlannedPick& plan) {
   Emit(&target, Step::kVerify, true, "looking back into " + target.bin);
-  const auto start = Clock::now();
+  auto start = Clock::now();
   PendingLookBack pending;
   try {
-    const ScanView view = WithRetries("scan", [&] { return cell_.Scan(); });
-    clock_s_ += view.capture_s;  // the arm holds still for the capture
+    // The arm holds still for the capture (a scan's time), not for the decoding.
+    const std::shared_future<ScanView> pending_view =
+        WithRetries("scan", [&] { return cell_.StartScan(); });
+    double held_s = Seconds(start);
+    // A scan that came back whole tells the capture's robot time; one still decoding was
+    // captured within the wait.
+    if (pending_view.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+      try {
+        held_s = std::max(held_s, pending_view.get().capture_s);
+      } catch (const CellError&) {
+        // judged (inconclusive) with the view below
+      }
+    }
+    AddTime(report, "scan", held_s);
+    start = Clock::now();
     const Eigen::Vector3d p_found = report.X_BaseItem_detected.translation();
     // Copies only: the judgement runs on while the caller moves on. Its two questions go to
     // the detectors at once (another replica where there is one).
     pending.verdict = std::async(
         std::launch::async,
-        [this, bin = target.bin, item = target.item, plan, view, p_found]() -> LookBackVerdict {
+        [this, bin = target.bin, item = target.item, plan, pending_view,
+         p_found]() -> LookBackVerdict {
+          ScanView view;
+          try {
+            view = pending_view.get();
+          } catch (const CellError& e) {
+            return {"", e.what()};
+          }
           // The two questions are judged apart: a view that shows nothing of the bin (the
           // held item fills the wrist camera's view from the retreat's end) cannot say where
           // the target is, but may still show what the cup holds.
@@ -1084,6 +1125,7 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
               return std::nullopt;
             }
           });
+          const std::optional<HeldSurface> held = cell_.MeasureHeld(bin, item, plan, view);
           std::string detect_error;
           Detection seen;
           try {
@@ -1095,6 +1137,15 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
           if (detect_error.empty() && seen.found &&
               (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
             return {"the target is still where it was found; the cup holds another item", ""};
+          }
+          if (held && held->total() >= options_.held_min_points &&
+              held->BeyondFraction() > options_.held_max_beyond) {
+            char text[200];
+            std::snprintf(text, sizeof(text),
+                          "the held item is larger than %s: %.0f%% of what hangs from the cup "
+                          "lies outside its box",
+                          item.c_str(), 100.0 * held->BeyondFraction());
+            return {text, ""};
           }
           if (score && *score >= 0.0 && *score < options_.verify_min_score) {
             return {"the held item does not look like " + item + " (verify score " +

@@ -85,6 +85,13 @@ struct PickTaskOptions {
   /// supports almost none of the model (0.04-0.06, with one 0.20): the threshold rejects
   /// only clear mismatches.
   double verify_min_score = 0.1;
+  /// ... and the view's points in the space only a held item fills (MeasureHeldSurface: near
+  /// the cup, out of the container) must not lie outside the item's box for more than this
+  /// fraction of them: the cup holds something larger (two cylinders or two boxes of
+  /// different sizes are alike to Verify where they overlap). Judged where the view shows at
+  /// least `held_min_points` of that space.
+  double held_max_beyond = 0.25;
+  int held_min_points = 200;
   /// The guarded move stopping this much sooner than the grasp's surface as detected
   /// (PlannedPick::contact_distance_m) has met something in front of it (a neighbour
   /// standing over the target, or the target is not where it was found): the vacuum is not

@@ -5,6 +5,7 @@
 #include <grpcpp/client_context.h>
 
 #include <algorithm>
+#include <future>
 
 #include "libs/proto_convert/proto_convert.h"
 
@@ -269,10 +270,10 @@ StepOutcome GrpcCell::MoveToNamed(const std::string& name) {
   return {true, "", Execute(motion.trajectory()) + motion.planning_time_s()};
 }
 
-ScanView GrpcCell::Scan() {
+ScanView GrpcCell::Scan() { return StartScan().get(); }
+
+std::shared_future<ScanView> GrpcCell::StartScan() {
   const rb::GetStateResponse state = RobotState();
-  grpc::ClientContext ctx;
-  SetDeadline(ctx, options_.scan_deadline_s);
   sc::ScanRequest request;
   auto* view = request.add_views();
   *view->mutable_x_base_tool() = state.x_base_tool();
@@ -281,22 +282,70 @@ ScanView GrpcCell::Scan() {
   request.set_with_normals(true);
   request.set_with_intensities(true);
   request.mutable_decode()->set_min_neighbours(3);
-  auto reader = scanner_->Scan(&ctx, request);
-  pc::CloudAssembler assembler;
-  sc::ScanResponse response;
-  sc::ScanSummary summary;
-  while (reader->Read(&response)) {
-    if (response.has_cloud()) assembler.Add(response.cloud());
-    if (response.has_summary()) summary = response.summary();
+  auto captured = std::make_shared<std::promise<void>>();
+  auto finished = std::make_shared<std::promise<ScanView>>();
+  std::future<void> capture_over = captured->get_future();
+  std::shared_future<ScanView> view_done = finished->get_future().share();
+  {
+    std::lock_guard<std::mutex> lock(scans_mutex_);
+    // Scans already read to their end are let go; the rest are waited for by the destructor.
+    scans_.erase(std::remove_if(scans_.begin(), scans_.end(),
+                                [](const std::future<void>& f) {
+                                  return f.wait_for(std::chrono::seconds(0)) ==
+                                         std::future_status::ready;
+                                }),
+                 scans_.end());
+    const Eigen::Isometry3d X_BaseTcp = pc::PoseFromProto(state.x_base_tcp(), "robot X_base_tcp");
+    scans_.push_back(std::async(std::launch::async, [this, request, X_BaseTcp, captured, finished] {
+      ReadScan(request, X_BaseTcp, captured.get(), finished.get());
+    }));
   }
-  ThrowIfFailed("scanner", "Scan", reader->Finish());
-  ScanView out;
-  out.cloud_Base = std::make_shared<geometry::PointCloud>(assembler.Finish());
-  if (summary.x_frame_sensor_size() > 0) {
-    out.X_BaseCamera = pc::PoseFromProto(summary.x_frame_sensor(0), "X_frame_sensor");
+  capture_over.wait();
+  // A scan that failed before its capture was over fails here (its error is set first).
+  if (view_done.wait_for(std::chrono::seconds(0)) == std::future_status::ready) view_done.get();
+  return view_done;
+}
+
+void GrpcCell::ReadScan(const sc::ScanRequest& request, const Eigen::Isometry3d& X_BaseTcp,
+                        std::promise<void>* captured, std::promise<ScanView>* finished) const {
+  bool told = false;
+  auto tell = [&] {
+    if (!told) captured->set_value();
+    told = true;
+  };
+  try {
+    grpc::ClientContext ctx;
+    SetDeadline(ctx, options_.scan_deadline_s);
+    auto reader = scanner_->Scan(&ctx, request);
+    pc::CloudAssembler assembler;
+    sc::ScanResponse response;
+    sc::ScanSummary summary;
+    while (reader->Read(&response)) {
+      // The first stage after the capture: the images are taken, the arm may move.
+      if (response.has_progress() && response.progress().stage() != sc::SCAN_STAGE_CAPTURE) {
+        tell();
+      }
+      if (response.has_cloud()) assembler.Add(response.cloud());
+      if (response.has_summary()) summary = response.summary();
+    }
+    ThrowIfFailed("scanner", "Scan", reader->Finish());
+    ScanView out;
+    out.cloud_Base = std::make_shared<geometry::PointCloud>(assembler.Finish());
+    if (summary.x_frame_sensor_size() > 0) {
+      out.X_BaseCamera = pc::PoseFromProto(summary.x_frame_sensor(0), "X_frame_sensor");
+    }
+    out.X_BaseTcp = X_BaseTcp;
+    out.capture_s = summary.capture_time_s();
+    finished->set_value(std::move(out));
+  } catch (...) {
+    finished->set_exception(std::current_exception());
   }
-  out.capture_s = summary.capture_time_s();
-  return out;
+  tell();
+}
+
+GrpcCell::~GrpcCell() {
+  std::lock_guard<std::mutex> lock(scans_mutex_);
+  for (std::future<void>& scan : scans_) scan.wait();
 }
 
 Detection GrpcCell::Detect(const std::string& container, const std::string& item,
@@ -590,11 +639,10 @@ StepOutcome GrpcCell::ExecuteRetreat(const PlannedPick& pick) {
 
 double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,
                             const ScanView& view) {
-  const Eigen::Isometry3d X_BaseTcp =
-      pc::PoseFromProto(RobotState().x_base_tcp(), "robot X_base_tcp");
+  // The item hangs from the cup where the cup was at the capture.
   dt::VerifyParams params;
   params.set_item(item);
-  *params.mutable_x_frame_item() = pc::PoseToProto(X_BaseTcp * Stored(pick).X_TcpItem);
+  *params.mutable_x_frame_item() = pc::PoseToProto(view.X_BaseTcp * Stored(pick).X_TcpItem);
   *params.mutable_x_frame_sensor() = pc::PoseToProto(view.X_BaseCamera);
   std::vector<cm::PointCloudChunk> chunks = pc::CloudToChunks(*view.cloud_Base);
   dt::VerifyResponse response;
@@ -603,6 +651,34 @@ double GrpcCell::VerifyHeld(const std::string& item, const PlannedPick& pick,
     return -1.0;
   }
   return response.score();
+}
+
+std::optional<HeldSurface> GrpcCell::MeasureHeld(const std::string& container,
+                                                 const std::string& item, const PlannedPick& pick,
+                                                 const ScanView& view) {
+  const auto size = options_.item_size_m.find(item);
+  if (size == options_.item_size_m.end() || !view.cloud_Base || pick.handle < 0) {
+    return std::nullopt;
+  }
+  // The container's opening plane, its normal pointing out: a shelf bin's front, the tote's
+  // rim.
+  Eigen::Vector3d p_BaseOpening, n_BaseOpening;
+  const world::CellConfig& config = options_.cell.config;
+  if (container == "tote") {
+    const Eigen::AlignedBox3d& inner = options_.cell.tote_inner_T();
+    p_BaseOpening = config.X_BaseTote *
+                    Eigen::Vector3d(inner.center().x(), inner.center().y(), inner.max().z());
+    n_BaseOpening = config.X_BaseTote.linear().col(2);
+  } else if (container.rfind("bin_", 0) == 0) {
+    const world::BinGeometry& bin = options_.cell.bin(container);
+    p_BaseOpening = config.X_BaseShelf * Eigen::Vector3d(bin.opening_x_m, bin.inner_S.center().y(),
+                                                         bin.inner_S.center().z());
+    n_BaseOpening = config.X_BaseShelf.linear().col(0);
+  } else {
+    return std::nullopt;
+  }
+  return MeasureHeldSurface(*view.cloud_Base, view.X_BaseTcp, Stored(pick).X_TcpItem, size->second,
+                            p_BaseOpening, n_BaseOpening);
 }
 
 StepOutcome GrpcCell::PutBack(const PlannedPick& pick) {

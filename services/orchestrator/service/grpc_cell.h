@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <functional>
+#include <future>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -43,6 +44,9 @@ struct GrpcCellOptions {
   /// looked for with the target (the orchestrator tells them apart, ResolveAgainstOthers).
   int poses_per_item = 3;
   world::CellModel cell;  ///< For the bins' boxes (the detector's regions).
+  /// Each item's box as modelled (long, middle, short side after folding, metres), for the
+  /// look back's measure of the held item; an item not listed is not measured.
+  std::map<std::string, Eigen::Vector3d> item_size_m;
   /// Per-call deadlines, seconds.
   double scan_deadline_s = 120.0;
   double plan_deadline_s = 30.0;
@@ -60,10 +64,14 @@ struct GrpcCellOptions {
 class GrpcCell final : public CellPort {
  public:
   explicit GrpcCell(GrpcCellOptions options);
+  /// Waits for the scans still being read (each bounded by its deadline).
+  ~GrpcCell() override;
 
   std::vector<std::string> ScanPoses(const std::string& container) override;
   StepOutcome MoveToNamed(const std::string& name) override;
   ScanView Scan() override;
+  /// The Scan call read on another thread; returns at the first progress past the capture.
+  std::shared_future<ScanView> StartScan() override;
   Detection Detect(const std::string& container, const std::string& item,
                    const std::vector<ScanView>& views,
                    const std::vector<std::string>& others) override;
@@ -82,6 +90,8 @@ class GrpcCell final : public CellPort {
   StepOutcome ReturnFromPlace() override;
   double VerifyHeld(const std::string& item, const PlannedPick& pick,
                     const ScanView& view) override;
+  std::optional<HeldSurface> MeasureHeld(const std::string& container, const std::string& item,
+                                         const PlannedPick& pick, const ScanView& view) override;
 
  private:
   struct StoredPick {
@@ -105,6 +115,12 @@ class GrpcCell final : public CellPort {
 
   GrpcCellOptions options_;
   std::unique_ptr<scanner::v1::ScannerService::Stub> scanner_;
+  // Reads one Scan stream to its end: `captured` set once the capture is over (or the call
+  // has ended: its outcome set first in `finished`).
+  void ReadScan(const scanner::v1::ScanRequest& request, const Eigen::Isometry3d& X_BaseTcp,
+                std::promise<void>* captured, std::promise<ScanView>* finished) const;
+  mutable std::mutex scans_mutex_;
+  std::vector<std::future<void>> scans_;  // the scans being read
   std::unique_ptr<planner::v1::PlannerService::Stub> planner_;
   std::unique_ptr<robot::v1::RobotService::Stub> robot_;
   std::unique_ptr<gripper::v1::GripperService::Stub> gripper_;

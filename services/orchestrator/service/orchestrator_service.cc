@@ -7,6 +7,7 @@
 #include "libs/runtime/channel.h"
 #include "libs/runtime/status.h"
 #include "libs/world/cell_config.h"
+#include "libs/world/item_shapes.h"
 #include "services/orchestrator/core/task_manager.h"
 #include "services/orchestrator/detector_pool/detector_pool.h"
 #include "services/orchestrator/service/grpc_cell.h"
@@ -336,6 +337,11 @@ runtime::ServiceSet BuildOrchestratorServices(const runtime::Config& config) {
   GrpcCellOptions cell;
   const std::string cell_path = config.GetPath("cell", world::DefaultCellConfigPath(data_dir));
   cell.cell = world::LoadCellModel(world::ReadCellConfig(cell_path));
+  const world::ShapeTable shapes = world::ShapeTable::FromYamlFile(
+      config.GetPath("shapes", data_dir + "/items/shapes.yaml"), catalogue);
+  for (const apc::Item& item : catalogue.items()) {
+    cell.item_size_m[item.name] = world::ModelledSize(item, shapes.at(item.name));
+  }
   for (const world::BinGeometry& bin : cell.cell.bins) {
     options.pick.bin_volume_m3[bin.name] = bin.inner_S.volume();
   }

@@ -98,6 +98,31 @@ class ScriptedCell final : public CellPort {
     v.capture_s = 1.0;
     return v;
   }
+  // StartScan returns at once and each view is decoded only when it is asked for (as a
+  // scanner still decoding while the arm moves on); the n-th view (1-based, over the whole
+  // task) fails after its capture.
+  bool decode_later = false;
+  int lost_view = 0;
+  int started_scans = 0;
+  std::shared_future<ScanView> StartScan() override {
+    if (!decode_later) return CellPort::StartScan();
+    int n = 0;
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      n = ++started_scans;
+      calls.push_back("capture " + std::to_string(n));
+    }
+    return std::async(std::launch::deferred,
+                      [this, n] {
+                        {
+                          std::lock_guard<std::mutex> lock(mu);
+                          calls.push_back("decoded " + std::to_string(n));
+                        }
+                        if (n == lost_view) throw CellError("scanner", false, "decoding failed");
+                        return Scan();
+                      })
+        .share();
+  }
   Detection Detect(const std::string& container, const std::string& item,
                    const std::vector<ScanView>& views,
                    const std::vector<std::string>& others) override {
@@ -215,6 +240,16 @@ class ScriptedCell final : public CellPort {
   double VerifyHeld(const std::string&, const PlannedPick&, const ScanView&) override {
     std::lock_guard<std::mutex> lock(mu);
     return held_looks_wrong ? 0.05 : -1.0;
+  }
+  // What the look back shows of the held item's space (once per entry, then nothing).
+  std::vector<HeldSurface> held_surfaces;
+  std::optional<HeldSurface> MeasureHeld(const std::string&, const std::string&, const PlannedPick&,
+                                         const ScanView&) override {
+    std::lock_guard<std::mutex> lock(mu);
+    if (held_surfaces.empty()) return std::nullopt;
+    const HeldSurface next = held_surfaces.front();
+    held_surfaces.erase(held_surfaces.begin());
+    return next;
   }
   StepOutcome PutBack(const PlannedPick&) override {
     std::lock_guard<std::mutex> lock(mu);
@@ -338,6 +373,28 @@ TEST_F(PickTaskTest, AScanViewTheArmCannotReachIsSkippedAndTheOthersServe) {
     reason |= t.failure.find("cannot reach scan pose scan/bin_A/0") != std::string::npos;
   }
   EXPECT_TRUE(reason);
+}
+
+TEST_F(PickTaskTest, TheArmMovesToTheNextViewWhileTheLastOneIsDecoded) {
+  ScriptedCell cell;
+  cell.decode_later = true;
+  cell.lost_view = 2;  // the first target's second view fails after its capture
+  std::vector<TaskEvent> events;
+  const PickTaskResult result = Run(cell, &events);
+  EXPECT_EQ(result.items_moved, 3) << result.error;
+  const std::vector<std::string>& c = cell.calls;
+  auto at = [&](const std::string& call) {
+    return std::find(c.begin(), c.end(), call) - c.begin();
+  };
+  EXPECT_LT(at("capture 1"), at("move scan/bin_A/1"));
+  EXPECT_LT(at("move scan/bin_A/2"), at("decoded 1"));  // decoded after the arm moved on
+  EXPECT_LT(at("decoded 3"), at("detect kleenex_tissue_box"));
+  bool said = false;
+  for (const TaskEvent& e : events) {
+    said |= !e.ok && e.message.find("view lost: scan/bin_A/1: scanner: decoding failed") !=
+                         std::string::npos;
+  }
+  EXPECT_TRUE(said);
 }
 
 TEST_F(PickTaskTest, EventsCarryWhatAViewerDrawsAndTheJournalKeepsIt) {
@@ -849,6 +906,24 @@ TEST_F(PickTaskTest, AHeldItemThatDoesNotLookLikeTheTargetIsPutBack) {
   EXPECT_EQ(cell.put_back.size(), 6u);
   EXPECT_NE(result.targets[0].failure.find("does not look like"), std::string::npos);
   EXPECT_EQ(result.state, TaskState::kSucceeded);
+}
+
+TEST_F(PickTaskTest, AHeldItemLargerThanTheTargetIsPutBack) {
+  ScriptedCell cell;
+  HeldSurface larger;
+  larger.on_item = 600;
+  larger.beyond = 900;  // 60 % outside the target's box: a larger item hangs from the cup
+  HeldSurface right;
+  right.on_item = 1000;
+  right.beyond = 50;  // 5 %: the grasp's pose error
+  HeldSurface glimpse;
+  glimpse.beyond = 150;  // too little in view to tell
+  cell.held_surfaces = {larger, right, glimpse};
+  const PickTaskResult result = Run(cell);
+  EXPECT_EQ(result.items_moved, 3) << result.error;  // the first one at its second attempt
+  ASSERT_EQ(cell.put_back.size(), 1u);
+  EXPECT_EQ(cell.put_back[0], "kleenex_tissue_box");
+  EXPECT_EQ(result.targets[0].attempts, 2);
 }
 
 TEST_F(PickTaskTest, AServiceThatDoesNotAnswerIsRetriedWithBackoff) {
