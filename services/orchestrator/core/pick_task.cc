@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <optional>
 #include <set>
 #include <thread>
@@ -1153,7 +1154,17 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
                     ""};
           }
           if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
-          return {};
+          char measured[160] = "";
+          if (score && *score >= 0.0) {
+            std::snprintf(measured, sizeof(measured), "Verify %.2f", *score);
+          }
+          if (held && held->total() > 0) {
+            const std::size_t used = std::strlen(measured);
+            std::snprintf(measured + used, sizeof(measured) - used,
+                          "%s%.0f%% of %d points near the cup outside its box", used ? "; " : "",
+                          100.0 * held->BeyondFraction(), held->total());
+          }
+          return {"", "", measured};
         });
   } catch (const CellError& e) {
     Emit(&target, Step::kVerify, true, std::string("look back inconclusive: ") + e.what());
@@ -1174,7 +1185,9 @@ std::string PickTaskRunner::FinishLookBack(Target& target, TargetReport& report,
     return "";
   }
   Emit(&target, Step::kVerify, verdict.wrong.empty(),
-       verdict.wrong.empty() ? "the held item may be the target" : verdict.wrong);
+       verdict.wrong.empty() ? "the held item may be the target" +
+                                   (verdict.measured.empty() ? "" : " (" + verdict.measured + ")")
+                             : verdict.wrong);
   return verdict.wrong;
 }
 

@@ -282,6 +282,7 @@ class PickTaskRunner final {
   struct LookBackVerdict {
     std::string wrong;         // why the held item is not the target, "" if it may be
     std::string inconclusive;  // why the view could not tell, "" if it could
+    std::string measured;      // what the view showed of the held item, for the event
   };
   struct PendingLookBack {
     std::future<LookBackVerdict> verdict;  // not valid: no look back under way
