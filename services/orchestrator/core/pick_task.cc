@@ -1148,12 +1148,7 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
                           item.c_str(), 100.0 * held->BeyondFraction());
             return {text, ""};
           }
-          if (score && *score >= 0.0 && *score < options_.verify_min_score) {
-            return {"the held item does not look like " + item + " (verify score " +
-                        std::to_string(*score) + ")",
-                    ""};
-          }
-          if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
+          // What the view showed of the held item, for the event.
           char measured[160] = "";
           if (score && *score >= 0.0) {
             std::snprintf(measured, sizeof(measured), "Verify %.2f", *score);
@@ -1164,6 +1159,10 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
                           "%s%.0f%% of %d points near the cup outside its box", used ? "; " : "",
                           100.0 * held->BeyondFraction(), held->total());
           }
+          if (score && *score >= 0.0 && *score < options_.verify_min_score) {
+            return {"the held item does not look like " + item + " (" + measured + ")", ""};
+          }
+          if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
           return {"", "", measured};
         });
   } catch (const CellError& e) {
