@@ -198,10 +198,11 @@ std::vector<NamedPoseChoices> ComputeNamedPoses(
     const std::vector<world::BinScanView> views = world::CellBinScanViews();
     for (std::size_t k = 0; k < views.size(); ++k) {
       // Where the arm cannot hold the camera at the view's point (the wrist would pass the
-      // base axis for the middle column), a little lower or higher, closer or farther.
+      // base axis for the middle column), a little higher (seeing over the front items) or
+      // lower, closer or farther.
       std::vector<Eigen::Isometry3d> candidates;
       for (const double standoff : {0.0, -0.05, -0.10, 0.05}) {
-        for (const double raise : {0.0, -0.08, 0.08, -0.15, -0.22}) {
+        for (const double raise : {0.0, 0.08, -0.08, -0.15, -0.22}) {
           world::BinScanView view = views[k];
           view.standoff_m += standoff;
           view.height_above_centre_m += raise;
