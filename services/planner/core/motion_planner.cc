@@ -235,10 +235,10 @@ std::vector<NamedPoseChoices> ComputeNamedPoses(
   return poses;
 }
 
-std::vector<NamedPose> ChooseReachablePoses(const std::vector<NamedPoseChoices>& choices,
-                                            const MotionChecker& checker,
-                                            const RoadmapOptions& options,
-                                            std::vector<std::string>* unreachable) {
+std::unique_ptr<Roadmap> ReachableRoadmap(const std::vector<NamedPoseChoices>& choices,
+                                          const MotionChecker& checker,
+                                          const RoadmapOptions& options,
+                                          std::vector<std::string>* unreachable) {
   std::vector<std::size_t> pick(choices.size(), 0);
   auto chosen = [&] {
     std::vector<NamedPose> out;
@@ -251,24 +251,27 @@ std::vector<NamedPose> ChooseReachablePoses(const std::vector<NamedPoseChoices>&
   if (!choices.empty()) settled[0] = true;  // the start of every check
   // Each round checks the unsettled poses against a roadmap over the current choices and
   // moves each that fails to its next choice; a pose with no choice left settles on its first.
-  for (bool changed = true; changed;) {
-    changed = false;
-    const Roadmap roadmap(checker, chosen(), options);
+  // The last round changes nothing: its roadmap holds the chosen poses, with the edges its
+  // checks found free or blocked already known and the paths from home cached.
+  for (;;) {
+    bool changed = false;
+    auto roadmap = std::make_unique<Roadmap>(checker, chosen(), options);
     for (std::size_t i = 1; i < choices.size(); ++i) {
       if (settled[i]) continue;
-      if (roadmap.Plan(choices[0].q_rad[pick[0]], choices[i].q_rad[pick[i]]).ok) {
+      if (roadmap->Plan(choices[0].q_rad[pick[0]], choices[i].q_rad[pick[i]]).ok) {
         settled[i] = true;
       } else if (pick[i] + 1 < choices[i].q_rad.size()) {
         ++pick[i];
         changed = true;
       } else {
         pick[i] = 0;
+        changed = true;  // the roadmap is built again over its first choice
         settled[i] = true;
         if (unreachable) unreachable->push_back(choices[i].name);
       }
     }
+    if (!changed) return roadmap;
   }
-  return chosen();
 }
 
 // ---------------------------------------------------------------------------------------
@@ -319,10 +322,7 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
     for (const auto& m : missing) list += (list.empty() ? "" : ", ") + m;
     throw std::runtime_error("no collision-free IK solution for the named poses: " + list);
   }
-  roadmap_ = std::make_unique<Roadmap>(
-      *static_motion_,
-      ChooseReachablePoses(choices, *static_motion_, options_.roadmap, &unreachable_poses_),
-      options_.roadmap);
+  roadmap_ = ReachableRoadmap(choices, *static_motion_, options_.roadmap, &unreachable_poses_);
 }
 
 MotionPlanner::~MotionPlanner() = default;

@@ -244,7 +244,7 @@ class MotionPlanner final {
   const StaticCell& cell() const { return *cell_; }
   const std::vector<NamedPose>& named_poses() const { return roadmap_->named(); }
   /// Named poses the roadmap joins to "home" by none of their configurations
-  /// (ChooseReachablePoses): motions to them fail.
+  /// (ReachableRoadmap): motions to them fail.
   const std::vector<std::string>& unreachable_named_poses() const { return unreachable_poses_; }
   const MotionPlannerOptions& options() const { return options_; }
 
@@ -455,16 +455,17 @@ std::vector<NamedPoseChoices> ComputeNamedPoses(
     const ExactChecker& exact, const JointVector& home_rad, const Eigen::Isometry3d& X_ToolCamera,
     std::vector<std::string>* missing, std::size_t max_choices = 8);
 
-/// One configuration per named pose that the roadmap joins to the first pose ("home"): a
-/// configuration can be free and still sit in a pocket of the joint space that no motion
-/// reaches (an arm stretched up into a top bin's view, its wrist turned the far way round).
-/// Each pose takes its first choice that a Roadmap over the chosen poses plans to from the
-/// first; one with no such choice keeps its first (motions to it then fail with the
-/// roadmap's reason) and is named in `unreachable`.
-std::vector<NamedPose> ChooseReachablePoses(const std::vector<NamedPoseChoices>& choices,
-                                            const MotionChecker& checker,
-                                            const RoadmapOptions& options,
-                                            std::vector<std::string>* unreachable);
+/// The roadmap over one configuration per named pose, each one the roadmap joins to the first
+/// pose ("home"): a configuration can be free and still sit in a pocket of the joint space
+/// that no motion reaches (an arm stretched up into a top bin's view, its wrist turned the
+/// far way round). Each pose takes its first choice that a Roadmap over the chosen poses
+/// plans to from the first; one with no such choice keeps its first (motions to it then fail
+/// with the roadmap's reason) and is named in `unreachable`. The roadmap returned is the one
+/// the last checks ran on: the edges they checked are known, their paths from home cached.
+std::unique_ptr<Roadmap> ReachableRoadmap(const std::vector<NamedPoseChoices>& choices,
+                                          const MotionChecker& checker,
+                                          const RoadmapOptions& options,
+                                          std::vector<std::string>* unreachable);
 
 /// The UR10 facing the shelf, elbow up, the tool pointing at the shelf: the default home.
 JointVector DefaultHomeJoints();
