@@ -1106,70 +1106,77 @@ PickTaskRunner::PendingLookBack PickTaskRunner::StartLookBack(Target& target, Ta
     const Eigen::Vector3d p_found = report.X_BaseItem_detected.translation();
     // Copies only: the judgement runs on while the caller moves on. Its two questions go to
     // the detectors at once (another replica where there is one).
-    pending.verdict = std::async(
-        std::launch::async,
-        [this, bin = target.bin, item = target.item, plan, pending_view,
-         p_found]() -> LookBackVerdict {
-          ScanView view;
-          try {
-            view = pending_view.get();
-          } catch (const CellError& e) {
-            return {"", e.what()};
-          }
-          // The two questions are judged apart: a view that shows nothing of the bin (the
-          // held item fills the wrist camera's view from the retreat's end) cannot say where
-          // the target is, but may still show what the cup holds.
-          auto verify = std::async(std::launch::async, [&]() -> std::optional<double> {
-            try {
-              return cell_.VerifyHeld(item, plan, view);
-            } catch (const CellError&) {
-              return std::nullopt;
-            }
-          });
-          const std::optional<HeldSurface> held = cell_.MeasureHeld(bin, item, plan, view);
-          std::string detect_error;
-          Detection seen;
-          try {
-            seen = cell_.Detect(bin, item, {view}, {});
-          } catch (const CellError& e) {
-            detect_error = e.what();
-          }
-          const std::optional<double> score = verify.get();
-          if (detect_error.empty() && seen.found &&
-              (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
-            return {"the target is still where it was found; the cup holds another item", ""};
-          }
-          if (held && held->total() >= options_.held_min_points &&
-              held->BeyondFraction() > options_.held_max_beyond) {
-            char text[200];
-            std::snprintf(text, sizeof(text),
-                          "the held item is larger than %s: %.0f%% of what hangs from the cup "
-                          "lies outside its box",
-                          item.c_str(), 100.0 * held->BeyondFraction());
-            return {text, ""};
-          }
-          // What the view showed of the held item, for the event.
-          char measured[160] = "";
-          if (score && *score >= 0.0) {
-            std::snprintf(measured, sizeof(measured), "Verify %.2f", *score);
-          }
-          if (held && held->total() > 0) {
-            const std::size_t used = std::strlen(measured);
-            std::snprintf(measured + used, sizeof(measured) - used,
-                          "%s%.0f%% of %d points near the cup outside its box", used ? "; " : "",
-                          100.0 * held->BeyondFraction(), held->total());
-          }
-          if (score && *score >= 0.0 && *score < options_.verify_min_score) {
-            return {"the held item does not look like " + item + " (" + measured + ")", ""};
-          }
-          if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
-          return {"", "", measured};
-        });
+    pending.verdict = std::async(std::launch::async,
+                                 [this, bin = target.bin, item = target.item, plan, pending_view,
+                                  p_found]() -> LookBackVerdict {
+                                   ScanView view;
+                                   try {
+                                     view = pending_view.get();
+                                   } catch (const CellError& e) {
+                                     return {"", e.what()};
+                                   }
+                                   return JudgeLookBack(bin, item, plan, view, p_found);
+                                 });
   } catch (const CellError& e) {
     Emit(&target, Step::kVerify, true, std::string("look back inconclusive: ") + e.what());
   }
   AddTime(report, "verify", Seconds(start));
   return pending;
+}
+
+// The look back's two questions, judged apart: a view that shows nothing of the bin (the
+// held item fills the wrist camera's view from the retreat's end) cannot say where the target
+// is, but may still show what the cup holds.
+PickTaskRunner::LookBackVerdict PickTaskRunner::JudgeLookBack(const std::string& bin,
+                                                              const std::string& item,
+                                                              const PlannedPick& plan,
+                                                              const ScanView& view,
+                                                              const Eigen::Vector3d& p_found) {
+  auto verify = std::async(std::launch::async, [&]() -> std::optional<double> {
+    try {
+      return cell_.VerifyHeld(item, plan, view);
+    } catch (const CellError&) {
+      return std::nullopt;
+    }
+  });
+  const std::optional<HeldSurface> held = cell_.MeasureHeld(bin, item, plan, view);
+  std::string detect_error;
+  Detection seen;
+  try {
+    seen = cell_.Detect(bin, item, {view}, {});
+  } catch (const CellError& e) {
+    detect_error = e.what();
+  }
+  const std::optional<double> score = verify.get();
+  if (detect_error.empty() && seen.found &&
+      (seen.X_BaseItem.translation() - p_found).norm() < options_.verify_same_pose_m) {
+    return {"the target is still where it was found; the cup holds another item", ""};
+  }
+  if (held && held->total() >= options_.held_min_points &&
+      held->BeyondFraction() > options_.held_max_beyond) {
+    char text[200];
+    std::snprintf(text, sizeof(text),
+                  "the held item is larger than %s: %.0f%% of what hangs from the cup "
+                  "lies outside its box",
+                  item.c_str(), 100.0 * held->BeyondFraction());
+    return {text, ""};
+  }
+  // What the view showed of the held item, for the event.
+  char measured[160] = "";
+  if (score && *score >= 0.0) {
+    std::snprintf(measured, sizeof(measured), "Verify %.2f", *score);
+  }
+  if (held && held->total() > 0) {
+    const std::size_t used = std::strlen(measured);
+    std::snprintf(measured + used, sizeof(measured) - used,
+                  "%s%.0f%% of %d points near the cup outside its box", used ? "; " : "",
+                  100.0 * held->BeyondFraction(), held->total());
+  }
+  if (score && *score >= 0.0 && *score < options_.verify_min_score) {
+    return {"the held item does not look like " + item + " (" + measured + ")", ""};
+  }
+  if (!detect_error.empty() && !(score && *score >= 0.0)) return {"", detect_error};
+  return {"", "", measured};
 }
 
 std::string PickTaskRunner::FinishLookBack(Target& target, TargetReport& report,

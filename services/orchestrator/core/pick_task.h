@@ -284,6 +284,11 @@ class PickTaskRunner final {
     std::string inconclusive;  // why the view could not tell, "" if it could
     std::string measured;      // what the view showed of the held item, for the event
   };
+  // The held item judged from the look back's view (Verify, the held item's measure) and
+  // whether the target is still where it was found (within verify_same_pose_m of p_found).
+  LookBackVerdict JudgeLookBack(const std::string& bin, const std::string& item,
+                                const PlannedPick& plan, const ScanView& view,
+                                const Eigen::Vector3d& p_found);
   struct PendingLookBack {
     std::future<LookBackVerdict> verdict;  // not valid: no look back under way
   };
