@@ -348,6 +348,22 @@ GrpcCell::~GrpcCell() {
   for (std::future<void>& scan : scans_) scan.wait();
 }
 
+GrpcCell::ContainerBox GrpcCell::InnerBox(const std::string& container) const {
+  const world::CellConfig& config = options_.cell.config;
+  if (container == "tote") {
+    const Eigen::AlignedBox3d& inner = options_.cell.tote_inner_T();
+    return {config.X_BaseTote * Eigen::Translation3d(inner.center()), inner.sizes()};
+  }
+  if (container == "table") {
+    // The space over the table's top, as high as an item set down on it stands.
+    constexpr double kHeightM = 0.3;
+    return {config.X_BaseTable * Eigen::Translation3d(0.0, 0.0, 0.5 * kHeightM),
+            Eigen::Vector3d(config.table_size_m.x(), config.table_size_m.y(), kHeightM)};
+  }
+  const world::BinGeometry& bin = options_.cell.bin(container);
+  return {config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center()), bin.inner_S.sizes()};
+}
+
 Detection GrpcCell::Detect(const std::string& container, const std::string& item,
                            const std::vector<ScanView>& views,
                            const std::vector<std::string>& others) {
@@ -364,26 +380,9 @@ Detection GrpcCell::Detect(const std::string& container, const std::string& item
     query->set_max_results(poses);
   }
   // The region: the bin's or the tote's free inner box.
-  Eigen::Isometry3d X_BaseRegion;
-  Eigen::Vector3d size_m;
-  if (container == "tote") {
-    const Eigen::AlignedBox3d inner = options_.cell.tote_inner_T();
-    X_BaseRegion = options_.cell.config.X_BaseTote * Eigen::Translation3d(inner.center());
-    size_m = inner.sizes();
-  } else if (container == "table") {
-    // The space over the table's top, as high as an item set down on it stands.
-    constexpr double kHeightM = 0.3;
-    X_BaseRegion =
-        options_.cell.config.X_BaseTable * Eigen::Translation3d(0.0, 0.0, 0.5 * kHeightM);
-    size_m = Eigen::Vector3d(options_.cell.config.table_size_m.x(),
-                             options_.cell.config.table_size_m.y(), kHeightM);
-  } else {
-    const world::BinGeometry& bin = options_.cell.bin(container);
-    X_BaseRegion = options_.cell.config.X_BaseShelf * Eigen::Translation3d(bin.inner_S.center());
-    size_m = bin.inner_S.sizes();
-  }
-  *params.mutable_region()->mutable_x_frame_region() = pc::PoseToProto(X_BaseRegion);
-  *params.mutable_region()->mutable_size_m() = pc::VectorToProto(size_m);
+  const ContainerBox region = InnerBox(container);
+  *params.mutable_region()->mutable_x_frame_region() = pc::PoseToProto(region.X_BaseBox);
+  *params.mutable_region()->mutable_size_m() = pc::VectorToProto(region.size_m);
   params.mutable_region()->set_wall_margin_m(options_.wall_margin_m);
   if (views.size() > 1) {
     for (const ScanView& v : views) *params.add_x_frame_sensor() = pc::PoseToProto(v.X_BaseCamera);
@@ -660,23 +659,14 @@ std::optional<HeldSurface> GrpcCell::MeasureHeld(const std::string& container,
   if (size == options_.item_size_m.end() || !view.cloud_Base || pick.handle < 0) {
     return std::nullopt;
   }
-  // The container's opening plane, its normal pointing out: a shelf bin's front, the tote's
-  // rim.
-  Eigen::Vector3d p_BaseOpening, n_BaseOpening;
-  const world::CellConfig& config = options_.cell.config;
-  if (container == "tote") {
-    const Eigen::AlignedBox3d& inner = options_.cell.tote_inner_T();
-    p_BaseOpening = config.X_BaseTote *
-                    Eigen::Vector3d(inner.center().x(), inner.center().y(), inner.max().z());
-    n_BaseOpening = config.X_BaseTote.linear().col(2);
-  } else if (container.rfind("bin_", 0) == 0) {
-    const world::BinGeometry& bin = options_.cell.bin(container);
-    p_BaseOpening = config.X_BaseShelf * Eigen::Vector3d(bin.opening_x_m, bin.inner_S.center().y(),
-                                                         bin.inner_S.center().z());
-    n_BaseOpening = config.X_BaseShelf.linear().col(0);
-  } else {
-    return std::nullopt;
-  }
+  // The container's opening plane, its normal pointing out: the face of its inner box at a
+  // shelf bin's front (the box's +x) or the tote's rim (+z).
+  if (container != "tote" && container.rfind("bin_", 0) != 0) return std::nullopt;
+  const int out_axis = container == "tote" ? 2 : 0;
+  const ContainerBox box = InnerBox(container);
+  const Eigen::Vector3d p_BaseOpening =
+      box.X_BaseBox * (0.5 * box.size_m[out_axis] * Eigen::Vector3d::Unit(out_axis));
+  const Eigen::Vector3d n_BaseOpening = box.X_BaseBox.linear().col(out_axis);
   return MeasureHeldSurface(*view.cloud_Base, view.X_BaseTcp, Stored(pick).X_TcpItem, size->second,
                             p_BaseOpening, n_BaseOpening);
 }

@@ -98,6 +98,13 @@ class GrpcCell final : public CellPort {
     planner::v1::PlanPickResponse response;
     Eigen::Isometry3d X_TcpItem = Eigen::Isometry3d::Identity();
   };
+  // A container's free inner box: the box's centre and axes (a shelf bin's x out of its
+  // opening, the tote's z up), and its size. "table": the space over the table's top.
+  struct ContainerBox {
+    Eigen::Isometry3d X_BaseBox;
+    Eigen::Vector3d size_m;
+  };
+  ContainerBox InnerBox(const std::string& container) const;
   robot::v1::GetStateResponse RobotState();
   /// Executes a trajectory; returns its duration (robot seconds).
   double Execute(const common::v1::JointTrajectory& trajectory);

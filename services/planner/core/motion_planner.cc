@@ -181,7 +181,10 @@ std::vector<NamedPoseChoices> ComputeNamedPoses(
   // The candidate poses' solutions, in order of preference.
   auto add_first = [&](const std::string& name, const std::vector<Eigen::Isometry3d>& candidates) {
     NamedPoseChoices pose{name, {}};
-    for (const Eigen::Isometry3d& X_BaseTool : candidates) solve(X_BaseTool, &pose.q_rad);
+    for (const Eigen::Isometry3d& X_BaseTool : candidates) {
+      if (pose.q_rad.size() >= max_choices) break;  // no IK for choices never taken
+      solve(X_BaseTool, &pose.q_rad);
+    }
     if (!pose.q_rad.empty()) {
       poses.push_back(std::move(pose));
     } else if (missing) {
