@@ -12,7 +12,10 @@
 // `--layouts=1,2` plans those layouts only;
 // `--all-failures` lists every grasp's failure of a target without a plan, not just the
 // most advanced one; `--reach-oracle` says for each target without a plan how many grasp
-// poses on its faces are free at all (FreeGraspPoses: 0 means no plan could end there).
+// poses on its faces are free at all (FreeGraspPoses: 0 means no plan could end there);
+// `--describe-bins` lists, for each target without a plan, every item of its bin as the
+// simulator placed it (depth from the opening, across from the bin's right wall as the robot
+// sees it, height over the floor: the bounds of its box, metres).
 // pick_layout_3 is held out: the planner is developed on layouts 1 and 2 and the figures are given
 // per layout.
 #include <octomap/OcTree.h>
@@ -184,6 +187,7 @@ struct BenchArgs {
   bool checks_only = false;
   bool all_failures = false;
   bool reach_oracle = false;
+  bool describe_bins = false;
   std::vector<int> layouts = {1, 2, 3};
   /// The gripper's head on a servo joint (0: the cell's gripper as described).
   double head_length_m = -1.0;
@@ -322,9 +326,35 @@ int FreeGraspPoses(const Setup& s, const PlanningScene& scene, const std::string
   return free;
 }
 
+// The items of a bin as placed (ground truth): the shelf-frame bounds of each item's box as
+// depth behind the opening, across from the bin's -y wall and height over its floor. The
+// target is starred.
+void DescribeBin(const Setup& s, const std::string& bin, const std::string& target,
+                 const std::vector<simulator::ItemState>& in_bin) {
+  const world::BinGeometry& b = s.cell.bin(bin);
+  const Eigen::Isometry3d X_ShelfBase = s.cell.config.X_BaseShelf.inverse();
+  std::printf("      %s: %.2f m deep, %.2f m wide, %.2f m high\n", bin.c_str(), b.depth_m(),
+              b.width_m(), b.height_m());
+  for (const auto& state : in_bin) {
+    const Eigen::AlignedBox3d& box_Item = s.items->Get(state.name)->box_I;
+    Eigen::AlignedBox3d box_Shelf;
+    for (int c = 0; c < 8; ++c) {
+      box_Shelf.extend(X_ShelfBase * state.X_BaseItem *
+                       box_Item.corner(static_cast<Eigen::AlignedBox3d::CornerType>(c)));
+    }
+    std::printf("      %s %-36s depth %.2f..%.2f, across %.2f..%.2f, height %.2f..%.2f\n",
+                state.name == target ? "*" : " ", state.name.c_str(),
+                b.opening_x_m - box_Shelf.max().x(), b.opening_x_m - box_Shelf.min().x(),
+                box_Shelf.min().y() - b.inner_S.min().y(),
+                box_Shelf.max().y() - b.inner_S.min().y(), box_Shelf.min().z() - b.floor_max_z_m,
+                box_Shelf.max().z() - b.floor_max_z_m);
+  }
+}
+
 // One target: its bin scanned, the pick planned, validated and carried on to the tote.
 void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer, int layout,
-             const std::string& bin, const std::string& item, const Eigen::Isometry3d& X_BaseItem,
+             const std::string& bin, const std::string& item,
+             const std::vector<simulator::ItemState>& in_bin, const Eigen::Isometry3d& X_BaseItem,
              const BenchArgs& args, PickFigures* f) {
   const std::vector<float> xyz = ScanBin(s, renderer, bin);
   const PlanningScene scene =
@@ -358,6 +388,7 @@ void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer,
   } catch (const PlanFailedError& e) {
     f->refusals.push_back(Ms(t));
     std::printf("  no plan: %s (%.0f ms): %s\n", label.c_str(), Ms(t), e.what());
+    if (args.describe_bins) DescribeBin(s, bin, item, in_bin);
     if (args.reach_oracle) {
       std::printf("      free grasp poses at all: %d\n",
                   FreeGraspPoses(s, scene, bin, item, X_BaseItem));
@@ -419,7 +450,7 @@ void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
       const auto it = std::find_if(in_bin.begin(), in_bin.end(),
                                    [&](const auto& st) { return st.name == entry.item; });
       if (it == in_bin.end()) continue;
-      PickOne(s, renderer, layout, entry.bin, entry.item, it->X_BaseItem, args, &f);
+      PickOne(s, renderer, layout, entry.bin, entry.item, in_bin, it->X_BaseItem, args, &f);
     }
   }
   PrintPickFigures(f, args);
@@ -496,6 +527,8 @@ int main(int argc, char** argv) {
       args.all_failures = true;
     } else if (arg == "--reach-oracle") {
       args.reach_oracle = true;
+    } else if (arg == "--describe-bins") {
+      args.describe_bins = true;
     } else if (arg.rfind("--head-length-m=", 0) == 0) {
       args.head_length_m = std::stod(arg.substr(16));
     } else if (arg.rfind("--tube-length-m=", 0) == 0) {
@@ -510,6 +543,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--picks-only | --checks-only] [--layouts=1,2,3] [--all-failures]\n"
+                   "       [--reach-oracle] [--describe-bins]\n"
                    "       [--head-length-m=0.09 [--max-head-angle-deg=90]] [--tube-length-m=0.35]"
                    "  (the gripper; --head-length-m=0: straight)\n",
                    argv[0]);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <queue>
 #include <random>
+#include <set>
 #include <stdexcept>
 
 namespace picking::planner {
@@ -110,11 +111,20 @@ std::vector<JointVector> Roadmap::Shortcut(std::vector<JointVector> path,
                                            const MotionChecker& checker,
                                            const CarriedItem* carried) const {
   std::mt19937 rng(options_.seed + static_cast<std::uint32_t>(path.size()));
+  // A short path has few pairs to try, and a blocked pair's check is the costly kind (a long
+  // motion walked to where it hits): each pair of the current path is checked once.
+  std::set<std::pair<int, int>> blocked;
   for (int attempt = 0; attempt < options_.shortcut_attempts && path.size() > 2; ++attempt) {
-    const int i = std::uniform_int_distribution<int>(0, path.size() - 3)(rng);
-    const int j = std::uniform_int_distribution<int>(i + 2, path.size() - 1)(rng);
+    const int n = static_cast<int>(path.size());
+    if (static_cast<int>(blocked.size()) == (n - 1) * (n - 2) / 2) break;  // every pair tried
+    const int i = std::uniform_int_distribution<int>(0, n - 3)(rng);
+    const int j = std::uniform_int_distribution<int>(i + 2, n - 1)(rng);
+    if (blocked.count({i, j})) continue;
     if (checker.CheckSegment(path[i], path[j], carried).free) {
       path.erase(path.begin() + i + 1, path.begin() + j);
+      blocked.clear();  // the indices moved
+    } else {
+      blocked.insert({i, j});
     }
   }
   return path;
@@ -243,7 +253,14 @@ JointPathResult Roadmap::Plan(const JointVector& start_rad, const JointVector& g
   std::lock_guard<std::mutex> lock(mutex_);
   JointPathResult result;
   const MotionChecker& final_checker = scene_checker ? *scene_checker : checker_;
+  // Every motion of a path is checked by the roadmap's checker as it is found (a cached path
+  // for the bare arm, as the cache holds): a scene's checker, when given, checks it again.
   auto finish = [&](std::vector<JointVector> path) {
+    if (scene_checker == nullptr) {
+      result.ok = true;
+      result.path_rad = std::move(path);
+      return result;
+    }
     const MotionCheckResult check = final_checker.CheckPath(path, carried);
     if (!check.free) {
       result.reason = "the path collides with the scene at " +
