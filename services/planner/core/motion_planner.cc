@@ -993,10 +993,48 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
   return std::nullopt;
 }
 
-Eigen::Vector3d MotionPlanner::WallRelease(const GraspContainer& container,
+namespace {
+
+// The nearest scan voxel beside the box (container frame) on each side of each horizontal
+// axis, as the gap between the voxel's cube and the box, metres: voxels whose cubes overlap
+// the box's extent on the other horizontal axis and lie within the height the lift sweeps
+// (above the support: from `above_support_m` over the box's bottom to `sweep_m` over its
+// top). Gaps start at `far_m`.
+void NeighbourGaps(const Eigen::AlignedBox3d& box_Container,
+                   const Eigen::Isometry3d& X_ContainerBase, const VoxelContacts& voxels,
+                   double voxel_m, double above_support_m, double sweep_m, double far_m,
+                   Eigen::Vector3d* low_gap, Eigen::Vector3d* high_gap) {
+  const double half = 0.5 * voxel_m;
+  for (std::size_t v = 0; v < voxels.size(); ++v) {
+    const Eigen::Vector3d c = X_ContainerBase * voxels.centre(static_cast<int>(v)).cast<double>();
+    if (c.z() + half < box_Container.min().z() + above_support_m ||
+        c.z() - half > box_Container.max().z() + sweep_m) {
+      continue;
+    }
+    for (int axis = 0; axis < 2; ++axis) {
+      const int other = 1 - axis;
+      if (c[other] + half < box_Container.min()[other] ||
+          c[other] - half > box_Container.max()[other]) {
+        continue;
+      }
+      const double below = box_Container.min()[axis] - (c[axis] + half);
+      const double above = (c[axis] - half) - box_Container.max()[axis];
+      if (below >= 0.0 && below < far_m) (*low_gap)[axis] = std::min((*low_gap)[axis], below);
+      if (above >= 0.0 && above < far_m) (*high_gap)[axis] = std::min((*high_gap)[axis], above);
+    }
+  }
+}
+
+}  // namespace
+
+Eigen::Vector3d MotionPlanner::LiftRelease(const GraspContainer& container,
                                            const Eigen::Isometry3d& X_grasp,
-                                           const CarriedItem& carried) const {
-  // The item's box in the container frame; a shelf bin's back and side walls near it.
+                                           const CarriedItem& carried,
+                                           const VoxelContacts* voxels) const {
+  // The item's box in the container frame; a shelf bin's back and side walls near it, and
+  // the neighbours beside it in the scan: where one side is close and the other has room,
+  // the lift draws the item away from the close one (a box lifted straight up beside a
+  // neighbour's curved flank runs into it).
   if (container.kind != GraspContainerKind::kShelfBin) return Eigen::Vector3d::Zero();
   const Eigen::Isometry3d X_ContainerItem =
       container.X_BaseContainer.inverse() * X_grasp * carried.X_TcpItem;
@@ -1010,20 +1048,27 @@ Eigen::Vector3d MotionPlanner::WallRelease(const GraspContainer& container,
   const Eigen::Vector3d o_Container =
       container.X_BaseContainer.linear().transpose() * container.opening_direction_Base;
   const Eigen::Vector3d half = 0.5 * container.inner_size_m;
-  const Eigen::Vector3d up_Container =
-      container.X_BaseContainer.linear().transpose() * Eigen::Vector3d::UnitZ();
+  const double need = options_.wall_release_m;
+  // The opening side has no wall.
+  Eigen::Vector3d low_gap = Eigen::Vector3d::Constant(1.0), high_gap = low_gap;
+  for (int axis = 0; axis < 2; ++axis) {
+    if (o_Container[axis] > -0.5) low_gap[axis] = box.min()[axis] + half[axis];
+    if (o_Container[axis] < 0.5) high_gap[axis] = half[axis] - box.max()[axis];
+  }
+  if (voxels != nullptr) {
+    NeighbourGaps(box, container.X_BaseContainer.inverse(), *voxels, options_.scene_resolution_m,
+                  options_.lift_item_check_m, options_.lift_m, 1.0, &low_gap, &high_gap);
+  }
+  // The container's z is up (floor and ceiling are the lift's): across its x and y, a shift
+  // off the near side that leaves the far side at least `need` too.
   Eigen::Vector3d shift = Eigen::Vector3d::Zero();
-  for (int axis = 0; axis < 3; ++axis) {
-    if (std::abs(up_Container[axis]) > 0.5) continue;  // floor and ceiling: the lift's business
-    const double low_gap = box.min()[axis] + half[axis];
-    const double high_gap = half[axis] - box.max()[axis];
-    // The opening side has no wall.
-    const bool low_wall = o_Container[axis] > -0.5, high_wall = o_Container[axis] < 0.5;
-    const double need = options_.wall_release_m;
-    if (low_wall && low_gap < need && (!high_wall || high_gap > 2.0 * need)) {
-      shift[axis] += need - low_gap;
-    } else if (high_wall && high_gap < need && (!low_wall || low_gap > 2.0 * need)) {
-      shift[axis] -= need - high_gap;
+  for (int axis = 0; axis < 2; ++axis) {
+    const double up = need - std::max(0.0, low_gap[axis]);
+    const double down = need - std::max(0.0, high_gap[axis]);
+    if (up > 0.0 && high_gap[axis] - up >= need) {
+      shift[axis] += up;
+    } else if (down > 0.0 && low_gap[axis] - down >= need) {
+      shift[axis] -= down;
     }
   }
   return container.X_BaseContainer.linear() * shift;
@@ -1188,7 +1233,7 @@ bool MotionPlanner::LiftOff(const LiftStart& start,
   // with the item takes over where the lift ends, and must see it free there by the motion
   // check's padding (else no move of the retreat could start). The item's spheres stand up
   // to 5.5 mm proud of its box, so an item within a few millimetres of a wall needs the lift
-  // to draw it away (WallRelease). Along the lift the item may keep touching what it touched
+  // to draw it away (LiftRelease). Along the lift the item may keep touching what it touched
   // at the grasp, but meet nothing new (CheckLiftPath).
   if (!CheckLiftPath(start, waypoints_Base, checks, lift_rad, failure, reason)) return false;
   const float padding = static_cast<float>(0.5 * options_.motion.max_travel_m);
@@ -1218,7 +1263,8 @@ bool MotionPlanner::LiftAndRetreat(const GraspContainer& container, const GraspC
   const bool tote = container.kind == GraspContainerKind::kOpenTop;
   const bool bent = checks.fast.robot().gripper().bent();
   const Eigen::Isometry3d& X_grasp = grasp.X_BaseTcp;
-  const Eigen::Vector3d release_Base = WallRelease(container, X_grasp, carried);
+  const Eigen::Vector3d release_Base =
+      LiftRelease(container, X_grasp, carried, checks.contacts ? &*checks.contacts : nullptr);
   const LiftStart start = MakeLiftStart(container, X_grasp, q_grasp, carried, checks);
   bool first = true;
   std::string slide_reason;

@@ -24,6 +24,8 @@
 
 namespace picking::planner {
 
+class VoxelContacts;
+
 using Deadline = std::chrono::steady_clock::time_point;
 
 /// Settings of the planner's request-level workflows. Lengths in metres, angles in radians.
@@ -61,7 +63,8 @@ struct MotionPlannerOptions {
   /// A scan voxel within this of the carried item's box (beyond the voxel's half diagonal)
   /// touches it: the lift may keep the contacts of the grasp but make no new one (metres).
   double item_contact_margin_m = 0.002;
-  /// An item within this of a bin's back or side wall is drawn away from it during the lift,
+  /// An item within this of a bin's back or side wall, or of a neighbour beside it in the
+  /// scan, is drawn away from it during the lift (where the other side has twice the room),
   /// to this distance: the fast check's spheres stand up to 5.5 mm proud of the item's box
   /// and the motion check pads them by max_travel_m / 2, so nearer than that to a wall no
   /// move with the item could start.
@@ -360,8 +363,10 @@ class MotionPlanner final {
                                           const Eigen::Isometry3d& X_descend_end,
                                           const Eigen::Isometry3d& X_grasp, const JointVector& seed,
                                           const FastChecker& fast, PlanFailure* failure) const;
-  Eigen::Vector3d WallRelease(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
-                              const CarriedItem& carried) const;
+  // The horizontal shift that draws the item off a bin's wall or a neighbour close beside it
+  // during the lift (`voxels`: the scan's, or null).
+  Eigen::Vector3d LiftRelease(const GraspContainer& container, const Eigen::Isometry3d& X_grasp,
+                              const CarriedItem& carried, const VoxelContacts* voxels) const;
   // The lifts LiftOff tries, each as waypoints (displacements of the cup from the grasp).
   std::vector<std::vector<Eigen::Vector3d>> LiftCandidates(
       const GraspContainer& container, const Eigen::Vector3d& release_Base) const;

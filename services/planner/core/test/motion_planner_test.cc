@@ -212,6 +212,46 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromTheWallItLeansOn) {
   EXPECT_NEAR(moved_m, planner_->options().wall_release_m - 0.003, 2e-3);
 }
 
+// An item with a neighbour 1 cm beside it (at -y) that stands 9 cm taller: its points within the
+// cut-out's margin are gone, but above the item the scan still has them, and a lift straight
+// up along it would graze them. The lift draws the item away from the neighbour by up to
+// wall_release_m (less the gap the voxels leave).
+TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromATallerNeighbourBesideIt) {
+  auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box");
+  const auto& cell = planner_->cell().cell();
+  const Eigen::Isometry3d X_ShelfBase = cell.config.X_BaseShelf.inverse();
+  const Eigen::Vector3d half = 0.5 * items_->Get("kleenex_tissue_box")->box_I.sizes();
+  // The item's long side lies across the bin (shelf y), its middle side along the depth.
+  const Eigen::Vector3d c_S = X_ShelfBase * X_BaseItem.translation();
+  const double floor_z = cell.bin("bin_E").floor_max_z_m;
+  const double face_y = c_S.y() - half.x() - 0.01;
+  for (double x = c_S.x() - half.y(); x <= c_S.x() + half.y(); x += 0.004) {
+    for (double z = floor_z; z <= floor_z + 0.2; z += 0.004) {
+      const Eigen::Vector3d p = cell.config.X_BaseShelf * Eigen::Vector3d(x, face_y, z);
+      xyz.insert(xyz.end(), {float(p.x()), float(p.y()), float(p.z())});
+    }
+  }
+  const PlanningScene scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
+  PickRequest request;
+  request.item = "kleenex_tissue_box";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
+  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
+  double moved_m = 0.0, lifted_m = 0.0;
+  for (const TrajectorySample& s : plan.retreat.samples) {
+    const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
+    if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
+    moved_m = p_S.y() - p0_S.y();  // away from the neighbour at -y
+    lifted_m = p_S.z() - p0_S.z();
+  }
+  EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
+  EXPECT_GT(moved_m, 0.004);
+  EXPECT_LT(moved_m, planner_->options().wall_release_m + 1e-3);
+}
+
 // The tube test refuses a grasp before any search; it must only refuse what the shelf's
 // mesh really blocks: for seeded random grasps in every bin, a refused one has its tube
 // within the sampling gap of the mesh. The solid cylinder is sampled from the lip (in the
