@@ -200,9 +200,23 @@ struct BenchArgs {
 struct PickFigures {
   std::vector<double> times, validation, validation_fcl, refusals, place_times, place_robot_s;
   std::map<std::string, std::vector<double>> stage_ms;  // per planned pick
-  int tried = 0, planned = 0, placed = 0;
+  int tried = 0, planned = 0, placed = 0, sealed = 0;
   std::vector<std::pair<int, int>> per_layout;  // (planned, tried)
+  std::map<std::string, int> no_seal;           // why a planned pick's cup does not seal
 };
+
+// Whether the planned pick's cup seals in the simulator: the arm at the descent's end, the
+// head as planned, the guarded move run, and the simulator's seal test where it stops.
+// Changes only the simulated arm.
+std::string SealOfPlan(simulator::SimWorld* world, const PickPlan& plan) {
+  world->SetHeadAngle(plan.head_angle_rad);
+  world->SetJointPositions(plan.descend.samples.back().q_rad);
+  const simulator::GuardedMoveResult pressed = world->GuardedMove(plan.guarded_distance_m);
+  const world::SealMeasure seal = world->SealAt(world->X_BaseTcp());
+  world->SetHeadAngle(0.0);
+  if (!pressed.contact) return "the guarded move touches nothing";
+  return seal.sealed ? "" : seal.reason;
+}
 
 // The simulated scan of `bin` from its three scan poses (points in base).
 std::vector<float> ScanBin(const Setup& s, const simulator::StructuredLightRenderer& renderer,
@@ -352,10 +366,10 @@ void DescribeBin(const Setup& s, const std::string& bin, const std::string& targ
 }
 
 // One target: its bin scanned, the pick planned, validated and carried on to the tote.
-void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer, int layout,
-             const std::string& bin, const std::string& item,
-             const std::vector<simulator::ItemState>& in_bin, const Eigen::Isometry3d& X_BaseItem,
-             const BenchArgs& args, PickFigures* f) {
+void PickOne(const Setup& s, simulator::SimWorld* world,
+             const simulator::StructuredLightRenderer& renderer, int layout, const std::string& bin,
+             const std::string& item, const std::vector<simulator::ItemState>& in_bin,
+             const Eigen::Isometry3d& X_BaseItem, const BenchArgs& args, PickFigures* f) {
   const std::vector<float> xyz = ScanBin(s, renderer, bin);
   const PlanningScene scene =
       s.planner->BuildScene(bin, xyz.data(), xyz.size() / 3, item, X_BaseItem);
@@ -383,6 +397,13 @@ void PickOne(const Setup& s, const simulator::StructuredLightRenderer& renderer,
         s.planner->robot().X_BaseTcp(plan.retreat.samples.front().q_rad);
     const CarriedItem carried =
         MakeCarriedItem(item, s.items->Get(item)->box_I, X_grasp.inverse() * X_BaseItem);
+    const std::string no_seal = SealOfPlan(world, plan);
+    if (no_seal.empty()) {
+      ++f->sealed;
+    } else {
+      ++f->no_seal[no_seal];
+      std::printf("      the cup does not seal in the simulator: %s\n", no_seal.c_str());
+    }
     ValidateEverySample(s, scene, plan, carried, f);
     PlaceAfter(s, plan, carried, label, f);
   } catch (const PlanFailedError& e) {
@@ -412,6 +433,9 @@ void PrintPickFigures(const PickFigures& f, const BenchArgs& args) {
                 args.layouts[i] == 3 ? " (held out)" : "", f.per_layout[i].first,
                 f.per_layout[i].second);
   }
+  std::printf("  the cup seals in the simulator (guarded move, seal test) on %d of %d planned\n",
+              f.sealed, f.planned);
+  for (const auto& [reason, n] : f.no_seal) std::printf("    %d: %s\n", n, reason.c_str());
   std::printf("  planned: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(f.times, 0.5),
               Percentile(f.times, 0.95), Percentile(f.times, 1.0));
   std::printf("  refused: median %.1f ms, p95 %.1f ms, max %.1f ms\n", Percentile(f.refusals, 0.5),
@@ -450,7 +474,7 @@ void Picks(const Setup& s, simulator::SimWorld* world, const BenchArgs& args) {
       const auto it = std::find_if(in_bin.begin(), in_bin.end(),
                                    [&](const auto& st) { return st.name == entry.item; });
       if (it == in_bin.end()) continue;
-      PickOne(s, renderer, layout, entry.bin, entry.item, in_bin, it->X_BaseItem, args, &f);
+      PickOne(s, world, renderer, layout, entry.bin, entry.item, in_bin, it->X_BaseItem, args, &f);
     }
   }
   PrintPickFigures(f, args);

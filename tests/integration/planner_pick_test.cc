@@ -26,6 +26,7 @@
 #include "picking/robot/v1/robot.grpc.pb.h"
 #include "picking/simulator/v1/simulator.grpc.pb.h"
 #include "services/planner/core/collision_world.h"
+#include "services/planner/core/grasp_seal.h"
 #include "services/planner/core/grasps.h"
 #include "services/simulator/core/sim_world.h"
 #include "tests/harness/server_process.h"
@@ -278,6 +279,23 @@ TEST(PlannerSealTolerance, IsTheSimulatorsAndBoundsTheGraspTilt) {
   EXPECT_LE(planner::GraspOptions{}.max_tilt_rad, sim.seal_angle_tolerance_rad);
 }
 
+// The planner refuses a grasp whose cup cannot seal on the item's model by the simulator's
+// own seal rule and cup: the two must not drift apart.
+TEST(PlannerSealRule, IsTheSimulators) {
+  const world::SealOptions sim = simulator::SimWorld::SealOptionsOf(simulator::SimOptions{});
+  const world::SealOptions planned = planner::ModelSealOptions{}.seal;
+  EXPECT_DOUBLE_EQ(planned.cup_radius_m, sim.cup_radius_m);
+  EXPECT_EQ(planned.rim_samples, sim.rim_samples);
+  EXPECT_DOUBLE_EQ(planned.flatness_tolerance_m, sim.flatness_tolerance_m);
+  EXPECT_DOUBLE_EQ(planned.angle_tolerance_rad, sim.angle_tolerance_rad);
+  EXPECT_DOUBLE_EQ(planned.max_gap_m, sim.max_gap_m);
+  EXPECT_DOUBLE_EQ(planned.lookback_m, sim.lookback_m);
+  // The cup presses on by the force threshold over its stiffness.
+  const simulator::SimOptions options;
+  EXPECT_NEAR(planner::ModelSealOptions{}.press_m,
+              options.contact_force_threshold_n / options.contact_stiffness_n_per_m, 1e-9);
+}
+
 int PlannerPickTest::TargetIndex(const sim::GetGroundTruthResponse& truth,
                                  const apc::WorkOrderEntry& entry) {
   for (int i = 0; i < truth.items_size(); ++i) {
@@ -407,18 +425,20 @@ TEST_F(PlannerPickTest, PlansEveryTargetOfTheThreeLayoutsOrSaysWhyNot) {
   // Many of the others lie flat in their bins: their top faces lie too deep for the bent
   // head's 26 cm of tube (the wrist meets the bin's ceiling), or a neighbour stands too near
   // ("wedged in"); benchmarks/RESULTS.md lists the reasons, and every target without a plan
-  // says why above. Layouts 1 and 2 were used while developing the planner, layout 3 was
+  // says why above. Items the cup cannot seal on (a ball, a toothbrush narrower than the lip)
+  // are refused as such. Layouts 1 and 2 were used while developing the planner, layout 3 was
   // held out.
   EXPECT_EQ(targets, 36);
   EXPECT_GE(planned, 13);
   EXPECT_GE(planned_in_layout[1], 4);
-  EXPECT_GE(planned_in_layout[2], 6);
+  EXPECT_GE(planned_in_layout[2], 5);
   EXPECT_GE(planned_in_layout[3], 3);
   EXPECT_GE(bent, 1);
   // Hopeless grasps are refused before any search, with the geometric reason.
   EXPECT_GT(refusals_by_kind[pl::PLAN_FAILURE_KIND_NO_GRASP] +
                 refusals_by_kind[pl::PLAN_FAILURE_KIND_TUBE_BLOCKED],
             0);
+  EXPECT_GT(refusals_by_kind[pl::PLAN_FAILURE_KIND_NO_SEAL], 0);  // the baseball at least
 }
 
 TEST_F(PlannerPickTest, ThePickExecutesOnTheSimRobotAndTheGuardedMoveTouchesTheItem) {

@@ -1538,6 +1538,40 @@ PlanFailure MotionPlanner::SearchBudgetSpent(const PickRequest& request,
   return f;
 }
 
+std::shared_ptr<const ModelSeal> MotionPlanner::SealOf(const std::string& item,
+                                                       const world::ItemModel& model) const {
+  std::lock_guard<std::mutex> lock(seal_mutex_);
+  auto it = seals_.find(item);
+  if (it == seals_.end()) {
+    it = seals_.emplace(item, std::make_shared<const ModelSeal>(model.mesh, options_.seal)).first;
+  }
+  return it->second;
+}
+
+bool MotionPlanner::SealsOnModel(const PickRequest& request, const world::ItemModel& model,
+                                 GraspCandidate* candidate, PlanFailure* refused) const {
+  if (!options_.check_seal) return true;
+  const ModelSealResult seal =
+      SealOf(request.item, model)->Check(request.X_BaseItem, candidate->X_BaseTcp);
+  if (seal.sealed) {
+    candidate->X_BaseTcp.translation() += seal.shift_Base;
+    candidate->X_BaseTcpPreGrasp.translation() += seal.shift_Base;
+    candidate->p_BasePoint += seal.shift_Base;
+    return true;
+  }
+  double farthest = 0.0;
+  for (const double d : options_.seal.shift_m) farthest = std::max(farthest, d);
+  *refused = PlanFailure();
+  refused->stage = FailureStage::kGrasps;
+  refused->kind = FailureKind::kNoSeal;
+  refused->grasp = candidate->surface;
+  refused->before_search = true;
+  refused->message = "grasp '" + candidate->surface + "': the cup cannot seal on " + request.item +
+                     "'s model there (" + seal.measure.reason + ") nor within " +
+                     Fixed(100.0 * farthest, 0) + " cm of it";
+  return false;
+}
+
 PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene* scene,
                                  Deadline deadline) const {
   const auto started = std::chrono::steady_clock::now();
@@ -1588,6 +1622,12 @@ PickPlan MotionPlanner::PlanPick(const PickRequest& request, const PlanningScene
     GraspCandidate candidate = listed;
     PlanFailure refused;
     lap_start = std::chrono::steady_clock::now();
+    if (!SealsOnModel(request, *model, &candidate, &refused)) {
+      Lap(&plan.stage_times_s, "seal", &lap_start);
+      failures.push_back(refused);
+      continue;
+    }
+    Lap(&plan.stage_times_s, "seal", &lap_start);
     const RequestChecks* checks =
         ChecksForGrasp(request, container, scan, straight, &bent_checks, &candidate, &refused);
     Lap(&plan.stage_times_s, "set-up", &lap_start);

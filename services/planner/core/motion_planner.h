@@ -16,6 +16,7 @@
 #include "services/planner/core/cartesian_search.h"
 #include "services/planner/core/collision_world.h"
 #include "services/planner/core/grasp_reach.h"
+#include "services/planner/core/grasp_seal.h"
 #include "services/planner/core/grasps.h"
 #include "services/planner/core/plan_failure.h"
 #include "services/planner/core/roadmap.h"
@@ -34,6 +35,10 @@ struct MotionPlannerOptions {
   MotionCheckOptions motion;
   RoadmapOptions roadmap;
   GraspOptions grasp;
+  /// A grasp whose cup cannot seal on the item's model (nor a little beside it) is refused
+  /// before any search (ModelSeal); one that seals a little beside is moved there.
+  ModelSealOptions seal;
+  bool check_seal = true;
   StaticCellOptions cell;
   /// OctoMap resolution of scans and how far around the target container scan points are
   /// kept (the rest of the cell is the static cell's).
@@ -403,6 +408,13 @@ class MotionPlanner final {
   /// The failure that ends a PlanPick whose search budget is spent.
   PlanFailure SearchBudgetSpent(const PickRequest& request, const GraspCandidate& grasp,
                                 int grasps_searched) const;
+  // The item's ModelSeal, built on first use.
+  std::shared_ptr<const ModelSeal> SealOf(const std::string& item,
+                                          const world::ItemModel& model) const;
+  // Whether the cup seals on the item's model at the candidate's contact, or a little beside
+  // it (the candidate is then moved there); false with the failure typed when not.
+  bool SealsOnModel(const PickRequest& request, const world::ItemModel& model,
+                    GraspCandidate* candidate, PlanFailure* refused) const;
   bool TryRolls(const PickRequest& request, const GraspCandidate& candidate,
                 const std::shared_ptr<const world::ItemModel>& model, const RequestChecks& checks,
                 bool bent, Deadline deadline, PickPlan* plan, PlanFailure* best,
@@ -446,6 +458,8 @@ class MotionPlanner final {
   std::vector<std::string> unreachable_poses_;
   mutable std::mutex hull_mutex_;
   mutable std::map<std::string, ConvexHull> hulls_Item_;
+  mutable std::mutex seal_mutex_;
+  mutable std::map<std::string, std::shared_ptr<const ModelSeal>> seals_;
 };
 
 /// The named poses of the cell: "home", "scan/<bin>/<k>" (three views per bin,

@@ -54,6 +54,8 @@ const char* FailureKindName(FailureKind kind) {
       return "search budget spent";
     case FailureKind::kStartInCollision:
       return "start in collision";
+    case FailureKind::kNoSeal:
+      return "no seal";
   }
   return "unknown";
 }

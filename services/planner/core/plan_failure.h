@@ -30,6 +30,7 @@ enum class FailureKind {
   kTubeBlocked,        ///< The gripper's tube at the grasp crosses the container (CheckTubeReach).
   kSearchBudgetSpent,  ///< The pick's search time budget ran out.
   kStartInCollision,   ///< The cartesian search's start collides.
+  kNoSeal,             ///< The cup cannot seal on the item's model at or near the grasp.
 };
 
 /// The stage's name in messages: "start", "grasps", "pre-grasp", "descend", "retreat",
@@ -38,7 +39,7 @@ const char* FailureStageName(FailureStage stage);
 
 /// The kind's name in messages: "collision", "ik unreachable", "joint jump", "node budget
 /// spent", "deadline", "no grasp", "no path", "timing", "tube blocked", "search budget
-/// spent", "start in collision" ("unspecified").
+/// spent", "start in collision", "no seal" ("unspecified").
 const char* FailureKindName(FailureKind kind);
 
 }  // namespace picking::planner

@@ -120,6 +120,8 @@ pb::PlanFailureKind ToProto(FailureKind kind) {
       return pb::PLAN_FAILURE_KIND_SEARCH_BUDGET_SPENT;
     case FailureKind::kStartInCollision:
       return pb::PLAN_FAILURE_KIND_START_IN_COLLISION;
+    case FailureKind::kNoSeal:
+      return pb::PLAN_FAILURE_KIND_NO_SEAL;
   }
   return pb::PLAN_FAILURE_KIND_UNSPECIFIED;
 }

@@ -281,6 +281,21 @@ void SimWorld::LogCollision(const std::string& detail) {
   events_.push_back(e);
 }
 
+world::SealOptions SimWorld::SealOptionsOf(const SimOptions& options) {
+  world::SealOptions seal;
+  seal.cup_radius_m = options.cup_radius_m;
+  seal.rim_samples = options.rim_samples;
+  seal.flatness_tolerance_m = options.seal_flatness_tolerance_m;
+  seal.angle_tolerance_rad = options.seal_angle_tolerance_rad;
+  seal.max_gap_m = options.seal_max_gap_m;
+  seal.lookback_m = options.seal_lookback_m;
+  return seal;
+}
+
+world::SealMeasure SimWorld::SealAt(const Eigen::Isometry3d& X_BaseTcp) const {
+  return world::MeasureSeal(ItemScene(), X_BaseTcp, SealOptionsOf(options_));
+}
+
 SuctionResult SimWorld::SuctionOn() {
   SuctionResult result;
   vacuum_on_ = true;
@@ -289,63 +304,14 @@ SuctionResult SimWorld::SuctionOn() {
     result.attached_item_id = attached_;
     return result;
   }
-  const world::RayScene& scene = ItemScene();
-  const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
-  const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
-  std::vector<Eigen::Vector3d> points;
-  std::vector<double> gaps;  // distance of each hit in front of the lip plane
-  int object = 0;
-  bool same = true;
-  // Rays reach past the sealing gap so a tilted surface is still measured (and refused).
-  const double reach =
-      options_.seal_lookback_m + options_.seal_max_gap_m + 2 * options_.cup_radius_m;
-  for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTcp_.translation() - options_.seal_lookback_m * z;
-    if (k >= 0) {
-      const double a = 2 * M_PI * k / options_.rim_samples;
-      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
-    }
-    const auto hit = scene.Cast(p, z, reach);
-    if (!hit) {
-      result.reason = k < 0 ? "no surface under the cup centre" : "a lip point meets no surface";
-      return result;
-    }
-    if (k < 0) {
-      object = hit->object_id;
-    } else if (hit->object_id != object) {
-      same = false;
-    }
-    points.push_back(hit->p_BaseHit);
-    gaps.push_back(hit->distance_m - options_.seal_lookback_m);
-  }
-  if (!same) {
-    result.reason = "the lip spans more than one object";
+  const world::SealMeasure seal = SealAt(X_BaseTcp_);
+  result.flatness_m = seal.flatness_m;
+  result.angle_rad = seal.angle_rad;
+  if (!seal.sealed) {
+    result.reason = seal.reason;
     return result;
   }
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const auto& p : points) mean += p;
-  mean /= static_cast<double>(points.size());
-  Eigen::MatrixXd A(points.size(), 3);
-  for (std::size_t i = 0; i < points.size(); ++i) A.row(i) = (points[i] - mean).transpose();
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeThinV);
-  Eigen::Vector3d normal = svd.matrixV().col(2);
-  if (normal.dot(z) > 0) normal = -normal;
-  double flat = 0.0;
-  for (const auto& p : points) flat = std::max(flat, std::abs((p - mean).dot(normal)));
-  result.flatness_m = flat;
-  result.angle_rad = std::acos(std::clamp(normal.dot(-z), -1.0, 1.0));
-  if (flat > options_.seal_flatness_tolerance_m) {
-    result.reason = "surface under the lip is not flat enough";
-    return result;
-  }
-  if (result.angle_rad > options_.seal_angle_tolerance_rad) {
-    result.reason = "surface is tilted too far from the cup axis";
-    return result;
-  }
-  if (*std::max_element(gaps.begin(), gaps.end()) > options_.seal_max_gap_m) {
-    result.reason = "the lip does not touch the surface";
-    return result;
-  }
+  const int object = seal.object_id;
   result.sealed = true;
   if (object > 0) {
     ItemState& s = Mutable(object);

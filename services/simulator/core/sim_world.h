@@ -14,6 +14,7 @@
 #include "libs/world/cell_config.h"
 #include "libs/world/item_models.h"
 #include "libs/world/ray_scene.h"
+#include "libs/world/suction_seal.h"
 #include "services/simulator/core/layout.h"
 #include "services/simulator/core/physics_layout.h"
 #include "services/simulator/core/renderer.h"
@@ -211,6 +212,13 @@ class SimWorld final {
   /// the bin or tote it came from settle again by physics (PhysicsLayout::Resettle): each one
   /// moved by more than the fell thresholds gets its new pose and a kFell event.
   SuctionResult SuctionOn();
+
+  /// Whether the cup would seal with its lip at X_BaseTcp (SuctionOn's test), changing
+  /// nothing: the attached item is part of the scene.
+  world::SealMeasure SealAt(const Eigen::Isometry3d& X_BaseTcp) const;
+  /// The cup's seal parameters (cup_radius_m and the seal_* options of `options`) as
+  /// world::MeasureSeal takes them.
+  static world::SealOptions SealOptionsOf(const SimOptions& options);
 
   /// Vacuum off: an attached item is released. Over a bin or the tote (its whole box within
   /// the container's walls, seen from above) it falls by physics on to what lies below and

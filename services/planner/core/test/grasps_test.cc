@@ -1,4 +1,6 @@
 #include "services/planner/core/grasps.h"
+#include "libs/world/mesh_utils.h"
+#include "services/planner/core/grasp_seal.h"
 
 #include <gtest/gtest.h>
 
@@ -979,6 +981,76 @@ TEST(TubeReachTest, WallsFloorAndTolerance) {
   EXPECT_FALSE(turned.reaches);
   EXPECT_EQ(turned.wall, "ceiling");
   EXPECT_NEAR(turned.depth_m, 0.30, 1e-9);
+}
+
+}  // namespace
+}  // namespace picking::planner
+
+namespace picking::planner {
+namespace {
+
+// The cup coming down (-z in base) onto the top of an item at X_BaseItem, its lip at
+// `p_ItemContact` raised by 1 cm.
+Eigen::Isometry3d CupDownOnto(const Eigen::Isometry3d& X_BaseItem,
+                              const Eigen::Vector3d& p_ItemContact) {
+  Eigen::Isometry3d X_BaseTcp = Eigen::Isometry3d::Identity();
+  X_BaseTcp.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  X_BaseTcp.translation() = X_BaseItem * p_ItemContact + Eigen::Vector3d(0.0, 0.0, 0.01);
+  return X_BaseTcp;
+}
+
+Eigen::Isometry3d SomeItemPose() {
+  Eigen::Isometry3d X_BaseItem(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()));
+  X_BaseItem.translation() = Eigen::Vector3d(0.9, -0.2, 0.4);
+  return X_BaseItem;
+}
+
+TEST(ModelSealTest, TheCupSealsOnAFlatFaceWhereItIsPlanned) {
+  const ModelSeal seal(world::MakeBox({0.12, 0.08, 0.05}), ModelSealOptions{});
+  const Eigen::Isometry3d X_BaseItem = SomeItemPose();
+  const ModelSealResult r = seal.Check(X_BaseItem, CupDownOnto(X_BaseItem, {0.0, 0.0, 0.025}));
+  EXPECT_TRUE(r.sealed) << r.measure.reason;
+  EXPECT_TRUE(r.shift_Base.isZero());
+}
+
+// 5 mm from the face's edge the lip (1.5 cm radius) overhangs it; a contact moved inward
+// seals.
+TEST(ModelSealTest, AContactNearAnEdgeMovesInward) {
+  const ModelSeal seal(world::MakeBox({0.12, 0.08, 0.05}), ModelSealOptions{});
+  const Eigen::Isometry3d X_BaseItem = SomeItemPose();
+  const ModelSealResult r = seal.Check(X_BaseItem, CupDownOnto(X_BaseItem, {0.055, 0.0, 0.025}));
+  ASSERT_TRUE(r.sealed) << r.measure.reason;
+  const Eigen::Vector3d shift_Item = X_BaseItem.linear().transpose() * r.shift_Base;
+  EXPECT_LT(shift_Item.x(), -0.005);  // toward the face's middle
+  EXPECT_NEAR(shift_Item.z(), 0.0, 1e-9);
+  EXPECT_LE(r.shift_Base.norm(), 0.02 + 1e-9);
+}
+
+TEST(ModelSealTest, AFaceNarrowerThanTheLipAndABallAreRefused) {
+  const Eigen::Isometry3d X_BaseItem = SomeItemPose();
+  const ModelSeal bar(world::MakeBox({0.15, 0.02, 0.02}), ModelSealOptions{});
+  const ModelSealResult on_bar = bar.Check(X_BaseItem, CupDownOnto(X_BaseItem, {0, 0, 0.01}));
+  EXPECT_FALSE(on_bar.sealed);
+  EXPECT_EQ(on_bar.measure.reason, "a lip point meets no surface");
+  const ModelSeal ball(
+      world::Transformed(world::MakeSphere(0.037, 48, 96),
+                         Eigen::Isometry3d(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitX()))),
+      ModelSealOptions{});
+  const ModelSealResult on_ball = ball.Check(X_BaseItem, CupDownOnto(X_BaseItem, {0, 0, 0.037}));
+  EXPECT_FALSE(on_ball.sealed);
+  EXPECT_EQ(on_ball.measure.reason, "surface under the lip is not flat enough");
+}
+
+TEST(ModelSealTest, NothingAlongTheApproachIsNoSeal) {
+  const ModelSeal seal(world::MakeBox({0.12, 0.08, 0.05}), ModelSealOptions{});
+  const Eigen::Isometry3d X_BaseItem = SomeItemPose();
+  const ModelSealResult r = seal.Check(X_BaseItem, CupDownOnto(X_BaseItem, {0.3, 0.0, 0.025}));
+  EXPECT_FALSE(r.sealed);
+  EXPECT_EQ(r.measure.reason, "the cup meets nothing of the item along its approach");
+  ModelSealOptions bad;
+  bad.shift_m = {0.0};
+  EXPECT_THROW(ModelSeal(world::MakeBox({0.1, 0.1, 0.1}), bad), std::invalid_argument);
+  EXPECT_THROW(ModelSeal(world::TriangleMesh{}, ModelSealOptions{}), std::invalid_argument);
 }
 
 }  // namespace

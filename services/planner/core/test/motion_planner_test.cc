@@ -252,6 +252,30 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromATallerNeighbourBesideIt) {
   EXPECT_LT(moved_m, planner_->options().wall_release_m + 1e-3);
 }
 
+// The cup's lip cannot seal on a baseball (its rim stands 3 mm off the ball), wherever it
+// touches: every grasp is refused as `no seal` before any search.
+TEST_F(MotionPlannerTest, AnItemTheCupCannotSealOnIsRefusedBeforeAnySearch) {
+  const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "rawlings_baseball");
+  const PlanningScene scene =
+      planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "rawlings_baseball", X_BaseItem);
+  PickRequest request;
+  request.item = "rawlings_baseball";
+  request.X_BaseItem = X_BaseItem;
+  request.container = "bin_E";
+  request.start_rad = Named("scan/bin_E/0").q_rad;
+  try {
+    planner_->PlanPick(request, &scene, Far());
+    FAIL() << "a pick on a ball was planned";
+  } catch (const PlanFailedError& e) {
+    ASSERT_FALSE(e.failures().empty());
+    for (const PlanFailure& f : e.failures()) {
+      EXPECT_EQ(f.kind, FailureKind::kNoSeal) << f.message;
+      EXPECT_TRUE(f.before_search);
+    }
+    EXPECT_NE(std::string(e.what()).find("not flat enough"), std::string::npos) << e.what();
+  }
+}
+
 // The tube test refuses a grasp before any search; it must only refuse what the shelf's
 // mesh really blocks: for seeded random grasps in every bin, a refused one has its tube
 // within the sampling gap of the mesh. The solid cylinder is sampled from the lip (in the
