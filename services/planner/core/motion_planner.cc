@@ -434,6 +434,9 @@ PlanningScene MotionPlanner::BuildScene(const std::string& container, const floa
       hull_Item = it->second;
     }
     cuts.push_back({item, hull_Item.Transformed(X_BaseItem), options_.cut_margin_m});
+    // The target's seal model (an Embree scene of its mesh, 1-8 ms once per item) is built
+    // with its scene, as its hull is, not in the pick that follows.
+    if (options_.check_seal) SealOf(item, *model);
   }
   if (previous && previous->container != container) {
     throw std::invalid_argument("the scene shows " + previous->container + ", not " + container);
