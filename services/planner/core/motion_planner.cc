@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -326,6 +327,8 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
     throw std::runtime_error("no collision-free IK solution for the named poses: " + list);
   }
   roadmap_ = ReachableRoadmap(choices, *static_motion_, options_.roadmap, &unreachable_poses_);
+  // The paper's offline joint paths: every two named poses, planned once (0.3 s here).
+  if (options_.cache_named_paths) roadmap_->CacheNamedPaths();
 }
 
 MotionPlanner::~MotionPlanner() = default;
@@ -616,6 +619,19 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
   return {};
 }
 
+namespace {
+
+// The bytes of a motion request between two configurations at a speed: a cache key.
+std::string MotionKey(const JointVector& a, const JointVector& b, double speed_fraction) {
+  std::string key(sizeof(double) * 13, '\0');
+  std::memcpy(key.data(), a.data(), sizeof(double) * 6);
+  std::memcpy(key.data() + sizeof(double) * 6, b.data(), sizeof(double) * 6);
+  std::memcpy(key.data() + sizeof(double) * 12, &speed_fraction, sizeof(double));
+  return key;
+}
+
+}  // namespace
+
 JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
                                                const JointVector& goal_rad, double speed_fraction,
                                                Deadline deadline, double head_angle_rad) const {
@@ -649,8 +665,24 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   JointMotionPlan plan;
   plan.path_rad = path.path_rad;
   plan.cached = path.cached;
+  // A cached path between named poses with the straight head is timed and validated once per
+  // speed: the static cell it was validated in does not change.
+  const bool keep = path.cached && straight;
+  const std::string key = keep ? MotionKey(start_rad, goal_rad, speed_fraction) : "";
+  if (keep) {
+    std::lock_guard<std::mutex> lock(motion_cache_mutex_);
+    if (const auto it = motion_cache_.find(key); it != motion_cache_.end()) {
+      plan.trajectory = it->second;
+      plan.planning_time_s = Seconds(started);
+      return plan;
+    }
+  }
   plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *head.motion, *head.exact,
                                     nullptr, FailureStage::kJointMotion);
+  if (keep) {
+    std::lock_guard<std::mutex> lock(motion_cache_mutex_);
+    motion_cache_.emplace(key, plan.trajectory);
+  }
   plan.planning_time_s = Seconds(started);
   return plan;
 }

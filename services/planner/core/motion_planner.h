@@ -34,6 +34,8 @@ struct MotionPlannerOptions {
   CartesianSearchOptions search;
   MotionCheckOptions motion;
   RoadmapOptions roadmap;
+  /// Plan the paths between every two named poses at start-up (Roadmap::CacheNamedPaths).
+  bool cache_named_paths = true;
   GraspOptions grasp;
   /// A grasp whose cup cannot seal on the item's model (nor a little beside it) is refused
   /// before any search (ModelSeal); one that seals a little beside is moved there.
@@ -458,6 +460,8 @@ class MotionPlanner final {
   std::vector<std::string> unreachable_poses_;
   mutable std::mutex hull_mutex_;
   mutable std::map<std::string, ConvexHull> hulls_Item_;
+  mutable std::mutex motion_cache_mutex_;
+  mutable std::map<std::string, Trajectory> motion_cache_;  // named-pose motions, timed
   mutable std::mutex seal_mutex_;
   mutable std::map<std::string, std::shared_ptr<const ModelSeal>> seals_;
 };

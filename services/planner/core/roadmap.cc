@@ -60,6 +60,21 @@ Roadmap::Roadmap(const MotionChecker& checker, std::vector<NamedPose> named,
   }
 }
 
+int Roadmap::CacheNamedPaths() const {
+  int cached = 0;
+  for (std::size_t i = 0; i < named_.size(); ++i) {
+    for (std::size_t j = i + 1; j < named_.size(); ++j) {
+      const JointPathResult path = Plan(named_[i].q_rad, named_[j].q_rad);
+      if (!path.ok) continue;
+      // A free path is free backwards.
+      std::lock_guard<std::mutex> lock(mutex_);
+      cache_[{named_[j].name, named_[i].name}] = {path.path_rad.rbegin(), path.path_rad.rend()};
+      cached += 2;
+    }
+  }
+  return cached;
+}
+
 const NamedPose* Roadmap::Find(const std::string& name) const {
   for (const NamedPose& pose : named_) {
     if (pose.name == name) return &pose;

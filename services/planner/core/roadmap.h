@@ -87,6 +87,12 @@ class Roadmap final {
 
   std::size_t num_nodes() const { return nodes_.size(); }
 
+  /// Plans and caches the path between every two named poses, both ways (the paper's
+  /// offline joint paths), so that a request between them only times and validates it.
+  /// Pairs the roadmap cannot join are left to the requests (which say why). Returns the
+  /// pairs cached.
+  int CacheNamedPaths() const;
+
   /// A path from `start` to `goal` by two trees grown toward each other (RRT-Connect,
   /// seeded: the same request gives the same path), each motion checked by `checker` with
   /// `carried`: start, the trees' nodes, goal. Empty when the trees do not meet within

@@ -70,3 +70,49 @@ TEST(RoadmapTest, TreesFromStartAndGoalGoAroundWhatBlocksTheStraightMotion) {
 
 }  // namespace
 }  // namespace picking::planner
+
+namespace picking::planner {
+namespace {
+
+// Every two named poses get a path at once, both ways: the later requests find them cached,
+// free, from start to goal, the way back the way there reversed.
+TEST(RoadmapTest, PathsBetweenNamedPosesArePlannedAheadBothWays) {
+  const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
+  const RobotGeometry robot(kinematics, GripperGeometry{});
+  const world::CellModel cell_model =
+      world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
+  const StaticCell cell(cell_model, StaticCellOptions{});
+  const FastChecker fast(robot, cell, nullptr);
+  const MotionChecker motion(fast);
+  // Arm poses toward the shelf, the tote side and up: some straight motions between them
+  // pass through the shelf or the pedestal and need the roadmap.
+  const std::vector<NamedPose> named = {
+      {"ahead", (JointVector() << 0.0, -1.9, 1.9, -1.57, -1.57, 0.0).finished()},
+      {"left", (JointVector() << 1.4, -1.7, 1.5, -1.4, -1.57, 0.0).finished()},
+      {"right", (JointVector() << -1.4, -1.7, 1.5, -1.4, -1.57, 0.0).finished()},
+      {"up", (JointVector() << 0.0, -1.57, 0.3, -1.57, -1.57, 0.0).finished()}};
+  RoadmapOptions options;
+  options.samples = 300;
+  const Roadmap roadmap(motion, named, options);
+  EXPECT_EQ(roadmap.CacheNamedPaths(), 12);
+  for (const NamedPose& a : named) {
+    for (const NamedPose& b : named) {
+      if (&a == &b) continue;
+      const JointPathResult there = roadmap.Plan(a.q_rad, b.q_rad);
+      const JointPathResult back = roadmap.Plan(b.q_rad, a.q_rad);
+      ASSERT_TRUE(there.ok && back.ok) << a.name << " - " << b.name;
+      EXPECT_TRUE(there.cached && back.cached);
+      EXPECT_EQ(there.edges_checked, 0);
+      EXPECT_TRUE((there.path_rad.front() - a.q_rad).isZero(0.0));
+      EXPECT_TRUE((there.path_rad.back() - b.q_rad).isZero(0.0));
+      EXPECT_TRUE(motion.CheckPath(there.path_rad).free);
+      ASSERT_EQ(there.path_rad.size(), back.path_rad.size());
+      for (std::size_t i = 0; i < there.path_rad.size(); ++i) {
+        EXPECT_TRUE((there.path_rad[i] - back.path_rad[back.path_rad.size() - 1 - i]).isZero(0.0));
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace picking::planner
