@@ -98,6 +98,17 @@ class MotionPlannerTest : public ::testing::Test {
     return {X_BaseItem, xyz};
   }
 
+  // A pick of `item` at X_BaseItem in `bin`, from the bin's first scan view.
+  static PickRequest PickIn(const std::string& bin, const std::string& item,
+                            const Eigen::Isometry3d& X_BaseItem) {
+    PickRequest request;
+    request.item = item;
+    request.X_BaseItem = X_BaseItem;
+    request.container = bin;
+    request.start_rad = Named("scan/" + bin + "/0").q_rad;
+    return request;
+  }
+
   static MotionPlanner* planner_;
   static MotionPlanner* articulated_;
   static std::shared_ptr<world::ItemModelLibrary> items_;
@@ -159,11 +170,7 @@ TEST_F(MotionPlannerTest, PicksABoxFromABinAndReportsItsTrajectories) {
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
   EXPECT_GT(scene.stats.points_cut, 0u);
-  PickRequest request;
-  request.item = "kleenex_tissue_box";
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
   const PickPlan plan = planner_->PlanPick(request, &scene, Far());
   const auto& model = planner_->robot().kinematics().model();
   ExpectWithinLimits(plan.approach, model);
@@ -190,11 +197,7 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromTheWallItLeansOn) {
   const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box", 0.003);
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
-  PickRequest request;
-  request.item = "kleenex_tissue_box";
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
   const PickPlan plan = planner_->PlanPick(request, &scene, Far());
   // The lift's end: the last retreat sample before the tcp heads out toward the opening
   // (shelf +x); the lift itself goes up and sideways only.
@@ -233,11 +236,7 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromATallerNeighbourBesideIt) {
   }
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
-  PickRequest request;
-  request.item = "kleenex_tissue_box";
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
   const PickPlan plan = planner_->PlanPick(request, &scene, Far());
   const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
   double moved_m = 0.0, lifted_m = 0.0;
@@ -258,11 +257,7 @@ TEST_F(MotionPlannerTest, AnItemTheCupCannotSealOnIsRefusedBeforeAnySearch) {
   const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "rawlings_baseball");
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "rawlings_baseball", X_BaseItem);
-  PickRequest request;
-  request.item = "rawlings_baseball";
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", "rawlings_baseball", X_BaseItem);
   try {
     planner_->PlanPick(request, &scene, Far());
     FAIL() << "a pick on a ball was planned";
@@ -342,11 +337,7 @@ TEST_F(MotionPlannerTest, ATubeTheReachTestRefusesTouchesTheShelf) {
 TEST_F(MotionPlannerTest, ATopFaceDeepInABinTakesTheHeadBent) {
   const std::string item = "laugh_out_loud_joke_book";
   const auto [X_BaseItem, xyz] = ItemInBin("bin_E", item, -1.0, 0.20);
-  PickRequest request;
-  request.item = item;
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", item, X_BaseItem);
   const PlanningScene straight_scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, item, X_BaseItem);
   try {
@@ -532,11 +523,7 @@ TEST_F(MotionPlannerTest, AnItemUnderAnOverhangIsSlidOutBeforeTheLift) {
   }
   const PlanningScene scene =
       articulated_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, item, X_BaseItem);
-  PickRequest request;
-  request.item = item;
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", item, X_BaseItem);
   const PickPlan plan = articulated_->PlanPick(request, &scene, Far());
   // By the time the cup has risen 3 cm above the grasp (where the book's back would meet
   // the overhang) it has come out toward the opening (shelf +x) by 3 cm.
@@ -640,11 +627,7 @@ TEST_F(MotionPlannerTest, ASpentSearchBudgetIsATypedRefusalNotATimeout) {
   const auto [X_BaseItem, xyz] = ItemInBin("bin_E", "kleenex_tissue_box");
   const PlanningScene scene =
       planner->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
-  PickRequest request;
-  request.item = "kleenex_tissue_box";
-  request.X_BaseItem = X_BaseItem;
-  request.container = "bin_E";
-  request.start_rad = Named("scan/bin_E/0").q_rad;
+  PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
   try {
     planner->PlanPick(request, &scene, Far());
     FAIL() << "planned with no search budget";

@@ -10,21 +10,34 @@
 namespace picking::planner {
 namespace {
 
+// The default cell's static obstacles and the UR10 with the straight gripper, checked fast.
+struct DefaultCell {
+  explicit DefaultCell(const StaticCellOptions& options)
+      : kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10")),
+        robot(kinematics, GripperGeometry{}),
+        cell(
+            world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml")),
+            options),
+        fast(robot, cell, nullptr),
+        motion(fast) {}
+  const ur10::Ur10Kinematics kinematics;
+  const RobotGeometry robot;
+  const StaticCell cell;
+  const FastChecker fast;
+  const MotionChecker motion;
+};
+
 // Two trees grown between free states whose straight motion is blocked by the cell: they
 // meet for at least half of the pairs, every motion free, and the same request gives the
 // same path.
 TEST(RoadmapTest, TreesFromStartAndGoalGoAroundWhatBlocksTheStraightMotion) {
-  const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
-  const RobotGeometry robot(kinematics, GripperGeometry{});
-  const world::CellModel cell_model =
-      world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
   // The trees around obstacles only: without the robot's workspace box, which cuts off
   // part of the random pairs' space (CollisionTest tests the box).
   StaticCellOptions obstacles_only;
   obstacles_only.tcp_workspace_Base.setEmpty();
-  const StaticCell cell(cell_model, obstacles_only);
-  const FastChecker fast(robot, cell, nullptr);
-  const MotionChecker motion(fast);
+  const DefaultCell scene(obstacles_only);
+  const FastChecker& fast = scene.fast;
+  const MotionChecker& motion = scene.motion;
   const Roadmap roadmap(motion, {});
   // A box carried on the cup, as a place carries an item.
   const CarriedItem item = MakeCarriedItem(
@@ -68,22 +81,11 @@ TEST(RoadmapTest, TreesFromStartAndGoalGoAroundWhatBlocksTheStraightMotion) {
                   .empty());
 }
 
-}  // namespace
-}  // namespace picking::planner
-
-namespace picking::planner {
-namespace {
-
 // Every two named poses get a path at once, both ways: the later requests find them cached,
 // free, from start to goal, the way back the way there reversed.
 TEST(RoadmapTest, PathsBetweenNamedPosesArePlannedAheadBothWays) {
-  const ur10::Ur10Kinematics kinematics(ur10::Ur10Model::Load(PICKING_DATA_DIR "/ur10"));
-  const RobotGeometry robot(kinematics, GripperGeometry{});
-  const world::CellModel cell_model =
-      world::LoadCellModel(world::ReadCellConfig(PICKING_DATA_DIR "/cell/default_cell.yaml"));
-  const StaticCell cell(cell_model, StaticCellOptions{});
-  const FastChecker fast(robot, cell, nullptr);
-  const MotionChecker motion(fast);
+  const DefaultCell scene(StaticCellOptions{});
+  const MotionChecker& motion = scene.motion;
   // Arm poses toward the shelf, the tote side and up: some straight motions between them
   // pass through the shelf or the pedestal and need the roadmap.
   const std::vector<NamedPose> named = {
