@@ -109,6 +109,22 @@ class MotionPlannerTest : public ::testing::Test {
     return request;
   }
 
+  // How far a pick's lift moves the cup across the bin (shelf +y) and up, metres: to the last
+  // retreat sample before the tcp heads out toward the opening (shelf +x); the lift itself goes
+  // up and sideways only.
+  static std::pair<double, double> LiftAcrossAndUp(const PickPlan& plan) {
+    const Eigen::Isometry3d X_ShelfBase = planner_->cell().cell().config.X_BaseShelf.inverse();
+    const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
+    double across_m = 0.0, up_m = 0.0;
+    for (const TrajectorySample& s : plan.retreat.samples) {
+      const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
+      if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
+      across_m = p_S.y() - p0_S.y();
+      up_m = p_S.z() - p0_S.z();
+    }
+    return {across_m, up_m};
+  }
+
   static MotionPlanner* planner_;
   static MotionPlanner* articulated_;
   static std::shared_ptr<world::ItemModelLibrary> items_;
@@ -198,19 +214,7 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromTheWallItLeansOn) {
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
   PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
-  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
-  // The lift's end: the last retreat sample before the tcp heads out toward the opening
-  // (shelf +x); the lift itself goes up and sideways only.
-  const auto& cell = planner_->cell().cell();
-  const Eigen::Isometry3d X_ShelfBase = cell.config.X_BaseShelf.inverse();
-  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
-  double moved_m = 0.0, lifted_m = 0.0;
-  for (const TrajectorySample& s : plan.retreat.samples) {
-    const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
-    if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
-    moved_m = p_S.y() - p0_S.y();  // away from the wall at -y
-    lifted_m = p_S.z() - p0_S.z();
-  }
+  const auto [moved_m, lifted_m] = LiftAcrossAndUp(planner_->PlanPick(request, &scene, Far()));
   EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
   EXPECT_NEAR(moved_m, planner_->options().wall_release_m - 0.003, 2e-3);
 }
@@ -237,15 +241,7 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromATallerNeighbourBesideIt) {
   const PlanningScene scene =
       planner_->BuildScene("bin_E", xyz.data(), xyz.size() / 3, "kleenex_tissue_box", X_BaseItem);
   PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
-  const PickPlan plan = planner_->PlanPick(request, &scene, Far());
-  const Eigen::Vector3d p0_S = X_ShelfBase * plan.grasp.X_BaseTcp.translation();
-  double moved_m = 0.0, lifted_m = 0.0;
-  for (const TrajectorySample& s : plan.retreat.samples) {
-    const Eigen::Vector3d p_S = X_ShelfBase * planner_->robot().X_BaseTcp(s.q_rad).translation();
-    if (std::abs(p_S.x() - p0_S.x()) > 0.002) break;
-    moved_m = p_S.y() - p0_S.y();  // away from the neighbour at -y
-    lifted_m = p_S.z() - p0_S.z();
-  }
+  const auto [moved_m, lifted_m] = LiftAcrossAndUp(planner_->PlanPick(request, &scene, Far()));
   EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
   EXPECT_GT(moved_m, 0.004);
   EXPECT_LT(moved_m, planner_->options().wall_release_m + 1e-3);
