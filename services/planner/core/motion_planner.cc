@@ -1031,15 +1031,16 @@ std::optional<JointVector> MotionPlanner::DescentStart(const Eigen::Isometry3d& 
 namespace {
 
 // The nearest scan voxel beside the box (container frame) on each side of each horizontal
-// axis, as the gap between the voxel's cube and the box, metres: voxels whose cubes overlap
-// the box's extent on the other horizontal axis and lie within the height the lift sweeps
-// (above the support: from `above_support_m` over the box's bottom to `sweep_m` over its
-// top). Gaps start at `far_m`.
+// axis, as the gap between the voxel's enclosing sphere and the box, metres: voxels whose
+// cubes overlap the box's extent on the other horizontal axis and lie within the height the
+// lift sweeps (above the support: from `above_support_m` over the box's bottom to `sweep_m`
+// over its top). Gaps start at `far_m`.
 void NeighbourGaps(const Eigen::AlignedBox3d& box_Container,
                    const Eigen::Isometry3d& X_ContainerBase, const VoxelContacts& voxels,
                    double voxel_m, double above_support_m, double sweep_m, double far_m,
                    Eigen::Vector3d* low_gap, Eigen::Vector3d* high_gap) {
   const double half = 0.5 * voxel_m;
+  const double reach = 0.5 * std::sqrt(3.0) * voxel_m;
   for (std::size_t v = 0; v < voxels.size(); ++v) {
     const Eigen::Vector3d c = X_ContainerBase * voxels.centre(static_cast<int>(v)).cast<double>();
     if (c.z() + half < box_Container.min().z() + above_support_m ||
@@ -1052,10 +1053,15 @@ void NeighbourGaps(const Eigen::AlignedBox3d& box_Container,
           c[other] - half > box_Container.max()[other]) {
         continue;
       }
-      const double below = box_Container.min()[axis] - (c[axis] + half);
-      const double above = (c[axis] - half) - box_Container.max()[axis];
-      if (below >= 0.0 && below < far_m) (*low_gap)[axis] = std::min((*low_gap)[axis], below);
-      if (above >= 0.0 && above < far_m) (*high_gap)[axis] = std::min((*high_gap)[axis], above);
+      // A voxel wholly beside the box; its gap from the sphere around it, as the fast check
+      // sees it (a voxel's enclosing sphere reaches 3.7 mm past its cube at 1 cm).
+      if (c[axis] + half <= box_Container.min()[axis]) {
+        const double below = std::max(0.0, box_Container.min()[axis] - (c[axis] + reach));
+        if (below < far_m) (*low_gap)[axis] = std::min((*low_gap)[axis], below);
+      } else if (c[axis] - half >= box_Container.max()[axis]) {
+        const double above = std::max(0.0, (c[axis] - reach) - box_Container.max()[axis]);
+        if (above < far_m) (*high_gap)[axis] = std::min((*high_gap)[axis], above);
+      }
     }
   }
 }
@@ -1069,7 +1075,7 @@ Eigen::Vector3d MotionPlanner::LiftRelease(const GraspContainer& container,
   // The item's box in the container frame; a shelf bin's back and side walls near it, and
   // the neighbours beside it in the scan: where one side is close and the other has room,
   // the lift draws the item away from the close one (a box lifted straight up beside a
-  // neighbour's curved flank runs into it).
+  // neighbour's curved flank runs into it). (Tote picks lift straight up, as in the paper.)
   if (container.kind != GraspContainerKind::kShelfBin) return Eigen::Vector3d::Zero();
   const Eigen::Isometry3d X_ContainerItem =
       container.X_BaseContainer.inverse() * X_grasp * carried.X_TcpItem;

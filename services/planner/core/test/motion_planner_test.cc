@@ -243,8 +243,9 @@ TEST_F(MotionPlannerTest, TheLiftDrawsAnItemAwayFromATallerNeighbourBesideIt) {
   PickRequest request = PickIn("bin_E", "kleenex_tissue_box", X_BaseItem);
   const auto [moved_m, lifted_m] = LiftAcrossAndUp(planner_->PlanPick(request, &scene, Far()));
   EXPECT_GT(lifted_m, 0.6 * planner_->options().lift_m - 1e-3);
+  // At most wall_release_m from the voxels' enclosing spheres (3.7 mm past a 1 cm cube).
   EXPECT_GT(moved_m, 0.004);
-  EXPECT_LT(moved_m, planner_->options().wall_release_m + 1e-3);
+  EXPECT_LT(moved_m, planner_->options().wall_release_m + 0.0037 + 1e-3);
 }
 
 // The cup's lip cannot seal on a baseball (its rim stands 3 mm off the ball), wherever it
