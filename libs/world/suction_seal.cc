@@ -9,9 +9,7 @@
 
 namespace picking::world {
 
-namespace {
-
-void Validate(const SealOptions& o) {
+void ValidateSealOptions(const SealOptions& o) {
   if (!(o.cup_radius_m > 0.0) || o.rim_samples < 3 || !(o.flatness_tolerance_m >= 0.0) ||
       !(o.angle_tolerance_rad >= 0.0) || !(o.max_gap_m >= 0.0) || !(o.lookback_m >= 0.0)) {
     throw std::invalid_argument(
@@ -19,11 +17,9 @@ void Validate(const SealOptions& o) {
   }
 }
 
-}  // namespace
-
 SealMeasure MeasureSeal(const RayScene& scene, const Eigen::Isometry3d& X_BaseTcp,
                         const SealOptions& options) {
-  Validate(options);
+  ValidateSealOptions(options);
   SealMeasure result;
   const Eigen::Vector3d z = X_BaseTcp.linear().col(2);
   const Eigen::Vector3d x = X_BaseTcp.linear().col(0), y = X_BaseTcp.linear().col(1);

@@ -28,6 +28,10 @@ struct SealMeasure {
   std::string reason;       ///< Why not, when not sealed.
 };
 
+/// Throws std::invalid_argument unless cup_radius_m > 0, rim_samples >= 3 and the tolerances,
+/// gap and lookback are >= 0.
+void ValidateSealOptions(const SealOptions& options);
+
 /// The seal of a cup whose lip centre is X_BaseTcp (+z out of the cup, toward the surface):
 /// rays along +z from the centre and `rim_samples` lip points, each from `lookback_m` behind
 /// the lip, must all meet one object; their hits must lie within `flatness_tolerance_m` of a

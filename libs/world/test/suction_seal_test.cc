@@ -91,6 +91,8 @@ TEST(MeasureSealTest, BadOptionsAreRefused) {
   options = SealOptions{};
   options.cup_radius_m = 0.0;
   EXPECT_THROW(MeasureSeal(scene, CupAbove(0.05, 0.0), options), std::invalid_argument);
+  EXPECT_THROW(ValidateSealOptions(options), std::invalid_argument);
+  EXPECT_NO_THROW(ValidateSealOptions(SealOptions{}));
 }
 
 }  // namespace

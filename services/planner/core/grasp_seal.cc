@@ -7,16 +7,21 @@
 
 namespace picking::planner {
 
-ModelSeal::ModelSeal(const world::TriangleMesh& mesh_Item, const ModelSealOptions& options)
-    : options_(options) {
-  if (!(options_.press_m >= 0.0) || !(options_.probe_back_m >= 0.0) ||
-      !(options_.probe_ahead_m > 0.0) || options_.shift_directions < 1) {
+void ModelSeal::Validate(const ModelSealOptions& options) {
+  world::ValidateSealOptions(options.seal);
+  if (!(options.press_m >= 0.0) || !(options.probe_back_m >= 0.0) ||
+      !(options.probe_ahead_m > 0.0) || options.shift_directions < 1) {
     throw std::invalid_argument(
         "ModelSeal: press_m and probe_back_m >= 0, probe_ahead_m > 0, shift_directions >= 1");
   }
-  for (const double d : options_.shift_m) {
+  for (const double d : options.shift_m) {
     if (!(d > 0.0)) throw std::invalid_argument("ModelSeal: shift_m must be > 0");
   }
+}
+
+ModelSeal::ModelSeal(const world::TriangleMesh& mesh_Item, const ModelSealOptions& options)
+    : options_(options) {
+  Validate(options_);
   if (mesh_Item.triangles.empty()) throw std::invalid_argument("ModelSeal: the mesh is empty");
   scene_Item_.Add(0, mesh_Item, Eigen::Isometry3d::Identity());
   scene_Item_.Commit();

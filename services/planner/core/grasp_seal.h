@@ -51,6 +51,10 @@ class ModelSeal final {
   /// empty or invalid mesh or bad options.
   ModelSeal(const world::TriangleMesh& mesh_Item, const ModelSealOptions& options);
 
+  /// Throws std::invalid_argument for bad options (the seal's, or press_m, probe_back_m < 0,
+  /// probe_ahead_m <= 0, shift_directions < 1, a shift <= 0).
+  static void Validate(const ModelSealOptions& options);
+
   /// The seal of a cup that comes along +z of X_BaseTcp (the grasp's tcp pose) onto the item
   /// at X_BaseItem.
   ModelSealResult Check(const Eigen::Isometry3d& X_BaseItem,

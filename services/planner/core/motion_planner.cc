@@ -298,6 +298,7 @@ MotionPlanner::MotionPlanner(const ur10::Ur10Kinematics& kinematics, const world
     throw std::invalid_argument(
         "head_angle_step_rad must be > 0, min_bent_hover_m and bent_wrist_clearance_m >= 0");
   }
+  ModelSeal::Validate(options_.seal);
   auto straight = std::make_unique<Head>();
   straight->angle_rad = gripper.head_angle_rad;
   straight->robot = std::make_unique<RobotGeometry>(kinematics, gripper);

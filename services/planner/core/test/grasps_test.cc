@@ -1051,6 +1051,11 @@ TEST(ModelSealTest, NothingAlongTheApproachIsNoSeal) {
   bad.shift_m = {0.0};
   EXPECT_THROW(ModelSeal(world::MakeBox({0.1, 0.1, 0.1}), bad), std::invalid_argument);
   EXPECT_THROW(ModelSeal(world::TriangleMesh{}, ModelSealOptions{}), std::invalid_argument);
+  ModelSealOptions no_lip;
+  no_lip.seal.cup_radius_m = 0.0;
+  EXPECT_THROW(ModelSeal::Validate(no_lip), std::invalid_argument);
+  EXPECT_THROW(ModelSeal(world::MakeBox({0.1, 0.1, 0.1}), no_lip), std::invalid_argument);
+  EXPECT_NO_THROW(ModelSeal::Validate(ModelSealOptions{}));
 }
 
 }  // namespace
