@@ -17,6 +17,23 @@ void ValidateSealOptions(const SealOptions& o) {
   }
 }
 
+std::optional<RayHit> CupFirstContact(const RayScene& scene, const Eigen::Isometry3d& X_BaseTcp,
+                                      const Eigen::Vector3d& direction_Base, double max_distance_m,
+                                      double cup_radius_m, int rim_samples, int ignore_object_id) {
+  const Eigen::Vector3d x = X_BaseTcp.linear().col(0), y = X_BaseTcp.linear().col(1);
+  std::optional<RayHit> first;
+  for (int k = -1; k < rim_samples; ++k) {
+    Eigen::Vector3d p = X_BaseTcp.translation();
+    if (k >= 0) {
+      const double a = 2 * M_PI * k / rim_samples;
+      p += cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
+    }
+    const auto hit = scene.Cast(p, direction_Base, max_distance_m, ignore_object_id);
+    if (hit && (!first || hit->distance_m < first->distance_m)) first = hit;
+  }
+  return first;
+}
+
 SealMeasure MeasureSeal(const RayScene& scene, const Eigen::Isometry3d& X_BaseTcp,
                         const SealOptions& options) {
   ValidateSealOptions(options);

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 
+#include <optional>
 #include <string>
 
 #include "libs/world/ray_scene.h"
@@ -27,6 +28,15 @@ struct SealMeasure {
   double angle_rad = 0.0;   ///< Angle between that plane's normal and -z_tcp.
   std::string reason;       ///< Why not, when not sealed.
 };
+
+/// The nearest surface that the cup's centre or one of its `rim_samples` lip points (on a
+/// circle of `cup_radius_m` in X_BaseTcp's x-y plane) meets along the unit `direction_Base`
+/// within `max_distance_m`, skipping `ignore_object_id` (-1: none): where a cup moved that way
+/// first touches. std::nullopt when nothing is met.
+std::optional<RayHit> CupFirstContact(const RayScene& scene, const Eigen::Isometry3d& X_BaseTcp,
+                                      const Eigen::Vector3d& direction_Base, double max_distance_m,
+                                      double cup_radius_m, int rim_samples,
+                                      int ignore_object_id = -1);
 
 /// Throws std::invalid_argument unless cup_radius_m > 0, rim_samples >= 3 and the tolerances,
 /// gap and lookback are >= 0.

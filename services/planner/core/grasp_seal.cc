@@ -31,22 +31,14 @@ std::optional<world::SealMeasure> ModelSeal::PressAndMeasure(
     const Eigen::Isometry3d& X_ItemTcp) const {
   // The first contact of the cup's centre or lip, as the guarded move meets the surface.
   const Eigen::Vector3d z = X_ItemTcp.linear().col(2);
-  const Eigen::Vector3d x = X_ItemTcp.linear().col(0), y = X_ItemTcp.linear().col(1);
-  const Eigen::Vector3d start = X_ItemTcp.translation() - options_.probe_back_m * z;
-  const double reach = options_.probe_back_m + options_.probe_ahead_m;
-  const int n = options_.seal.rim_samples;
-  double first = std::numeric_limits<double>::infinity();
-  for (int k = -1; k < n; ++k) {
-    Eigen::Vector3d p = start;
-    if (k >= 0) {
-      const double a = 2 * M_PI * k / n;
-      p += options_.seal.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
-    }
-    if (const auto hit = scene_Item_.Cast(p, z, reach)) first = std::min(first, hit->distance_m);
-  }
-  if (!std::isfinite(first)) return std::nullopt;
-  Eigen::Isometry3d X_pressed = X_ItemTcp;
-  X_pressed.translation() = start + (first + options_.press_m) * z;
+  Eigen::Isometry3d X_start = X_ItemTcp;
+  X_start.translation() -= options_.probe_back_m * z;
+  const std::optional<world::RayHit> first = world::CupFirstContact(
+      scene_Item_, X_start, z, options_.probe_back_m + options_.probe_ahead_m,
+      options_.seal.cup_radius_m, options_.seal.rim_samples);
+  if (!first) return std::nullopt;
+  Eigen::Isometry3d X_pressed = X_start;
+  X_pressed.translation() += (first->distance_m + options_.press_m) * z;
   return world::MeasureSeal(scene_Item_, X_pressed, options_.seal);
 }
 

@@ -622,6 +622,9 @@ Trajectory MotionPlanner::TimeAndValidate(const std::vector<JointVector>& path_r
 
 namespace {
 
+// Timed named motions kept (every ordered pair of 42 named poses at two speeds).
+constexpr std::size_t kMotionCacheEntries = 4096;
+
 // The bytes of a motion request between two configurations at a speed: a cache key.
 std::string MotionKey(const JointVector& a, const JointVector& b, double speed_fraction) {
   std::string key(sizeof(double) * 13, '\0');
@@ -681,8 +684,9 @@ JointMotionPlan MotionPlanner::PlanJointMotion(const JointVector& start_rad,
   plan.trajectory = TimeAndValidate(path.path_rad, speed_fraction, *head.motion, *head.exact,
                                     nullptr, FailureStage::kJointMotion);
   if (keep) {
+    // Bounded: a caller asking for ever new speeds must not grow it without end.
     std::lock_guard<std::mutex> lock(motion_cache_mutex_);
-    motion_cache_.emplace(key, plan.trajectory);
+    if (motion_cache_.size() < kMotionCacheEntries) motion_cache_.emplace(key, plan.trajectory);
   }
   plan.planning_time_s = Seconds(started);
   return plan;

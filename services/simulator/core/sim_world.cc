@@ -196,20 +196,11 @@ GuardedMoveResult SimWorld::GuardedMove(double max_distance_m) {
   if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
     throw std::invalid_argument("GuardedMove: max_distance_m must be positive and finite");
   }
-  const world::RayScene& scene = ItemScene();
   const Eigen::Vector3d z = X_BaseTcp_.linear().col(2);
-  const Eigen::Vector3d x = X_BaseTcp_.linear().col(0), y = X_BaseTcp_.linear().col(1);
   GuardedMoveResult result;
-  std::optional<world::RayHit> first;
-  for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTcp_.translation();
-    if (k >= 0) {
-      const double a = 2 * M_PI * k / options_.rim_samples;
-      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
-    }
-    const auto hit = scene.Cast(p, z, max_distance_m + 1.0, attached_ == 0 ? -1 : attached_);
-    if (hit && (!first || hit->distance_m < first->distance_m)) first = hit;
-  }
+  const std::optional<world::RayHit> first = world::CupFirstContact(
+      ItemScene(), X_BaseTcp_, z, max_distance_m + 1.0, options_.cup_radius_m, options_.rim_samples,
+      attached_ == 0 ? -1 : attached_);
   const double penetration_to_stop =
       options_.contact_force_threshold_n / options_.contact_stiffness_n_per_m;
   double travel = max_distance_m;
@@ -242,19 +233,9 @@ ProbeResult SimWorld::Probe(const Eigen::Isometry3d& X_BaseTcp,
   if (!std::isfinite(max_distance_m) || max_distance_m <= 0.0) {
     throw std::invalid_argument("Probe: max_distance_m must be positive and finite");
   }
-  const world::RayScene& scene = ItemScene();
-  const Eigen::Vector3d d = direction_Base.normalized();
-  const Eigen::Vector3d x = X_BaseTcp.linear().col(0), y = X_BaseTcp.linear().col(1);
-  std::optional<world::RayHit> first;
-  for (int k = -1; k < options_.rim_samples; ++k) {
-    Eigen::Vector3d p = X_BaseTcp.translation();
-    if (k >= 0) {
-      const double a = 2 * M_PI * k / options_.rim_samples;
-      p += options_.cup_radius_m * (std::cos(a) * x + std::sin(a) * y);
-    }
-    const auto hit = scene.Cast(p, d, max_distance_m, attached_ == 0 ? -1 : attached_);
-    if (hit && (!first || hit->distance_m < first->distance_m)) first = hit;
-  }
+  const std::optional<world::RayHit> first = world::CupFirstContact(
+      ItemScene(), X_BaseTcp, direction_Base.normalized(), max_distance_m, options_.cup_radius_m,
+      options_.rim_samples, attached_ == 0 ? -1 : attached_);
   ProbeResult result;
   if (!first) return result;
   result.contact = true;
