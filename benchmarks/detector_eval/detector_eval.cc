@@ -19,9 +19,11 @@
 //                      [--box_faces=true|false] [--box_continuation=true|false]
 //                      [--box_polish_contradicted=true|false]
 //                      [--hypotheses=N] [--reference_step=N] [--layout_mode=tidy|settled]
-//                      [--only=LAYOUT:BIN,...] [--candidates=N]
-//                      [--sensor=structured_light|rgbd]
+//                      [--only=LAYOUT:BIN,...] [--candidates=N] [--candidates_csv=FILE]
+//                      [--sensor=structured_light|rgbd] [--outline=true|false]
 //
+// --outline=false measures the scene past each pose's silhouette but leaves its score as it is
+// (VerifyOptions::outline_check).
 // --sensor=rgbd scans each view with a simulated commodity RGB-D camera (Xtion-like:
 // simulator::RenderRgbd, holes, noise growing with the square of the distance, a colour image
 // under room light) instead of the cell's structured-light scanner.
@@ -29,7 +31,8 @@
 // --only=2:H,3:G runs those targets only (layout 2 bin H, layout 3 bin G): one bin in seconds
 // instead of the whole set, for looking into a failure. --candidates=N also prints up to N
 // distinct poses the accepting method found above its thresholds, each with its error against
-// the truth and its evidence (what ranked a wrong pose first).
+// the truth and its evidence (what ranked a wrong pose first); --candidates_csv=FILE writes
+// each of them, judged and with its evidence, as a CSV row (detector_eval::CandidateLog).
 // --layout_mode=settled drops the items and lets them settle by physics (stacked, leaning,
 // standing on end: simulator::PhysicsLayout) instead of laying them side by side.
 // --budget_scale multiplies every item's time budget (on a machine busy with other work,
@@ -66,6 +69,7 @@
 #include <iomanip>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
@@ -102,7 +106,8 @@ struct Args {
   std::string markdown;
   BinDetectionOptions detection;
   int views = 1;
-  std::string cache_dir;  // empty: a fresh temporary folder
+  std::string cache_dir;       // empty: a fresh temporary folder
+  std::string candidates_csv;  // --candidates_csv: every candidate's evidence, one row each
   // The views of --views=3 (the first alone with --views=1); --view_offset_m and
   // --side_height_m move the side ones.
   std::vector<world::BinScanView> bin_views = world::CellBinScanViews();
@@ -169,6 +174,8 @@ bool ParseDetectionFlag(const std::string& a, BinDetectionOptions* detection) {
     const int n = std::stoi(*v);
     if (n < 1) throw std::invalid_argument("--reference_step must be >= 1");
     detection->estimators.ppf.match.reference_step = n;
+  } else if (auto v = value("--outline")) {
+    detection->estimators.refine.verify.outline_check = ParseBool("--outline", *v);
   } else if (auto v = value("--multi_sensor")) {
     detection->multi_sensor_verification = ParseBool("--multi_sensor", *v);
   } else if (auto v = value("--floor_band")) {
@@ -214,6 +221,8 @@ Args Parse(int argc, char** argv) {
       const int n = std::stoi(*v);
       if (n < 1) throw std::invalid_argument("--candidates must be >= 1");
       args.detection.max_results = static_cast<std::size_t>(n);
+    } else if (auto v = value("--candidates_csv")) {
+      args.candidates_csv = *v;
     } else if (auto v = value("--sensor")) {
       if (*v != "structured_light" && *v != "rgbd") {
         throw std::invalid_argument("--sensor is structured_light or rgbd, got '" + *v + "'");
@@ -408,6 +417,7 @@ struct Evaluation {
   std::ostringstream rows;  // one markdown row per target
   double scan_s = 0.0;
   int scans = 0;
+  std::unique_ptr<CandidateLog> candidates;  // --candidates_csv
 };
 
 // The detector's models, cached in args.cache_dir or in a fresh folder kept by `fresh_cache`.
@@ -544,6 +554,15 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   if (!chain.error.empty()) std::cout << ", error: " << chain.error;
   PrintTruePoses(library, scan, entry.item, args);
   if (args.detection.max_results > 1) PrintCandidates(chain_result, *model, scan.items, entry.item);
+  for (std::size_t k = 0; k < chain_result.poses.size(); ++k) {
+    BinDetectionResult one;
+    one.chain.detection = chain_result.poses[k];
+    evaluation->candidates->Add(
+        std::string(args.sensor == BinSensor::kRgbd ? "rgbd" : "structured_light") + "_seed" +
+            std::to_string(args.seed),
+        "layout" + layout + ":" + entry.bin, static_cast<int>(k),
+        Judge(one, *model, scan.items, entry.item).correct, chain_result.poses[k]);
+  }
   for (const auto& [name, o] : by_method) std::cout << "; " << name << " " << Cell(o);
   std::cout << std::endl;
 }
@@ -588,6 +607,7 @@ int Run(const Args& args) {
   std::optional<TemporaryFolder> fresh_cache;
   const auto library = MakeLibrary(args, data_dir, &fresh_cache);
   Evaluation evaluation;
+  evaluation.candidates = std::make_unique<CandidateLog>(args.candidates_csv);
   evaluation.rows << "| layout | bin | item | items in bin | region points | chain | ppf | sift | "
                      "range_templates |\n|---|---|---|---|---|---|---|---|---|\n";
   for (const std::string& layout : args.layouts) {

@@ -1,6 +1,9 @@
 #include "benchmarks/detector_eval/pose_check.h"
 
+#include "services/detector/core/detection.h"
+
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <stdexcept>
 
@@ -61,6 +64,29 @@ PoseErrorResult PoseError(const geometry::PointCloud& model, const std::string& 
     }
   }
   return best;
+}
+
+}  // namespace picking::detector_eval
+
+namespace picking::detector_eval {
+
+CandidateLog::CandidateLog(const std::string& path) {
+  if (path.empty()) return;
+  out_ = std::make_unique<std::ofstream>(path);
+  if (!*out_) throw std::runtime_error("cannot write '" + path + "'");
+  *out_ << "source,scene,item,rank,correct,method,score,fitness,inlier_rmse_m,appearance,"
+           "visible,occluded,supported,conflicts,outline,outline_continued,outline_hidden\n";
+}
+
+void CandidateLog::Add(const std::string& source, const std::string& scene, int rank, bool correct,
+                       const detector::Detection& d) {
+  if (!out_) return;
+  *out_ << source << "," << scene << "," << d.item << "," << rank << "," << (correct ? 1 : 0) << ","
+        << d.method << "," << std::setprecision(6) << d.score << "," << d.fitness << ","
+        << d.inlier_rmse_m << "," << d.appearance << "," << d.visible_points << ","
+        << d.occluded_points << "," << d.supported_points << "," << d.conflict_points << ","
+        << d.outline_points << "," << d.outline_continued << "," << d.outline_hidden << "\n";
+  out_->flush();
 }
 
 }  // namespace picking::detector_eval

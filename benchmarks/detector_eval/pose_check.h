@@ -2,6 +2,8 @@
 
 #include <Eigen/Geometry>
 
+#include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -30,5 +32,27 @@ struct PoseErrorResult {
 PoseErrorResult PoseError(const geometry::PointCloud& model, const std::string& symmetry,
                           const Eigen::Isometry3d& X_BaseItem_estimate,
                           const Eigen::Isometry3d& X_BaseItem_true);
+
+}  // namespace picking::detector_eval
+
+namespace picking::detector {
+struct Detection;
+}
+
+namespace picking::detector_eval {
+
+/// Every candidate pose of an evaluation with the evidence under its score, one CSV row each,
+/// for fitting and checking the detector's confidence offline (--candidates_csv). Writes
+/// nothing when opened with an empty path.
+class CandidateLog {
+ public:
+  explicit CandidateLog(const std::string& path);
+  /// `scene`: where it was seen (e.g. "layout1:bin_A" or "frame3"); `rank`: 0 for the best.
+  void Add(const std::string& source, const std::string& scene, int rank, bool correct,
+           const detector::Detection& d);
+
+ private:
+  std::unique_ptr<std::ofstream> out_;
+};
 
 }  // namespace picking::detector_eval

@@ -15,10 +15,11 @@
 // - each method alone (PPF, range templates) with what it says when it finds nothing.
 //
 // Usage: real_frame_eval [--data=DIR] [--frames=1,2,...] [--region=objects|none]
-//                        [--markdown=FILE] [--cache_dir=DIR]
+//                        [--markdown=FILE] [--cache_dir=DIR] [--candidates_csv=FILE]
 // Exit status: 0 after a complete evaluation (the figures are reported, not asserted), 1 on
 // unreadable data or a failed detection call, 2 on bad arguments.
 
+#include <pthread.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -53,6 +54,7 @@ struct Args {
   bool region = true;
   std::string markdown;
   std::string cache_dir;
+  std::string candidates_csv;
 };
 
 Args ParseArgs(int argc, char** argv) {
@@ -81,6 +83,8 @@ Args ParseArgs(int argc, char** argv) {
       args.markdown = *v;
     } else if (auto v = value("--cache_dir")) {
       args.cache_dir = *v;
+    } else if (auto v = value("--candidates_csv")) {
+      args.candidates_csv = *v;
     } else {
       throw std::invalid_argument("unknown argument '" + arg + "'");
     }
@@ -251,17 +255,20 @@ std::string Percent(int n, int d) {
 // score for the ROC.
 void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library,
                     const detector::PreparedScene& scene, const TrueObject& truth, Tally* tally,
-                    std::ostream& rows, int frame) {
+                    std::ostream& rows, int frame, CandidateLog* log) {
   const auto model = library->Get(truth.name);
   const Judge judge(*model, *scene.camera);
   detector::ItemQuery query;
   query.item = truth.name;
+  // The budget runs on this thread's CPU time, as the detector service judges it.
+  query.budget_clock = detector::BudgetClock::ThreadCpu(pthread_self());
   // One scene context per target, made inside the timed call as the service makes it; the
   // evidence and the candidates for the ROC reuse it.
   const auto started = Clock::now();
+  const auto budget_start = query.budget_clock.Now();
   const auto context = detector::MakeSceneContext(scene);
   const detector::ItemDetections found =
-      detector::DetectItem(library, scene, context, query, started);
+      detector::DetectItem(library, scene, context, query, budget_start);
   const double seconds = std::chrono::duration<double>(Clock::now() - started).count();
   tally->total_s += seconds;
   tally->max_s = std::max(tally->max_s, seconds);
@@ -295,11 +302,13 @@ void EvaluateTarget(const std::shared_ptr<const detector::ModelLibrary>& library
   query.min_score = 0.01;
   query.max_results = 5;
   const detector::ItemDetections all =
-      detector::DetectItem(library, scene, context, query, Clock::now());
+      detector::DetectItem(library, scene, context, query, query.budget_clock.Now());
   int right = 0;
   for (const detector::Detection& d : all.poses) {
     tally->candidates.push_back(judge(d, truth.X_CameraObject));
     right += tally->candidates.back().correct;
+    log->Add("real", "frame" + std::to_string(frame), static_cast<int>(&d - all.poses.data()),
+             tally->candidates.back().correct, d);
   }
   rows << " " << right << " of " << all.poses.size() << " |";
 }
@@ -315,8 +324,9 @@ void EvaluateMethods(const std::shared_ptr<const detector::ModelLibrary>& librar
     detector::ItemQuery query;
     query.item = truth.name;
     query.method = m;
+    query.budget_clock = detector::BudgetClock::ThreadCpu(pthread_self());
     const detector::ItemDetections found = detector::DetectItem(
-        library, scene, detector::MakeSceneContext(scene), query, Clock::now());
+        library, scene, detector::MakeSceneContext(scene), query, query.budget_clock.Now());
     if (found.chain.detection) {
       const bool correct = judge(*found.chain.detection, truth.X_CameraObject).correct;
       ++tally->method_found[name];
@@ -325,7 +335,7 @@ void EvaluateMethods(const std::shared_ptr<const detector::ModelLibrary>& librar
     } else {
       std::string why = "no pose";
       for (const auto& attempt : found.chain.attempts) {
-        if (!attempt.error.empty()) why = attempt.error;
+        if (!attempt.reason.empty()) why = attempt.reason;
       }
       tally->method_silent[name] = why;
       rows << " none |";
@@ -391,6 +401,7 @@ int Run(const Args& args) {
   std::map<std::string, Tally> per_object;
   Tally total;
   std::ostringstream rows;
+  CandidateLog log(args.candidates_csv);
   rows << "| frame | object | chain | s | candidates correct | ppf alone | range templates alone "
           "|\n|---|---|---|---|---|---|---|\n";
   for (const int index : args.frames) {
@@ -402,7 +413,7 @@ int Run(const Args& args) {
         detector::PrepareScene(DepthToCloud(frame), Eigen::Isometry3d::Identity(), options);
     for (const TrueObject& truth : frame.objects) {
       Tally& tally = per_object[truth.name];
-      EvaluateTarget(library, scene, truth, &tally, rows, index);
+      EvaluateTarget(library, scene, truth, &tally, rows, index, &log);
       EvaluateMethods(library, scene, truth, &tally, rows);
       std::cout << "frame " << index << " " << truth.name << " done" << std::endl;
     }

@@ -63,6 +63,14 @@ struct Detection {
   std::size_t occluded_points = 0;
   std::size_t supported_points = 0;
   std::size_t conflict_points = 0;
+  /// Samples just past the pose's silhouette where the sensor measured a surface not in front
+  /// of it, and of those the ones where that surface continues the model's (VerifyResult).
+  std::size_t outline_points = 0;
+  std::size_t outline_continued = 0;
+  std::size_t outline_hidden = 0;  ///< ... and where a surface in front of it hid its outline.
+  /// What the outline leaves of the score (VerifyResult::outline_factor): an estimator's search
+  /// ranks its poses by their support, and scales each answer's score by this at the end.
+  double outline_factor = 1.0;
   DetectionTimings timings;
 };
 

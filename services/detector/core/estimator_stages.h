@@ -45,8 +45,9 @@ void CheckInput(const EstimatorInput& input, const SceneContext& context, const 
 std::optional<std::size_t> ContradictedShapeFit(const std::vector<Detection>& candidates,
                                                 const RefineVerifyOptions& options);
 
-/// An estimator's candidates, best first (score plus the appearance as a bonus), each with
-/// the estimator's whole time since `start`.
+/// An estimator's candidates, each with its score scaled by its outline factor (the search
+/// ranked them by their support alone), best first (score plus the appearance as a bonus),
+/// each with the estimator's whole time since `start`.
 std::vector<Detection> Finish(std::vector<Detection> out, const RefineVerifyOptions& options,
                               Clock::time_point start);
 

@@ -79,9 +79,11 @@ std::optional<std::size_t> ContradictedShapeFit(const std::vector<Detection>& ca
   return found;
 }
 
-// An estimator's candidates, best first, each with the estimator's whole time since `start`.
+// An estimator's candidates, best first, each with its score scaled by its outline factor (the
+// search ranked them by their support) and the estimator's whole time since `start`.
 std::vector<Detection> Finish(std::vector<Detection> out, const RefineVerifyOptions& options,
                               Clock::time_point start) {
+  for (auto& d : out) d.score *= d.outline_factor;
   SortByScore(&out, options);
   for (auto& d : out) d.timings.total_s = SecondsSince(start);
   return out;
@@ -138,11 +140,15 @@ Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Metho
     VerifyOptions verify = options.verify;
     verify.symmetries = object.symmetries();
     const VerifyResult v = Verify(*verification, object.icp_cloud(), d.X_BaseItem, verify);
-    d.score = v.score;
+    d.score = v.support_score;
+    d.outline_factor = v.outline_factor;
     d.visible_points = v.num_visible;
     d.occluded_points = v.num_occluded;
     d.supported_points = v.num_supported;
     d.conflict_points = v.num_conflicts;
+    d.outline_points = v.num_outline;
+    d.outline_continued = v.num_outline_continued;
+    d.outline_hidden = v.num_outline_hidden;
     if (model.spec.kind == ModelSourceKind::kShapeBox && options.box_continuation_weight > 0.0 &&
         d.score > 0.0) {
       const BoxExtent box = BoxExtentOf(object.icp_cloud());

@@ -147,7 +147,8 @@ struct RefineVerifyOptions {
 /// Refines `X_BaseItem` with ICP (when `refine`) and scores it with Verify (or with the ICP
 /// fitness when the context has no camera), turning a box or cylinder pose to the symmetric
 /// turn whose appearance fits best. Fills every Detection field but the timings of the
-/// estimation stage. Throws as RunIcp / Verify.
+/// estimation stage; the score is the support's alone, for the search to rank by (Finish
+/// scales it by Detection::outline_factor). Throws as RunIcp / Verify.
 Detection RefineAndVerify(const LoadedModel& model, SceneContext& context, Method method,
                           const Eigen::Isometry3d& X_BaseItem, bool refine,
                           const RefineVerifyOptions& options = {});

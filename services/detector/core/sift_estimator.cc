@@ -11,6 +11,7 @@ namespace picking::detector {
 
 using estimator_stages::CheckInput;
 using estimator_stages::Clock;
+using estimator_stages::Finish;
 using estimator_stages::SecondsSince;
 
 SiftPoseEstimator::SiftPoseEstimator(std::shared_ptr<const ModelLibrary> library,
@@ -54,8 +55,7 @@ std::vector<Detection> SiftPoseEstimator::Estimate(const EstimatorInput& input) 
   context_->CheckDeadline();
   Detection d = RefineAndVerify(*model, *context_, Method::kSift, r.X_BaseItem, true, refine_);
   d.timings.estimate_s = estimate_s;
-  d.timings.total_s = SecondsSince(start);
-  return {d};
+  return Finish({d}, refine_, start);
 }
 
 }  // namespace picking::detector

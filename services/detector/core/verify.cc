@@ -170,6 +170,14 @@ void CheckVerifyInputs(const geometry::PointCloud& model, const VerifyOptions& o
     throw std::invalid_argument("Verify: the model's albedo (intensities) has " +
                                 std::to_string(model.intensities.size()) + " entries for " +
                                 std::to_string(model.size()) + " points");
+  if (!(options.outline_distance_m > 0.0 && options.outline_margin_m > 0.0))
+    throw std::invalid_argument("Verify: outline_distance_m and outline_margin_m must be > 0");
+  if (!(options.outline_prior >= 0.0 && options.outline_prior <= 1.0 &&
+        options.outline_prior_samples >= 0.0 && options.outline_free_fraction >= 0.0 &&
+        options.outline_free_fraction < 1.0))
+    throw std::invalid_argument(
+        "Verify: outline_prior must be in [0, 1], outline_prior_samples >= 0 and "
+        "outline_free_fraction in [0, 1)");
   options.appearance.Validate();
   if (!(options.appearance_contradiction_scale >= 0.0 &&
         options.appearance_contradiction_scale <= 1.0))
@@ -304,6 +312,98 @@ void MarkSensorVisibility(const VerificationScene& scene, std::size_t k,
   }
 }
 
+// The model's silhouette in one sensor with the gaps between its splats closed: the splats'
+// footprint (`zbuf` finite over `box`) dilated by `radius` pixels, over `box` grown by
+// `radius` on every side.
+class Silhouette {
+ public:
+  Silhouette(const PixelBox& box, const std::vector<float>& zbuf, int radius)
+      : box_{box.u0 - radius, box.v0 - radius, box.u1 + radius, box.v1 + radius} {
+    // Grown pixel (x, y) is footprint pixel (x - radius, y - radius): it is inside when a splat
+    // covers a footprint pixel (i, j) with i in [x - 2 radius, x], j in [y - 2 radius, y].
+    const int bw = box.width(), bh = box.height();
+    const int w = box_.width(), h = box_.height(), span = 2 * radius + 1;
+    std::vector<std::uint8_t> rows(static_cast<std::size_t>(w) * bh, 0);  // along rows first
+    for (int j = 0; j < bh; ++j) {
+      const float* z = &zbuf[static_cast<std::size_t>(j) * bw];
+      int count = 0;
+      for (int x = 0; x < w; ++x) {
+        if (x < bw && std::isfinite(z[x])) ++count;
+        if (x - span >= 0 && x - span < bw && std::isfinite(z[x - span])) --count;
+        rows[static_cast<std::size_t>(j) * w + x] = count > 0;
+      }
+    }
+    mask_.assign(static_cast<std::size_t>(w) * h, 0);  // then along columns
+    for (int x = 0; x < w; ++x) {
+      int count = 0;
+      for (int y = 0; y < h; ++y) {
+        if (y < bh && rows[static_cast<std::size_t>(y) * w + x]) ++count;
+        if (y - span >= 0 && y - span < bh && rows[static_cast<std::size_t>(y - span) * w + x])
+          --count;
+        mask_[static_cast<std::size_t>(y) * w + x] = count > 0;
+      }
+    }
+  }
+  bool Inside(int u, int v) const {
+    if (u < box_.u0 || v < box_.v0 || u > box_.u1 || v > box_.v1) return false;
+    return mask_[static_cast<std::size_t>(v - box_.v0) * box_.width() + (u - box_.u0)] != 0;
+  }
+
+ private:
+  PixelBox box_;
+  std::vector<std::uint8_t> mask_;
+};
+
+// The scene just past the model's silhouette in the reference sensor (its z-buffer `zbuf` over
+// `box`, splatted from `front`): from each splat on the silhouette, a step of
+// options.outline_distance_m outward in each direction that leaves the silhouette, where the
+// measured depth is compared with the model's depth carried on linearly across the edge.
+// Counts into result's num_outline (measured, not in front) and num_outline_continued (within
+// outline_margin_m of the carried-on surface). Visits the splats, not the footprint's pixels:
+// a few thousand look-ups per pose.
+void CountOutline(const VerificationScene& scene, const std::vector<Projected>& front,
+                  const PixelBox& box, const std::vector<float>& zbuf, double spacing,
+                  const VerifyOptions& options, VerifyResult* result) {
+  const float fx = static_cast<float>(scene.camera().fx());
+  // The splats of a random surface sample (and their radius is capped) leave holes between
+  // them up to about the sample's spacing: the silhouette closes them.
+  float nearest_z = std::numeric_limits<float>::infinity();
+  for (const Projected& pr : front) nearest_z = std::min(nearest_z, pr.z);
+  const int gap = std::clamp(static_cast<int>(std::ceil(fx * spacing / nearest_z)), 1, 32);
+  const Silhouette silhouette(box, zbuf, gap);
+  const int zw = box.width();
+  const auto model_z = [&](int u, int v) {
+    if (u < box.u0 || v < box.v0 || u > box.u1 || v > box.v1) return kNaN;
+    const float z = zbuf[static_cast<std::size_t>(v - box.v0) * zw + (u - box.u0)];
+    return std::isfinite(z) ? z : kNaN;
+  };
+  const float margin = static_cast<float>(options.outline_margin_m);
+  constexpr int kSteps[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+  for (const Projected& pr : front) {
+    const float z = model_z(pr.u, pr.v);
+    if (!(z >= pr.z - margin)) continue;  // hidden behind the model's own surface
+    const int step =
+        std::max(2, static_cast<int>(std::lround(fx * options.outline_distance_m / z)));
+    for (const auto& d : kSteps) {
+      // On the silhouette this way: just past the splat and its gap lies no model.
+      const int edge = pr.r + gap + 1;
+      if (silhouette.Inside(pr.u + edge * d[0], pr.v + edge * d[1])) continue;
+      const int uo = pr.u + (edge + step) * d[0], vo = pr.v + (edge + step) * d[1];
+      if (silhouette.Inside(uo, vo)) continue;  // the silhouette again
+      const float measured = scene.DepthAt(uo, vo, 0);
+      if (!std::isfinite(measured)) continue;
+      if (measured < z - margin) {
+        ++result->num_outline_hidden;
+        continue;
+      }
+      const float inner = model_z(pr.u - step * d[0], pr.v - step * d[1]);
+      const float carried = std::isfinite(inner) ? z + (z - inner) * (edge + step) / step : z;
+      ++result->num_outline;
+      if (std::abs(measured - carried) <= margin) ++result->num_outline_continued;
+    }
+  }
+}
+
 // Per point of `sub` (reference sensor frame), the kVisible... flags over all sensors
 // (X_ReferenceSensor: each sensor's pose in the reference sensor's frame). Back-face culling
 // and a splat z-buffer of the model itself give the points a sensor would see; what it
@@ -311,7 +411,8 @@ void MarkSensorVisibility(const VerificationScene& scene, std::size_t k,
 // them) or lie in free space (the sensor saw beyond them).
 std::vector<std::uint8_t> ClassifyVisibility(
     const VerificationScene& scene, const std::vector<Eigen::Isometry3f>& X_ReferenceSensor,
-    const geometry::PointCloud& sub, double spacing, const VerifyOptions& options) {
+    const geometry::PointCloud& sub, double spacing, const VerifyOptions& options,
+    VerifyResult* result) {
   const float self_tolerance = static_cast<float>(std::max(2.0 * spacing, 0.002));
   std::vector<std::uint8_t> state(sub.size(), 0);
   std::vector<Projected> front;
@@ -323,6 +424,7 @@ std::vector<std::uint8_t> ClassifyVisibility(
     if (front.empty()) continue;
     SplatModelDepth(front, box, &zbuf);
     MarkSensorVisibility(scene, k, front, box, zbuf, self_tolerance, options, &state);
+    if (k == 0) CountOutline(scene, front, box, zbuf, spacing, options, result);
   }
   return state;
 }
@@ -401,17 +503,27 @@ double CountSupport(const geometry::PointCloud& sub, const std::vector<std::uint
   return sum_sq;
 }
 
-// The score and conflict fraction from result's counts, when enough unoccluded points are
-// visible (else both stay 0).
+// The scores and conflict fraction from result's counts, when enough unoccluded points are
+// visible (else they stay 0): the support's, and that scaled by the outline's factor.
 void ScoreSupport(const VerifyOptions& options, VerifyResult* verify_result) {
   VerifyResult& result = *verify_result;
+  const double samples = static_cast<double>(result.num_outline) + options.outline_prior_samples;
+  const double continued = samples > 0.0 ? (static_cast<double>(result.num_outline_continued) +
+                                            options.outline_prior_samples * options.outline_prior) /
+                                               samples
+                                         : 0.0;
+  result.outline_factor =
+      options.outline_check
+          ? std::clamp((1.0 - continued) / (1.0 - options.outline_free_fraction), 0.0, 1.0)
+          : 1.0;
   const std::size_t considered = result.num_visible - result.num_occluded;
   if (considered >= static_cast<std::size_t>(std::max(1, options.min_visible_points))) {
-    result.score =
+    result.support_score =
         std::clamp((static_cast<double>(result.num_supported) -
                     options.conflict_weight * static_cast<double>(result.num_conflicts)) /
                        static_cast<double>(considered),
                    0.0, 1.0);
+    result.score = result.support_score * result.outline_factor;
     result.conflict_fraction =
         static_cast<double>(result.num_conflicts) / static_cast<double>(considered);
   }
@@ -546,7 +658,7 @@ VerifyResult Verify(const VerificationScene& scene, const geometry::PointCloud& 
 
   // Per sensor: which model points it would see, and whether they are hidden or in free space.
   const std::vector<std::uint8_t> state =
-      ClassifyVisibility(scene, impl.X_ReferenceSensor, sub, spacing, options);
+      ClassifyVisibility(scene, impl.X_ReferenceSensor, sub, spacing, options, &result);
   // Support of the visible points, with their appearance samples.
   const bool appearance = sub.has_intensities() && !impl.intensities.empty();
   MatchedSamples matched;

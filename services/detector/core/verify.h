@@ -75,6 +75,21 @@ struct VerifyOptions {
   /// Each conflict cancels this many supported points in the score: a surface the sensor
   /// saw through is strong evidence against the pose.
   double conflict_weight = 1.0;
+  /// The outline: the reference sensor's measured depth this far outside the model's drawn
+  /// silhouette (metres, > 0) is compared with the model's surface carried on across the
+  /// silhouette; within outline_margin_m (> 0) of it, the scene's surface continues past the
+  /// model's edge (VerifyResult::num_outline_continued). An item shows that along the edges it
+  /// stands on or touches a neighbour by; a pose laid into a larger surface (a box on a face of
+  /// a bigger one, an item sunk into the table) shows it all round. The continued fraction,
+  /// drawn towards outline_prior by outline_prior_samples samples (a few samples say little),
+  /// scales the score by 1 above outline_free_fraction down to 0 at 1 (outline_factor).
+  /// false: the outline is measured but leaves the score as it is.
+  bool outline_check = true;
+  double outline_distance_m = 0.01;
+  double outline_margin_m = 0.01;
+  double outline_prior = 0.3;          ///< In [0, 1].
+  double outline_prior_samples = 8.0;  ///< >= 0.
+  double outline_free_fraction = 0.5;  ///< In [0, 1).
   /// Model points are subsampled (deterministic stride) to at most this many.
   int max_model_points = 4000;
   /// Fewer unoccluded visible points than this gives score 0.
@@ -99,8 +114,12 @@ struct VerifyOptions {
 };
 
 struct VerifyResult {
-  /// (supported - conflict_weight * conflicts) / (visible - occluded), clamped to [0, 1].
+  /// support_score times outline_factor.
   double score = 0.0;
+  /// (supported - conflict_weight * conflicts) / (visible - occluded), clamped to [0, 1].
+  double support_score = 0.0;
+  /// What the scene past the silhouette leaves of the score, [0, 1] (VerifyOptions::outline_...).
+  double outline_factor = 1.0;
   std::size_t num_model_points = 0;  ///< After subsampling.
   /// Facing a sensor, in its image and not hidden by the model itself there.
   std::size_t num_visible = 0;
@@ -110,6 +129,13 @@ struct VerifyResult {
   std::size_t num_conflicts = 0;   ///< Visible points in free space a sensor measured.
   double conflict_fraction = 0.0;  ///< num_conflicts / (num_visible - num_occluded).
   double inlier_rmse_m = 0.0;      ///< RMS distance of the supported points to the scene.
+  /// Samples just outside the model's silhouette in the reference sensor where it measured a
+  /// depth not in front of the model (an occluder there says nothing), and of those the ones
+  /// where the scene's surface continues the model's (the rest drop away behind it).
+  std::size_t num_outline = 0;
+  std::size_t num_outline_continued = 0;
+  /// Samples past the silhouette where the sensor measured a surface in front of the model.
+  std::size_t num_outline_hidden = 0;
   /// Model albedo against scene intensity over the supported points (not defined without
   /// albedo, scene intensities or texture contrast).
   AppearanceScore appearance;

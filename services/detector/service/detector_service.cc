@@ -197,6 +197,8 @@ void FillDetection(const Detection& d, double shared_preprocess_s, pb::Detection
   out->set_occluded_points(static_cast<std::uint32_t>(d.occluded_points));
   out->set_supported_points(static_cast<std::uint32_t>(d.supported_points));
   out->set_conflict_points(static_cast<std::uint32_t>(d.conflict_points));
+  out->set_outline_points(static_cast<std::uint32_t>(d.outline_points));
+  out->set_outline_continued_points(static_cast<std::uint32_t>(d.outline_continued));
   out->set_method(ToProto(d.method));
   out->set_fitness(d.fitness);
   out->set_inlier_rmse_m(d.inlier_rmse_m);
@@ -320,6 +322,9 @@ class DetectorServiceImpl final : public pb::DetectorService::Service {
           static_cast<std::uint32_t>(r.num_visible - r.num_occluded));
       response->set_supported_model_points(static_cast<std::uint32_t>(r.num_supported));
       response->set_conflicting_model_points(static_cast<std::uint32_t>(r.num_conflicts));
+      response->set_outline_points(static_cast<std::uint32_t>(r.num_outline));
+      response->set_outline_continued_points(static_cast<std::uint32_t>(r.num_outline_continued));
+      response->set_outline_factor(r.outline_factor);
       return grpc::Status::OK;
     });
   }

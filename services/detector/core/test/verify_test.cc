@@ -108,6 +108,49 @@ TEST_F(VerifyTest, AbsentObjectScoresNearZero) {
   EXPECT_GT(hidden.num_occluded, 0u);
 }
 
+// A thin card posed flush with the floor, where no card is: the floor supports every point of
+// its face, but the floor's surface runs on past its outline all round, as it does not past
+// the real box's (which drops 3 cm to the floor). The outline scales the card's score down.
+TEST_F(VerifyTest, APoseLaidIntoALargerSurfaceIsScaledDownByItsOutline) {
+  const VerificationScene scene(scene_, X_BaseSensor_, camera_);
+  const VerifyResult real = Verify(scene, model_, X_BaseItem_);
+  EXPECT_GT(real.num_outline, 20u);
+  EXPECT_LT(real.num_outline_continued, real.num_outline / 4);
+  EXPECT_DOUBLE_EQ(real.outline_factor, 1.0);
+  EXPECT_DOUBLE_EQ(real.score, real.support_score);
+
+  const geometry::PointCloud card = SampleMeshSurface(BoxMesh({0.06f, 0.04f, 0.004f}), 0.0015, 5);
+  const Eigen::Isometry3d X_BaseCard(Eigen::Translation3d(-0.12, 0.08, -0.002));
+  const VerifyResult laid = Verify(scene, card, X_BaseCard);
+  EXPECT_GT(laid.support_score, 0.8);  // every visible point lies on the floor
+  EXPECT_GT(laid.num_outline, 20u);
+  EXPECT_GT(laid.num_outline_continued, laid.num_outline * 9 / 10);
+  EXPECT_LT(laid.outline_factor, 0.3);
+  EXPECT_LT(laid.score, 0.3);
+
+  // Switched off, the outline is still measured but leaves the score as it is.
+  VerifyOptions unchecked;
+  unchecked.outline_check = false;
+  const VerifyResult kept = Verify(scene, card, X_BaseCard, unchecked);
+  EXPECT_EQ(kept.num_outline, laid.num_outline);
+  EXPECT_DOUBLE_EQ(kept.outline_factor, 1.0);
+  EXPECT_DOUBLE_EQ(kept.score, laid.support_score);
+}
+
+// A pose whose outline the sensor did not measure (a cropped region: nothing around it) keeps
+// its score: the outline's prior alone leaves the factor at 1.
+TEST_F(VerifyTest, AnOutlineWithoutMeasurementsLeavesTheScore) {
+  geometry::PointCloud cropped = scene_;
+  for (auto& p : cropped.points) {
+    if (p.allFinite() && p.z() < 0.003f) p.setConstant(kNaN);  // the floor cut away
+  }
+  const VerificationScene scene(cropped, X_BaseSensor_, camera_);
+  const VerifyResult r = Verify(scene, model_, X_BaseItem_);
+  EXPECT_EQ(r.num_outline, 0u);
+  EXPECT_DOUBLE_EQ(r.outline_factor, 1.0);
+  EXPECT_GT(r.score, 0.8);
+}
+
 TEST_F(VerifyTest, RejectsBadInput) {
   geometry::PointCloud all_nan = scene_;
   for (auto& p : all_nan.points) p.setConstant(kNaN);
@@ -116,6 +159,15 @@ TEST_F(VerifyTest, RejectsBadInput) {
   geometry::PointCloud no_normals = model_;
   no_normals.normals.clear();
   EXPECT_THROW(Verify(scene, no_normals, X_BaseItem_), std::invalid_argument);
+  VerifyOptions bad;
+  bad.outline_distance_m = 0.0;
+  EXPECT_THROW(Verify(scene, model_, X_BaseItem_, bad), std::invalid_argument);
+  bad = VerifyOptions();
+  bad.outline_free_fraction = 1.0;
+  EXPECT_THROW(Verify(scene, model_, X_BaseItem_, bad), std::invalid_argument);
+  bad = VerifyOptions();
+  bad.outline_prior = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(Verify(scene, model_, X_BaseItem_, bad), std::invalid_argument);
 }
 
 // The same box scanned from a second sensor position on its other side (0.4 m along x,
