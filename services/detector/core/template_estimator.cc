@@ -1,7 +1,11 @@
 // RangeTemplateEstimator: range image templates aligned to the scene's clusters.
 #include "services/detector/core/estimators.h"
 
+#include <cmath>
+#include <iomanip>
+#include <sstream>
 #include <stdexcept>
+#include <string>
 #include <utility>
 
 #include "services/detector/core/estimator_stages.h"
@@ -12,6 +16,31 @@ using estimator_stages::CheckInput;
 using estimator_stages::Clock;
 using estimator_stages::Finish;
 using estimator_stages::SecondsSince;
+
+namespace {
+
+// Why a template search matched nothing, in numbers a person can act on: the clusters it could
+// not use, those it searched, and how far the best of them missed the accepted cost.
+std::string NoMatchReason(const TemplateSearchReport& seen, const TemplateMatchOptions& options) {
+  std::ostringstream why;
+  why << "no template matched any of the " << seen.clusters << " clusters (";
+  if (seen.implausible_clusters > 0) {
+    why << seen.implausible_clusters << " too small or of a size implausible for the item, ";
+  }
+  why << seen.searched_clusters << " searched";
+  if (std::isfinite(seen.best_rejected_cost_m)) {
+    why << "; the best fit left a mean range residual of " << std::fixed << std::setprecision(1)
+        << 1e3 * seen.best_rejected_cost_m << " mm, above the " << 1e3 * options.max_cost_m
+        << " mm accepted";
+  }
+  if (seen.searched_clusters + seen.implausible_clusters < seen.clusters) {
+    why << "; the time budget ended the search";
+  }
+  why << ")";
+  return why.str();
+}
+
+}  // namespace
 
 RangeTemplateEstimator::RangeTemplateEstimator(std::shared_ptr<const ModelLibrary> library,
                                                std::shared_ptr<SceneContext> context,
@@ -55,14 +84,12 @@ std::vector<Detection> RangeTemplateEstimator::Estimate(const EstimatorInput& in
   TemplateMatchOptions match = match_;
   match.deadline = std::min(match.deadline, input.budget_end);
   match.clock = input.clock;  // the budget's; a configured deadline is judged on it too
+  TemplateSearchReport seen;
   const std::vector<TemplateMatch> matches =
       MatchTemplates(*model->templates, clusters.cloud, clusters.clusters, context_->X_BaseSensor(),
-                     *context_->camera(), match);
+                     *context_->camera(), match, &seen);
   const double estimate_s = SecondsSince(estimate_start);
-  if (matches.empty()) {
-    throw NoCandidateError("no template matched any of the " +
-                           std::to_string(clusters.clusters.size()) + " clusters");
-  }
+  if (matches.empty()) throw NoCandidateError(NoMatchReason(seen, match));
   std::vector<Detection> out;
   for (const TemplateMatch& m : matches) {
     context_->CheckDeadline();

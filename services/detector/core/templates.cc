@@ -485,8 +485,11 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const std::vector<std::vector<int>>& clusters,
                                           const Eigen::Isometry3d& X_BaseSensor,
                                           const PinholeCamera& camera,
-                                          const TemplateMatchOptions& options) {
+                                          const TemplateMatchOptions& options,
+                                          TemplateSearchReport* report) {
   ValidateMatchOptions(options);
+  TemplateSearchReport seen;
+  seen.clusters = static_cast<int>(clusters.size());
   const Eigen::Isometry3d X_SensorBase = X_BaseSensor.inverse();
   const Eigen::Isometry3f X_SensorBase_f = X_SensorBase.cast<float>();
   const RangeImage scene_depth = RenderSceneDepth(scene, X_SensorBase_f, camera);
@@ -496,16 +499,22 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
   std::vector<TemplateMatch> matches;
   for (std::size_t c = 0; c < clusters.size(); ++c) {
     PointCloud cluster = GatherCluster(scene, clusters[c], c, X_SensorBase_f);
-    if (cluster.points.size() < 10) continue;
     if (options.clock.Now() > options.deadline) break;
-    if (!HasPlausibleExtent(cluster.points, templates.diameter_m(), options)) continue;
+    if (cluster.points.size() < 10 ||
+        !HasPlausibleExtent(cluster.points, templates.diameter_m(), options)) {
+      ++seen.implausible_clusters;
+      continue;
+    }
     const Eigen::Vector3f closest = ClosestToSensor(cluster.points);
     ThinEvenly(options.max_target_points, &cluster.points);
     cluster.width = static_cast<std::uint32_t>(cluster.points.size());
     NormalOptions normal_options;  // viewpoint: the sensor origin
     cluster = EstimateNormals(cluster, normal_options);
     const PointCloud target = WithFiniteNormals(cluster);  // for ICP
-    if (target.size() < 10) continue;
+    if (target.size() < 10) {
+      ++seen.implausible_clusters;
+      continue;
+    }
     const KdTree tree(target.points);
     const std::vector<Eigen::Vector3f> samples = SampleCluster(cluster, options.max_cluster_points);
     const CostInputs cost_inputs{templates.camera(), scene_depth, camera, samples, tau};
@@ -517,12 +526,18 @@ std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
     const IcpTarget icp_target{target, tree};
     TemplateMatch best = RefineHypotheses(all, coarse.hypotheses, keep, icp_target, cost_inputs,
                                           X_BaseSensor, c, options);
-    if (!(best.cost_m < options.max_cost_m)) continue;
+    ++seen.searched_clusters;
+    if (!(best.cost_m < options.max_cost_m)) {
+      if (std::isfinite(best.cost_m))
+        seen.best_rejected_cost_m = std::min(seen.best_rejected_cost_m, best.cost_m);
+      continue;
+    }
     RefineOnModel(templates.model(), icp_target, X_BaseSensor, X_SensorBase, options, &best);
     matches.push_back(best);
   }
   std::sort(matches.begin(), matches.end(),
             [](const TemplateMatch& a, const TemplateMatch& b) { return a.cost_m < b.cost_m; });
+  if (report != nullptr) *report = seen;
   return matches;
 }
 

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "libs/geometry/point_cloud.h"
@@ -131,6 +132,16 @@ struct TemplateMatch {
   double inlier_rmse_m = 0.0;
 };
 
+/// What a template search saw, for saying why it matched nothing.
+struct TemplateSearchReport {
+  int clusters = 0;  ///< Clusters in the scene.
+  /// Skipped: too few points (with normals) or a size implausible for the item.
+  int implausible_clusters = 0;
+  int searched_clusters = 0;  ///< Searched to the end.
+  /// The lowest cost of a cluster's best hypothesis above max_cost_m (metres; infinity: none).
+  double best_rejected_cost_m = std::numeric_limits<double>::infinity();
+};
+
 /// Aligns every template to every cluster of the scene: rotated so its view direction is the
 /// ray to the cluster's closest point (with `in_plane_steps` rotations about it), translated so
 /// the template's closest point lies on the cluster's closest point, scored by the two-way
@@ -138,13 +149,15 @@ struct TemplateMatch {
 /// the template's range image); the best hypotheses are refined by point-to-plane ICP on the
 /// cluster and rescored. Returns matches below max_cost_m, best first (at most one per
 /// cluster). `scene` is in the base frame; `clusters` index its points. Clusters of an
-/// implausible size for the item are skipped (see TemplateMatchOptions).
+/// implausible size for the item are skipped (see TemplateMatchOptions). `report`, when given,
+/// receives what the search saw.
 /// Throws std::invalid_argument on bad options or a bad cluster index.
 std::vector<TemplateMatch> MatchTemplates(const RangeTemplateSet& templates,
                                           const geometry::PointCloud& scene,
                                           const std::vector<std::vector<int>>& clusters,
                                           const Eigen::Isometry3d& X_BaseSensor,
                                           const PinholeCamera& camera,
-                                          const TemplateMatchOptions& options = {});
+                                          const TemplateMatchOptions& options = {},
+                                          TemplateSearchReport* report = nullptr);
 
 }  // namespace picking::detector

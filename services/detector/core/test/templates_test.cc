@@ -235,15 +235,24 @@ TEST(RangeTemplateMatchTest, NoMatchOnFlatClutter) {
   auto clusters = EuclideanClusters(without_floor.cloud, cluster_options);
   ASSERT_FALSE(clusters.empty());
   // The slab is too large for the box and skipped by default; matched anyway, no template
-  // explains it.
-  EXPECT_TRUE(
-      MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor, scene.camera)
-          .empty());
+  // explains it. The report says which, and how far the best fit missed.
+  TemplateSearchReport skipped;
+  EXPECT_TRUE(MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor,
+                             scene.camera, {}, &skipped)
+                  .empty());
+  EXPECT_EQ(skipped.clusters, static_cast<int>(clusters.size()));
+  EXPECT_EQ(skipped.implausible_clusters, skipped.clusters);
+  EXPECT_EQ(skipped.searched_clusters, 0);
+  EXPECT_FALSE(std::isfinite(skipped.best_rejected_cost_m));
   TemplateMatchOptions any_size;
   any_size.max_cluster_extent_rel = 100.0;
+  TemplateSearchReport searched;
   EXPECT_TRUE(MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor,
-                             scene.camera, any_size)
+                             scene.camera, any_size, &searched)
                   .empty());
+  EXPECT_GE(searched.searched_clusters, 1);
+  EXPECT_GE(searched.best_rejected_cost_m, any_size.max_cost_m);
+  EXPECT_TRUE(std::isfinite(searched.best_rejected_cost_m));
   clusters[0].push_back(-1);
   EXPECT_THROW(
       MatchTemplates(templates, without_floor.cloud, clusters, scene.X_BaseSensor, scene.camera),
