@@ -9,6 +9,9 @@
 #include <string>
 #include <vector>
 
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include "libs/parallel/parallel_for.h"
 #include "services/detector/core/kdtree.h"
 
@@ -318,40 +321,24 @@ void MarkSensorVisibility(const VerificationScene& scene, std::size_t k,
 class Silhouette {
  public:
   Silhouette(const PixelBox& box, const std::vector<float>& zbuf, int radius)
-      : box_{box.u0 - radius, box.v0 - radius, box.u1 + radius, box.v1 + radius} {
-    // Grown pixel (x, y) is footprint pixel (x - radius, y - radius): it is inside when a splat
-    // covers a footprint pixel (i, j) with i in [x - 2 radius, x], j in [y - 2 radius, y].
-    const int bw = box.width(), bh = box.height();
-    const int w = box_.width(), h = box_.height(), span = 2 * radius + 1;
-    std::vector<std::uint8_t> rows(static_cast<std::size_t>(w) * bh, 0);  // along rows first
-    for (int j = 0; j < bh; ++j) {
-      const float* z = &zbuf[static_cast<std::size_t>(j) * bw];
-      int count = 0;
-      for (int x = 0; x < w; ++x) {
-        if (x < bw && std::isfinite(z[x])) ++count;
-        if (x - span >= 0 && x - span < bw && std::isfinite(z[x - span])) --count;
-        rows[static_cast<std::size_t>(j) * w + x] = count > 0;
-      }
-    }
-    mask_.assign(static_cast<std::size_t>(w) * h, 0);  // then along columns
-    for (int x = 0; x < w; ++x) {
-      int count = 0;
-      for (int y = 0; y < h; ++y) {
-        if (y < bh && rows[static_cast<std::size_t>(y) * w + x]) ++count;
-        if (y - span >= 0 && y - span < bh && rows[static_cast<std::size_t>(y - span) * w + x])
-          --count;
-        mask_[static_cast<std::size_t>(y) * w + x] = count > 0;
-      }
-    }
+      : box_{box.u0 - radius, box.v0 - radius, box.u1 + radius, box.v1 + radius},
+        mask_(box_.height(), box_.width(), CV_8U, cv::Scalar(0)) {
+    const cv::Mat footprint(box.height(), box.width(), CV_32F,
+                            const_cast<float*>(zbuf.data()));  // read only
+    // +inf where no splat covers a pixel.
+    const cv::Mat splatted = footprint < std::numeric_limits<float>::infinity();
+    splatted.copyTo(mask_(cv::Rect(radius, radius, box.width(), box.height())));
+    cv::dilate(mask_, mask_,
+               cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius + 1, 2 * radius + 1)));
   }
   bool Inside(int u, int v) const {
     if (u < box_.u0 || v < box_.v0 || u > box_.u1 || v > box_.v1) return false;
-    return mask_[static_cast<std::size_t>(v - box_.v0) * box_.width() + (u - box_.u0)] != 0;
+    return mask_.at<std::uint8_t>(v - box_.v0, u - box_.u0) != 0;
   }
 
  private:
   PixelBox box_;
-  std::vector<std::uint8_t> mask_;
+  cv::Mat mask_;
 };
 
 // The scene just past the model's silhouette in the reference sensor (its z-buffer `zbuf` over
