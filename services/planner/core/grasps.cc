@@ -634,6 +634,45 @@ std::optional<SuctionPoint> TowardTheOpening(const SuctionPoint& point, const It
   return moved;
 }
 
+// The face-centre point (as TowardTheOpening takes it) moved to the corners of the face's
+// front edge, as far as the cup stays on the face by the margin: where a neighbour stands
+// over the middle of a flat item's front edge, or the wrist cannot stand over it, one of
+// its front corners may still be reached. Corners whose shift leans less than about 70
+// degrees toward the opening are not front corners.
+std::vector<SuctionPoint> OpeningCorners(const SuctionPoint& point, const ItemGrasps& grasps,
+                                         const Eigen::Vector3d& opening_Item, double cup_radius_m,
+                                         const GraspOptions& options) {
+  std::vector<SuctionPoint> corners;
+  if (!TowardTheOpening(point, grasps, opening_Item, cup_radius_m, options)) return corners;
+  int i = 0;
+  point.approach_Item.cwiseAbs().maxCoeff(&i);
+  const int j = (i + 1) % 3, k = (i + 2) % 3;
+  Eigen::Vector3d across = opening_Item;
+  across[i] = 0.0;
+  across.normalize();
+  constexpr double kFrontCos = 0.35;
+  const Eigen::Vector3d& size = grasps.size_m;
+  const double room_j = size[j] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
+  const double room_k = size[k] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
+  if (!(room_j >= options.min_shift_toward_opening_m) ||
+      !(room_k >= options.min_shift_toward_opening_m)) {
+    return corners;
+  }
+  for (const double sj : {-1.0, 1.0}) {
+    for (const double sk : {-1.0, 1.0}) {
+      Eigen::Vector3d shift = Eigen::Vector3d::Zero();
+      shift[j] = sj * room_j;
+      shift[k] = sk * room_k;
+      if (shift.normalized().dot(across) < kFrontCos) continue;
+      SuctionPoint corner = point;
+      corner.name = point.name + ", front corner " + Signed(sj, j) + Signed(sk, k);
+      corner.p_ItemPoint += shift;
+      corners.push_back(std::move(corner));
+    }
+  }
+  return corners;
+}
+
 // The free distance behind the point along -approach (the options' callback, else the
 // container's walls), clamped to [0, max_clearance_m].
 double Clearance(const GraspContainer& container, const Eigen::Vector3d& p_BasePoint,
@@ -751,6 +790,10 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
     if (auto moved = TowardTheOpening(grasps.points[index], grasps, opening_Item,
                                       table.cup_diameter_m() / 2.0, options)) {
       points.emplace_back(std::move(*moved), static_cast<int>(index));
+    }
+    for (auto& corner : OpeningCorners(grasps.points[index], grasps, opening_Item,
+                                       table.cup_diameter_m() / 2.0, options)) {
+      points.emplace_back(std::move(corner), static_cast<int>(index));
     }
   }
   for (const auto& [point, point_index] : points) {

@@ -15,6 +15,7 @@
 #include <limits>
 #include <map>
 #include <random>
+#include <set>
 #include <sstream>
 #include <tuple>
 
@@ -102,7 +103,8 @@ void ExpectConsistent(const GraspResult& result, const std::string& item,
     // The table's point, or (in a shelf bin) that point moved across its face toward the
     // opening: in the face's plane, the cup on the face.
     Eigen::Vector3d p_ItemPoint = point.p_ItemPoint;
-    if (c.surface == point.name + ", toward the opening") {
+    if (c.surface == point.name + ", toward the opening" ||
+        c.surface.rfind(point.name + ", front corner ", 0) == 0) {
       EXPECT_EQ(container.kind, GraspContainerKind::kShelfBin);
       p_ItemPoint = X_BaseItem.inverse() * c.p_BasePoint;
       EXPECT_NEAR((p_ItemPoint - point.p_ItemPoint).dot(point.approach_Item), 0.0, 1e-9);
@@ -524,7 +526,8 @@ TEST(ComputeGraspsTest, FlatItemInABinIsTakenFromAboveOnlyWithinTheSealTolerance
 }
 
 // A flat item lying deep in a bin is also offered its top face's point nearest the opening
-// that keeps the whole cup (and the margin) on the face; the centre still ranks first.
+// that keeps the whole cup (and the margin) on the face, and the front edge's corners; the
+// centre still ranks first.
 TEST(ComputeGraspsTest, ATopFaceIsAlsoOfferedNearTheOpening) {
   const Fixture& f = F();
   const std::string item = "cherokee_easy_tee_shirt";
@@ -557,17 +560,36 @@ TEST(ComputeGraspsTest, ATopFaceIsAlsoOfferedNearTheOpening) {
   const Eigen::Vector3d across =
       (o - o.dot(X_BaseItem.linear().col(2)) * X_BaseItem.linear().col(2)).normalized();
   EXPECT_NEAR(shift.normalized().dot(across), 1.0, 1e-9);
+  // The front edge's two corners too, each the margin inside both edges, below the centre.
+  std::set<std::string> corners;
+  for (const GraspCandidate& c : result.candidates) {
+    if (c.surface.rfind("+z face, front corner ", 0) != 0) continue;
+    corners.insert(c.surface);
+    EXPECT_LT(c.score.total, centre->score.total) << c.surface;
+    const Eigen::Vector3d p_Corner = X_BaseItem.inverse() * c.p_BasePoint;
+    EXPECT_NEAR(p_Corner.z(), size.z() / 2.0, 1e-9);
+    for (int axis = 0; axis < 2; ++axis) {
+      EXPECT_NEAR(size[axis] / 2.0 - std::abs(p_Corner[axis]),
+                  cup_radius_m + options.edge_margin_toward_opening_m, 1e-9)
+          << c.surface;
+    }
+    EXPECT_GT((c.p_BasePoint - centre->p_BasePoint).dot(o), 0.05) << c.surface;
+  }
+  // (Here the other corner lies outside the bin's free box.)
+  EXPECT_EQ(corners.size(), 1u);
   // Off, or in the tote: none.
   GraspOptions off = options;
   off.edge_margin_toward_opening_m = -1.0;
   for (const GraspCandidate& c :
        ComputeGrasps(f.table, item, X_BaseItem, container, off).candidates) {
     EXPECT_EQ(c.surface.find("toward the opening"), std::string::npos);
+    EXPECT_EQ(c.surface.find("front corner"), std::string::npos);
   }
   const GraspContainer tote = ToteContainer(f.cell);
   for (const GraspCandidate& c :
        ComputeGrasps(f.table, item, PlaceInTote(tote, size, 0.3), tote, options).candidates) {
     EXPECT_EQ(c.surface.find("toward the opening"), std::string::npos);
+    EXPECT_EQ(c.surface.find("front corner"), std::string::npos);
   }
 }
 
