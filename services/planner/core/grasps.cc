@@ -598,16 +598,20 @@ std::vector<std::pair<Eigen::Vector3d, double>> Approaches(const Eigen::Vector3d
 }
 
 // The point at the centre of a box face moved across the face toward the opening
-// (opening_Item, the item frame) as far as the cup stays on the face by the margin; nothing
-// for a point that is not a face centre listed with the face's full size, a face turned toward
-// the opening, or a shift below the minimum.
-std::optional<SuctionPoint> TowardTheOpening(const SuctionPoint& point, const ItemGrasps& grasps,
-                                             const Eigen::Vector3d& opening_Item,
-                                             double cup_radius_m, const GraspOptions& options) {
-  if (options.edge_margin_toward_opening_m < 0.0) return std::nullopt;
+// (opening_Item, the item frame) as far as the cup stays on the face by the margin, then the
+// same point moved to the corners of the face's front edge: where a neighbour stands over the
+// middle of a flat item's front edge, or the wrist cannot stand over it, one of its front
+// corners may still be reached. Nothing for a point that is not a face centre listed with the
+// face's full size, a face turned toward the opening, or a shift below the minimum; corners
+// whose shift leans less than about 70 degrees toward the opening are not front corners.
+std::vector<SuctionPoint> TowardTheOpening(const SuctionPoint& point, const ItemGrasps& grasps,
+                                           const Eigen::Vector3d& opening_Item, double cup_radius_m,
+                                           const GraspOptions& options) {
+  std::vector<SuctionPoint> moved;
+  if (options.edge_margin_toward_opening_m < 0.0) return moved;
   const Eigen::Vector3d& a = point.approach_Item;
   int i = 0;
-  if (a.cwiseAbs().maxCoeff(&i) < 1.0 - 1e-9) return std::nullopt;  // not along an item axis
+  if (a.cwiseAbs().maxCoeff(&i) < 1.0 - 1e-9) return moved;  // not along an item axis
   const int j = (i + 1) % 3, k = (i + 2) % 3;
   const Eigen::Vector3d& size = grasps.size_m;
   const double tolerance = 1e-3;  // the table's millimetres
@@ -616,61 +620,42 @@ std::optional<SuctionPoint> TowardTheOpening(const SuctionPoint& point, const It
                            std::abs(point.p_ItemPoint[k]) < tolerance;
   const bool whole_face = std::abs(point.face_m.x() - std::max(size[j], size[k])) < tolerance &&
                           std::abs(point.face_m.y() - std::min(size[j], size[k])) < tolerance;
-  if (!face_centre || !whole_face) return std::nullopt;
+  if (!face_centre || !whole_face) return moved;
   Eigen::Vector3d across = opening_Item;
   across[i] = 0.0;
-  if (across.norm() < 0.5) return std::nullopt;  // the face looks toward the opening already
+  if (across.norm() < 0.5) return moved;  // the face looks toward the opening already
   across.normalize();
+  // How far the cup may move from the centre along each of the face's axes.
+  Eigen::Vector3d room = Eigen::Vector3d::Zero();
   double shift_m = std::numeric_limits<double>::infinity();
   for (const int axis : {j, k}) {
+    room[axis] = size[axis] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
     if (std::abs(across[axis]) < 1e-9) continue;
-    const double room_m = size[axis] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
-    shift_m = std::min(shift_m, room_m / std::abs(across[axis]));
+    shift_m = std::min(shift_m, room[axis] / std::abs(across[axis]));
   }
-  if (!(shift_m >= options.min_shift_toward_opening_m)) return std::nullopt;
-  SuctionPoint moved = point;
-  moved.name = point.name + ", toward the opening";
-  moved.p_ItemPoint += shift_m * across;
-  return moved;
-}
-
-// The face-centre point (as TowardTheOpening takes it) moved to the corners of the face's
-// front edge, as far as the cup stays on the face by the margin: where a neighbour stands
-// over the middle of a flat item's front edge, or the wrist cannot stand over it, one of
-// its front corners may still be reached. Corners whose shift leans less than about 70
-// degrees toward the opening are not front corners.
-std::vector<SuctionPoint> OpeningCorners(const SuctionPoint& point, const ItemGrasps& grasps,
-                                         const Eigen::Vector3d& opening_Item, double cup_radius_m,
-                                         const GraspOptions& options) {
-  std::vector<SuctionPoint> corners;
-  if (!TowardTheOpening(point, grasps, opening_Item, cup_radius_m, options)) return corners;
-  int i = 0;
-  point.approach_Item.cwiseAbs().maxCoeff(&i);
-  const int j = (i + 1) % 3, k = (i + 2) % 3;
-  Eigen::Vector3d across = opening_Item;
-  across[i] = 0.0;
-  across.normalize();
+  if (!(shift_m >= options.min_shift_toward_opening_m)) return moved;
+  SuctionPoint front = point;
+  front.name = point.name + ", toward the opening";
+  front.p_ItemPoint += shift_m * across;
+  moved.push_back(std::move(front));
+  if (!(room[j] >= options.min_shift_toward_opening_m) ||
+      !(room[k] >= options.min_shift_toward_opening_m)) {
+    return moved;
+  }
   constexpr double kFrontCos = 0.35;
-  const Eigen::Vector3d& size = grasps.size_m;
-  const double room_j = size[j] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
-  const double room_k = size[k] / 2.0 - cup_radius_m - options.edge_margin_toward_opening_m;
-  if (!(room_j >= options.min_shift_toward_opening_m) ||
-      !(room_k >= options.min_shift_toward_opening_m)) {
-    return corners;
-  }
   for (const double sj : {-1.0, 1.0}) {
     for (const double sk : {-1.0, 1.0}) {
       Eigen::Vector3d shift = Eigen::Vector3d::Zero();
-      shift[j] = sj * room_j;
-      shift[k] = sk * room_k;
+      shift[j] = sj * room[j];
+      shift[k] = sk * room[k];
       if (shift.normalized().dot(across) < kFrontCos) continue;
       SuctionPoint corner = point;
       corner.name = point.name + ", front corner " + Signed(sj, j) + Signed(sk, k);
       corner.p_ItemPoint += shift;
-      corners.push_back(std::move(corner));
+      moved.push_back(std::move(corner));
     }
   }
-  return corners;
+  return moved;
 }
 
 // The free distance behind the point along -approach (the options' callback, else the
@@ -781,19 +766,15 @@ GraspResult ComputeGrasps(const GraspTable& table, const std::string& item,
   const Eigen::Matrix3d R_BaseItem = X_BaseItem.linear();
   int tried = 0;
 
-  // Each listed point, and in a shelf bin its variant moved toward the opening.
+  // Each listed point, and in a shelf bin its variants moved toward the opening.
   std::vector<std::pair<SuctionPoint, int>> points;
   const Eigen::Vector3d opening_Item = R_BaseItem.transpose() * opening;
   for (std::size_t index = 0; index < grasps.points.size(); ++index) {
     points.emplace_back(grasps.points[index], static_cast<int>(index));
     if (container.kind != GraspContainerKind::kShelfBin) continue;
-    if (auto moved = TowardTheOpening(grasps.points[index], grasps, opening_Item,
-                                      table.cup_diameter_m() / 2.0, options)) {
-      points.emplace_back(std::move(*moved), static_cast<int>(index));
-    }
-    for (auto& corner : OpeningCorners(grasps.points[index], grasps, opening_Item,
-                                       table.cup_diameter_m() / 2.0, options)) {
-      points.emplace_back(std::move(corner), static_cast<int>(index));
+    for (auto& moved : TowardTheOpening(grasps.points[index], grasps, opening_Item,
+                                        table.cup_diameter_m() / 2.0, options)) {
+      points.emplace_back(std::move(moved), static_cast<int>(index));
     }
   }
   for (const auto& [point, point_index] : points) {
